@@ -1,0 +1,152 @@
+"""Parameters as frozen dataclasses loaded from TOML.
+
+Every block of the project has one frozen dataclass of parameters. :func:`from_mapping` builds one from a
+TOML table and rejects unknown keys (an ignored key is a silent bug), and :func:`apply_overrides` applies
+dotted ``key=value`` overrides given on the command line. Validation lives in each dataclass's
+``__post_init__`` and raises :class:`~omnirotor.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+from omnirotor.errors import InputError
+
+__all__ = ["load_toml", "from_mapping", "apply_overrides", "check_finite", "check_positive"]
+
+T = TypeVar("T")
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning every I/O or syntax problem into an :class:`InputError`."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a directory, expected a TOML file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+
+
+def _convert(value: Any, tp: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, Mapping):
+            raise InputError(f"{where}: expected a table, got {type(value).__name__}")
+        return from_mapping(tp, value, where)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise InputError(f"{where}: expected a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"{where}: expected an array, got {value!r}")
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(args) != len(value):
+            raise InputError(f"{where}: expected {len(args)} values, got {len(value)}")
+        return tuple(_convert(v, a, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _convert(value, args[0], where)
+    return value
+
+
+def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
+    """Build the frozen dataclass ``cls`` from a mapping, rejecting unknown keys.
+
+    Args:
+        cls: a dataclass type whose fields carry plain annotations (float, int, bool, str, tuples,
+            nested dataclasses).
+        data: the TOML table.
+        where: a location prefix for error messages, e.g. the file name.
+
+    Returns:
+        The dataclass instance; its ``__post_init__`` has validated it.
+    """
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - names)
+    prefix = f"{where}: " if where else ""
+    if unknown:
+        raise InputError(f"{prefix}unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(names))}")
+    kwargs = {k: _convert(v, hints[k], f"{where}.{k}" if where else k) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise InputError(f"{prefix}{exc}") from None
+
+
+def _parse_scalar(text: str) -> Any:
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(obj: T, overrides: list[str]) -> T:
+    """Return a copy of a (nested) frozen dataclass with dotted ``key=value`` overrides applied.
+
+    Values are parsed as TOML (``0.3``, ``[1, 2, 3]``, ``true``); anything else is taken as a string.
+    """
+    for item in overrides:
+        if "=" not in item:
+            raise InputError(f"override {item!r}: expected key=value")
+        key, text = item.split("=", 1)
+        obj = _set_path(obj, key.strip().split("."), _parse_scalar(text.strip()), key.strip())
+    return obj
+
+
+def _set_path(obj: Any, path: list[str], value: Any, full: str) -> Any:
+    if not dataclasses.is_dataclass(obj):
+        raise InputError(f"override {full}: {path[0]!r} is not a parameter group")
+    names = {f.name for f in dataclasses.fields(obj)}
+    if path[0] not in names:
+        raise InputError(f"override {full}: unknown key {path[0]!r}; allowed: {', '.join(sorted(names))}")
+    if len(path) == 1:
+        tp = typing.get_type_hints(type(obj))[path[0]]
+        return dataclasses.replace(obj, **{path[0]: _convert(value, tp, full)})
+    child = getattr(obj, path[0])
+    return dataclasses.replace(obj, **{path[0]: _set_path(child, path[1:], value, full)})
+
+
+def check_finite(name: str, *values: float) -> None:
+    """Raise :class:`InputError` if any value is NaN or infinite."""
+    for v in values:
+        if not math.isfinite(v):
+            raise InputError(f"{name} must be finite, got {v}")
+
+
+def check_positive(name: str, value: float) -> None:
+    """Raise :class:`InputError` unless ``value`` is finite and > 0."""
+    if not (math.isfinite(value) and value > 0):
+        raise InputError(f"{name} must be a finite number > 0, got {value}")
