@@ -35,6 +35,7 @@ __all__ = [
     "preset_names",
     "ForceEnvelope",
     "force_envelope",
+    "max_zero_torque_force",
     "fibonacci_sphere",
 ]
 
@@ -68,7 +69,7 @@ class RotorParams:
             if math.hypot(*self.axis) < 1e-9:
                 raise InputError("rotor axis must be non-zero")
         elif self.tilt_about not in ("x", "y"):
-            raise InputError("a rotor needs either axis = [x, y, z] or tilt_about = \"x\"|\"y\" with tilt_deg")
+            raise InputError('a rotor needs either axis = [x, y, z] or tilt_about = "x"|"y" with tilt_deg')
         check_finite("rotor tilt_deg", self.tilt_deg)
 
     def axis_B(self) -> np.ndarray:
@@ -116,9 +117,14 @@ class VehicleParams:
 
     def __post_init__(self) -> None:
         where = f"vehicle {self.name!r}"
-        for label, v in (("mass", self.mass), ("c_f", self.c_f), ("gravity", self.gravity),
-                         ("propeller_diameter", self.propeller_diameter), ("frame_size", self.frame_size),
-                         ("omega_max_hz", self.omega_max_hz)):
+        for label, v in (
+            ("mass", self.mass),
+            ("c_f", self.c_f),
+            ("gravity", self.gravity),
+            ("propeller_diameter", self.propeller_diameter),
+            ("frame_size", self.frame_size),
+            ("omega_max_hz", self.omega_max_hz),
+        ):
             check_positive(f"{where}: {label}", v)
         check_finite(f"{where}: c_tau", self.c_tau)
         if self.c_tau < 0:
@@ -187,7 +193,7 @@ class VehicleParams:
 
     @property
     def weight(self) -> float:
-        """m g [N]."""
+        """M g [N]."""
         return self.mass * self.gravity
 
     @property
@@ -288,6 +294,12 @@ def _max_force_along(A: np.ndarray, d: np.ndarray, lo: float, hi: float) -> floa
     bounds = [(lo / hi, 1.0)] * n + [(0.0, None)]
     res = linprog(c, A_eq=A_eq, b_eq=np.zeros(6), bounds=bounds, method="highs")
     return max(0.0, float(res.x[-1])) if res.status == 0 else 0.0
+
+
+def max_zero_torque_force(vehicle: VehicleParams, d_B: np.ndarray) -> float:
+    """Largest force [N] the vehicle can produce along body direction ``d_B`` with zero moment (LP)."""
+    d = np.asarray(d_B, dtype=float)
+    return _max_force_along(vehicle.A_nom, d / np.linalg.norm(d), vehicle.u_min, vehicle.u_max)
 
 
 def force_envelope(vehicle: VehicleParams, n_directions: int = 400, refine: bool = True) -> ForceEnvelope:
