@@ -1,0 +1,176 @@
+"""MJCF of a vehicle in a scene, generated from the vehicle file (SPEC §1.2, §1.5, §5.2).
+
+The vehicle is one free body whose CoM is the body origin, with the vehicle's mass and principal inertia
+given explicitly (the geoms carry no mass). Its geoms:
+
+* the frame: the 12 edges of a cube of side ``frame_size`` when the rotors span three dimensions (the
+  Omnirotor), otherwise a flat hub plate with one arm per rotor;
+* one propeller disk per rotor (radius half the propeller diameter, collision-enabled so that a crash
+  shows as a contact) and one site ``rotor<i>`` whose z axis is the thrust axis;
+* the end-effector: a rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
+  (SPEC §1.5), and a site ``ee`` there.
+
+Measured inertias of flat vehicles may violate the triangle inequality by a hair (the quadrotor preset by
+1%); MuJoCo's ``balanceinertia`` then nudges them onto it.
+
+Rotor forces are not MuJoCo actuators: the simulator writes the body wrench into ``xfrc_applied``.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from omnirotor.sim.params import SceneParams
+from omnirotor.sim.scenes import scene_geoms_xml
+from omnirotor.vehicle import VehicleParams
+
+__all__ = ["build_mjcf", "BODY_NAME", "EE_TIP_GEOM", "EE_ROD_GEOM", "EE_SITE", "TIP_RADIUS"]
+
+BODY_NAME = "vehicle"
+EE_TIP_GEOM = "ee_tip"
+EE_ROD_GEOM = "ee_rod"
+EE_SITE = "ee"
+TIP_RADIUS = 0.008
+"""Radius of the end-effector tip [m] (Ø16 mm, SPEC §5.2's peg)."""
+ROD_RADIUS = 0.005
+"""Radius of the end-effector rod [m] [A], thinner than the tip so that only the tip meets a surface."""
+EDGE_RADIUS = 0.006
+"""Radius of the frame's edges and arms [m] [A]."""
+PROP_HALF_THICKNESS = 0.004
+"""Half-thickness of a propeller disk [m] [A]."""
+OFFSCREEN_SIZE = (1920, 1080)
+"""Default offscreen framebuffer (the renderer enlarges it when asked for more)."""
+
+_ROBOT_RGBA = "0.18 0.19 0.22 1"
+_PROP_CW_RGBA = "0.15 0.45 0.85 0.45"
+_PROP_CCW_RGBA = "0.90 0.55 0.10 0.45"
+_TIP_RGBA = "0.85 0.12 0.12 1"
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.9g}" for x in v)
+
+
+def _frame_geoms(vehicle: VehicleParams) -> list[str]:
+    h = 0.5 * vehicle.frame_size
+    P = vehicle.positions_B
+    geoms = []
+    if np.ptp(P[:, 2]) > 0.25 * vehicle.frame_size:
+        corners = [np.array(c, dtype=float) * h for c in itertools.product((-1, 1), repeat=3)]
+        k = 0
+        for a, b in itertools.combinations(corners, 2):
+            if np.count_nonzero(np.abs(a - b) > 1e-12) == 1:  # cube edge: differs in one coordinate
+                geoms.append(
+                    f'<geom name="edge{k}" class="robot" type="capsule" size="{EDGE_RADIUS}" '
+                    f'fromto="{_fmt(a)} {_fmt(b)}"/>'
+                )
+                k += 1
+        hub = 0.3 * h
+        geoms.append(f'<geom name="hub" class="robot" type="box" size="{_fmt((hub, hub, hub))}"/>')
+    else:
+        geoms.append(f'<geom name="hub" class="robot" type="box" size="{_fmt((h, h, 0.25 * h))}"/>')
+        for i, p in enumerate(P):
+            if np.linalg.norm(p) > 1e-9:
+                geoms.append(
+                    f'<geom name="arm{i}" class="robot" type="capsule" size="{EDGE_RADIUS}" fromto="0 0 0 {_fmt(p)}"/>'
+                )
+    return geoms
+
+
+def _rotor_elements(vehicle: VehicleParams) -> list[str]:
+    r = 0.5 * vehicle.propeller_diameter
+    out = []
+    for i, (p, z, k) in enumerate(zip(vehicle.positions_B, vehicle.axes_B, vehicle.spins, strict=True)):
+        rgba = _PROP_CW_RGBA if k > 0 else _PROP_CCW_RGBA
+        out.append(f'<site name="rotor{i + 1}" pos="{_fmt(p)}" zaxis="{_fmt(z)}" size="{0.1 * r:.6g}" rgba="1 1 1 1"/>')
+        out.append(
+            f'<geom name="prop{i + 1}" class="robot" type="cylinder" pos="{_fmt(p)}" zaxis="{_fmt(z)}" '
+            f'size="{r:.9g} {PROP_HALF_THICKNESS}" rgba="{rgba}"/>'
+        )
+    return out
+
+
+def _ee_elements(vehicle: VehicleParams) -> list[str]:
+    p_E = vehicle.p_E_B_array
+    length = float(np.linalg.norm(p_E))
+    out = [f'<site name="{EE_SITE}" pos="{_fmt(p_E)}" size="0.006" rgba="1 1 0 1"/>']
+    if length <= TIP_RADIUS:
+        out.append(
+            f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
+            f'pos="{_fmt(p_E)}" rgba="{_TIP_RGBA}"/>'
+        )
+        return out
+    d = p_E / length
+    centre = p_E - TIP_RADIUS * d
+    out.append(
+        f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
+        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"/>'
+    )
+    # The rod starts where the EE ray leaves the frame's cube (or at the CoM for a flat frame).
+    h = 0.5 * vehicle.frame_size
+    start_len = min(h / float(np.max(np.abs(d))), length - TIP_RADIUS)
+    start = d * start_len
+    if length - TIP_RADIUS - start_len > 1e-6:
+        out.append(
+            f'<geom name="{EE_ROD_GEOM}" class="robot" type="capsule" size="{ROD_RADIUS}" '
+            f'fromto="{_fmt(start)} {_fmt(centre)}"/>'
+        )
+    return out
+
+
+def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep: float) -> str:
+    """The MJCF text of ``vehicle`` in ``scene``.
+
+    Args:
+        vehicle: the vehicle.
+        scene: one of :data:`omnirotor.sim.scenes.SCENES`.
+        params: scene geometry and contact properties.
+        timestep: physics time step [s].
+
+    Returns:
+        The MJCF XML as a string.
+    """
+    solref = f"{params.contact_timeconst:.9g} {params.contact_dampratio:.9g}"
+    friction = f"{params.friction:.9g} 0.005 0.0001"
+    J = vehicle.inertia_diag
+    floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
+    body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + _ee_elements(vehicle))
+    return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
+  <compiler angle="radian" autolimits="true" balanceinertia="true"/>
+  <option timestep="{timestep:.9g}" gravity="0 0 {-vehicle.gravity:.9g}" integrator="Euler"/>
+  <visual>
+    <global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
+    <quality shadowsize="4096"/>
+    <map shadowclip="3" shadowscale="0.5"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
+  </visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.75 0.82 0.90" rgb2="0.98 0.98 1.0"
+      width="256" height="256"/>
+    <texture name="grid" type="2d" builtin="checker" rgb1="0.86 0.86 0.84" rgb2="0.76 0.76 0.74"
+      width="512" height="512" mark="edge" markrgb="0.6 0.6 0.6"/>
+    <material name="grid" texture="grid" texrepeat="8 8" reflectance="0.05"/>
+  </asset>
+  <default>
+    <default class="env">
+      <geom solref="{solref}" friction="{friction}" condim="3"/>
+    </default>
+    <default class="robot">
+      <geom solref="{solref}" friction="{friction}" condim="3" rgba="{_ROBOT_RGBA}"/>
+    </default>
+  </default>
+  <worldbody>
+    <light name="sun" pos="0.3 0 5" dir="-0.15 0.1 -1" directional="true" castshadow="true"
+      diffuse="0.6 0.6 0.6"/>
+    {floor}
+    {scene_geoms_xml(scene, params)}
+    <body name="{BODY_NAME}" pos="0 0 1">
+      <freejoint name="root"/>
+      <inertial pos="0 0 0" mass="{vehicle.mass:.9g}" diaginertia="{_fmt(J)}"/>
+      {body}
+    </body>
+  </worldbody>
+</mujoco>
+"""

@@ -1,0 +1,297 @@
+"""Parameters of the simulator: one frozen dataclass per block, loadable from TOML (SPEC §1.4, §5.2, §7).
+
+Defaults are the SPEC values where the SPEC gives one; every other default is an assumption [A] of this
+project, documented on its field. A simulator TOML file has one table per block::
+
+    dt = 0.001
+    provide_state = true
+    [rotors]
+    tau_m = 0.025
+    [aero]
+    model = "interference"      # or "nominal"
+    [sensors]
+    mocap_rate_hz = 100.0
+    [scene]
+    wall_point = [0.637, -0.827, 1.429]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+from omnirotor.config import check_finite, check_positive, from_mapping, load_toml
+from omnirotor.errors import InputError
+
+__all__ = [
+    "RotorDynamicsParams",
+    "AeroParams",
+    "SensorParams",
+    "SceneParams",
+    "SimParams",
+    "load_sim_params",
+    "AERO_MODELS",
+]
+
+AERO_MODELS = ("interference", "nominal")
+"""Names of the truth aerodynamic models: SPEC §7 slipstream interference, or exactly ``A_nom u``."""
+
+
+def _check_nonneg(name: str, *values: float) -> None:
+    check_finite(name, *values)
+    for v in values:
+        if v < 0:
+            raise InputError(f"{name} must be >= 0, got {v}")
+
+
+def _check_unit_vector(name: str, v: tuple[float, float, float]) -> None:
+    check_finite(name, *v)
+    if math.hypot(*v) < 1e-9:
+        raise InputError(f"{name} must be a non-zero vector")
+
+
+@dataclasses.dataclass(frozen=True)
+class RotorDynamicsParams:
+    """First-order rotor speed loop (SPEC §1.4).
+
+    Attributes:
+        tau_m: time constant of the speed loop [s] (SPEC §1.4 [A]: 0.025 s).
+        dead_band: when True, a commanded speed with ``|omega| < dead_band_hz`` stops the rotor.
+        dead_band_hz: width of the dead band around zero [Hz] (SPEC §1.4: 30 Hz, the MIQP's forbidden band).
+    """
+
+    tau_m: float = 0.025
+    dead_band: bool = False
+    dead_band_hz: float = 30.0
+
+    def __post_init__(self) -> None:
+        check_positive("rotors.tau_m", self.tau_m)
+        _check_nonneg("rotors.dead_band_hz", self.dead_band_hz)
+
+
+@dataclasses.dataclass(frozen=True)
+class AeroParams:
+    """Truth aerodynamics: the slipstream-interference model of SPEC §7, or the nominal map.
+
+    Attributes:
+        model: "interference" (SPEC §7) or "nominal" (exactly ``A_nom u``).
+        kappa0: isolated-rotor thrust gain over the nominal c_f (SPEC §7: 1.18).
+        gamma: inflow sensitivity of the propeller law (SPEC §7: 4.0).
+        rho: air density [kg/m³].
+        rotor_radius: propeller radius R [m]; 0 takes half the vehicle's ``propeller_diameter``.
+        advance_ratio_ref: J0 of the linear propeller law ``eta = 1 - gamma V / (J0 n D)``.
+        jet_spread: beta, growth of the jet radius with distance ``b(s) = R/sqrt(2) + beta s``.
+        eta_min: lower clip of the efficiency.
+        eta_max: upper clip of the efficiency.
+        gain_error_std: standard deviation of a per-rotor relative thrust-gain error (0 = none) [A].
+        tilt_error_std_deg: standard deviation of a per-rotor axis tilt error [deg] (0 = none) [A].
+        error_seed: seed of the manufacturing errors (a property of the airframe, so independent of the
+            simulator's noise seed).
+    """
+
+    model: str = "interference"
+    kappa0: float = 1.18
+    gamma: float = 4.0
+    rho: float = 1.225
+    rotor_radius: float = 0.0
+    advance_ratio_ref: float = 0.6
+    jet_spread: float = 0.10
+    eta_min: float = 0.3
+    eta_max: float = 1.7
+    gain_error_std: float = 0.0
+    tilt_error_std_deg: float = 0.0
+    error_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.model not in AERO_MODELS:
+            raise InputError(f"aero.model must be one of {', '.join(AERO_MODELS)}, got {self.model!r}")
+        for label in ("kappa0", "rho", "advance_ratio_ref"):
+            check_positive(f"aero.{label}", getattr(self, label))
+        _check_nonneg("aero.gamma", self.gamma)
+        _check_nonneg("aero.rotor_radius", self.rotor_radius)
+        _check_nonneg("aero.jet_spread", self.jet_spread)
+        _check_nonneg("aero.gain_error_std", self.gain_error_std)
+        _check_nonneg("aero.tilt_error_std_deg", self.tilt_error_std_deg)
+        check_positive("aero.eta_max", self.eta_max)
+        _check_nonneg("aero.eta_min", self.eta_min)
+        if self.eta_min > self.eta_max:
+            raise InputError("aero.eta_min must be <= aero.eta_max")
+        if self.error_seed < 0:
+            raise InputError(f"aero.error_seed must be >= 0, got {self.error_seed}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorParams:
+    """Sensor models. Every noise level here is an assumption [A]; all standard deviations are per sample.
+
+    Attributes:
+        acc_noise_std: accelerometer white noise [m/s²] (MEMS density ~200 µg/√Hz over ~500 Hz, plus
+            some airframe vibration).
+        acc_bias_std: spread of the constant accelerometer bias drawn per run [m/s²] (~5 mg).
+        gyro_noise_std: gyroscope white noise [rad/s] (~0.3 deg/s).
+        gyro_bias_std: spread of the constant gyroscope bias drawn per run [rad/s] (~0.1 deg/s).
+        imu_offset_B: (3,) IMU position relative to the CoM, body frame [m] (the real one: (0, 0, 0.041)).
+        mocap_rate_hz: motion-capture sample rate [Hz].
+        mocap_latency_s: delay from a sample's time to its delivery [s], rounded to the step (4 ms [A]:
+            OptiTrack processing plus network).
+        mocap_pos_noise_std: motion-capture position noise [m] (0.3 mm).
+        mocap_att_noise_std: motion-capture attitude noise, per axis of a small body rotation [rad] (~0.1 deg).
+        rotor_speed_noise_std_hz: noise of the measured rotor speeds [Hz] (ESC telemetry).
+        state_pos_noise_std: noise of ``SensorFrame.state.p_W`` [m].
+        state_vel_noise_std: noise of ``state.v_W`` [m/s].
+        state_acc_noise_std: noise of ``state.a_W`` [m/s²].
+        state_att_noise_std: noise of ``state.R_WB``, per axis of a small body rotation [rad].
+        state_omega_noise_std: noise of ``state.omega_B`` [rad/s].
+    """
+
+    acc_noise_std: float = 0.1
+    acc_bias_std: float = 0.05
+    gyro_noise_std: float = 0.005
+    gyro_bias_std: float = 0.002
+    imu_offset_B: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mocap_rate_hz: float = 100.0
+    mocap_latency_s: float = 0.004
+    mocap_pos_noise_std: float = 3e-4
+    mocap_att_noise_std: float = 1.5e-3
+    rotor_speed_noise_std_hz: float = 0.5
+    state_pos_noise_std: float = 5e-4
+    state_vel_noise_std: float = 5e-3
+    state_acc_noise_std: float = 0.05
+    state_att_noise_std: float = 2e-3
+    state_omega_noise_std: float = 2e-3
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            if f.name == "imu_offset_B":
+                check_finite("sensors.imu_offset_B", *self.imu_offset_B)
+            elif f.name in ("mocap_rate_hz",):
+                check_positive(f"sensors.{f.name}", getattr(self, f.name))
+            else:
+                _check_nonneg(f"sensors.{f.name}", getattr(self, f.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneParams:
+    """Geometry and contact properties of every scene (SPEC §5.2), world frame [m].
+
+    The anchors a controller needs (surface point, outward normal, ...) are derived from these by
+    :func:`omnirotor.sim.scenes.scene_anchors`.
+
+    Attributes:
+        wall_point: a point of the straight wall's surface (SPEC §5.2).
+        wall_normal: outward normal of the straight wall (the wall lies on the other side).
+        tilted_wall_point: a point of the tilted wall's surface (SPEC §5.2).
+        tilted_wall_angle_deg: downward inclination of its outward normal from world +y:
+            ``n = (0, cos a, -sin a)`` (SPEC §5.2: 30 deg).
+        wall_half_width: half-extent of a wall board within its plane [m] [A].
+        wall_thickness: thickness of a wall board [m] [A].
+        pipe_centre: a point of the pipe's axis (SPEC §5.2).
+        pipe_radius: [m] (SPEC §5.2: 0.55 m).
+        pipe_length: length of the pipe along world x [m] [A].
+        hole_entrance: where the hole axis crosses the funnel mouth [A: reachable like the wall].
+        funnel_length: [m] (SPEC §5.2: 0.10 m).
+        funnel_entrance_diameter: inner diameter of the funnel mouth [m] (SPEC §5.2: 80 mm).
+        hole_diameter: inner diameter of the straight hole [m] (SPEC §5.2: 19 mm).
+        hole_depth: length of the straight hole after the funnel [m]; funnel plus hole must exceed the
+            0.17 m insertion of SPEC §5.2 [A: 0.10 m, total 0.20 m].
+        hole_wall_thickness: thickness of the plates that make the funnel and the hole [m] [A].
+        ring_segments: number of plates in each ring of the funnel and the hole.
+        floor: put a floor plane at z = 0.
+        friction: sliding friction coefficient of every contact [A: 0.3, a plastic tip on painted wood/PVC].
+        contact_timeconst: MuJoCo ``solref`` time constant of contacts [s] [A: 5 ms; >= 2 steps].
+        contact_dampratio: MuJoCo ``solref`` damping ratio of contacts [A: 1, critically damped].
+        start_standoff: distance of the EE tip from the contact surface in the default start pose [m].
+        free_start: default start position of the body in the free scene [m].
+    """
+
+    wall_point: tuple[float, float, float] = (0.637, -0.827, 1.429)
+    wall_normal: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    tilted_wall_point: tuple[float, float, float] = (0.639, -0.848, 1.365)
+    tilted_wall_angle_deg: float = 30.0
+    wall_half_width: float = 0.5
+    wall_thickness: float = 0.04
+    pipe_centre: tuple[float, float, float] = (0.0261, 1.4952, 0.7648)
+    pipe_radius: float = 0.55
+    pipe_length: float = 1.2
+    hole_entrance: tuple[float, float, float] = (0.6, -0.85, 1.4)
+    funnel_length: float = 0.10
+    funnel_entrance_diameter: float = 0.080
+    hole_diameter: float = 0.019
+    hole_depth: float = 0.10
+    hole_wall_thickness: float = 0.004
+    ring_segments: int = 16
+    floor: bool = True
+    friction: float = 0.3
+    contact_timeconst: float = 0.005
+    contact_dampratio: float = 1.0
+    start_standoff: float = 0.3
+    free_start: tuple[float, float, float] = (0.0, 0.0, 1.5)
+
+    def __post_init__(self) -> None:
+        for label in ("wall_point", "tilted_wall_point", "pipe_centre", "hole_entrance", "free_start"):
+            check_finite(f"scene.{label}", *getattr(self, label))
+        _check_unit_vector("scene.wall_normal", self.wall_normal)
+        check_finite("scene.tilted_wall_angle_deg", self.tilted_wall_angle_deg)
+        if not -90.0 < self.tilted_wall_angle_deg < 90.0:
+            raise InputError("scene.tilted_wall_angle_deg must lie in (-90, 90)")
+        for label in (
+            "wall_half_width",
+            "wall_thickness",
+            "pipe_radius",
+            "pipe_length",
+            "funnel_length",
+            "funnel_entrance_diameter",
+            "hole_diameter",
+            "hole_depth",
+            "hole_wall_thickness",
+            "contact_timeconst",
+            "contact_dampratio",
+            "start_standoff",
+        ):
+            check_positive(f"scene.{label}", getattr(self, label))
+        _check_nonneg("scene.friction", self.friction)
+        if self.funnel_entrance_diameter < self.hole_diameter:
+            raise InputError("scene.funnel_entrance_diameter must be >= scene.hole_diameter")
+        if self.ring_segments < 6:
+            raise InputError(f"scene.ring_segments must be >= 6, got {self.ring_segments}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SimParams:
+    """The whole simulator.
+
+    Attributes:
+        dt: control period [s]: one :meth:`Simulator.step` (SPEC §4: 1 kHz).
+        substeps: physics steps per control period (the rotor wrench is held, its world direction follows
+            the attitude).
+        provide_state: fill ``SensorFrame.state`` with ground truth plus ``sensors.state_*`` noise.
+        rotors: rotor speed loop.
+        aero: truth aerodynamics.
+        sensors: sensor models.
+        scene: scene geometry and contact properties.
+    """
+
+    dt: float = 1e-3
+    substeps: int = 1
+    provide_state: bool = True
+    rotors: RotorDynamicsParams = dataclasses.field(default_factory=RotorDynamicsParams)
+    aero: AeroParams = dataclasses.field(default_factory=AeroParams)
+    sensors: SensorParams = dataclasses.field(default_factory=SensorParams)
+    scene: SceneParams = dataclasses.field(default_factory=SceneParams)
+
+    def __post_init__(self) -> None:
+        check_positive("dt", self.dt)
+        if self.dt > 0.01:
+            raise InputError(f"dt must be <= 0.01 s, got {self.dt}")
+        if self.substeps < 1:
+            raise InputError(f"substeps must be >= 1, got {self.substeps}")
+        if 2.0 * self.dt / self.substeps > self.scene.contact_timeconst + 1e-12:
+            raise InputError(
+                "scene.contact_timeconst must be at least two physics steps (dt / substeps) for stable contact"
+            )
+
+
+def load_sim_params(path: str | Path) -> SimParams:
+    """Read :class:`SimParams` from a TOML file; unknown keys raise :class:`InputError`."""
+    return from_mapping(SimParams, load_toml(path), str(path))
