@@ -1,0 +1,377 @@
+"""Control allocation: the bounded, regularised least-squares QP of eq. 6 (SPEC §4.2).
+
+Given the wrench reference ``w_ref = [f_ref_W; m_ref_B]`` (force in the world frame [N], moment in the body
+frame [N·m]), the attitude ``R_WB`` and the wrench map ``A`` (6 x n, body frame, SPEC §1.2) in use now, the
+allocator returns the rotor inputs ``u`` [Hz²] that solve
+
+    min_u  || w_ref - blkdiag(R_WB, I3) A u ||² + lambda ||u||²    s.t.   u_min <= u_i <= u_max.
+
+Because ``blkdiag(R_WB, I3)`` is orthogonal the cost equals ``|| w_B - A u ||² + lambda ||u||²`` with the
+body-frame reference ``w_B = [R_WBᵀ f_ref_W; m_ref_B]``, so the Hessian ``2 (AᵀA + lambda I)`` does not
+depend on the attitude: it is rebuilt only when the map changes (a region switch, SPEC §3.3), and each step
+only changes the linear term. The problem is solved in the scaled variable ``x = u / u_scale`` with
+``u_scale = max(|u_min|, |u_max|)`` (48 400 Hz² on the Omnirotor), so that the Hessian entries are O(1..100)
+instead of O(1e-8); the regulariser becomes ``lambda u_scale²`` in scaled units, the same problem exactly.
+
+Backends (set up once, then only their numbers change, warm-started):
+
+* ``daqp`` (default): a persistent :class:`daqp.Model` with simple bounds; ``update`` keeps the previous
+  active set as the warm start (a dual active-set method, exact to machine precision on a problem this size).
+* ``proxsuite``: the paper's solver, a dense :class:`proxsuite.proxqp.dense.QP` with box constraints,
+  ``WARM_START_WITH_PREVIOUS_RESULT``. ProxSuite 0.8 needs three precautions, all taken here: the option is
+  set before ``init``, one ``solve`` follows ``init`` (an ``update`` before the first solve segfaults), and
+  the duality-gap test is on (without it a warm start whose multipliers are stale, e.g. after the bounds
+  change, is accepted as optimal and the previous answer comes back).
+
+A map that changes every step (the smooth blend of :mod:`omnirotor.control.maps` inside a blending band)
+refactors the Hessian every step, which costs a little more than a plain step.
+
+Failure handling (nothing non-finite reaches the motors):
+
+* solver status not optimal or non-finite output: the clipped pseudo-inverse ``clip(pinv(A) w_B)`` is
+  returned, :attr:`Allocator.status` is ``FALLBACK`` and :attr:`Allocator.n_fallbacks` counts it;
+* a NaN or inf in ``w_ref``, ``R_WB`` or ``A``: the last returned input is held (initially the clipped
+  upright hover input) and the status is ``NONFINITE``.
+
+Rotors declared failed with :meth:`Allocator.set_failed_rotors` get the bounds [0, 0], so the remaining
+rotors carry the whole wrench (the Omnirotor still hovers upright on any seven of its eight rotors).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+import numpy as np
+
+from omnirotor.config import check_positive
+from omnirotor.errors import InputError
+from omnirotor.vehicle import VehicleParams
+
+__all__ = ["AllocationParams", "AllocationStatus", "Allocator", "SOLVERS"]
+
+SOLVERS = ("daqp", "proxsuite")
+"""Names of the QP backends :class:`Allocator` can use."""
+
+_DAQP_SIMPLE_BOUND = 0  # daqp ``sense`` value of an inactive inequality (warm start picks the rest)
+
+
+@dataclasses.dataclass(frozen=True)
+class AllocationParams:
+    """Parameters of the allocation QP (SPEC §4.2).
+
+    Attributes:
+        solver: QP backend, "daqp" (default) or "proxsuite" (the paper's solver).
+        reg_lambda: weight lambda of ``lambda ||u||²`` with u in Hz² [N²/Hz⁴]; SPEC §4.2: 1e-12 (2e-4 N
+            wrench error at hover, and a unique solution since AᵀA has rank 6 < n).
+        max_iter: iteration cap of the backend (a solve that hits it counts as a failure).
+        eps_abs: ProxSuite absolute KKT tolerance, in the scaled problem (x = u / u_scale, wrench in N and
+            N·m); daqp is an active-set method and solves to machine precision regardless.
+        saturation_tol: relative distance to a bound [-] below which a rotor counts as saturated.
+    """
+
+    solver: str = "daqp"
+    reg_lambda: float = 1e-12
+    max_iter: int = 200
+    eps_abs: float = 1e-9
+    saturation_tol: float = 1e-6
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise InputError(f"allocation solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        check_positive("allocation reg_lambda", self.reg_lambda)
+        if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, int) or self.max_iter < 1:
+            raise InputError(f"allocation max_iter must be an integer >= 1, got {self.max_iter!r}")
+        check_positive("allocation eps_abs", self.eps_abs)
+        check_positive("allocation saturation_tol", self.saturation_tol)
+        if self.saturation_tol >= 0.5:
+            raise InputError(f"allocation saturation_tol must be < 0.5, got {self.saturation_tol}")
+
+
+class AllocationStatus(enum.IntEnum):
+    """Outcome of the last :meth:`Allocator.solve`."""
+
+    OK = 0
+    """The QP was solved."""
+    FALLBACK = 1
+    """The QP failed; the command is the pseudo-inverse solution clipped to the bounds."""
+    NONFINITE = 2
+    """An input was NaN or inf; the last safe command is held."""
+
+
+class _DaqpBackend:
+    """A persistent daqp workspace over simple bounds (no general constraint rows)."""
+
+    def __init__(self, H: np.ndarray, f: np.ndarray, lo: np.ndarray, hi: np.ndarray, params: AllocationParams):
+        n = f.shape[0]
+        import daqp  # imported here so that a missing backend only fails when chosen
+
+        self._model = daqp.Model()
+        self._no_rows = np.zeros((0, n))
+        self._sense = np.full(n, _DAQP_SIMPLE_BOUND, dtype=np.int32)
+        self._lo = lo
+        self._hi = hi
+        self._params = params
+        self.setup(H, f)
+
+    def setup(self, H: np.ndarray, f: np.ndarray) -> None:
+        """(Re)build the workspace from scratch (cold start)."""
+        self._model.setup(H, f, self._no_rows, self._hi, self._lo, self._sense)
+        self._model.settings = {"iter_limit": self._params.max_iter}
+
+    def set_hessian(self, H: np.ndarray) -> None:
+        """New Hessian (a new wrench map); the active set of the last solve stays as warm start."""
+        self._model.update(H=H)
+
+    def set_bounds(self) -> None:
+        """The bound arrays given at construction changed in place."""
+        self._model.update(bupper=self._hi, blower=self._lo)
+
+    def solve(self, f: np.ndarray) -> np.ndarray | None:
+        """Solve with linear term ``f``; the minimiser (scaled), or None unless optimal."""
+        self._model.update(f=f)
+        x, _, exitflag, _ = self._model.solve()
+        return x if exitflag >= 1 else None
+
+
+class _ProxsuiteBackend:
+    """A dense ProxQP model with box constraints, warm-started from the previous result."""
+
+    def __init__(self, H: np.ndarray, f: np.ndarray, lo: np.ndarray, hi: np.ndarray, params: AllocationParams):
+        from proxsuite import proxqp
+
+        self._proxqp = proxqp
+        self._lo = lo
+        self._hi = hi
+        self._params = params
+        self._n = f.shape[0]
+        self._solved = proxqp.QPSolverOutput.PROXQP_SOLVED
+        self.setup(H, f)
+
+    def setup(self, H: np.ndarray, f: np.ndarray) -> None:
+        """(Re)build the model from scratch (cold start)."""
+        qp = self._proxqp.dense.QP(self._n, 0, 0, True)
+        # The warm-start mode must be chosen before init (ProxSuite 0.8 crashes otherwise).
+        qp.settings.initial_guess = self._proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
+        qp.settings.eps_abs = self._params.eps_abs
+        qp.settings.eps_rel = 0.0
+        # ProxQP's default test (primal and dual residuals) accepts a warm start whose stale multipliers
+        # violate complementarity, e.g. after a bound changes: the old answer comes back as "solved".
+        # The duality-gap test rejects it.
+        qp.settings.check_duality_gap = True
+        qp.settings.eps_duality_gap_abs = self._params.eps_abs
+        qp.settings.eps_duality_gap_rel = 0.0
+        qp.settings.max_iter = self._params.max_iter
+        qp.settings.verbose = False
+        qp.init(H, f, None, None, None, None, None, self._lo, self._hi)
+        # A solve right after init gives the warm start its "previous result": ProxSuite 0.8 segfaults
+        # when update() precedes the first solve() in WARM_START_WITH_PREVIOUS_RESULT mode.
+        qp.solve()
+        self._qp = qp
+
+    def set_hessian(self, H: np.ndarray) -> None:
+        """New Hessian (a new wrench map)."""
+        self._qp.update(H=H)
+
+    def set_bounds(self) -> None:
+        """The bound arrays given at construction changed in place."""
+        self._qp.update(l_box=self._lo, u_box=self._hi)
+
+    def solve(self, f: np.ndarray) -> np.ndarray | None:
+        """Solve with linear term ``f``; the minimiser (scaled), or None unless solved."""
+        self._qp.update(g=f)
+        self._qp.solve()
+        results = self._qp.results
+        return results.x if results.info.status == self._solved else None
+
+
+class Allocator:
+    """Rotor inputs [Hz²] from a wrench reference by the bounded least-squares QP of SPEC §4.2.
+
+    Attributes:
+        status: :class:`AllocationStatus` of the last :meth:`solve`.
+        n_fallbacks: number of solver failures (pseudo-inverse fallbacks) since construction or :meth:`reset`.
+        n_nonfinite: number of calls with a NaN/inf input since construction or :meth:`reset`.
+        saturated: True when some active rotor sits at a bound in the last result.
+        failed_rotors: (n,) bool mask of the rotors excluded from the allocation (read-only view).
+    """
+
+    def __init__(self, vehicle: VehicleParams, params: AllocationParams | None = None):
+        """Set up the QP for ``vehicle`` with the nominal map and upright hover as a first solution.
+
+        Args:
+            vehicle: the vehicle (rotor count and input bounds ``u_min``/``u_max`` [Hz²]).
+            params: allocation parameters; defaults to :class:`AllocationParams()`.
+        """
+        self.params = params if params is not None else AllocationParams()
+        self.vehicle = vehicle
+        n = vehicle.n_rotors
+        self.n = n
+        self._u_scale = max(abs(vehicle.u_min), abs(vehicle.u_max))
+        self._lam_scaled = self.params.reg_lambda * self._u_scale**2
+        # Scaled bounds of every rotor, and the ones in force (failed rotors pinned to 0).
+        self._lo_all = np.full(n, vehicle.u_min / self._u_scale)
+        self._hi_all = np.full(n, vehicle.u_max / self._u_scale)
+        self._lo = self._lo_all.copy()
+        self._hi = self._hi_all.copy()
+        self._failed = np.zeros(n, dtype=bool)
+        self._sat_margin = self.params.saturation_tol * float(self._hi_all[0] - self._lo_all[0])
+        # Plain-float copies for the per-step clipping loop, refreshed by set_failed_rotors().
+        self._lo_list: list[float] = []
+        self._hi_list: list[float] = []
+        self._lo_sat: list[float] = []
+        self._hi_sat: list[float] = []
+        # Problem data in the scaled variables, rebuilt when the map changes.
+        self._A_key = b""
+        self._As = np.empty((6, n))  # A * u_scale  [N, N·m per unit x]
+        self._G = np.empty((n, 6))  # -(A u_scale)ᵀ: f = G w_B
+        self._H = np.empty((n, n))
+        self._diag = np.arange(n) * (n + 1)
+        self._w_B = np.zeros(6)  # body-frame reference [N; N·m]
+        self._w_B_force = self._w_B[:3]
+        self._f = np.zeros(n)
+        self._u = np.zeros(n)  # returned to the caller [Hz²]
+        self._u_safe = np.zeros(n)  # last finite, in-bounds command [Hz²]
+        self.status = AllocationStatus.OK
+        self.n_fallbacks = 0
+        self.n_nonfinite = 0
+        self.saturated = False
+        self._set_map(vehicle.A_nom)
+        self._refresh_bound_lists()
+        self._backend = self._make_backend()
+        self.reset()
+
+    # -- set-up -----------------------------------------------------------------------------------------
+
+    def _make_backend(self) -> _DaqpBackend | _ProxsuiteBackend:
+        cls = _DaqpBackend if self.params.solver == "daqp" else _ProxsuiteBackend
+        return cls(self._H, self._f, self._lo, self._hi, self.params)
+
+    def _set_map(self, A: np.ndarray) -> None:
+        """Rebuild the Hessian for a new wrench map (A already checked finite by the caller)."""
+        np.multiply(A, self._u_scale, out=self._As)
+        np.negative(self._As.T, out=self._G)
+        np.matmul(self._As.T, self._As, out=self._H)
+        self._H.flat[self._diag] += self._lam_scaled
+        self._A_key = A.tobytes()
+
+    @property
+    def failed_rotors(self) -> np.ndarray:
+        """(n,) bool mask of the rotors excluded from the allocation (read-only view)."""
+        v = self._failed.view()
+        v.flags.writeable = False
+        return v
+
+    def set_failed_rotors(self, mask: np.ndarray | None) -> None:
+        """Exclude rotors from the allocation: their input is forced to 0.
+
+        Args:
+            mask: (n,) bool, True for a failed rotor; None (or all False) restores every rotor.
+
+        Raises:
+            InputError: wrong shape, or every rotor excluded.
+        """
+        if mask is None:
+            failed = np.zeros(self.n, dtype=bool)
+        else:
+            failed = np.asarray(mask, dtype=bool)
+            if failed.shape != (self.n,):
+                raise InputError(f"failed-rotor mask must have shape ({self.n},), got {failed.shape}")
+            if failed.all():
+                raise InputError("cannot exclude every rotor")
+        self._failed[:] = failed
+        self._lo[:] = np.where(failed, 0.0, self._lo_all)
+        self._hi[:] = np.where(failed, 0.0, self._hi_all)
+        self._refresh_bound_lists()
+        self._backend.set_bounds()
+        np.clip(self._u_safe, self._lo * self._u_scale, self._hi * self._u_scale, out=self._u_safe)
+
+    def _refresh_bound_lists(self) -> None:
+        inf = math.inf
+        self._lo_list = self._lo.tolist()
+        self._hi_list = self._hi.tolist()
+        # A failed rotor sits at its [0, 0] bounds by design: it never counts as saturated.
+        self._lo_sat = [-inf if f else lo + self._sat_margin for f, lo in zip(self._failed, self._lo_list, strict=True)]
+        self._hi_sat = [inf if f else hi - self._sat_margin for f, hi in zip(self._failed, self._hi_list, strict=True)]
+
+    def reset(self) -> None:
+        """Forget the history: cold-start the solver, clear counters, hold the clipped upright hover input.
+
+        The failed-rotor mask and the current map are kept.
+        """
+        self._backend.setup(self._H, self._f)
+        hover = self.vehicle.hover_input()
+        np.clip(hover, self._lo * self._u_scale, self._hi * self._u_scale, out=self._u_safe)
+        self._u[:] = self._u_safe
+        self.status = AllocationStatus.OK
+        self.n_fallbacks = 0
+        self.n_nonfinite = 0
+        self.saturated = False
+
+    # -- the 1 kHz call -----------------------------------------------------------------------------------
+
+    def solve(self, w_ref: np.ndarray, R_WB: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """Allocate the wrench reference to the rotors.
+
+        Args:
+            w_ref: (6,) ``[f_ref_W [N]; m_ref_B [N·m]]``.
+            R_WB: (3, 3) attitude, body to world.
+            A: (6, n) wrench map in use (body frame, SPEC §1.2), e.g. from ``MapScheduler.select``.
+
+        Returns:
+            (n,) inputs u [Hz²], finite and within bounds. The array belongs to the allocator and is
+            overwritten by the next call: copy it to keep it.
+        """
+        if A.tobytes() != self._A_key:
+            if not math.isfinite(float(A.sum())):
+                return self._hold()
+            self._set_map(A)
+            self._backend.set_hessian(self._H)
+        # Body-frame reference w_B = [R_WBᵀ f_ref_W; m_ref_B], then the linear term f = -(A u_scale)ᵀ w_B.
+        w_B = self._w_B
+        w_ref[:3].dot(R_WB, out=self._w_B_force)
+        w_B[3:] = w_ref[3:]
+        f = self._f
+        self._G.dot(w_B, out=f)
+        # A NaN/inf anywhere in w_ref or R_WB reaches f (0 * inf is NaN too); f·f is one cheap reduction.
+        if not math.isfinite(float(f.dot(f))):
+            return self._hold()
+        x = self._backend.solve(f)
+        if x is None:
+            xs = self._fallback()
+        else:
+            xs = x.tolist()
+            if math.isfinite(sum(xs)):
+                self.status = AllocationStatus.OK
+            else:
+                xs = self._fallback()
+        # Clip, scale and flag saturation on plain floats (8 numpy calls cost more than this loop).
+        lo, hi, lo_sat, hi_sat, scale = self._lo_list, self._hi_list, self._lo_sat, self._hi_sat, self._u_scale
+        saturated = False
+        for i in range(self.n):
+            xi = xs[i]
+            if xi < lo[i]:
+                xi = lo[i]
+            elif xi > hi[i]:
+                xi = hi[i]
+            if xi <= lo_sat[i] or xi >= hi_sat[i]:
+                saturated = True
+            xs[i] = xi * scale
+        self.saturated = saturated
+        self._u[:] = xs
+        self._u_safe[:] = self._u
+        return self._u
+
+    def _hold(self) -> np.ndarray:
+        self.status = AllocationStatus.NONFINITE
+        self.n_nonfinite += 1
+        self._u[:] = self._u_safe
+        return self._u
+
+    def _fallback(self) -> list[float]:
+        """Pseudo-inverse of the map restricted to the working rotors (scaled x; clipped by the caller)."""
+        self.status = AllocationStatus.FALLBACK
+        self.n_fallbacks += 1
+        As = np.where(self._failed, 0.0, self._As)
+        return (np.linalg.pinv(As) @ self._w_B).tolist()

@@ -1,0 +1,387 @@
+"""The 1 kHz sensorless interaction controller: every block of the paper's Figure 4 wired together.
+
+One :meth:`InteractionController.step` turns a :class:`~omnirotor.messages.SensorFrame` into a
+:class:`~omnirotor.messages.RotorCommand`:
+
+1. state estimate (UKF or bypass, :mod:`omnirotor.control.estimator`);
+2. wrench map of the current attitude (:mod:`omnirotor.control.maps`, SPEC §3.3);
+3. external wrench observer with that map and the rotor inputs acting on the vehicle (SPEC §4.3); its
+   interaction estimate (after bias and zeroing) drives the admittance, its full estimate (before them)
+   is compensated by the pose controller (see :mod:`omnirotor.control.observer`);
+4. the wrench moved to the end-effector (EE) tip, admittance filter, compliant EE reference (SPEC §4.4);
+5. body reference from the EE reference (SPEC §4.4);
+6. pose controller -> wrench reference ``[f_ref_W; m_ref_B]`` (SPEC §4.1);
+7. allocation QP -> inputs u [Hz²] (SPEC §4.2), then ``omega = sign(u) sqrt(|u|)`` clipped to the limits.
+
+Safety: the estimators replace a non-finite or out-of-range sensor sample by the last good one and say so;
+the step is then flagged ``NONFINITE_INPUT`` and runs on. Should a non-finite state estimate (or measured
+rotor speed) still arrive, no stateful block is updated and the last safe command is held, flagged
+``NONFINITE_INPUT``. Nothing non-finite ever leaves :meth:`step`.
+
+The observer's input ``u`` is by default the *measured* rotor speeds of the frame (``u = |omega| omega``,
+as on the robot, where the motor controllers report them; it accounts for the rotor lag), or with
+``observer_input = "commanded"`` the previous command.
+
+Trajectory time is ``frame.t - t0`` with ``t0`` the time of the frame given to :meth:`reset`. :meth:`reset`
+consumes that frame (the estimator starts from it); the command for the first period is
+:meth:`InteractionController.hold_command`, and :meth:`step` takes the frames that follow.
+
+Every step is logged in :attr:`InteractionController.log` (a :class:`~omnirotor.recorder.Recorder`, groups
+in :data:`LOG_GROUPS`): time, estimate, actual EE position, desired and compliant EE poses, admittance
+offset, estimated wrench, wrench reference, pose errors, u, omega command, region index and status.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
+from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee, ee_wrench_W
+from omnirotor.control.allocation import AllocationParams, AllocationStatus, Allocator
+from omnirotor.control.estimator import EstimatorParams, make_estimator
+from omnirotor.control.maps import MapParams, MapScheduler
+from omnirotor.control.observer import ObserverParams, WrenchObserver
+from omnirotor.control.pose import PoseController, PoseControlParams
+from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
+from omnirotor.errors import InputError
+from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame
+from omnirotor.recorder import Recorder
+from omnirotor.vehicle import VehicleParams
+from omnirotor.wrench_maps import WrenchMapSet
+
+__all__ = [
+    "ControllerParams",
+    "InteractionController",
+    "load_controller_params",
+    "LOG_GROUPS",
+    "OBSERVER_INPUTS",
+]
+
+OBSERVER_INPUTS = ("measured", "commanded")
+
+_XYZ = ("x", "y", "z")
+_RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")  # row-major entries of a rotation matrix
+
+
+def _reference_groups(prefix: str) -> list[tuple[str, tuple[str, ...]]]:
+    """The six groups of a logged ReferenceSample buffer (its layout: p, v, a, R, omega, alpha)."""
+    return [
+        (f"p_{prefix}_W", _XYZ),
+        (f"v_{prefix}_W", _XYZ),
+        (f"a_{prefix}_W", _XYZ),
+        (f"R_{prefix}", _RMAT),
+        (f"omega_{prefix}_W", _XYZ),
+        (f"alpha_{prefix}_W", _XYZ),
+    ]
+
+
+def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noqa: N802 (a table, by name)
+    """Column groups of the controller log for a vehicle with ``n_rotors`` rotors.
+
+    ``t`` [s] trajectory time; ``region`` map region index (-1 in nominal/global mode); ``status`` the
+    :class:`ControlStatus` bits; ``p_W, v_W, a_W, R_WB, omega_B`` the state estimate (``R_WB`` row-major);
+    ``p_E_W`` the estimated EE tip; ``*_E_ref*`` the compliant EE reference and ``*_E_des*`` the desired
+    EE reference (pose, velocity, acceleration, world-frame angular velocity and acceleration);
+    ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the observer's interaction estimate;
+    ``w_ref`` the pose controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the
+    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command.
+    """
+    rotors = tuple(str(i + 1) for i in range(n_rotors))
+    return [
+        ("t", 1),
+        ("region", 1),
+        ("status", 1),
+        ("p_W", _XYZ),
+        ("v_W", _XYZ),
+        ("a_W", _XYZ),
+        ("R_WB", _RMAT),
+        ("omega_B", _XYZ),
+        ("p_E_W", _XYZ),
+        *_reference_groups("E_ref"),
+        *_reference_groups("E_des"),
+        ("xi_p_W", _XYZ),
+        ("f_ext_W", _XYZ),
+        ("m_ext_B", _XYZ),
+        ("w_ref", ("fx", "fy", "fz", "mx", "my", "mz")),
+        ("pose_err", tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in _XYZ)),
+        ("u_hz2", rotors),
+        ("omega_cmd_hz", rotors),
+    ]
+
+
+# Layout of the controller's own logged buffer: t, region, status, estimate (p, v, a, R, omega), EE tip.
+_H_SCALARS = slice(0, 3)
+_H_EST = slice(3, 24)
+_H_P = slice(3, 6)
+_H_P_E = slice(24, 27)
+_H_SIZE = 27
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerParams:
+    """Parameters of the whole controller; one TOML section per block (see :func:`load_controller_params`).
+
+    Attributes:
+        pose: pose controller (SPEC §4.1).
+        allocation: allocation QP (SPEC §4.2).
+        maps: wrench-map scheduling (SPEC §3.3).
+        observer: wrench observer (SPEC §4.3).
+        admittance: admittance filter (SPEC §4.4, §5.1); default the free-flight set.
+        estimator: state estimator (SPEC §4.5).
+        dt: control period [s] (1 kHz, SPEC §4).
+        log_capacity: rows preallocated for the log [steps].
+        observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
+    """
+
+    pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
+    allocation: AllocationParams = dataclasses.field(default_factory=AllocationParams)
+    maps: MapParams = dataclasses.field(default_factory=MapParams)
+    observer: ObserverParams = dataclasses.field(default_factory=ObserverParams)
+    admittance: AdmittanceParams = dataclasses.field(default_factory=AdmittanceParams)
+    estimator: EstimatorParams = dataclasses.field(default_factory=EstimatorParams)
+    dt: float = 1e-3
+    log_capacity: int = 120_000
+    observer_input: str = "measured"
+
+    def __post_init__(self) -> None:
+        check_positive("controller dt", self.dt)
+        if isinstance(self.log_capacity, bool) or not isinstance(self.log_capacity, int) or self.log_capacity < 0:
+            raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
+        if self.observer_input not in OBSERVER_INPUTS:
+            raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
+
+
+def load_controller_params(
+    path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()
+) -> ControllerParams:
+    """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
+
+    The file has top-level ``dt``, ``log_capacity``, ``observer_input`` and sections ``[pose]``,
+    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]`` whose keys are the
+    fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
+    ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
+
+    Args:
+        path: TOML file, or None for the defaults.
+        overrides: dotted overrides applied after the file.
+
+    Raises:
+        InputError: unreadable file, unknown key, bad value.
+    """
+    params = ControllerParams()
+    if path is not None:
+        params = from_mapping(ControllerParams, load_toml(path), str(path))
+    return apply_overrides(params, list(overrides))
+
+
+# ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(32))
+_QP_FALLBACK = int(ControlStatus.QP_FALLBACK)
+_NONFINITE = int(ControlStatus.NONFINITE_INPUT)
+_SATURATED = int(ControlStatus.SATURATED)
+_DEGRADED = int(ControlStatus.ESTIMATE_DEGRADED)
+_EXCLUDED = int(ControlStatus.ROTOR_EXCLUDED)
+
+
+class InteractionController:
+    """The composed interaction controller (module docstring).
+
+    Args:
+        vehicle: the vehicle model.
+        params: controller parameters.
+        maps: identified wrench maps; required by ``maps.mode`` "global" and "piecewise".
+
+    Attributes:
+        estimator, scheduler, observer, admittance, pose, allocator: the blocks.
+        log: the step log (:data:`LOG_GROUPS`); cleared by :meth:`reset`.
+        desired_ee, compliant_ee, body_ref: the references of the last step.
+    """
+
+    def __init__(
+        self, vehicle: VehicleParams, params: ControllerParams | None = None, maps: WrenchMapSet | None = None
+    ) -> None:
+        self.vehicle = vehicle
+        self.params = params if params is not None else ControllerParams()
+        p = self.params
+        n = vehicle.n_rotors
+        self.estimator = make_estimator(vehicle, p.estimator)
+        self.scheduler = MapScheduler(vehicle, maps, p.maps)
+        self.observer = WrenchObserver(vehicle, p.observer)
+        self.admittance = AdmittanceFilter(p.admittance)
+        self.pose = PoseController(vehicle, p.pose)
+        self.allocator = Allocator(vehicle, p.allocation)
+        self._dt = p.dt
+        self._measured_input = p.observer_input == "measured"
+        self._p_E_B = vehicle.p_E_B_array
+        self._p_E_B_floats = tuple(float(x) for x in vehicle.p_E_B)
+        self._omega_lo = float(vehicle.omega_min_hz)
+        self._omega_hi = float(vehicle.omega_max_hz)
+        self._n = n
+        # References and wrench buffers.
+        self.desired_ee = ReferenceSample()
+        self.compliant_ee = ReferenceSample()
+        self.body_ref = ReferenceSample()
+        self._f_comp_W = self.observer.filtered[0:3]
+        self._m_comp_B = self.observer.filtered[3:6]
+        self._f_E_W = np.zeros(3)
+        self._m_E_W = np.zeros(3)
+        # Inputs and commands.
+        self._u_obs = np.zeros(n)  # u fed to the observer [Hz²]
+        self._u_cmd = np.zeros(n)  # last allocated u [Hz²]
+        self._omega_cmd = np.zeros(n)  # last command [Hz]
+        self._omega_safe = np.zeros(n)  # last finite command [Hz]
+        self._excluded = False
+        # The controller's own logged values (scalars, estimate, EE tip) in one buffer; the log row is
+        # that buffer followed by the blocks' own buffers (one np.concatenate per step).
+        self._head = np.zeros(_H_SIZE)
+        self._head_est = self._head[_H_EST]
+        self.log = Recorder(p.log_capacity, LOG_GROUPS(n))
+        self.log.bind(
+            self._head,
+            self.compliant_ee.data,
+            self.desired_ee.data,
+            self.admittance.xi_p_W,
+            self.observer.output,
+            self.pose.w_ref,
+            self.pose.errors,
+            self._u_cmd,
+            self._omega_cmd,
+        )
+        self._trajectory: PoseTrajectory | None = None
+        self._t0 = 0.0
+
+    # -- set-up -------------------------------------------------------------------------------------------
+
+    @property
+    def trajectory(self) -> PoseTrajectory | None:
+        """The desired EE trajectory given to :meth:`reset`."""
+        return self._trajectory
+
+    def set_failed_rotors(self, mask: np.ndarray | None) -> None:
+        """Exclude rotors from the allocation (see :meth:`Allocator.set_failed_rotors`)."""
+        self.allocator.set_failed_rotors(mask)
+        self._excluded = bool(np.any(self.allocator.failed_rotors))
+
+    def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
+        """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
+
+        The held "last safe" command starts as the frame's measured rotor speeds (clipped), or the upright
+        hover speeds if those are not finite. The log is cleared.
+
+        Raises:
+            InputError: not a :class:`PoseTrajectory`, or a frame whose rotor count is not the vehicle's.
+        """
+        if not isinstance(trajectory, PoseTrajectory):
+            raise InputError(f"expected a PoseTrajectory, got {type(trajectory).__name__}")
+        hz = np.asarray(frame.rotor_hz, dtype=float)
+        if hz.shape != (self._n,):
+            raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
+        self._trajectory = trajectory
+        self._t0 = float(frame.t)
+        self.estimator.reset(frame)
+        self.observer.reset()
+        self.admittance.reset()
+        self.pose.reset()
+        self.allocator.reset()
+        if not np.all(np.isfinite(hz)):
+            u = self.vehicle.hover_input()
+            hz = np.sign(u) * np.sqrt(np.abs(u))
+        np.clip(hz, self._omega_lo, self._omega_hi, out=self._omega_safe)
+        self._omega_cmd[:] = self._omega_safe
+        np.multiply(np.abs(self._omega_safe), self._omega_safe, out=self._u_cmd)
+        self._u_obs[:] = self._u_cmd
+        trajectory.sample(0.0, self.desired_ee)
+        self.compliant_ee.copy_from(self.desired_ee)
+        body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
+        self.log.clear()
+
+    def hold_command(self, t: float | None = None) -> RotorCommand:
+        """The last safe command (after :meth:`reset`: the initial frame's speeds), e.g. for the first period.
+
+        :meth:`reset` consumes its frame; the command that flies the period until the next frame is this
+        one, and :meth:`step` then takes the frames that follow.
+
+        Args:
+            t: time stamp [s] of the command; default the reset frame's time.
+        """
+        return RotorCommand(t=self._t0 if t is None else t, omega_hz=self._omega_safe.copy())
+
+    # -- the 1 kHz step -----------------------------------------------------------------------------------
+
+    def step(self, frame: SensorFrame) -> RotorCommand:
+        """One control period: sensor frame in, rotor command out (module docstring).
+
+        Returns:
+            A command with fresh arrays; its speeds are finite and within the vehicle's limits.
+        """
+        if self._trajectory is None:
+            raise InputError("InteractionController.step before reset(frame, trajectory)")
+        dt = self._dt
+        t = frame.t - self._t0
+        bits = 0
+        state = self.estimator.step(frame)
+        if self.estimator.degraded or not state.valid:
+            bits |= _DEGRADED
+        if self.estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
+            bits |= _NONFINITE
+        head = self._head
+        est = self._head_est
+        np.concatenate((state.p_W, state.v_W, state.a_W, state.R_WB.reshape(9), state.omega_B), out=est)
+        finite = math.isfinite(est.sum())
+        if self._measured_input and finite:
+            hz = frame.rotor_hz
+            np.multiply(np.abs(hz), hz, out=self._u_obs)
+            finite = math.isfinite(self._u_obs.sum())
+        if finite:
+            R = state.R_WB
+            A = self.scheduler.select(R)
+            u_obs = self._u_obs if self._measured_input else self._u_cmd
+            f_hat, m_hat = self.observer.step(state, u_obs, A, dt)  # interaction estimate
+            ee_wrench_W(f_hat, m_hat, R, self._p_E_B, self._f_E_W, self._m_E_W)
+            self.admittance.step(self._f_E_W, self._m_E_W, dt)
+            self._trajectory.sample(t, self.desired_ee)
+            self.admittance.compliant_reference(self.desired_ee, self.compliant_ee)
+            body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
+            # The pose controller compensates the whole unexplained wrench (before bias and zeroing).
+            w_ref = self.pose.step(self.body_ref, state, self._f_comp_W, self._m_comp_B, dt)
+            u = self.allocator.solve(w_ref, R, A)
+            status = self.allocator.status
+            if status == AllocationStatus.FALLBACK:
+                bits |= _QP_FALLBACK
+            elif status == AllocationStatus.NONFINITE:
+                bits |= _NONFINITE
+            if self.allocator.saturated:
+                bits |= _SATURATED
+            # omega = sign(u) sqrt(|u|), clipped to the rotor limits.
+            lo, hi = self._omega_lo, self._omega_hi
+            omegas = [math.copysign(math.sqrt(abs(x)), x) for x in u.tolist()]
+            omegas = [lo if w < lo else (hi if w > hi else w) for w in omegas]
+            total = math.fsum(omegas)
+            if math.isfinite(total):
+                self._u_cmd[:] = u
+                self._omega_cmd[:] = omegas
+                self._omega_safe[:] = omegas
+            else:
+                bits |= _NONFINITE
+                self._omega_cmd[:] = self._omega_safe
+            # Estimated EE tip, for the log.
+            ex, ey, ez = self._p_E_B_floats
+            (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+            px, py, pz = head[_H_P].tolist()
+            head[_H_P_E] = (
+                px + r00 * ex + r01 * ey + r02 * ez,
+                py + r10 * ex + r11 * ey + r12 * ez,
+                pz + r20 * ex + r21 * ey + r22 * ez,
+            )
+        else:
+            bits |= _NONFINITE
+            self._omega_cmd[:] = self._omega_safe
+        if self._excluded:
+            bits |= _EXCLUDED
+        head[_H_SCALARS] = (t, self.scheduler.region_index, bits)
+        self.log.record_bound()
+        return RotorCommand(t=frame.t, omega_hz=self._omega_cmd.copy(), status=_STATUS_BY_BITS[bits])

@@ -1,0 +1,310 @@
+"""Which wrench map the controller uses at the current attitude (SPEC §3.3).
+
+The controller keeps one map ``A`` (6 x n, body frame, SPEC §1.2) per region of the sphere of up
+directions ``v_B = R_WBᵀ e3`` (the third row of ``R_WB``; see :mod:`omnirotor.regions`). The map selected
+here is used **both** by the allocation QP and by the wrench observer (SPEC §3.3). Modes:
+
+* ``nominal``: always the vehicle's nominal map ``A_nom`` (no map file needed);
+* ``global``: always the single map identified on all data (``WrenchMapSet.global_``);
+* ``piecewise``: the map of the attitude's region, in one of two blends:
+
+  - ``hard`` (the paper): the map of the *first* region whose closed azimuth and elevation intervals
+    contain ``v_B`` (:meth:`omnirotor.regions.Partition.index_of_direction`); no interpolation and no
+    hysteresis, so the map, and with it the rotor command, jumps when a border is crossed;
+  - ``smooth`` (an extension, [A]): a convex combination ``A = sum_k w_k A_k`` whose weights change
+    continuously across a band of total width ``blend_width_deg`` centred on every border.
+
+Smooth weights. Let ``S(t) = 3t² - 2t³`` on ``t`` clipped to [0, 1] (so ``S(t) + S(1 - t) = 1``) and
+``b`` the band width [rad]. A closed interval ``[lo, hi]`` of a coordinate ``x`` gets the soft indicator
+``S((x - lo)/b + 1/2) · S((hi - x)/b + 1/2)``: 1 deeper than ``b/2`` inside, 1/2 on the edge, 0 beyond
+``b/2`` outside. Edges that are not borders get no ramp: the poles (elevation ±90°) and an azimuth
+interval that spans the whole circle. Azimuth intervals of one region that meet across ±180° (the paper's
+R5 and R10) are merged first into one circular interval, and azimuth distances are taken on the circle. A
+region's raw weight is (azimuth indicator) x (elevation indicator), and the weights are normalised to sum
+to 1. On a border shared by two regions the two ramps are mirror images, so the pair of weights goes
+continuously from (1, 0) to (0, 1) across the band, with (1/2, 1/2) on the border itself; at a corner
+where three regions meet the products still sum to 1. Away from every border (further than ``b/2`` in
+both angles) the weights are one-hot and the map equals the hard map. Bands are measured in azimuth and
+elevation *angles*: near the caps an azimuth band is narrower on the sphere (by cos(elevation)). The
+construction assumes regions that meet only on their borders, as the paper's do, and a band narrower than
+every region's extent (checked).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from omnirotor.config import check_positive
+from omnirotor.errors import InputError
+from omnirotor.regions import Partition, Region, azimuth_elevation
+from omnirotor.vehicle import VehicleParams
+from omnirotor.wrench_maps import WrenchMapSet
+
+__all__ = ["MapParams", "MapScheduler", "MAP_MODES", "BLENDS"]
+
+MAP_MODES = ("nominal", "global", "piecewise")
+"""Which map(s) the controller flies with."""
+BLENDS = ("hard", "smooth")
+"""How the piecewise map changes across a region border."""
+
+_TWO_PI = 2.0 * math.pi
+_HALF_PI = 0.5 * math.pi
+_EDGE_TOL_RAD = 1e-12  # an interval edge this close to ±pi/2 or to a full circle is not a border
+
+
+@dataclasses.dataclass(frozen=True)
+class MapParams:
+    """Wrench-map scheduling in the loop (SPEC §3.3).
+
+    Attributes:
+        mode: "nominal" (default; the map of SPEC §1.2), "global" (one identified map) or "piecewise".
+        blend: "hard" (default; the paper's first-region switch) or "smooth" (blended near borders).
+        blend_width_deg: total width of the blending band centred on each border [deg] (smooth only).
+    """
+
+    mode: str = "nominal"
+    blend: str = "hard"
+    blend_width_deg: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in MAP_MODES:
+            raise InputError(f"map mode must be one of {', '.join(MAP_MODES)}, got {self.mode!r}")
+        if self.blend not in BLENDS:
+            raise InputError(f"map blend must be one of {', '.join(BLENDS)}, got {self.blend!r}")
+        check_positive("map blend_width_deg", self.blend_width_deg)
+        if self.blend_width_deg > 90.0:
+            raise InputError(f"map blend_width_deg must be <= 90, got {self.blend_width_deg}")
+
+
+def _smoothstep(t: float) -> float:
+    """``3t² - 2t³`` on t clipped to [0, 1]."""
+    if t <= 0.0:
+        return 0.0
+    if t >= 1.0:
+        return 1.0
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _wrap_pi(a: float) -> float:
+    """Angle [rad] wrapped to [-pi, pi)."""
+    return (a + math.pi) % _TWO_PI - math.pi
+
+
+@dataclasses.dataclass(frozen=True)
+class _SoftRegion:
+    """A region as circular azimuth intervals (centre, half-width) [rad] and an elevation interval."""
+
+    az_full: bool
+    az_centres: tuple[float, ...]
+    az_halves: tuple[float, ...]
+    el_lo: float  # -inf when the lower edge is the south pole (no border)
+    el_hi: float  # +inf when the upper edge is the north pole
+
+    @classmethod
+    def from_region(cls, region: Region) -> _SoftRegion:
+        ivs = sorted((math.radians(lo), math.radians(hi)) for lo, hi in region.azimuth_deg)
+        merged: list[list[float]] = []
+        for lo, hi in ivs:
+            if merged and lo <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], hi)
+            else:
+                merged.append([lo, hi])
+        # Intervals touching -pi and +pi are one interval across the seam.
+        if len(merged) > 1 and merged[0][0] <= -math.pi + _EDGE_TOL_RAD and merged[-1][1] >= math.pi - _EDGE_TOL_RAD:
+            first = merged.pop(0)
+            merged[-1][1] = first[1] + _TWO_PI
+        full = any(hi - lo >= _TWO_PI - _EDGE_TOL_RAD for lo, hi in merged)
+        lo_el, hi_el = (math.radians(e) for e in region.elevation_deg)
+        return cls(
+            az_full=full,
+            az_centres=tuple(0.5 * (lo + hi) for lo, hi in merged),
+            az_halves=tuple(0.5 * (hi - lo) for lo, hi in merged),
+            el_lo=-math.inf if lo_el <= -_HALF_PI + _EDGE_TOL_RAD else lo_el,
+            el_hi=math.inf if hi_el >= _HALF_PI - _EDGE_TOL_RAD else hi_el,
+        )
+
+    def narrowest_rad(self) -> float:
+        """Widest band [rad] the region supports.
+
+        Its two border ramps must not overlap, and a ramp must not reach a pole (where the azimuth of the
+        neighbours' weights would be undefined).
+        """
+        widths = [] if self.az_full else [2.0 * h for h in self.az_halves]
+        lo_border, hi_border = math.isfinite(self.el_lo), math.isfinite(self.el_hi)
+        if lo_border and hi_border:
+            widths.append(self.el_hi - self.el_lo)
+        elif lo_border:
+            widths.append(2.0 * (_HALF_PI - self.el_lo))
+        elif hi_border:
+            widths.append(2.0 * (self.el_hi + _HALF_PI))
+        return min(widths, default=math.inf)
+
+    def weight(self, az: float, el: float, half_band: float, inv_band: float) -> float:
+        """Raw soft membership of (az, el) [rad] for a band of half-width ``half_band`` = 1 / (2 inv_band)."""
+        lo, hi = self.el_lo, self.el_hi
+        if el <= lo - half_band or el >= hi + half_band:
+            return 0.0
+        w = 1.0
+        if el < lo + half_band:
+            w = _smoothstep((el - lo) * inv_band + 0.5)
+        elif el > hi - half_band:
+            w = _smoothstep((hi - el) * inv_band + 0.5)
+        if self.az_full:
+            return w
+        a = 0.0
+        for c, h in zip(self.az_centres, self.az_halves, strict=True):
+            d = h - abs(_wrap_pi(az - c))  # signed distance inside the interval [rad]
+            if d >= half_band:
+                return w
+            if d > -half_band:
+                a += _smoothstep(d * inv_band + 0.5)
+        return w * a
+
+    def depth(self, az: float, el: float) -> float:
+        """Smallest angular distance [rad] from (az, el), inside the region, to one of its borders."""
+        d = math.inf
+        if self.el_lo > -math.inf:
+            d = el - self.el_lo
+        if self.el_hi < math.inf:
+            d = min(d, self.el_hi - el)
+        if not self.az_full:
+            d_az = -math.inf
+            for c, h in zip(self.az_centres, self.az_halves, strict=True):
+                d_az = max(d_az, h - abs(_wrap_pi(az - c)))
+            d = min(d, d_az)
+        return d
+
+
+class MapScheduler:
+    """Select the wrench map for the current attitude (SPEC §3.3), for the allocation and the observer.
+
+    Attributes:
+        region_index: index in ``maps.partition`` of the attitude's region (first match, as the hard
+            switch), updated by :meth:`select` in piecewise mode; -1 in nominal and global modes, where no
+            region is used.
+        region_name: name of that region, or "nominal" / "global" in those modes.
+        weights: (K,) read-only blending weights of the K regions from the last :meth:`select` (one-hot
+            with hard blending); empty outside piecewise mode.
+    """
+
+    def __init__(self, vehicle: VehicleParams, maps: WrenchMapSet | None, params: MapParams | None = None):
+        """Prepare the maps of the chosen mode.
+
+        Args:
+            vehicle: the vehicle; its ``A_nom`` is the nominal map.
+            maps: identified maps (``omnirotor.wrench_maps``); needed for the global and piecewise modes.
+            params: scheduling parameters; defaults to :class:`MapParams()` (nominal).
+
+        Raises:
+            InputError: a mode that needs maps without them, no global map in global mode, maps of the
+                wrong shape or with NaN/inf, or a blending band wider than a region.
+        """
+        self.params = params if params is not None else MapParams()
+        self.vehicle = vehicle
+        n = vehicle.n_rotors
+        mode = self.params.mode
+        self._maps: np.ndarray  # (K, 6, n) maps to choose from
+        self._partition: Partition | None = None
+        if mode == "nominal":
+            self._maps = vehicle.A_nom[None].copy()
+        else:
+            if maps is None:
+                raise InputError(f"map mode {mode!r} needs a wrench-map file")
+            if mode == "global":
+                if maps.global_ is None:
+                    raise InputError("map mode 'global' needs a global map, and the wrench-map file has none")
+                self._maps = np.asarray(maps.global_.A, dtype=float)[None].copy()
+            else:
+                self._partition = maps.partition
+                region_maps = [np.asarray(A, dtype=float) for A in maps.region_maps()]
+                for name, A in zip(maps.partition.names, region_maps, strict=True):
+                    if A.shape != (6, n):
+                        raise InputError(f"wrench map of {name} has shape {A.shape}, the vehicle needs (6, {n})")
+                self._maps = np.array(region_maps)
+        if self._maps.shape[1:] != (6, n):
+            raise InputError(f"wrench map has shape {self._maps.shape[1:]}, the vehicle needs (6, {n})")
+        if not np.all(np.isfinite(self._maps)):
+            raise InputError("wrench maps contain NaN or inf")
+        K = self._maps.shape[0]
+        self._flat = self._maps.reshape(K, 6 * n)
+        self._out = self._maps[0].copy()
+        self._out_flat = self._out.reshape(6 * n)
+        self._view = self._out.view()
+        self._view.flags.writeable = False
+        self._smooth = self._partition is not None and self.params.blend == "smooth"
+        self._band = math.radians(self.params.blend_width_deg)
+        self._inv_band = 1.0 / self._band
+        self._soft: tuple[_SoftRegion, ...] = ()
+        if self._partition is not None:
+            self._soft = tuple(_SoftRegion.from_region(r) for r in self._partition.regions)
+            if self._smooth:
+                narrow = min(s.narrowest_rad() for s in self._soft)
+                if self._band > narrow:
+                    raise InputError(
+                        f"map blend_width_deg {self.params.blend_width_deg} is wider than the narrowest region "
+                        f"({math.degrees(narrow):.1f} deg) of partition {self._partition.name!r}"
+                    )
+        self._raw = [0.0] * (K if self._partition is not None else 0)
+        self._weights = np.zeros(len(self._raw))
+        self._weights_view = self._weights.view()
+        self._weights_view.flags.writeable = False
+        self._blended = False  # _out currently holds a blend rather than one region's map
+        self.region_index = -1
+        self.region_name = mode
+        if self._partition is not None:
+            self.select(np.eye(3))
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(K,) blending weights of the regions at the last :meth:`select` (read-only)."""
+        return self._weights_view
+
+    @property
+    def n_maps(self) -> int:
+        """Number of distinct maps the scheduler chooses from (1 in nominal and global modes)."""
+        return self._maps.shape[0]
+
+    def select(self, R_WB: np.ndarray) -> np.ndarray:
+        """The (6, n) wrench map to use at attitude ``R_WB``.
+
+        Args:
+            R_WB: (3, 3) attitude, body to world; its third row is the up direction ``v_B``.
+
+        Returns:
+            (6, n) read-only map, an array owned by the scheduler and overwritten by later calls. With a
+            non-finite attitude the previous map is kept.
+        """
+        if self._partition is None:
+            return self._view
+        az, el = azimuth_elevation(R_WB[2])
+        if not (math.isfinite(az) and math.isfinite(el)):
+            return self._view
+        k = -1
+        for j, region in enumerate(self._partition.regions):
+            if region.contains(az, el):
+                k = j
+                break
+        if k < 0:  # a hole in a user partition (the grid check at load missed it): keep the last map
+            return self._view
+        if k != self.region_index:
+            self.region_index = k
+            self.region_name = self._partition.regions[k].name
+        if self._smooth and self._soft[k].depth(az, el) < 0.5 * self._band:
+            raw, half_band, inv_band = self._raw, 0.5 * self._band, self._inv_band
+            total = 0.0
+            for j, soft in enumerate(self._soft):
+                raw[j] = soft.weight(az, el, half_band, inv_band)
+                total += raw[j]
+            self._weights[:] = raw
+            self._weights *= 1.0 / total
+            np.dot(self._weights, self._flat, out=self._out_flat)
+            self._blended = True
+        elif self._blended or self._weights[k] != 1.0:
+            self._weights[:] = 0.0
+            self._weights[k] = 1.0
+            self._out[:] = self._maps[k]
+            self._blended = False
+        return self._view

@@ -1,0 +1,252 @@
+"""Desired end-effector trajectory through timed pose waypoints (SPEC §4.5).
+
+Between two waypoints the position follows the rest-to-rest minimum-jerk quintic and the attitude moves
+along the geodesic of SO(3) with a smooth time scaling ``s(t)`` in [0, 1]:
+
+    p(t) = p_i + s(t) (p_{i+1} - p_i),       s = 10 tau^3 - 15 tau^4 + 6 tau^5,  tau = (t - t_i) / T_i
+    R(t) = R_i exp(s_R(t) [phi_i]x),         phi_i = log(R_i^T R_{i+1})  (body-frame rotation vector)
+
+The attitude scaling ``s_R`` is the same quintic by default (``attitude_profile="quintic"``: angular
+acceleration continuous, zero at every waypoint). ``attitude_profile="cubic"`` uses
+``s_R = 3 tau^2 - 2 tau^3``, the rest-to-rest profile of minimum integrated squared angular acceleration
+(the authors' ``minAaccPolyTraj``); its angular acceleration jumps at the waypoints.
+
+Because ``phi_i`` is constant on a segment, the angular velocity and acceleration have a fixed world
+direction: ``omega_W = R_i phi_i s_R'`` and ``alpha_W = R_i phi_i s_R''``. Every sampled quantity is
+therefore linear in the eight scalars ``(1, s, s', s'', sin(theta s_R), 1 - cos(theta s_R), s_R', s_R'')``
+(Rodrigues' formula with ``theta = |phi_i|``); a segment stores that linear map as one (24, 8) matrix, and
+sampling is a single matrix-vector product into the flat buffer of a :class:`ReferenceSample` (no
+allocation per call).
+
+Velocities are zero at every waypoint; before the first and after the last waypoint the trajectory holds
+that pose at rest. Angular velocity and acceleration are **world-frame** vectors (``omega_W``,
+``alpha_W``), with ``dR/dt = [omega_W]x R``.
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from omnirotor.errors import InputError
+from omnirotor.so3 import hat, log_so3
+
+__all__ = ["Waypoint", "ReferenceSample", "PoseTrajectory", "ATTITUDE_PROFILES", "ROTATION_TOLERANCE"]
+
+ATTITUDE_PROFILES = ("quintic", "cubic")
+ROTATION_TOLERANCE = 1e-6
+"""Largest entry of ``R^T R - I`` accepted for a waypoint attitude."""
+
+# Layout of the flat (24,) buffer of a ReferenceSample.
+_P, _V, _A, _R, _OMEGA, _ALPHA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 21), slice(21, 24)
+_N_FLAT = 24
+# Columns of the per-segment basis: the scalar functions of time the sample is linear in.
+_K_ONE, _K_S, _K_SD, _K_SDD, _K_SIN, _K_VERS, _K_SR_D, _K_SR_DD = range(8)
+_N_BASIS = 8
+
+
+class ReferenceSample:
+    """A mutable pose reference with its derivatives, all views into one flat (24,) float buffer.
+
+    Attributes:
+        data: (24,) the buffer: ``p_W, v_W, a_W, R_WB (row-major), omega_W, alpha_W``.
+        p_W: (3,) position [m], world frame.
+        v_W: (3,) velocity [m/s], world frame.
+        a_W: (3,) acceleration [m/s²], world frame.
+        R_WB: (3, 3) attitude (frame to world).
+        omega_W: (3,) angular velocity [rad/s], **world frame**: ``dR_WB/dt = [omega_W]x R_WB``.
+        alpha_W: (3,) angular acceleration [rad/s²], world frame (time derivative of ``omega_W``).
+    """
+
+    __slots__ = ("data", "p_W", "v_W", "a_W", "R_WB", "omega_W", "alpha_W")
+
+    def __init__(self) -> None:
+        self.data = np.zeros(_N_FLAT)
+        self.p_W = self.data[_P]
+        self.v_W = self.data[_V]
+        self.a_W = self.data[_A]
+        self.R_WB = self.data[_R].reshape(3, 3)
+        self.omega_W = self.data[_OMEGA]
+        self.alpha_W = self.data[_ALPHA]
+        self.R_WB[...] = np.eye(3)
+
+    @classmethod
+    def at_rest(cls, p_W: np.ndarray, R_WB: np.ndarray) -> ReferenceSample:
+        """A sample holding pose ``(p_W [m], R_WB)`` with zero velocities and accelerations."""
+        out = cls()
+        out.p_W[:] = p_W
+        out.R_WB[:] = R_WB
+        return out
+
+    def copy_from(self, other: ReferenceSample) -> None:
+        """Overwrite this sample with ``other`` (no allocation)."""
+        np.copyto(self.data, other.data)
+
+    def copy(self) -> ReferenceSample:
+        """An independent copy."""
+        out = ReferenceSample()
+        out.copy_from(self)
+        return out
+
+    def __repr__(self) -> str:
+        return f"ReferenceSample(p_W={self.p_W.tolist()}, R_WB={self.R_WB.tolist()})"
+
+
+def _check_rotation(R: np.ndarray, where: str) -> None:
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise InputError(f"{where}: R_WB must be a finite (3, 3) matrix")
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(R) <= 0.0:
+        raise InputError(f"{where}: R_WB is not a proper rotation (R^T R = I, det R = +1)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Waypoint:
+    """A timed end-effector pose (the EE frame's attitude equals the body's, R_E^B = I, SPEC §1.5).
+
+    Attributes:
+        t: time [s], relative to the start of the trajectory.
+        p_W: (3,) EE position [m], world frame.
+        R_WB: (3, 3) EE attitude (EE to world).
+    """
+
+    t: float
+    p_W: np.ndarray
+    R_WB: np.ndarray
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.t):
+            raise InputError(f"waypoint time must be finite, got {self.t}")
+        p = np.array(self.p_W, dtype=float)
+        R = np.array(self.R_WB, dtype=float)
+        where = f"waypoint at t = {self.t} s"
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise InputError(f"{where}: p_W must be a finite 3-vector")
+        _check_rotation(R, where)
+        p.flags.writeable = False
+        R.flags.writeable = False
+        object.__setattr__(self, "t", float(self.t))
+        object.__setattr__(self, "p_W", p)
+        object.__setattr__(self, "R_WB", R)
+
+
+def _segment_basis(a: Waypoint, b: Waypoint) -> tuple[np.ndarray, float]:
+    """(24, 8) map from the time-scaling scalars to the flat sample on segment a -> b, and theta [rad]."""
+    M = np.zeros((_N_FLAT, _N_BASIS))
+    dp = b.p_W - a.p_W
+    M[_P, _K_ONE] = a.p_W
+    M[_P, _K_S] = dp
+    M[_V, _K_SD] = dp
+    M[_A, _K_SDD] = dp
+    phi_B = log_so3(a.R_WB.T @ b.R_WB)
+    theta = float(np.linalg.norm(phi_B))
+    M[_R, _K_ONE] = a.R_WB.reshape(-1)
+    if theta > 0.0:
+        K = hat(phi_B / theta)
+        M[_R, _K_SIN] = (a.R_WB @ K).reshape(-1)
+        M[_R, _K_VERS] = (a.R_WB @ K @ K).reshape(-1)
+    phi_W = a.R_WB @ phi_B
+    M[_OMEGA, _K_SR_D] = phi_W
+    M[_ALPHA, _K_SR_DD] = phi_W
+    return M, theta
+
+
+class PoseTrajectory:
+    """Minimum-jerk position and smooth geodesic attitude through timed waypoints (SPEC §4.5).
+
+    Args:
+        waypoints: at least one :class:`Waypoint`, with strictly increasing times.
+        attitude_profile: "quintic" (default) or "cubic" time scaling of the attitude (module docstring).
+
+    Raises:
+        InputError: no waypoints, times not strictly increasing, or an unknown profile.
+    """
+
+    def __init__(self, waypoints: Sequence[Waypoint], attitude_profile: str = "quintic") -> None:
+        wps = tuple(waypoints)
+        if not wps:
+            raise InputError("a trajectory needs at least one waypoint")
+        for w in wps:
+            if not isinstance(w, Waypoint):
+                raise InputError(f"expected Waypoint objects, got {type(w).__name__}")
+        for w0, w1 in zip(wps[:-1], wps[1:], strict=True):
+            if not w1.t > w0.t:
+                raise InputError(f"waypoint times must be strictly increasing: {w0.t} s then {w1.t} s")
+        if attitude_profile not in ATTITUDE_PROFILES:
+            raise InputError(f"attitude_profile must be one of {ATTITUDE_PROFILES}, got {attitude_profile!r}")
+        self.waypoints = wps
+        self.attitude_profile = attitude_profile
+        self._times = [w.t for w in wps]
+        self._bases = []
+        self._thetas = []
+        for w0, w1 in zip(wps[:-1], wps[1:], strict=True):
+            M, theta = _segment_basis(w0, w1)
+            self._bases.append(M)
+            self._thetas.append(theta)
+        self._hold_first = np.zeros((_N_FLAT, _N_BASIS))
+        self._hold_first[_P, _K_ONE] = wps[0].p_W
+        self._hold_first[_R, _K_ONE] = wps[0].R_WB.reshape(-1)
+        self._hold_last = np.zeros((_N_FLAT, _N_BASIS))
+        self._hold_last[_P, _K_ONE] = wps[-1].p_W
+        self._hold_last[_R, _K_ONE] = wps[-1].R_WB.reshape(-1)
+        self._cubic = attitude_profile == "cubic"
+        self._k = np.zeros(_N_BASIS)
+        self._k_rest = np.zeros(_N_BASIS)
+        self._k_rest[_K_ONE] = 1.0
+
+    @property
+    def t_start(self) -> float:
+        """Time of the first waypoint [s]."""
+        return self._times[0]
+
+    @property
+    def t_end(self) -> float:
+        """Time of the last waypoint [s]."""
+        return self._times[-1]
+
+    def sample(self, t: float, out: ReferenceSample) -> ReferenceSample:
+        """Write the reference at time ``t`` [s] into ``out`` and return it.
+
+        Args:
+            t: time [s] on the waypoints' clock; outside their range the first/last pose is held at rest.
+            out: the sample to overwrite.
+
+        Returns:
+            ``out``.
+        """
+        times = self._times
+        if not t > times[0]:
+            np.dot(self._hold_first, self._k_rest, out=out.data)
+            return out
+        if not t < times[-1]:
+            np.dot(self._hold_last, self._k_rest, out=out.data)
+            return out
+        i = bisect.bisect_right(times, t) - 1
+        t0 = times[i]
+        T = times[i + 1] - t0
+        tau = (t - t0) / T
+        tau2 = tau * tau
+        tau3 = tau2 * tau
+        k = self._k
+        k[_K_ONE] = 1.0
+        k[_K_S] = s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
+        k[_K_SD] = sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
+        k[_K_SDD] = sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
+        if self._cubic:
+            s = tau2 * (3.0 - 2.0 * tau)
+            sd = 6.0 * tau * (1.0 - tau) / T
+            sdd = (6.0 - 12.0 * tau) / (T * T)
+        angle = self._thetas[i] * s
+        k[_K_SIN] = math.sin(angle)
+        k[_K_VERS] = 1.0 - math.cos(angle)
+        k[_K_SR_D] = sd
+        k[_K_SR_DD] = sdd
+        np.dot(self._bases[i], k, out=out.data)
+        return out
+
+    def __call__(self, t: float) -> ReferenceSample:
+        """A freshly allocated sample at time ``t`` [s] (convenience; use :meth:`sample` in loops)."""
+        return self.sample(t, ReferenceSample())

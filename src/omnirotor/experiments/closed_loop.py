@@ -1,0 +1,382 @@
+"""Closed loop of the interaction controller and the simulator at 1 kHz, its metrics, and the task registry.
+
+:func:`run_closed_loop` alternates ``sim.step(command)`` and ``controller.step(frame)`` (the first period
+flies the controller's hold command, as :meth:`~omnirotor.control.controller.InteractionController.reset`
+consumes the initial frame) and records the simulator's ground truth in a second preallocated
+:class:`~omnirotor.recorder.Recorder` whose row ``k`` is the instant of the controller log's row ``k`` (the
+truth at the frame the controller saw), ``t = (k + 1) dt``.
+
+Metrics follow SPEC §6 (Table 1), computed by :mod:`omnirotor.experiments.metrics` on the
+:func:`run_log` of the two recorders: errors of the true EE pose against the compliant EE reference.
+
+Tasks: :data:`TASKS` maps a name to a function ``(TaskOptions, progress) -> TaskResult``; the CLI command
+``omnirotor run`` dispatches through it, and other experiment modules add tasks with
+:func:`register_task`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Iterator
+from typing import Protocol
+
+import numpy as np
+
+from omnirotor.config import apply_overrides
+from omnirotor.control.admittance import AdmittanceParams
+from omnirotor.control.controller import ControllerParams, InteractionController, load_controller_params
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.errors import InputError
+from omnirotor.experiments.metrics import RunLog, error_stats
+from omnirotor.recorder import Recorder
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim.params import AeroParams
+from omnirotor.vehicle import VehicleParams, load_vehicle
+
+__all__ = [
+    "run_closed_loop",
+    "TRUTH_GROUPS",
+    "run_log",
+    "TaskOptions",
+    "TaskResult",
+    "TASKS",
+    "register_task",
+    "run_task",
+    "discover_tasks",
+    "hover_task",
+    "FrameSink",
+    "video_sink",
+    "TRUTH_MODELS",
+    "ESTIMATORS",
+]
+
+_XYZ = ("x", "y", "z")
+_RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")
+_PROGRESS_UPDATES = 100
+TRUTH_MODELS = ("nominal", "interference")
+ESTIMATORS = ("ukf", "bypass")
+
+
+def TRUTH_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noqa: N802 (a table, by name)
+    """Column groups of the ground-truth log: the true state, EE tip, contact wrench and loop timing.
+
+    ``controller_step_us`` is the wall-clock time of ``controller.step`` at that row [µs].
+    """
+    return [
+        ("t", 1),
+        ("p_W", _XYZ),
+        ("v_W", _XYZ),
+        ("R_WB", _RMAT),
+        ("omega_B", _XYZ),
+        ("p_E_W", _XYZ),
+        ("contact_force_W", _XYZ),
+        ("contact_moment_W", _XYZ),
+        ("in_contact", 1),
+        ("rotor_hz", tuple(str(i + 1) for i in range(n_rotors))),
+        ("controller_step_us", 1),
+    ]
+
+
+class FrameSink(Protocol):
+    """Anything that wants to see the simulator every step (e.g. a video recorder)."""
+
+    def capture(self, sim: Simulator) -> None:
+        """Called after every simulator step; decides itself whether to render a frame."""
+
+
+def start_pose_of(trajectory: PoseTrajectory, vehicle: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+    """Body pose ``(p_W [m], R_WB)`` that puts the EE tip on the trajectory's first waypoint."""
+    w = trajectory.waypoints[0]
+    return w.p_W - w.R_WB @ vehicle.p_E_B_array, w.R_WB.copy()
+
+
+def run_closed_loop(
+    sim: Simulator,
+    controller: InteractionController,
+    trajectory: PoseTrajectory,
+    duration_s: float,
+    progress: Callable[[float], None] | None = None,
+    video: FrameSink | None = None,
+    on_step: Callable[[Simulator, float], None] | None = None,
+) -> tuple[Recorder, Recorder]:
+    """Fly ``trajectory`` in ``sim`` for ``duration_s``, starting at rest on the trajectory's first pose.
+
+    Args:
+        sim: the simulator (reset here to the trajectory's start; any external wrench set before is cleared).
+        controller: the controller (reset here on the first frame).
+        trajectory: desired EE trajectory (time 0 = start of the run).
+        duration_s: simulated time [s].
+        progress: called with the completed fraction in [0, 1] about every 1 %.
+        video: optional :class:`FrameSink` given the simulator after every step.
+        on_step: optional ``(sim, t)`` callback before each simulator step from ``t`` [s], e.g. to switch an
+            external wrench on at some time with ``sim.set_external_wrench``.
+
+    Returns:
+        ``(controller log, truth log)``: the controller's own recorder (see
+        :data:`omnirotor.control.controller.LOG_GROUPS`) and a new one with :func:`TRUTH_GROUPS`.
+
+    Raises:
+        InputError: non-positive duration, or simulator and controller periods that differ.
+    """
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise InputError(f"duration must be a finite number of seconds > 0, got {duration_s}")
+    dt = controller.params.dt
+    if abs(sim.dt - dt) > 1e-12:
+        raise InputError(f"simulator period {sim.dt} s differs from the controller period {dt} s")
+    n_steps = int(round(duration_s / dt))
+    p0, R0 = start_pose_of(trajectory, controller.vehicle)
+    frame = sim.reset(p_W=p0, R_WB=R0)
+    controller.log.ensure_capacity(n_steps)
+    controller.reset(frame, trajectory)
+    truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+    every = max(1, n_steps // _PROGRESS_UPDATES)
+    clock = time.perf_counter
+    cmd = controller.hold_command()  # the reset frame is consumed by reset(); hold its speeds for one period
+    for k in range(n_steps):
+        if on_step is not None:
+            on_step(sim, sim.t)
+        frame = sim.step(cmd)
+        if video is not None:
+            video.capture(sim)
+        tic = clock()
+        cmd = controller.step(frame)
+        step_us = (clock() - tic) * 1e6
+        tr = sim.truth
+        truth_log.record(
+            tr.t,
+            tr.p_W,
+            tr.v_W,
+            tr.R_WB.reshape(9),
+            tr.omega_B,
+            tr.p_E_W,
+            tr.contact_force_W,
+            tr.contact_moment_W,
+            float(tr.in_contact),
+            tr.rotor_hz,
+            step_us,
+        )
+        if progress is not None and (k + 1) % every == 0:
+            progress((k + 1) / n_steps)
+    if progress is not None:
+        progress(1.0)
+    return controller.log, truth_log
+
+
+def run_log(controller_log: Recorder, truth_log: Recorder) -> RunLog:
+    """The signals of a run for :mod:`omnirotor.experiments.metrics`: true EE pose, references, estimates.
+
+    Rows are paired by index (row ``k`` of both logs is the same instant); the shorter log sets the length.
+    """
+    n = min(controller_log.n, truth_log.n)
+    c, tr = controller_log, truth_log
+    return RunLog(
+        t=c.group("t")[:n].copy(),
+        p_E_W=tr.group("p_E_W")[:n].copy(),
+        R_WE=tr.group("R_WB")[:n].reshape(n, 3, 3).copy(),  # R_E^B = I (SPEC §1.5)
+        p_Er_W=c.group("p_E_ref_W")[:n].copy(),
+        R_WEr=c.group("R_E_ref")[:n].reshape(n, 3, 3).copy(),
+        p_Ed_W=c.group("p_E_des_W")[:n].copy(),
+        f_ext_hat_W=c.group("f_ext_W")[:n].copy(),
+        m_ext_hat_B=c.group("m_ext_B")[:n].copy(),
+        f_contact_W=tr.group("contact_force_W")[:n].copy(),
+        in_contact=tr.group("in_contact")[:n] > 0.5,
+        region=c.group("region")[:n].astype(int),
+        omega_hz=c.group("omega_cmd_hz")[:n].copy(),
+        status=c.group("status")[:n].astype(int),
+    )
+
+
+# -- tasks ----------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskOptions:
+    """Options common to every task of ``omnirotor run``.
+
+    Attributes:
+        solver: allocation QP backend, "daqp" or "proxsuite".
+        estimator: "ukf" or "bypass" (ground truth plus noise).
+        duration_s: simulated time [s]; None for the task's default.
+        seed: simulator noise seed.
+        truth: truth aerodynamics of the simulator, "interference" (SPEC §7) or "nominal" (= A_nom u).
+        vehicle: vehicle preset or TOML file.
+        controller_config: controller TOML file (see ``load_controller_params``), or None.
+        overrides: dotted ``key=value`` overrides of the controller parameters.
+        video: MP4 file to film the run into (30 fps, offscreen MuJoCo rendering), or None.
+    """
+
+    solver: str = "daqp"
+    estimator: str = "ukf"
+    duration_s: float | None = None
+    seed: int = 0
+    truth: str = "interference"
+    vehicle: str = "omnirotor"
+    controller_config: str | None = None
+    overrides: tuple[str, ...] = ()
+    video: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
+        if self.truth not in TRUTH_MODELS:
+            raise InputError(f"truth must be one of {', '.join(TRUTH_MODELS)}, got {self.truth!r}")
+        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise InputError(f"duration must be a finite number of seconds > 0, got {self.duration_s}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise InputError(f"seed must be an integer >= 0, got {self.seed!r}")
+
+    def controller_params(self, admittance: AdmittanceParams | None = None) -> ControllerParams:
+        """Controller parameters: file and overrides, then these options' solver and estimator.
+
+        Args:
+            admittance: the task's admittance set, applied before the file and overrides.
+        """
+        params = load_controller_params(self.controller_config)
+        if admittance is not None and self.controller_config is None:
+            params = dataclasses.replace(params, admittance=admittance)
+        params = dataclasses.replace(
+            params,
+            allocation=dataclasses.replace(params.allocation, solver=self.solver),
+            estimator=dataclasses.replace(params.estimator, kind=self.estimator),
+        )
+        return apply_overrides(params, list(self.overrides))
+
+    def sim_params(self) -> SimParams:
+        """Simulator parameters with the chosen truth aerodynamics."""
+        return SimParams(aero=AeroParams(model=self.truth))
+
+
+@contextlib.contextmanager
+def video_sink(sim: Simulator, path: str | None) -> Iterator[FrameSink | None]:
+    """A :class:`~omnirotor.sim.VideoRecorder` of ``sim`` writing ``path`` (None: no video).
+
+    The file is written when the block exits normally and discarded on an exception.
+    """
+    if path is None:
+        yield None
+        return
+    from omnirotor.sim import VideoRecorder
+
+    with VideoRecorder(sim, path) as rec:
+        yield rec
+
+
+@dataclasses.dataclass
+class TaskResult:
+    """What a task run produced.
+
+    Attributes:
+        task: task name.
+        options: the options it ran with.
+        duration_s: simulated time [s].
+        controller_log: the controller's log.
+        truth_log: the ground-truth log.
+        metrics_from_s: time [s] from which the error metrics are taken (settling excluded).
+    """
+
+    task: str
+    options: TaskOptions
+    duration_s: float
+    controller_log: Recorder
+    truth_log: Recorder
+    metrics_from_s: float = 0.0
+
+    def summary(self) -> dict:
+        """The JSON of ``omnirotor run``: EE errors (SPEC §6), options and the controller step time."""
+        out = {
+            "task": self.task,
+            "solver": self.options.solver,
+            "estimator": self.options.estimator,
+            "truth": self.options.truth,
+            "seed": self.options.seed,
+            "duration_s": self.duration_s,
+        }
+        log = run_log(self.controller_log, self.truth_log)
+        rms, mx = error_stats(log, log.t >= self.metrics_from_s)
+        out["ee_rms_error"] = rms
+        out["ee_max_error"] = mx
+        keep = log.t >= self.metrics_from_s
+        out["f_ext_hat_W_mean_N"] = log.f_ext_hat_W[keep].mean(axis=0).tolist()
+        out["m_ext_hat_B_mean_Nm"] = log.m_ext_hat_B[keep].mean(axis=0).tolist()
+        out["xi_p_W_final_cm"] = (100.0 * self.controller_log.group("xi_p_W")[-1]).tolist()
+        step_us = self.truth_log.group("controller_step_us")
+        out["controller_step_us_median"] = float(np.median(step_us))
+        status = self.controller_log.group("status").astype(int)
+        out["steps"] = int(status.shape[0])
+        out["steps_flagged"] = int(np.count_nonzero(status))
+        return out
+
+
+TaskFn = Callable[[TaskOptions, Callable[[float], None] | None], TaskResult]
+TASKS: dict[str, TaskFn] = {}
+"""Registered tasks of ``omnirotor run``, by name."""
+
+
+def register_task(name: str) -> Callable[[TaskFn], TaskFn]:
+    """Decorator: register a task function under ``name`` in :data:`TASKS`."""
+
+    def deco(fn: TaskFn) -> TaskFn:
+        if name in TASKS:
+            raise ValueError(f"task {name!r} registered twice")
+        TASKS[name] = fn
+        return fn
+
+    return deco
+
+
+def discover_tasks() -> dict[str, TaskFn]:
+    """Import every module of :mod:`omnirotor.experiments` so that their tasks register; returns :data:`TASKS`."""
+    import importlib
+    import pkgutil
+
+    import omnirotor.experiments as pkg
+
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        importlib.import_module(f"{pkg.__name__}.{info.name}")
+    return TASKS
+
+
+def run_task(
+    name: str, options: TaskOptions | None = None, progress: Callable[[float], None] | None = None
+) -> TaskResult:
+    """Run a registered task.
+
+    Raises:
+        InputError: unknown task name or bad options.
+    """
+    if name not in TASKS:
+        discover_tasks()
+    if name not in TASKS:
+        raise InputError(f"unknown task {name!r}; tasks: {', '.join(sorted(TASKS))}")
+    return TASKS[name](options if options is not None else TaskOptions(), progress)
+
+
+HOVER_DURATION_S = 5.0
+"""Default length of the hover task [s]."""
+HOVER_SETTLE_S = 1.0
+"""Hover metrics start after this time [s] (the estimator and observer transients)."""
+
+
+@register_task("hover")
+def hover_task(options: TaskOptions, progress: Callable[[float], None] | None = None) -> TaskResult:
+    """Start at rest, hovering upright at the free scene's start pose, and hold it (free-flight admittance)."""
+    vehicle = load_vehicle(options.vehicle)
+    duration = options.duration_s if options.duration_s is not None else HOVER_DURATION_S
+    sim = Simulator(vehicle, scene="free", params=options.sim_params(), seed=options.seed)
+    p_W, R_WB = sim.default_start()
+    p_E = p_W + R_WB @ vehicle.p_E_B_array
+    trajectory = PoseTrajectory([Waypoint(0.0, p_E, R_WB)])
+    controller = InteractionController(vehicle, options.controller_params(AdmittanceParams.preset("free")))
+    with video_sink(sim, options.video) as video:
+        ctl_log, truth_log = run_closed_loop(sim, controller, trajectory, duration, progress=progress, video=video)
+    return TaskResult(
+        task="hover",
+        options=options,
+        duration_s=duration,
+        controller_log=ctl_log,
+        truth_log=truth_log,
+        metrics_from_s=min(HOVER_SETTLE_S, 0.5 * duration),
+    )

@@ -1,0 +1,155 @@
+"""Figures of the experiments, as PNG (matplotlib, no display needed).
+
+* :func:`plot_run`: one interaction run: end-effector position against the compliant and desired references,
+  attitude error, the observer's force estimate against the true contact force, contact phases shaded and
+  wrench-map region switches marked (the paper's Figs. 5–9, plus the ground truth it could not show).
+* :func:`plot_hover_violins`: the estimated external wrench in hover per map and region (the paper's Fig. 3).
+* :func:`plot_table1`: our Table 1 beside the paper's.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from omnirotor.experiments.metrics import AXES, RunLog, pose_errors  # noqa: E402
+
+__all__ = ["plot_run", "plot_hover_violins", "plot_table1", "save_figure"]
+
+_MAP_COLORS = {"nominal": "#c0392b", "global": "#2980b9", "piecewise": "#27ae60"}
+
+
+def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
+    """Write a figure atomically as PNG and close it."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.stem}.tmp.png")
+    fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    os.replace(tmp, p)
+    return p
+
+
+def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray) -> None:
+    c = in_contact.astype(bool)
+    if not c.any():
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], c.astype(int), [0]])))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        ax.axvspan(t[a], t[min(b, t.size - 1)], color="#f5b041", alpha=0.18, lw=0)
+
+
+def _mark(ax, log: RunLog, marks, region_names) -> None:
+    for tm, _label in marks:
+        ax.axvline(tm, color="0.6", lw=0.8, ls=":")
+    sw = np.flatnonzero(np.diff(log.region) != 0) + 1
+    for i in sw:
+        ax.axvline(log.t[i], color="#8e44ad", lw=1.0, ls="--")
+
+
+def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=()) -> Path:
+    """Four stacked panels of one run (see module docstring)."""
+    fig, axs = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
+    t = log.t
+    cols = ("x", "y", "z")
+    colors = ("#c0392b", "#27ae60", "#2980b9")
+    ax = axs[0]
+    for k in range(3):
+        ax.plot(t, log.p_E_W[:, k], color=colors[k], lw=1.4, label=f"{cols[k]} actual")
+        ax.plot(t, log.p_Er_W[:, k], color=colors[k], lw=1.0, ls="--", label=f"{cols[k]} compliant ref.")
+        ax.plot(t, log.p_Ed_W[:, k], color=colors[k], lw=0.8, ls=":", alpha=0.8)
+    ax.set_ylabel("EE position [m]")
+    ax.legend(ncol=3, fontsize=7, loc="best")
+    e = pose_errors(log)
+    ax = axs[1]
+    for k in range(3):
+        ax.plot(t, e[:, k], color=colors[k], lw=1.0, label=f"e_{cols[k]}")
+    ax.set_ylabel("EE position error [cm]")
+    ax.legend(ncol=3, fontsize=7)
+    ax2 = ax.twinx()
+    for k in range(3):
+        ax2.plot(t, e[:, 3 + k], color=colors[k], lw=0.7, alpha=0.5)
+    ax2.set_ylabel("attitude error [deg] (faint)")
+    ax = axs[2]
+    for k in range(3):
+        ax.plot(t, log.f_contact_W[:, k], color=colors[k], lw=1.6, label=f"true f_{cols[k]}")
+        ax.plot(t, log.f_ext_hat_W[:, k], color=colors[k], lw=1.0, ls="--", label=f"estimated f_{cols[k]}")
+    ax.set_ylabel("contact force on robot, world [N]")
+    ax.legend(ncol=3, fontsize=7)
+    ax = axs[3]
+    ax.plot(t, np.linalg.norm(log.f_contact_W, axis=1), color="k", lw=1.5, label="|true contact force|")
+    ax.plot(t, np.linalg.norm(log.f_ext_hat_W, axis=1), color="0.5", lw=1.0, ls="--", label="|estimate|")
+    ax.set_ylabel("force norm [N]")
+    ax.set_xlabel("time [s]")
+    if region_names and (log.region >= 0).any():
+        ax3 = ax.twinx()
+        ax3.step(t, log.region, where="post", color="#8e44ad", lw=0.8)
+        ticks = sorted(set(int(r) for r in np.unique(log.region) if r >= 0))
+        ax3.set_yticks(ticks, [region_names[i] for i in ticks])
+        ax3.set_ylabel("map region", color="#8e44ad")
+    ax.legend(fontsize=7, loc="upper left")
+    for ax in axs:
+        _shade_contact(ax, t, log.in_contact)
+        _mark(ax, log, marks, region_names)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{title}   (shaded: tip in contact; dashed purple: map switch)", fontsize=10)
+    return save_figure(fig, path)
+
+
+def plot_hover_violins(samples: dict[str, dict[str, np.ndarray]], path: str | Path) -> Path:
+    """Violins of the estimated world force in hover, per region and map.
+
+    Args:
+        samples: ``samples[map][region]`` = (k, 3) estimated force samples ``f̂_ext^W`` [N].
+        path: PNG path.
+    """
+    maps = list(samples)
+    regions = sorted({r for m in maps for r in samples[m]}, key=lambda r: int(r[1:]) if r[1:].isdigit() else 99)
+    fig, axs = plt.subplots(1, 3, figsize=(12, 4), sharey=True, constrained_layout=True)
+    width = 0.8 / max(1, len(maps))
+    for k, comp in enumerate(("f_x", "f_y", "f_z")):
+        ax = axs[k]
+        for i, m in enumerate(maps):
+            pos, data = [], []
+            for j, r in enumerate(regions):
+                if r in samples[m] and len(samples[m][r]):
+                    pos.append(j + (i - (len(maps) - 1) / 2) * width)
+                    data.append(samples[m][r][:, k])
+            if data:
+                parts = ax.violinplot(data, positions=pos, widths=width * 0.95, showmedians=True)
+                for body in parts["bodies"]:
+                    body.set_facecolor(_MAP_COLORS.get(m, "0.5"))
+                    body.set_alpha(0.6)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(range(len(regions)), regions)
+        ax.set_title(f"estimated {comp}^W in hover")
+        ax.grid(alpha=0.3, axis="y")
+    axs[0].set_ylabel("N")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=_MAP_COLORS.get(m, "0.5"), alpha=0.6) for m in maps]
+    axs[2].legend(handles, maps, fontsize=8)
+    return save_figure(fig, path)
+
+
+def plot_table1(ours: dict[str, dict], paper: dict[str, dict], path: str | Path) -> Path:
+    """RMS errors per axis, ours beside the paper's, one group per run."""
+    runs = [r for r in paper if r in ours]
+    fig, axs = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
+    for ax, sl, unit in ((axs[0], slice(0, 3), "cm"), (axs[1], slice(3, 6), "deg")):
+        names = AXES[sl]
+        x = np.arange(len(runs))
+        w = 0.8 / (2 * len(names))
+        for j, a in enumerate(names):
+            ax.bar(x + (2 * j) * w, [paper[r]["rms"][AXES.index(a)] for r in runs], w, color=f"C{j}", alpha=0.45)
+            ax.bar(x + (2 * j + 1) * w, [ours[r]["ee_rms_error"][a] for r in runs], w, color=f"C{j}", label=a)
+        ax.set_xticks(x + 0.4 - w, [r.replace("/", "\n") for r in runs], fontsize=7)
+        ax.set_ylabel(f"RMS error [{unit}]")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle("Table 1: RMS EE error vs compliant reference — pale: paper (real robot), solid: this simulation")
+    return save_figure(fig, path)

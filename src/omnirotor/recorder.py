@@ -1,0 +1,190 @@
+"""A preallocated, labelled log of a loop: one row per step, named column groups.
+
+A :class:`Recorder` owns a ``(capacity, n_signals)`` float array. The loop writes row ``n`` and moves on;
+reports read whole columns afterwards. Nothing is allocated per row.
+
+Two ways to write a row:
+
+* :meth:`Recorder.record` takes one value per group (a float, or an array of the group's width);
+* for the hot loop, :meth:`Recorder.bind` fixes once the persistent arrays whose concatenation is a row
+  (the producers' own output buffers; one array may hold several consecutive groups), and
+  :meth:`Recorder.record_bound` then copies them all into the next row with a single
+  ``np.concatenate(..., out=row)``.
+
+A full recorder drops further rows (it never raises inside a loop) and counts them in
+:attr:`Recorder.dropped`; :meth:`Recorder.ensure_capacity` grows it beforehand.
+
+Column names: a group of width 1 has one column named like the group; a wider group ``g`` has columns
+``g.<label>`` with the labels given, or ``g.0``, ``g.1``, ... by default.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from omnirotor.errors import InputError
+
+__all__ = ["Recorder", "GroupSpec"]
+
+GroupSpec = tuple[str, int | Sequence[str]]
+"""A column group: ``(name, width)`` or ``(name, labels)``."""
+
+
+class Recorder:
+    """A ``(capacity, n_signals)`` float log with named column groups.
+
+    Args:
+        capacity: number of rows (steps) preallocated.
+        groups: the column groups in row order, each ``(name, width)`` or ``(name, labels)``.
+
+    Attributes:
+        data: (capacity, n_signals) the storage; rows ``[0, n)`` are valid.
+        n: number of rows written.
+        dropped: rows refused because the recorder was full.
+        group_names: the group names in order.
+        column_names: every column name in order.
+    """
+
+    def __init__(self, capacity: int, groups: Sequence[GroupSpec]) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 0:
+            raise InputError(f"recorder capacity must be an integer >= 0, got {capacity!r}")
+        self._slices: dict[str, slice] = {}
+        self.column_names: list[str] = []
+        start = 0
+        for name, spec in groups:
+            if name in self._slices:
+                raise InputError(f"recorder: duplicate group {name!r}")
+            if isinstance(spec, int):
+                if spec < 1:
+                    raise InputError(f"recorder group {name!r}: width must be >= 1, got {spec}")
+                labels = [str(i) for i in range(spec)]
+            else:
+                labels = [str(s) for s in spec]
+                if not labels:
+                    raise InputError(f"recorder group {name!r}: no labels")
+            width = len(labels)
+            self._slices[name] = slice(start, start + width)
+            self.column_names.extend([name] if width == 1 else [f"{name}.{lab}" for lab in labels])
+            start += width
+        if len(set(self.column_names)) != len(self.column_names):
+            raise InputError("recorder: duplicate column names")
+        self._columns = {c: i for i, c in enumerate(self.column_names)}
+        self.group_names = list(self._slices)
+        self._slice_list = list(self._slices.values())
+        self.n_signals = start
+        self.data = np.zeros((capacity, start))
+        self.n = 0
+        self.dropped = 0
+        self._bound: tuple[np.ndarray, ...] | None = None
+
+    @property
+    def capacity(self) -> int:
+        """Number of preallocated rows."""
+        return self.data.shape[0]
+
+    def clear(self) -> None:
+        """Forget every row (the storage is kept)."""
+        self.n = 0
+        self.dropped = 0
+
+    def ensure_capacity(self, rows: int) -> None:
+        """Grow the storage to at least ``rows`` rows, keeping the rows written (call outside loops)."""
+        if rows > self.capacity:
+            new = np.zeros((rows, self.n_signals))
+            new[: self.n] = self.data[: self.n]
+            self.data = new
+
+    def record(self, *values: float | np.ndarray) -> bool:
+        """Write the next row: one value per group, in group order.
+
+        Returns:
+            False if the recorder was full and the row was dropped.
+        """
+        n = self.n
+        if n >= self.data.shape[0]:
+            self.dropped += 1
+            return False
+        if len(values) != len(self._slice_list):
+            raise InputError(f"recorder.record: expected {len(self._slice_list)} values, got {len(values)}")
+        row = self.data[n]
+        for sl, v in zip(self._slice_list, values, strict=True):
+            row[sl] = v
+        self.n = n + 1
+        return True
+
+    def bind(self, *sources: np.ndarray) -> None:
+        """Fix the arrays that :meth:`record_bound` copies: 1-D float arrays whose concatenation is a row.
+
+        An array may span several consecutive groups; the widths must add up to :attr:`n_signals`. The
+        arrays must stay the same objects (their contents change from row to row).
+        """
+        for src in sources:
+            if not isinstance(src, np.ndarray) or src.ndim != 1 or src.dtype != np.float64:
+                raise InputError("recorder.bind: every source must be a 1-D float64 array")
+        width = sum(src.shape[0] for src in sources)
+        if width != self.n_signals:
+            raise InputError(f"recorder.bind: sources have {width} values in all, a row has {self.n_signals}")
+        self._bound = tuple(sources)
+
+    def record_bound(self) -> bool:
+        """Write the next row from the bound arrays (see :meth:`bind`); False if full."""
+        n = self.n
+        if n >= self.data.shape[0]:
+            self.dropped += 1
+            return False
+        np.concatenate(self._bound, out=self.data[n])
+        self.n = n + 1
+        return True
+
+    def column(self, name: str) -> np.ndarray:
+        """(n,) view of one column (a column name, or the name of a width-1 group)."""
+        try:
+            j = self._columns[name]
+        except KeyError:
+            raise InputError(f"recorder: no column {name!r}") from None
+        return self.data[: self.n, j]
+
+    def group(self, name: str) -> np.ndarray:
+        """(n, width) view of a group's columns; (n,) for a width-1 group."""
+        try:
+            sl = self._slices[name]
+        except KeyError:
+            raise InputError(f"recorder: no group {name!r}; groups: {', '.join(self.group_names)}") from None
+        view = self.data[: self.n, sl]
+        return view[:, 0] if sl.stop - sl.start == 1 else view
+
+    def width(self, name: str) -> int:
+        """Number of columns of a group."""
+        sl = self._slices[name]
+        return sl.stop - sl.start
+
+    def to_npz(self, path: str | Path) -> None:
+        """Save the valid rows: one array per group, plus ``_columns`` (all column names) and ``_groups``."""
+        arrays = {name: np.array(self.group(name)) for name in self.group_names}
+        arrays["_columns"] = np.array(self.column_names)
+        arrays["_groups"] = np.array(self.group_names)
+        arrays["_widths"] = np.array([self.width(g) for g in self.group_names])
+        np.savez_compressed(Path(path), **arrays)
+
+    @classmethod
+    def from_npz(cls, path: str | Path) -> Recorder:
+        """Load a recorder saved by :meth:`to_npz` (capacity = rows saved)."""
+        with np.load(Path(path)) as z:
+            groups = [str(g) for g in z["_groups"]]
+            columns = [str(c) for c in z["_columns"]]
+            widths = [int(w) for w in z["_widths"]]
+            specs: list[GroupSpec] = []
+            i = 0
+            for g, w in zip(groups, widths, strict=True):
+                cols = columns[i : i + w]
+                specs.append((g, 1) if w == 1 else (g, [c[len(g) + 1 :] for c in cols]))
+                i += w
+            first = np.asarray(z[groups[0]])
+            rec = cls(int(first.shape[0]), specs)
+            for g in groups:
+                rec.data[:, rec._slices[g]] = np.asarray(z[g]).reshape(rec.capacity, -1)
+            rec.n = rec.capacity
+        return rec

@@ -1,0 +1,343 @@
+"""State estimation (SPEC §4.5) on analytic flights with synthetic IMU and delayed motion capture.
+
+No simulator: a smooth 3-D flight with rotation is written in closed form, the IMU reads its specific force
+and rate with white noise and constant biases, and motion capture samples the pose at 100 Hz, noisy and
+late by 8 ms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.config import from_mapping
+from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
+from omnirotor.errors import InputError
+from omnirotor.messages import SensorFrame, StateEstimate
+from omnirotor.so3 import R_from_rpy, exp_so3, log_so3, quat_wxyz_from_R, vee
+from omnirotor.vehicle import load_vehicle
+
+VEHICLE = load_vehicle("omnirotor")
+G = VEHICLE.gravity
+DT = 1e-3
+LATENCY_STEPS = 8
+MOCAP_EVERY = 10  # 100 Hz
+POS_SIGMA = 5e-4  # m
+ATT_SIGMA_DEG = 0.2
+ACC_SIGMA = 0.02 * math.sqrt(1000.0)  # per sample at 1 kHz, i.e. the default density 0.02 m/s²/√Hz
+GYRO_SIGMA = 1e-3 * math.sqrt(1000.0)
+B_A = np.array([0.15, -0.10, 0.20])
+B_G = np.array([0.020, -0.015, 0.010])
+
+
+# -- the analytic flight --------------------------------------------------------------------------------------
+
+
+def pos(t):
+    return np.stack([0.4 * np.sin(0.8 * t), 0.3 * np.sin(0.6 * t + 1.0), 1.0 + 0.2 * np.sin(1.1 * t)], -1)
+
+
+def vel(t):
+    return np.stack([0.32 * np.cos(0.8 * t), 0.18 * np.cos(0.6 * t + 1.0), 0.22 * np.cos(1.1 * t)], -1)
+
+
+def acc(t):
+    return np.stack([-0.256 * np.sin(0.8 * t), -0.108 * np.sin(0.6 * t + 1.0), -0.242 * np.sin(1.1 * t)], -1)
+
+
+def rot(t, rate=1.0):
+    """Roll, pitch and yaw swinging by 29, 23 and 46 degrees."""
+    t = rate * t
+    return R_from_rpy(0.5 * math.sin(0.9 * t), 0.4 * math.sin(0.7 * t + 0.5), 0.8 * math.sin(0.3 * t))
+
+
+def omega_B(t, rate=1.0, h=1e-5):
+    return vee(rot(t, rate).T @ (rot(t + h, rate) - rot(t - h, rate)) / (2 * h))
+
+
+@dataclasses.dataclass
+class Flight:
+    ts: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    R: np.ndarray
+    w: np.ndarray
+    frames: list
+
+
+def make_flight(T=8.0, seed=0, noise=True, dropout=None, imu_offset=None, rate=1.0, mocap_shift=None):
+    """Frames of a flight; samples are read at the end of each 1 ms period (as a simulator reports them)."""
+    rng = np.random.default_rng(seed)
+    n = int(round(T / DT))
+    ts = (np.arange(n) + 1) * DT
+    P, V, A = pos(ts), vel(ts), acc(ts)
+    R = np.array([rot(t, rate) for t in ts])
+    W = np.array([omega_B(t, rate) for t in ts])
+    f_B = np.einsum("sji,sj->si", R, A + [0.0, 0.0, G])
+    if imu_offset is not None:  # the IMU away from the CoM also feels omega_dot x r + omega x (omega x r)
+        Wd = np.gradient(W, DT, axis=0)
+        f_B = f_B + np.cross(Wd, imu_offset) + np.cross(W, np.cross(W, imu_offset))
+    acc_m = f_B + B_A + (rng.normal(0.0, ACC_SIGMA, (n, 3)) if noise else 0.0)
+    gyr_m = W + B_G + (rng.normal(0.0, GYRO_SIGMA, (n, 3)) if noise else 0.0)
+    frames = []
+    for k in range(n):
+        j = k - LATENCY_STEPS
+        mocap = j >= 0 and j % MOCAP_EVERY == 0 and not (dropout and dropout[0] <= ts[j] < dropout[1])
+        extra = {}
+        if mocap:
+            p_m = P[j] + rng.normal(0.0, POS_SIGMA, 3)
+            if mocap_shift is not None and ts[j] >= mocap_shift[0]:
+                p_m = p_m + mocap_shift[1]
+            R_m = R[j] @ exp_so3(rng.normal(0.0, math.radians(ATT_SIGMA_DEG), 3))
+            extra = dict(mocap_new=True, mocap_t=float(ts[j]), mocap_p_W=p_m, mocap_q_WB=quat_wxyz_from_R(R_m))
+        frames.append(
+            SensorFrame(
+                t=float(ts[k]), imu_acc_B=acc_m[k].copy(), imu_gyro_B=gyr_m[k].copy(), rotor_hz=np.zeros(8), **extra
+            )
+        )
+    return Flight(ts, P, V, A, R, W, frames)
+
+
+@functools.cache
+def flight(**kw):
+    return make_flight(**kw)
+
+
+def run(frames, params=None):
+    est = UKFEstimator(VEHICLE, params or EstimatorParams())
+    return est, [est.step(f) for f in frames]
+
+
+def errors(fl, out):
+    p = np.array([o.p_W for o in out]) - fl.p
+    v = np.array([o.v_W for o in out]) - fl.v
+    att_deg = np.array([np.degrees(np.linalg.norm(log_so3(fl.R[i].T @ o.R_WB))) for i, o in enumerate(out)])
+    return np.linalg.norm(p, axis=1), np.linalg.norm(v, axis=1), att_deg
+
+
+def rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def lowpass(x, cutoff_hz):
+    lam = 2 * math.pi * DT * cutoff_hz / (2 * math.pi * DT * cutoff_hz + 1)
+    y = np.zeros_like(x)
+    acc_ = x[0] * 0.0
+    for i, xi in enumerate(x):
+        acc_ = acc_ + lam * (xi - acc_)
+        y[i] = acc_
+    return y
+
+
+# -- tests ----------------------------------------------------------------------------------------------------
+
+
+def test_params_validate():
+    for bad in (
+        {"kind": "ekf"},
+        {"mocap_pos_std": 0.0},
+        {"acc_cutoff_hz": -1.0},
+        {"mocap_reinit_after": 0},
+        {"imu_offset_B": (0.0, 0.0)},
+        {"gyro_noise_density": float("nan")},
+        {"ut_alpha": 0.0},
+    ):
+        with pytest.raises(InputError):
+            EstimatorParams(**bad)
+    with pytest.raises(InputError):
+        from_mapping(EstimatorParams, {"kind": "ukf", "latency": 0.01})
+    assert from_mapping(EstimatorParams, {"imu_offset_B": [0, 0, 0.041]}).imu_offset_B == (0.0, 0.0, 0.041)
+
+
+def test_tracks_a_rotating_flight_with_noise_biases_and_latency():
+    fl = flight()
+    est, out = run(fl.frames, EstimatorParams(acc_cutoff_hz=5.0))
+    after = fl.ts > 2.0  # past the bias convergence
+    e_p, e_v, e_att = errors(fl, out)
+    # Better than one raw motion-capture sample (3-D noise sqrt(3) sigma), which is also 8 ms late.
+    assert rms(e_p[after]) < math.sqrt(3) * POS_SIGMA
+    assert rms(e_att[after]) < math.sqrt(3) * ATT_SIGMA_DEG and e_att[after].max() < 1.0
+    # Three times better than differentiating motion capture (sqrt(2) sigma / 10 ms per axis).
+    assert rms(e_v[after]) < math.sqrt(3) * math.sqrt(2) * POS_SIGMA / 0.01 / 3
+    # The constant biases are found.
+    np.testing.assert_allclose(est.bias_gyro_B, B_G, atol=2e-3)
+    np.testing.assert_allclose(est.bias_acc_B, B_A, atol=0.03)
+    # Outputs: p̈ without gravity (through the 5 Hz filter) and the bias-free rate (unfiltered by default).
+    a_est = np.array([o.a_W for o in out])
+    a_err = np.linalg.norm(a_est - lowpass(fl.a, 5.0), axis=1)
+    assert rms(a_err[after]) < 0.2  # the filtered accelerometer noise is ~0.14 m/s²
+    w_err = np.array([o.omega_B for o in out]) - fl.w
+    assert np.abs(w_err[after].mean(axis=0)).max() < 2e-3  # no bias left
+    assert rms(np.linalg.norm(w_err[after], axis=1)) < 1.3 * math.sqrt(3) * GYRO_SIGMA  # just the white noise
+    first = next(k for k, f in enumerate(fl.frames) if f.mocap_new)  # initialises the filter
+    assert not any(o.valid for o in out[:first]) and all(o.valid for o in out[first:]) and not est.degraded
+    assert est.rejected_inputs == 0 and est.rejected_mocap == 0
+    assert est.n_mocap_fused == sum(f.mocap_new for f in fl.frames) - 1  # the first one initialised
+
+
+def test_latency_compensation_matters():
+    fl = flight()
+    after = fl.ts > 2.0
+    _, out = run(fl.frames)
+    _, out_naive = run(fl.frames, EstimatorParams(compensate_latency=False))
+    e_p, _, e_att = errors(fl, out)
+    e_p_naive, _, e_att_naive = errors(fl, out_naive)
+    # Fusing 8 ms old poses as if they were current drags the estimate ~v * 8 ms (up to 3.5 mm) behind.
+    assert rms(e_p_naive[after]) > 3.0 * rms(e_p[after])
+    assert rms(e_att_naive[after]) > 1.5 * rms(e_att[after])
+
+
+def test_dropout_degrades_then_recovers():
+    t0, t1 = 5.0, 5.5
+    fl = flight(dropout=(t0, t1))
+    est, out = run(fl.frames, EstimatorParams(mocap_timeout_s=0.1))
+    e_p, _, e_att = errors(fl, out)
+    valid = np.array([o.valid for o in out])
+    ts = fl.ts
+    last_before = t0 - DT * MOCAP_EVERY + LATENCY_STEPS * DT  # arrival of the last sample before the dropout
+    first_after = t1 + LATENCY_STEPS * DT  # arrival of the first one after
+    assert valid[(ts > 2.0) & (ts < last_before + 0.1 - 1e-9)].all()
+    assert not valid[(ts > last_before + 0.1 + 2e-3) & (ts < first_after - 1e-9)].any()
+    assert valid[ts >= first_after + 1e-9].all() and not est.degraded
+    # On the IMU alone for 0.5 s the estimate drifts, but only by millimetres.
+    during = (ts >= t0) & (ts < first_after)
+    assert e_p[during].max() < 0.01
+    assert e_att[during].max() < 0.5
+    assert e_p[during].max() > 2.0 * rms(e_p[(ts > 2.0) & (ts < t0)])  # it does drift without motion capture
+    settled = ts > first_after + 0.3
+    assert rms(e_p[settled]) < math.sqrt(3) * POS_SIGMA
+
+
+def test_bad_imu_samples_are_rejected_without_harm():
+    fl = flight(T=4.0)
+    bad = list(fl.frames)
+    corrupt = {
+        2000: dict(imu_acc_B=np.array([np.nan, 0.0, G])),
+        2001: dict(imu_gyro_B=np.array([0.0, np.inf, 0.0])),
+        2500: dict(imu_acc_B=np.array([0.0, 0.0, 5e3])),  # beyond the 16 g range
+        3000: dict(imu_gyro_B=np.array([100.0, 0.0, 0.0])),
+    }  # beyond 2000 deg/s
+    for k, change in corrupt.items():
+        bad[k] = dataclasses.replace(bad[k], **change)
+    est_ok, out_ok = run(fl.frames)
+    est, out = run(bad)
+    assert est.rejected_inputs == len(corrupt)
+    est2 = UKFEstimator(VEHICLE, EstimatorParams())  # replay, reading the per-step flag
+    flags = []
+    for f in bad:
+        est2.step(f)
+        flags.append(est2.last_input_rejected)
+    assert [k for k, x in enumerate(flags) if x] == sorted(corrupt)
+    for o in out:
+        assert all(np.all(np.isfinite(a)) for a in (o.p_W, o.v_W, o.a_W, o.R_WB, o.omega_B))
+    # Holding the previous sample for one period changes the estimate by micrometres.
+    diff = np.array([np.linalg.norm(a.p_W - b.p_W) for a, b in zip(out, out_ok, strict=True)])
+    assert diff.max() < 1e-4
+    e_p, _, _ = errors(fl, out)
+    assert rms(e_p[fl.ts > 2.0]) < math.sqrt(3) * POS_SIGMA
+
+
+def test_bad_motion_capture_is_rejected():
+    fl = flight(T=4.0)
+    frames = list(fl.frames)
+    k_jump = next(k for k in range(3000, 3100) if frames[k].mocap_new)
+    k_nan = next(k for k in range(k_jump + 1, k_jump + 50) if frames[k].mocap_new)
+    k_quat = next(k for k in range(k_nan + 1, k_nan + 50) if frames[k].mocap_new)
+    frames[k_jump] = dataclasses.replace(frames[k_jump], mocap_p_W=frames[k_jump].mocap_p_W + [0.0, 0.3, 0.0])
+    frames[k_nan] = dataclasses.replace(frames[k_nan], mocap_p_W=np.array([np.nan, 0.0, 1.0]))
+    frames[k_quat] = dataclasses.replace(frames[k_quat], mocap_q_WB=np.array([0.1, 0.0, 0.0, 0.0]))
+    est, out = run(frames)
+    assert est.rejected_mocap == 3 and est.rejected_inputs == 3
+    e_p, _, _ = errors(fl, out)
+    assert e_p[k_jump : k_jump + 100].max() < 3e-3  # not pulled towards the 0.3 m outlier
+    assert est.n_reinit == 0
+
+
+def test_persistent_offset_reinitialises_the_pose():
+    shift = np.array([0.5, 0.0, 0.0])  # the rig re-zeroed by 0.5 m at t = 3 s
+    fl = make_flight(T=5.0, mocap_shift=(3.0, shift))
+    params = EstimatorParams(mocap_reinit_after=10)
+    est, out = run(fl.frames, params)
+    assert est.n_reinit == 1
+    p_est = np.array([o.p_W for o in out])
+    end = fl.ts > 4.5
+    assert rms(np.linalg.norm(p_est[end] - (fl.p[end] + shift), axis=1)) < 2e-3  # follows the new frame
+
+
+def test_initialisation_waits_for_a_pose():
+    fl = flight(T=1.0)
+    est = UKFEstimator(VEHICLE)
+    first = next(k for k, f in enumerate(fl.frames) if f.mocap_new)
+    for f in fl.frames[:first]:
+        e = est.step(f)
+        assert not e.valid and not est.initialised
+    e = est.step(fl.frames[first])
+    assert e.valid and est.initialised
+    np.testing.assert_allclose(e.p_W, fl.frames[first].mocap_p_W)
+    with pytest.raises(InputError):
+        est.reset(fl.frames[0])
+    # A frame with a state (and no motion capture) also initialises, velocity included.
+    f = fl.frames[0]
+    state = StateEstimate(t=f.t, p_W=fl.p[0], v_W=fl.v[0], a_W=fl.a[0], R_WB=fl.R[0], omega_B=fl.w[0])
+    est.reset(dataclasses.replace(f, state=state))
+    e = est.step(fl.frames[1])
+    np.testing.assert_allclose(e.v_W, fl.v[1], atol=0.05)
+    # Started from a state, the filter still takes a motion-capture sample taken just before start-up.
+    start = first - 2  # the first sample was taken at frames[first - LATENCY_STEPS].t < frames[start].t
+    f = fl.frames[start]
+    state = StateEstimate(
+        t=f.t, p_W=fl.p[start], v_W=fl.v[start], a_W=fl.a[start], R_WB=fl.R[start], omega_B=fl.w[start]
+    )
+    est.reset(dataclasses.replace(f, state=state))
+    for f in fl.frames[start + 1 : first + 1]:
+        est.step(f)
+    assert est.rejected_mocap == 0 and est.n_mocap_fused == 1
+
+
+def test_lever_arm_is_compensated():
+    r = (0.05, -0.03, 0.2)
+    fl = flight(T=3.0, noise=False, imu_offset=r, rate=3.0)
+    after = fl.ts > 1.0
+    results = {}
+    for label, offset in (("compensated", r), ("ignored", (0.0, 0.0, 0.0))):
+        _, out = run(fl.frames, EstimatorParams(imu_offset_B=offset, acc_cutoff_hz=0.0))
+        a_err = np.linalg.norm(np.array([o.a_W for o in out]) - fl.a, axis=1)
+        results[label] = rms(a_err[after])
+    assert results["ignored"] > 0.05  # the lever arm is visible ...
+    assert results["compensated"] < 0.2 * results["ignored"]  # ... and removed
+
+
+def test_bypass_passes_the_state_through():
+    f = flight(T=0.1).frames[0]
+    est = make_estimator(VEHICLE, EstimatorParams(kind="bypass"))
+    assert isinstance(est, BypassEstimator)
+    with pytest.raises(InputError):
+        est.step(f)
+    state = StateEstimate(t=f.t, p_W=np.ones(3), v_W=np.zeros(3), a_W=np.zeros(3), R_WB=np.eye(3), omega_B=np.zeros(3))
+    assert est.step(dataclasses.replace(f, state=state)) is state
+    held = est.step(dataclasses.replace(f, t=f.t + DT))
+    assert not held.valid and held.t == f.t + DT and est.degraded and est.rejected_inputs == 1
+    np.testing.assert_array_equal(held.p_W, state.p_W)
+    nan_state = dataclasses.replace(state, p_W=np.array([np.nan, 0.0, 0.0]))
+    assert not est.step(dataclasses.replace(f, state=nan_state)).valid
+    assert est.step(dataclasses.replace(f, state=state)).valid and not est.degraded
+    assert isinstance(make_estimator(VEHICLE), UKFEstimator)
+
+
+def test_estimates_are_fresh_and_runs_deterministic():
+    fl = flight(T=0.3)
+    est_a, out_a = run(fl.frames)
+    est_b, out_b = run(fl.frames)
+    for a, b in zip(out_a, out_b, strict=True):
+        for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # Each estimate owns its arrays: a later step does not change an earlier message.
+    first, second = out_a[-2], out_a[-1]
+    for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
+        assert not np.shares_memory(getattr(first, name), getattr(second, name))
+    np.testing.assert_allclose(est_a.P, est_b.P)
