@@ -1,12 +1,14 @@
-"""``omnirotor run TASK``: fly a task of the registry in closed loop in the simulator and report EE errors.
+"""``omnirotor run TASK``: fly one task in closed loop in the simulator and report its metrics.
 
-The tasks live in :data:`omnirotor.experiments.TASKS` (``hover``, plus what the experiment modules
-register). The errors are those of SPEC §6 (true EE pose against the compliant EE reference).
+Tasks: ``hover`` and the paper's experiments (``identify-flights``, ``hover-validation``, ``point-contact``,
+``point-contact-tilted``, ``sliding``, ``peg-in-hole``), from :data:`omnirotor.experiments.closed_loop.TASKS`.
+Errors are those of SPEC §6 (true EE pose against the compliant EE reference).
 """
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -20,11 +22,24 @@ from omnirotor.errors import InputError
 
 @app.command()
 def run(
-    task: Annotated[str, typer.Argument(help="Task to fly, e.g. hover.")],
+    task: Annotated[str, typer.Argument(help="Task: hover, identify-flights, hover-validation, point-contact, ...")],
+    map_mode: Annotated[str, typer.Option("--map", help="Wrench map in the loop: nominal, global, piecewise.")] = (
+        "nominal"
+    ),
+    maps: Annotated[
+        Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify` (global/piecewise).")
+    ] = None,
+    blend: Annotated[str, typer.Option(help="Piecewise region switching: hard (paper) or smooth.")] = "hard",
+    seed: Annotated[int, typer.Option(help="Simulator noise and protocol seed.")] = 0,
+    out: Annotated[Path | None, typer.Option(help="Folder for the run's JSON, figures and data files.")] = None,
+    quick: Annotated[bool, typer.Option(help="Shortened protocol.")] = False,
+    zero: Annotated[
+        bool | None,
+        typer.Option("--zero/--no-zero", help="Zero the observer at the start attitude (default: per task)."),
+    ] = None,
     solver: Annotated[str, typer.Option(help="Allocation QP backend: daqp or proxsuite.")] = "daqp",
     estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass (truth plus noise).")] = "ukf",
     duration: Annotated[float | None, typer.Option(help="Simulated time [s]; default: the task's.")] = None,
-    seed: Annotated[int, typer.Option(help="Simulator noise seed.")] = 0,
     truth: Annotated[str, typer.Option(help="Simulator aerodynamics: interference or nominal.")] = "interference",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
@@ -35,13 +50,22 @@ def run(
     video: Annotated[str | None, typer.Option(help="Film the run into this MP4 file (offscreen rendering).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Fly TASK in the simulator with the interaction controller; print the EE tracking errors."""
-    from omnirotor.experiments.closed_loop import TASKS, TaskOptions, discover_tasks, run_task
+    """Fly TASK in the simulator with the interaction controller; print its metrics."""
+    from omnirotor.experiments.closed_loop import TASKS, discover_tasks, run_task
+    from omnirotor.experiments.tasks import ExperimentOptions
 
     discover_tasks()
     if task not in TASKS:
         raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
-    options = TaskOptions(
+    if maps is not None and not maps.is_file():
+        raise InputError(f"--maps {maps}: no such file")
+    if out is not None and out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    if video is not None and not video.lower().endswith(".mp4"):
+        raise InputError(f"--video {video}: expected a .mp4 file name")
+    if blend not in ("hard", "smooth"):
+        raise InputError(f"--blend must be hard or smooth, got {blend!r}")
+    options = ExperimentOptions(
         solver=solver,
         estimator=estimator,
         duration_s=duration,
@@ -51,11 +75,21 @@ def run(
         controller_config=config,
         overrides=tuple(set_ or ()),
         video=video,
+        map_mode=map_mode,
+        maps=str(maps) if maps is not None else None,
+        blend=blend,
+        quick=quick,
+        out_dir=str(out) if out is not None else None,
+        zero_observer=zero,
     )
     options.controller_params()  # validate solver, config and overrides before flying
+    if options.maps is not None:
+        from omnirotor.vehicle import load_vehicle
+
+        options.load_maps(load_vehicle(vehicle))  # validate the map file before flying
     err = Console(stderr=True)
     with Progress(
-        TextColumn(f"[bold]{task}[/bold]"),
+        TextColumn(f"[bold]{task}[/bold] ({map_mode} map)"),
         BarColumn(),
         TextColumn("{task.percentage:>5.1f} %"),
         TimeElapsedColumn(),
@@ -66,21 +100,43 @@ def run(
         bar_id = bar.add_task(task, total=1.0)
         result = run_task(task, options, progress=lambda frac: bar.update(bar_id, completed=frac))
     rep = result.summary()
+    if out is not None:
+        from omnirotor.wrench_maps import write_json_atomic
+
+        write_json_atomic(out / f"{task}-{map_mode}.json", rep)
     if as_json:
         print(json.dumps(rep, indent=1))
         return
-    table = Table(
-        title=f"{task}: {rep['duration_s']:.1f} s, solver {rep['solver']}, estimator {rep['estimator']}, "
-        f"truth {rep['truth']}"
-    )
+    _print_table(task, rep)
+
+
+def _print_table(task: str, rep: dict) -> None:
+    con = Console()
+    table = Table(title=f"{task}: {rep['duration_s']:.1f} s simulated, {rep.get('map', 'nominal')} map")
     table.add_column("EE error")
     for name in ("x (cm)", "y (cm)", "z (cm)", "roll (deg)", "pitch (deg)", "yaw (deg)"):
         table.add_column(name, justify="right")
     for label, key in (("RMS", "ee_rms_error"), ("max", "ee_max_error")):
         table.add_row(label, *(f"{v:.3f}" for v in rep[key].values()))
-    con = Console()
     con.print(table)
+    if "contact" in rep:
+        c, f = rep["contact"], rep["force"]
+        con.print(
+            f"contact: {100 * c['fraction']:.0f} % of the contact phase, lost: {c['lost']}"
+            + (f" (first at {c['first_loss_s']:.1f} s)" if c["first_loss_s"] is not None else "")
+        )
+        if f["true_mean_N"] is not None:
+            tm = ", ".join(f"{x:+.2f}" for x in f["true_mean_N"])
+            em = ", ".join(f"{x:+.2f}" for x in f["estimated_mean_N"])
+            con.print(f"force while touching (world, N): true ({tm}), estimated ({em})")
+    if "insertion" in rep:
+        i = rep["insertion"]
+        con.print(f"insertion depth {100 * i['max_depth_m']:.1f} cm of {100 * i['target_depth_m']:.0f} cm")
+    if "regions" in rep:
+        for r, v in rep["regions"].items():
+            con.print(f"{r}: estimated f^W mean (" + ", ".join(f"{x:+.2f}" for x in v["force_W_mean_N"]) + ") N")
+    if "success" in rep:
+        con.print(f"success: {rep['success']}")
     con.print(
-        f"controller step: median {rep['controller_step_us_median']:.1f} µs; "
-        f"steps flagged: {rep['steps_flagged']} of {rep['steps']}"
+        f"controller step: median {rep['controller_step_us_median']:.1f} µs; steps flagged: {rep['steps_flagged']}"
     )

@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from omnirotor.experiments.metrics import AXES, RunLog, pose_errors  # noqa: E402
+from omnirotor.experiments.metrics import AXES, RunLog, held_contact, pose_errors, smoothed  # noqa: E402
 
 __all__ = ["plot_run", "plot_hover_violins", "plot_table1", "save_figure"]
 
@@ -65,7 +65,7 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
         ax.plot(t, log.p_Er_W[:, k], color=colors[k], lw=1.0, ls="--", label=f"{cols[k]} compliant ref.")
         ax.plot(t, log.p_Ed_W[:, k], color=colors[k], lw=0.8, ls=":", alpha=0.8)
     ax.set_ylabel("EE position [m]")
-    ax.legend(ncol=3, fontsize=7, loc="best")
+    ax.legend(ncol=3, fontsize=7, loc="upper right")
     e = pose_errors(log)
     ax = axs[1]
     for k in range(3):
@@ -77,13 +77,14 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
         ax2.plot(t, e[:, 3 + k], color=colors[k], lw=0.7, alpha=0.5)
     ax2.set_ylabel("attitude error [deg] (faint)")
     ax = axs[2]
+    f_true = smoothed(log.f_contact_W, t)
     for k in range(3):
-        ax.plot(t, log.f_contact_W[:, k], color=colors[k], lw=1.6, label=f"true f_{cols[k]}")
+        ax.plot(t, f_true[:, k], color=colors[k], lw=1.6, label=f"true f_{cols[k]}")
         ax.plot(t, log.f_ext_hat_W[:, k], color=colors[k], lw=1.0, ls="--", label=f"estimated f_{cols[k]}")
-    ax.set_ylabel("contact force on robot, world [N]")
+    ax.set_ylabel("contact force on robot,\nworld [N] (true: 20 ms mean)")
     ax.legend(ncol=3, fontsize=7)
     ax = axs[3]
-    ax.plot(t, np.linalg.norm(log.f_contact_W, axis=1), color="k", lw=1.5, label="|true contact force|")
+    ax.plot(t, np.linalg.norm(f_true, axis=1), color="k", lw=1.5, label="|true contact force| (20 ms mean)")
     ax.plot(t, np.linalg.norm(log.f_ext_hat_W, axis=1), color="0.5", lw=1.0, ls="--", label="|estimate|")
     ax.set_ylabel("force norm [N]")
     ax.set_xlabel("time [s]")
@@ -94,8 +95,9 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
         ax3.set_yticks(ticks, [region_names[i] for i in ticks])
         ax3.set_ylabel("map region", color="#8e44ad")
     ax.legend(fontsize=7, loc="upper left")
+    held = held_contact(log.in_contact, t)
     for ax in axs:
-        _shade_contact(ax, t, log.in_contact)
+        _shade_contact(ax, t, held)
         _mark(ax, log, marks, region_names)
         ax.grid(alpha=0.3)
     fig.suptitle(f"{title}   (shaded: tip in contact; dashed purple: map switch)", fontsize=10)

@@ -44,7 +44,7 @@ class ScenarioParams:
         slide_roll_deg: roll reached at the apex of the pipe [deg].
         peg_misalignment_deg: roll misalignment of the peg on approach [deg] (paper 10°, code 15°).
         peg_insertion: insertion depth from the funnel entrance [m].
-        settle_s: time at rest before the first motion [s].
+        settle_s: time at rest before the first motion [s] (the observer is zeroed during it when asked).
     """
 
     segment_s: float = 3.0
@@ -170,11 +170,12 @@ def sliding(scene, p: ScenarioParams = ScenarioParams(), quick: bool = False) ->
     approach = init - np.array([0.0, 0.1, 0.0])
     home = approach - np.array([0.0, 0.3, 0.0])
     R0, Ra = np.eye(3), rot_x(-th)
-    times = (0.0, 3.0, 6.0, 18.0, 30.0, 33.0, 36.0) if quick else (0.0, 5.0, 10.0, 25.0, 40.0, 45.0, 50.0)
-    poses = ((home, R0), (approach, R0), (init, R0), (apex, Ra), (init, R0), (approach, R0), (home, R0))
+    base = (0.0, 3.0, 6.0, 18.0, 30.0, 33.0, 36.0) if quick else (0.0, 5.0, 10.0, 25.0, 40.0, 45.0, 50.0)
+    times = (0.0, *(p.settle_s + t for t in base))
+    poses = ((home, R0), (home, R0), (approach, R0), (init, R0), (apex, Ra), (init, R0), (approach, R0), (home, R0))
     wps = tuple(_wp(t, pp, R) for t, (pp, R) in zip(times, poses, strict=True))
-    marks = ((times[2], "on pipe"), (times[3], "apex 45°"), (times[4], "back"))
-    return Scenario("sliding", "pipe", "SD", wps, (times[2], times[4]), marks)
+    marks = ((times[3], "on pipe"), (times[4], f"apex {p.slide_roll_deg:g}°"), (times[5], "back"))
+    return Scenario("sliding", "pipe", "SD", wps, (times[3], times[5]), marks)
 
 
 def peg_in_hole(scene, p: ScenarioParams = ScenarioParams(), quick: bool = False) -> Scenario:  # noqa: B008
@@ -188,11 +189,11 @@ def peg_in_hole(scene, p: ScenarioParams = ScenarioParams(), quick: bool = False
     home = E + 0.3 * axis
     approach = E + 0.1 * axis
     inserted = E - p.peg_insertion * axis
-    times = (0.0, 3.0, 6.0, 9.0, 12.0, 15.0, 18.0, 21.0)
-    poses = (home, approach, E, E - 0.5 * p.peg_insertion * axis, inserted, inserted, E, approach)
+    times = (0.0, *(p.settle_s + t for t in (0.0, 3.0, 6.0, 9.0, 12.0, 15.0, 18.0, 21.0)))
+    poses = (home, home, approach, E, E - 0.5 * p.peg_insertion * axis, inserted, inserted, E, approach)
     wps = tuple(_wp(t, pp, R) for t, pp in zip(times, poses, strict=True))
-    marks = ((6.0, "entrance"), (12.0, "inserted"), (15.0, "extract"))
-    return Scenario("peg-in-hole", "peg-in-hole", "PiH", wps, (6.0, 18.0), marks)
+    marks = ((times[3], "entrance"), (times[5], "inserted"), (times[6], "extract"))
+    return Scenario("peg-in-hole", "peg-in-hole", "PiH", wps, (times[3], times[7]), marks)
 
 
 def hover_attitudes(

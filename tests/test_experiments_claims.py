@@ -1,0 +1,138 @@
+"""The paper's claims, each checked on a shortened closed-loop run in the simulator (issue "Experiments").
+
+The truth model is the default of SPEC §7 everywhere. Where our simulation disagrees with the paper the test
+says so (``xfail`` with the measured reason, strict: it turns red if the disagreement disappears).
+"""
+
+import numpy as np
+import pytest
+
+from omnirotor.experiments.closed_loop import run_task
+from omnirotor.experiments.scenarios import ScenarioParams, hover_attitudes
+from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
+from omnirotor.identification import HoverData, identify, load_csv
+from omnirotor.regions import load_partition
+from omnirotor.sim import SimParams
+from omnirotor.sim.aero import hover_equilibrium, make_aero
+from omnirotor.vehicle import load_vehicle
+
+pytestmark = pytest.mark.slow
+VEHICLE = load_vehicle()
+FAST = {"estimator": "bypass"}
+SHORT_HOVER = HoverProtocol(
+    regions=("R1", "R3"), points_per_region=6, validation_per_region=1, transition_s=1.5, hold_s=2.5
+)
+
+
+@pytest.fixture(scope="module")
+def truth_maps(tmp_path_factory):
+    """Maps identified on exact hover equilibria of the simulator's truth model (no flight needed)."""
+    aero = make_aero(VEHICLE, SimParams().aero)
+    att = hover_attitudes(load_partition(), ["R1", "R3", "R4"], 8, np.random.default_rng(11), VEHICLE)
+    u = np.array([hover_equilibrium(aero, VEHICLE, R) for _, R in att])
+    w = np.array([np.concatenate([R.T @ [0, 0, VEHICLE.weight], np.zeros(3)]) for _, R in att])
+    maps = identify(HoverData(u, w, ("",) * len(u), ("truth",) * len(u)), VEHICLE)
+    path = tmp_path_factory.mktemp("maps") / "maps.json"
+    maps.save(path)
+    return str(path)
+
+
+def hover_fz(mode, maps=None):
+    opts = ExperimentOptions(map_mode=mode, maps=maps, protocol=SHORT_HOVER, **FAST)
+    m = run_task("hover-validation", opts).summary()
+    return {r: v["force_W_mean_N"] for r, v in m["regions"].items()}
+
+
+def test_hover_bias_about_2N_with_nominal_removed_by_optimized_maps(truth_maps):
+    # paper Fig. 3 / SPEC §3.4: nominal f_z^W ≈ +2 N in hover; the optimized maps nearly remove it
+    nominal = hover_fz("nominal")
+    for r, f in nominal.items():
+        assert 1.5 < f[2] < 2.6, (r, f)
+    for mode in ("global", "piecewise"):
+        for r, f in hover_fz(mode, truth_maps).items():
+            assert abs(f[2]) < 0.25 * nominal[r][2], (mode, r, f)
+            assert np.linalg.norm(f) < 0.5, (mode, r, f)
+
+
+def test_identification_flights_feed_identify(tmp_path):
+    proto = HoverProtocol(regions=("R1",), points_per_region=6, transition_s=1.5, hold_s=2.5)
+    m = run_task("identify-flights", ExperimentOptions(protocol=proto, out_dir=str(tmp_path), **FAST)).summary()
+    assert m["points"] == {"R1": 6} and m["success"]
+    data = load_csv(tmp_path / "hover_points.csv", VEHICLE)
+    maps = identify(data, VEHICLE)
+    e = maps.regions["R1"]
+    # the simulated robot under-produces nothing: its truth thrust is ~14 % above nominal (SPEC §7)
+    assert e.nominal_force_residual_rms_N > 1.5
+    assert e.force_residual_rms_N < 0.1 * e.nominal_force_residual_rms_N
+
+
+@pytest.fixture(scope="module")
+def point_contact_runs():
+    sp = ScenarioParams(segment_s=2.0, settle_s=1.0)
+    return {
+        task: run_task(task, ExperimentOptions(scenario=sp, quick=True, **FAST)).summary()
+        for task in ("point-contact", "point-contact-tilted")
+    }
+
+
+def test_point_contact_holds_about_K_times_penetration(point_contact_runs):
+    m = point_contact_runs["point-contact"]
+    nf = m["normal_force"]
+    assert not m["contact"]["lost"] and m["contact"]["fraction"] > 0.95
+    assert nf["expected_N"] == pytest.approx(3.0)
+    assert abs(nf["true_mean_N"] - 3.0) < 1.0, nf  # "near K_E x penetration"
+    assert nf["true_std_N"] < 0.5, nf  # steady, no bouncing
+
+
+def test_tilted_surface_normal_force_is_underestimated(point_contact_runs):
+    m = point_contact_runs["point-contact-tilted"]
+    nf = m["normal_force"]
+    assert not m["contact"]["lost"]
+    # paper: ~1 N underestimate of the normal force on the 30 deg surface with the nominal map
+    assert nf["underestimate_N"] > 0.3, nf
+
+
+@pytest.fixture(scope="module")
+def sliding_runs(truth_maps):
+    return {
+        mode: run_task(
+            "sliding",
+            ExperimentOptions(map_mode=mode, maps=None if mode == "nominal" else truth_maps, quick=True, **FAST),
+        ).summary()
+        for mode in ("nominal", "global", "piecewise")
+    }
+
+
+def test_sliding_optimized_maps_keep_contact(sliding_runs):
+    for mode in ("global", "piecewise"):
+        c = sliding_runs[mode]["contact"]
+        assert not c["lost"] and c["fraction"] > 0.9, (mode, c)
+    assert sliding_runs["piecewise"]["map_switches"] >= 2  # R1 -> R3 -> R1 (SPEC §3.3: at 30 deg of roll)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="default truth model (SPEC §7, gamma 4): the nominal bias grows only ~0.25 N from R1 to R3 (2.14 vs "
+    "1.89 N), the paper's robot ~1 N; the compliant reference moves < 1 cm off the pipe, so contact holds",
+)
+def test_sliding_nominal_map_loses_contact(sliding_runs):
+    assert sliding_runs["nominal"]["contact"]["lost"]
+
+
+def test_peg_in_hole_inserts_and_roll_settles():
+    m = run_task("peg-in-hole", ExperimentOptions(quick=True, **FAST)).summary()
+    ins = m["insertion"]
+    # the tip passes the 10 cm funnel into the 19 mm bore
+    assert ins["max_depth_m"] > 0.12, ins
+    # the hole turns the peg from the approach misalignment towards its axis
+    assert ins["inserted_tilt_deg"] < ins["approach_tilt_deg"] - 1.0, ins
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the 16 mm tip on a 10 mm rod jams ~1.7 cm short of 0.17 m with ~8 deg tilt "
+    "(friction 0.3); the paper inserts fully with the roll settling to ~5 deg",
+)
+def test_peg_in_hole_inserts_fully():
+    m = run_task("peg-in-hole", ExperimentOptions(quick=True, **FAST)).summary()
+    assert m["insertion"]["max_depth_m"] >= 0.9 * 0.17

@@ -1,0 +1,198 @@
+"""Experiment building blocks without flying: scenario geometry, metrics, claims, CLI validation."""
+
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.cli import main
+from omnirotor.errors import InputError
+from omnirotor.experiments.metrics import CONTACT_WINDOW_S, RunLog, contact_stats, error_stats, force_stats, pose_errors
+from omnirotor.experiments.reproduce import claims
+from omnirotor.experiments.scenarios import (
+    ScenarioParams,
+    hover_attitudes,
+    hover_schedule,
+    peg_in_hole,
+    point_contact,
+    point_contact_tilted,
+    sliding,
+)
+from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.regions import load_partition
+from omnirotor.sim import SimParams
+from omnirotor.so3 import rot_x, rot_z
+from omnirotor.vehicle import load_vehicle
+
+SCENE = SimParams().scene
+VEHICLE = load_vehicle()
+
+
+def test_point_contact_goes_past_the_wall_and_tilts_about_the_tip():
+    s = point_contact(SCENE)
+    tips = np.array([w.p_W for w in s.waypoints])
+    # the pressing tip is 0.1 m behind the surface (-y), the approach 0.3 m in front
+    assert tips[:, 1].min() == pytest.approx(SCENE.wall_point[1] - 0.1)
+    assert tips[0, 1] == pytest.approx(SCENE.wall_point[1] + 0.3)
+    pressed = [w for w in s.waypoints if w.p_W[1] < SCENE.wall_point[1]]
+    # all contact waypoints share the tip position; attitudes are Rz(pi) and +-20 deg about each axis
+    assert np.allclose([w.p_W for w in pressed], pressed[0].p_W)
+    angles = sorted(
+        round(math.degrees(math.acos(np.clip((np.trace(rot_z(math.pi).T @ w.R_WB) - 1) / 2, -1, 1)))) for w in pressed
+    )
+    assert set(angles) == {0, 20} and angles.count(20) == 6
+    # the EE points at the wall (-y) at the nominal attitude
+    np.testing.assert_allclose(pressed[0].R_WB @ VEHICLE.p_E_B_array, [0, -0.5, 0], atol=1e-12)
+    assert s.contact_phase[0] < s.contact_phase[1] <= s.waypoints[-1].t
+
+
+def test_tilted_contact_points_into_the_inclined_surface():
+    s = point_contact_tilted(SCENE)
+    w = s.waypoints[0]
+    n = np.array([0, math.cos(math.radians(30)), -math.sin(math.radians(30))])
+    ee_dir = w.R_WB @ VEHICLE.p_E_B_array / 0.5
+    np.testing.assert_allclose(ee_dir, -n, atol=1e-12)
+
+
+def test_sliding_apex_points_at_the_pipe_axis():
+    s = sliding(SCENE)
+    c = np.asarray(SCENE.pipe_centre)
+    apex = max(s.waypoints, key=lambda w: w.p_W[2])
+    np.testing.assert_allclose(apex.R_WB, rot_x(-math.radians(45)), atol=1e-12)
+    to_axis = c - apex.p_W
+    to_axis[0] = 0
+    np.testing.assert_allclose(np.linalg.norm(to_axis), SCENE.pipe_radius - 0.03)
+    np.testing.assert_allclose(apex.R_WB @ [0, 1, 0], to_axis / np.linalg.norm(to_axis), atol=1e-12)
+
+
+def test_peg_goes_0_17_m_past_the_entrance_with_the_misalignment():
+    s = peg_in_hole(SCENE, ScenarioParams(peg_misalignment_deg=10))
+    deepest = min(s.waypoints, key=lambda w: w.p_W[1])
+    assert SCENE.hole_entrance[1] - deepest.p_W[1] == pytest.approx(0.17)
+    peg_dir = deepest.R_WB @ [0, 1, 0]
+    assert math.degrees(math.acos(-peg_dir[1])) == pytest.approx(10)
+
+
+def test_hover_protocol_attitudes_and_schedule():
+    part = load_partition()
+    att = hover_attitudes(part, ["R1", "R3", "R4"], 5, np.random.default_rng(0), VEHICLE)
+    assert [n for n, _ in att] == ["R1"] * 5 + ["R3"] * 5 + ["R4"] * 5
+    for name, R in att:
+        assert part.name_of_attitude(R) == name
+        assert np.sqrt(np.abs(VEHICLE.hover_input(R))).min() >= 50  # SPEC §3.4 rejection
+    wps, holds = hover_schedule(att, np.array([0, 0, 1.5]), VEHICLE, 3.0, 5.0)
+    assert len(holds) == 15 and all(t1 - t0 == pytest.approx(5.0) for _, t0, t1 in holds)
+    for w in wps:  # the body stays put while the EE swings around it
+        np.testing.assert_allclose(w.p_W - w.R_WB @ VEHICLE.p_E_B_array, [0, 0, 1.5], atol=1e-12)
+
+
+def synthetic_log(n=2000, dt=1e-3, contact=None, offset_cm=(1.0, 0, 0), tilt_deg=0.0):
+    t = np.arange(n) * dt
+    R = np.repeat(np.eye(3)[None], n, axis=0)
+    Rr = np.repeat(rot_x(math.radians(tilt_deg))[None], n, axis=0)
+    p_r = np.zeros((n, 3))
+    p = p_r + np.array(offset_cm) / 100
+    c = np.ones(n, bool) if contact is None else contact
+    f = np.zeros((n, 3))
+    f[c] = [0, 3.0, 0]
+    return RunLog(
+        t=t,
+        p_E_W=p,
+        R_WE=R,
+        p_Er_W=p_r,
+        R_WEr=Rr,
+        p_Ed_W=p_r,
+        f_ext_hat_W=f * 0.8,
+        m_ext_hat_B=np.zeros((n, 3)),
+        f_contact_W=f,
+        in_contact=c,
+        region=np.zeros(n, int),
+        omega_hz=np.zeros((n, 8)),
+        status=np.zeros(n, int),
+    )
+
+
+def test_error_metrics_in_table1_units():
+    log = synthetic_log(offset_cm=(2.0, -1.0, 0.5), tilt_deg=3.0)
+    rms, mx = error_stats(log)
+    assert rms["x_cm"] == pytest.approx(2.0) and rms["y_cm"] == pytest.approx(1.0) and mx["z_cm"] == pytest.approx(0.5)
+    # e_R of a 3 deg reference roll: sin(3 deg) in radians, reported in degrees
+    assert rms["roll_deg"] == pytest.approx(math.degrees(math.sin(math.radians(3))), rel=1e-9)
+    assert rms["pitch_deg"] == pytest.approx(0) and rms["yaw_deg"] == pytest.approx(0)
+    e = pose_errors(log)
+    assert e.shape == (2000, 6) and np.all(e[:, 3] > 0)  # actual roll below the reference: sign of e_R
+
+
+def test_contact_loss_detection():
+    c = np.ones(3000, bool)
+    c[:200] = False  # first touch at 0.2 s
+    c[1000:1100] = False  # 0.1 s bounce: not a loss
+    c[2000:2700] = False  # 0.7 s off: a loss
+    log = synthetic_log(n=3000, contact=c)
+    s = contact_stats(log, np.ones(3000, bool))
+    assert (
+        s["lost"]
+        and s["first_loss_s"] == pytest.approx(2.0 + CONTACT_WINDOW_S - 0.001)
+        and s["first_contact_s"] == pytest.approx(0.2)
+    )
+    # contact counts within 20 ms of a touch (force-sensor bandwidth): each gap shrinks by 19 samples
+    assert s["fraction"] == pytest.approx((3000 - 200 - 81 - 681) / 3000)
+    c2 = c.copy()
+    c2[2000:2700] = True
+    assert not contact_stats(synthetic_log(n=3000, contact=c2), np.ones(3000, bool))["lost"]
+    f = force_stats(log, log.in_contact)
+    assert f["true_mean_N"] == pytest.approx([0, 3, 0]) and f["estimate_rms_error_N"] == pytest.approx(0.6)
+
+
+def fake_metrics(nominal_lost=True, fz=(2.0, 0.1, 0.05)):
+    hv = {
+        m: {"regions": {r: {"force_W_mean_N": [0, 0, z]} for r in ("R1", "R3")}}
+        for m, z in zip(("nominal", "global", "piecewise"), fz, strict=True)
+    }
+    out = {f"hover-validation/{m}": v for m, v in hv.items()}
+    for m, lost in (("nominal", nominal_lost), ("global", False), ("piecewise", False)):
+        out[f"sliding/{m}"] = {"contact": {"lost": lost, "first_loss_s": 30.0 if lost else None}}
+    return out
+
+
+def test_micro_chatter_is_contact_but_a_lift_off_is_not():
+    c = np.ones(2000, bool)
+    c[500:1500:3] = False  # stick-slip: off one sample in three
+    s = contact_stats(synthetic_log(n=2000, contact=c), np.ones(2000, bool))
+    assert s["fraction"] == pytest.approx(1.0) and not s["lost"]
+
+
+def test_claim_verdicts_follow_the_numbers():
+    v = {c["claim"][:5]: c["verdict"] for c in claims(fake_metrics())}
+    assert v["Hover"] == "reproduced" and v["Slidi"] == "reproduced"
+    v = {c["claim"][:5]: c["verdict"] for c in claims(fake_metrics(nominal_lost=False, fz=(0.2, 0.1, 0.1)))}
+    assert v["Hover"] == "not reproduced" and v["Slidi"] == "partly"
+
+
+def test_options_need_maps_for_optimized_modes():
+    with pytest.raises(InputError, match="--maps"):
+        ExperimentOptions(map_mode="piecewise")
+    with pytest.raises(InputError, match="map must be"):
+        ExperimentOptions(map_mode="magic")
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["run", "sliding", "--map", "global"], "--maps"),
+        (["run", "sliding", "--map", "piecewise", "--maps", "{tmp}/none.json"], "no such file"),
+        (["run", "sliding", "--map", "piecewise", "--maps", "{tmp}/bad.json"], "not valid JSON"),
+        (["run", "nonsense"], "unknown task"),
+        (["run", "sliding", "--blend", "soft"], "--blend"),
+        (["run", "sliding", "--video", "{tmp}/x.gif"], ".mp4"),
+        (["run", "sliding", "--estimator", "kalman"], "estimator"),
+        (["run", "sliding", "--set", "pose.nope=1"], "unknown key"),
+        (["reproduce", "--out", "{tmp}/file.txt"], "not a folder"),
+    ],
+)
+def test_run_bad_input_exits_2(tmp_path, capsys, args, needle):
+    (tmp_path / "bad.json").write_text("{")
+    (tmp_path / "file.txt").write_text("x")
+    code = main([a.format(tmp=tmp_path) for a in args])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and len(err.strip().splitlines()) == 1
