@@ -19,13 +19,22 @@ venv: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/omnirotor info
-	$(BIN)/omnirotor identify ../shared/data/omnirotor-hover-flight --out $(DEMO_OUT)/maps.json
+	$(BIN)/omnirotor identify ../shared/data/omnirotor-hover-flight --out $(DEMO_OUT)/real-flight-maps.json
+	$(BIN)/omnirotor reproduce --quick --out $(DEMO_OUT)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
-bench: $(STAMP)
-	$(BIN)/python benchmarks/run.py
+# The benchmarks also need the `bench` extra (RotorPy, the peer of the quadrotor comparison).
+# `make bench BENCH_ARGS=--quick` for the one-minute version; the JSON lands in out/bench.json.
+BENCH_STAMP := $(VENV)/.installed-bench
+BENCH_ARGS ?=
+$(BENCH_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[dev,bench]'
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(BIN)/python benchmarks/run.py --out out/bench.json $(BENCH_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

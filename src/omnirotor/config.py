@@ -95,8 +95,10 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     """
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - names)
     prefix = f"{where}: " if where else ""
+    if not isinstance(data, Mapping):
+        raise InputError(f"{prefix}expected a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - names)
     if unknown:
         raise InputError(f"{prefix}unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(names))}")
     kwargs = {k: _convert(v, hints[k], f"{where}.{k}" if where else k) for k, v in data.items()}

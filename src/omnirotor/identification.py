@@ -150,8 +150,13 @@ def load_mat(path: str | Path, n_rotors: int = 8) -> HoverData:
     s = raw.get("wMapStruct")
     if s is None or not hasattr(s, "U") or not hasattr(s, "Z"):
         raise InputError(f"{p}: no struct wMapStruct with fields U and Z")
-    U = np.atleast_2d(np.asarray(s.U, dtype=float))
-    Z = np.asarray(s.Z, dtype=float).ravel()
+    try:
+        if np.iscomplexobj(s.U) or np.iscomplexobj(s.Z):
+            raise TypeError("complex")
+        U = np.atleast_2d(np.asarray(s.U, dtype=float))
+        Z = np.asarray(s.Z, dtype=float).ravel()
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{p}: U and Z must be real numeric arrays") from None
     if U.shape[1] != 6 * n_rotors or U.shape[0] % 6 or U.shape[0] != Z.shape[0]:
         raise InputError(
             f"{p}: U has shape {U.shape} and Z {Z.shape}; expected (6N, {6 * n_rotors}) and (6N,) for {n_rotors} rotors"

@@ -94,3 +94,32 @@ class RotorCommand:
     t: float
     omega_hz: np.ndarray
     status: ControlStatus = ControlStatus.OK
+
+
+def _fast_frozen_init(cls: type) -> None:
+    """Give a frozen, slotted dataclass an ``__init__`` that sets its slots through their descriptors.
+
+    Same signature, defaults and result as the generated one (the instance stays frozen), but about twice as
+    fast: the generated ``__init__`` of a frozen dataclass goes through ``object.__setattr__`` for every
+    field, and a control period builds three or four messages.
+    """
+    fields = dataclasses.fields(cls)
+    namespace = {f"_set_{f.name}": cls.__dict__[f.name].__set__ for f in fields}
+    params = []
+    for f in fields:
+        if f.default is dataclasses.MISSING:
+            params.append(f.name)
+        else:
+            namespace[f"_default_{f.name}"] = f.default
+            params.append(f"{f.name}=_default_{f.name}")
+    body = "\n".join(f"    _set_{f.name}(self, {f.name})" for f in fields)
+    exec(f"def __init__(self, {', '.join(params)}):\n{body}\n", namespace)  # as dataclasses itself does
+    init = namespace["__init__"]
+    init.__qualname__ = f"{cls.__qualname__}.__init__"
+    init.__annotations__ = dict(cls.__init__.__annotations__)
+    cls.__init__ = init
+
+
+for _cls in (StateEstimate, SensorFrame, RotorCommand):
+    _fast_frozen_init(_cls)
+del _cls

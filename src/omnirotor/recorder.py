@@ -9,7 +9,9 @@ Two ways to write a row:
 * for the hot loop, :meth:`Recorder.bind` fixes once the persistent arrays whose concatenation is a row
   (the producers' own output buffers; one array may hold several consecutive groups), and
   :meth:`Recorder.record_bound` then copies them all into the next row with a single
-  ``np.concatenate(..., out=row)``.
+  ``np.concatenate(..., out=row)``;
+* a producer that computes the row itself (e.g. in a compiled kernel) takes :meth:`Recorder.next_row` and
+  fills it in place.
 
 A full recorder drops further rows (it never raises inside a loop) and counts them in
 :attr:`Recorder.dropped`; :meth:`Recorder.ensure_capacity` grows it beforehand.
@@ -138,6 +140,19 @@ class Recorder:
         np.concatenate(self._bound, out=self.data[n])
         self.n = n + 1
         return True
+
+    def next_row(self) -> np.ndarray | None:
+        """The next row, counted as written, for a producer that fills it in place.
+
+        Returns:
+            A view of the row, or None (counted as dropped) when the recorder is full.
+        """
+        n = self.n
+        if n >= self.data.shape[0]:
+            self.dropped += 1
+            return None
+        self.n = n + 1
+        return self.data[n]
 
     def column(self, name: str) -> np.ndarray:
         """(n,) view of one column (a column name, or the name of a width-1 group)."""

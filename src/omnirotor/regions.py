@@ -141,6 +141,8 @@ class Partition:
 
 def partition_from_dict(data: dict, where: str = "partition") -> Partition:
     """Build a partition from its TOML/JSON table ``{name, region: [...]}``."""
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a table, got {type(data).__name__}")
     data = dict(data)
     raw = data.pop("region", None)
     if not isinstance(raw, list) or not raw:

@@ -127,7 +127,7 @@ def write_json_atomic(path: str | Path, obj: Any) -> None:
 def _matrix(value: Any, shape: tuple[int, int], where: str) -> np.ndarray:
     try:
         A = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{where}: not a numeric matrix") from None
     if A.shape != shape:
         raise InputError(f"{where}: shape {A.shape}, expected {shape}")
@@ -201,6 +201,11 @@ def load_wrench_maps(path: str | Path, n_rotors: int | None = None) -> WrenchMap
         regions[name] = _entry(value, shape, f"{p}: regions.{name}")
     g = data.get("global")
     delta = data.get("delta")
+    weights = data.get("weights") or ()
+    if not isinstance(weights, list) or not all(
+        isinstance(w, (int, float)) and not isinstance(w, bool) and math.isfinite(w) for w in weights
+    ):
+        raise InputError(f"{p}: weights must be an array of finite numbers")
     return WrenchMapSet(
         vehicle=str(data.get("vehicle", "")),
         nominal=nominal,
@@ -208,6 +213,6 @@ def load_wrench_maps(path: str | Path, n_rotors: int | None = None) -> WrenchMap
         regions=regions,
         global_=_entry(g, shape, f"{p}: global") if g is not None else None,
         delta=float(delta) if isinstance(delta, (int, float)) and not isinstance(delta, bool) else None,
-        weights=tuple(float(w) for w in data.get("weights") or ()),
+        weights=tuple(float(w) for w in weights),
         rho=data.get("rho"),
     )

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from omnirotor.config import check_finite
+from omnirotor.control import _kernels as _k
 from omnirotor.control.trajectory import ReferenceSample
 from omnirotor.errors import InputError
 
@@ -140,18 +141,14 @@ def ee_wrench_W(
         f_E_W: (3,) output: force at the EE [N], world frame (``= f_ext_W``).
         m_E_W: (3,) output: moment about the EE tip [N·m], world frame.
     """
-    fx, fy, fz = f_ext_W.tolist()
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R_WB.tolist()
-    mx, my, mz = m_ext_B.tolist()
-    ex, ey, ez = p_E_B.tolist()
-    rx = r00 * ex + r01 * ey + r02 * ez
-    ry = r10 * ex + r11 * ey + r12 * ez
-    rz = r20 * ex + r21 * ey + r22 * ez
-    f_E_W[:] = f_ext_W
-    m_E_W[:] = (
-        r00 * mx + r01 * my + r02 * mz - (ry * fz - rz * fy),
-        r10 * mx + r11 * my + r12 * mz - (rz * fx - rx * fz),
-        r20 * mx + r21 * my + r22 * mz - (rx * fy - ry * fx),
+    f64 = np.float64
+    _k.ee_wrench(
+        np.asarray(f_ext_W, dtype=f64),
+        np.asarray(m_ext_B, dtype=f64),
+        np.asarray(R_WB, dtype=f64),
+        np.asarray(p_E_B, dtype=f64),
+        f_E_W,
+        m_E_W,
     )
 
 
@@ -166,28 +163,7 @@ def body_reference_from_ee(ee: ReferenceSample, p_E_B: np.ndarray, out: Referenc
     Returns:
         ``out``.
     """
-    e = ee.data  # layout (see trajectory.ReferenceSample): p 0:3, v 3:6, a 6:9, R 9:18, omega 18:21, alpha 21:24
-    px, py, pz, vx, vy, vz, ax, ay, az, r00, r01, r02, r10, r11, r12, r20, r21, r22, wx, wy, wz, bx, by, bz = e.tolist()
-    ex, ey, ez = p_E_B.tolist()
-    # r = R^r p_E^B, c = omega x r, cc = omega x (omega x r)
-    rx = r00 * ex + r01 * ey + r02 * ez
-    ry = r10 * ex + r11 * ey + r12 * ez
-    rz = r20 * ex + r21 * ey + r22 * ez
-    cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
-    ccx, ccy, ccz = wy * cz - wz * cy, wz * cx - wx * cz, wx * cy - wy * cx
-    d = out.data
-    d[0:9] = (
-        px - rx,
-        py - ry,
-        pz - rz,
-        vx - cx,
-        vy - cy,
-        vz - cz,
-        ax - (by * rz - bz * ry) - ccx,
-        ay - (bz * rx - bx * rz) - ccy,
-        az - (bx * ry - by * rx) - ccz,
-    )
-    d[9:24] = e[9:24]  # attitude and its rates are the EE's (R_E^B = I)
+    _k.body_reference(ee.data, np.asarray(p_E_B, dtype=np.float64), out.data)
     return out
 
 
@@ -196,6 +172,7 @@ class AdmittanceFilter:
 
     Args:
         params: virtual mass, damping and stiffness.
+        buffer: optional (``ADM_SIZE``,) float64 array to hold :attr:`kernel_state`; a new one by default.
 
     Attributes:
         xi_p_W: (3,) position offset [m]. Read-only view; updated by :meth:`step`.
@@ -204,108 +181,51 @@ class AdmittanceFilter:
         R_xi: (3, 3) rotation offset (world to world).
         omega_xi_W: (3,) angular rate of the offset [rad/s], world frame.
         omega_xi_dot_W: (3,) its derivative [rad/s²] at the last step.
+        kernel_state: the packed state and parameters the compiled step reads and writes (layout ``ADM_*``
+            of :mod:`omnirotor.control._kernels`; the arrays above are views into it).
     """
 
-    def __init__(self, params: AdmittanceParams | None = None) -> None:
+    def __init__(self, params: AdmittanceParams | None = None, *, buffer: np.ndarray | None = None) -> None:
         self.params = params if params is not None else AdmittanceParams()
         p = self.params
-        self._inv_m = tuple(1.0 / m for m in p.mass_pos)
-        self._d = p.damping_pos
-        self._k = p.stiffness_pos
-        self._inv_j = tuple(1.0 / m for m in p.mass_rot)
-        self._d_r = p.damping_rot
-        self._k_r = p.stiffness_rot
-        self._state = np.zeros(27)
-        s = self._state
-        self.xi_p_W = s[0:3]
-        self.xi_p_dot_W = s[3:6]
-        self.xi_p_ddot_W = s[6:9]
-        self.omega_xi_W = s[9:12]
-        self.omega_xi_dot_W = s[12:15]
-        self.R_xi = s[15:24].reshape(3, 3)
-        self._q = [1.0, 0.0, 0.0, 0.0]  # R_xi as a unit quaternion, wxyz
+        # State and parameters in one array, the layout of control._kernels (ADM_*).
+        self.kernel_state = s = _k.state_buffer(buffer, _k.ADM_SIZE, "admittance")
+        s[_k.ADM_INV_M : _k.ADM_INV_M + 3] = [1.0 / m for m in p.mass_pos]
+        s[_k.ADM_D : _k.ADM_D + 3] = p.damping_pos
+        s[_k.ADM_K : _k.ADM_K + 3] = p.stiffness_pos
+        s[_k.ADM_INV_J : _k.ADM_INV_J + 3] = [1.0 / m for m in p.mass_rot]
+        s[_k.ADM_D_R : _k.ADM_D_R + 3] = p.damping_rot
+        s[_k.ADM_K_R : _k.ADM_K_R + 3] = p.stiffness_rot
+        self.xi_p_W = s[_k.ADM_XI_P : _k.ADM_XI_P + 3]
+        self.xi_p_dot_W = s[_k.ADM_XI_P_DOT : _k.ADM_XI_P_DOT + 3]
+        self.xi_p_ddot_W = s[_k.ADM_XI_P_DDOT : _k.ADM_XI_P_DDOT + 3]
+        self.omega_xi_W = s[_k.ADM_OMEGA_XI : _k.ADM_OMEGA_XI + 3]
+        self.omega_xi_dot_W = s[_k.ADM_OMEGA_XI_DOT : _k.ADM_OMEGA_XI_DOT + 3]
+        self.R_xi = s[_k.ADM_R_XI : _k.ADM_R_XI + 9].reshape(3, 3)
+        self._q = s[_k.ADM_Q : _k.ADM_Q + 4]  # R_xi as a unit quaternion, wxyz
         self.reset()
 
     def reset(self) -> None:
         """Zero the offsets (compliant reference = desired reference)."""
-        self._state[:] = 0.0
+        self.kernel_state[0 : _k.ADM_INV_M] = 0.0
         self.R_xi[...] = np.eye(3)
-        self._q = [1.0, 0.0, 0.0, 0.0]
+        self._q[0] = 1.0
 
     def rotation_offset_vector(self) -> np.ndarray:
         """(3,) ``1/2 (R_xi - R_xi^T)^v`` = sin(angle) * axis: the spring's generalized deflection."""
-        w, x, y, z = self._q
+        w, x, y, z = self._q.tolist()
         return np.array([2.0 * w * x, 2.0 * w * y, 2.0 * w * z])
 
     def step(self, f_E_W: np.ndarray, m_E_W: np.ndarray, dt: float) -> None:
-        """Advance the filter by ``dt`` [s] under the EE wrench.
+        """Advance the filter by ``dt`` [s] under the EE wrench (:func:`omnirotor.control._kernels.admittance_step`).
 
         Args:
             f_E_W: (3,) force at the EE [N], world frame.
             m_E_W: (3,) moment about the EE [N·m], world frame.
             dt: step [s].
         """
-        s = self._state
-        xp, yp, zp, xv, yv, zv, _, _, _, wx, wy, wz = s[0:12].tolist()
-        fx, fy, fz = f_E_W.tolist()
-        mx, my, mz = m_E_W.tolist()
-        im, d, k = self._inv_m, self._d, self._k
-        ax = im[0] * (fx - d[0] * xv - k[0] * xp)
-        ay = im[1] * (fy - d[1] * yv - k[1] * yp)
-        az = im[2] * (fz - d[2] * zv - k[2] * zp)
-        half_dt2 = 0.5 * dt * dt
-        # Rotational spring: 1/2 (R_xi - R_xi^T)^v = 2 q_w q_v for a unit quaternion.
-        qw, qx, qy, qz = self._q
-        ij, dr, kr = self._inv_j, self._d_r, self._k_r
-        alx = ij[0] * (mx - dr[0] * wx - kr[0] * 2.0 * qw * qx)
-        aly = ij[1] * (my - dr[1] * wy - kr[1] * 2.0 * qw * qy)
-        alz = ij[2] * (mz - dr[2] * wz - kr[2] * 2.0 * qw * qz)
-        wx += alx * dt
-        wy += aly * dt
-        wz += alz * dt
-        s[0:15] = (
-            xp + xv * dt + ax * half_dt2,
-            yp + yv * dt + ay * half_dt2,
-            zp + zv * dt + az * half_dt2,
-            xv + ax * dt,
-            yv + ay * dt,
-            zv + az * dt,
-            ax,
-            ay,
-            az,
-            wx,
-            wy,
-            wz,
-            alx,
-            aly,
-            alz,
-        )
-        # R_xi <- exp([omega dt]x) R_xi, i.e. q <- dq (x) q with dq the world-frame increment.
-        angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
-        if angle > 0.0:
-            c = math.cos(0.5 * angle)
-            sn = math.sin(0.5 * angle) / angle * dt
-            dw, dx, dy, dz = c, sn * wx, sn * wy, sn * wz
-            qw, qx, qy, qz = (
-                dw * qw - dx * qx - dy * qy - dz * qz,
-                dw * qx + dx * qw + dy * qz - dz * qy,
-                dw * qy - dx * qz + dy * qw + dz * qx,
-                dw * qz + dx * qy - dy * qx + dz * qw,
-            )
-            norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            qw, qx, qy, qz = qw * norm, qx * norm, qy * norm, qz * norm
-            self._q = [qw, qx, qy, qz]
-            s[15:24] = (
-                1.0 - 2.0 * (qy * qy + qz * qz),
-                2.0 * (qx * qy - qw * qz),
-                2.0 * (qx * qz + qw * qy),
-                2.0 * (qx * qy + qw * qz),
-                1.0 - 2.0 * (qx * qx + qz * qz),
-                2.0 * (qy * qz - qw * qx),
-                2.0 * (qx * qz - qw * qy),
-                2.0 * (qy * qz + qw * qx),
-                1.0 - 2.0 * (qx * qx + qy * qy),
-            )
+        f64 = np.float64
+        _k.admittance_step(self.kernel_state, np.asarray(f_E_W, dtype=f64), np.asarray(m_E_W, dtype=f64), float(dt))
 
     def compliant_reference(self, desired: ReferenceSample, out: ReferenceSample) -> ReferenceSample:
         """The compliant EE reference: the desired one displaced by the filter's offsets.
@@ -317,26 +237,5 @@ class AdmittanceFilter:
         Returns:
             ``out``.
         """
-        s = self._state
-        d = out.data
-        # p, v, a (layout of ReferenceSample.data): desired + offsets.
-        np.add(desired.data[0:9], s[0:9], out=d[0:9])
-        # R_r = R_xi R_d, omega_r = omega_xi + R_xi omega_d,
-        # alpha_r = omega_xi' + R_xi alpha_d + omega_xi x (R_xi omega_d).
-        np.dot(self.R_xi, desired.R_WB, out=out.R_WB)
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R_xi.tolist()
-        ox, oy, oz = desired.omega_W.tolist()
-        bx, by, bz = desired.alpha_W.tolist()
-        wx, wy, wz, vx, vy, vz = s[9:15].tolist()
-        rox = r00 * ox + r01 * oy + r02 * oz
-        roy = r10 * ox + r11 * oy + r12 * oz
-        roz = r20 * ox + r21 * oy + r22 * oz
-        d[18:24] = (
-            wx + rox,
-            wy + roy,
-            wz + roz,
-            vx + r00 * bx + r01 * by + r02 * bz + wy * roz - wz * roy,
-            vy + r10 * bx + r11 * by + r12 * bz + wz * rox - wx * roz,
-            vz + r20 * bx + r21 * by + r22 * bz + wx * roy - wy * rox,
-        )
+        _k.compliant_reference(self.kernel_state, desired.data, out.data)
         return out

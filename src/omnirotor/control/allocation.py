@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from omnirotor.config import check_positive
+from omnirotor.control import _kernels as _k
 from omnirotor.errors import InputError
 from omnirotor.vehicle import VehicleParams
 
@@ -195,14 +196,20 @@ class Allocator:
         n_nonfinite: number of calls with a NaN/inf input since construction or :meth:`reset`.
         saturated: True when some active rotor sits at a bound in the last result.
         failed_rotors: (n,) bool mask of the rotors excluded from the allocation (read-only view).
+        kernel_state: the packed per-step data the compiled kernels read and write (layout ``ALLOC_*`` and
+            ``alloc_offsets`` of :mod:`omnirotor.control._kernels`).
     """
 
-    def __init__(self, vehicle: VehicleParams, params: AllocationParams | None = None):
+    def __init__(
+        self, vehicle: VehicleParams, params: AllocationParams | None = None, *, buffer: np.ndarray | None = None
+    ):
         """Set up the QP for ``vehicle`` with the nominal map and upright hover as a first solution.
 
         Args:
             vehicle: the vehicle (rotor count and input bounds ``u_min``/``u_max`` [Hz²]).
             params: allocation parameters; defaults to :class:`AllocationParams()`.
+            buffer: optional float64 array of ``alloc_offsets(n)[-1]`` entries (:mod:`omnirotor.control._kernels`)
+                to hold :attr:`kernel_state`; a new one by default.
         """
         self.params = params if params is not None else AllocationParams()
         self.vehicle = vehicle
@@ -210,29 +217,34 @@ class Allocator:
         self.n = n
         self._u_scale = max(abs(vehicle.u_min), abs(vehicle.u_max))
         self._lam_scaled = self.params.reg_lambda * self._u_scale**2
-        # Scaled bounds of every rotor, and the ones in force (failed rotors pinned to 0).
+        # The per-step data in one array, the layout of control._kernels (ALLOC_*, alloc_offsets): the
+        # body-frame reference, the linear term f, the map the QP was built for, G = -(A u_scale)ᵀ, the scaled
+        # bounds in force (failed rotors pinned to 0) and their saturation thresholds, u and the last safe u.
+        o_f, o_key, o_G, o_lo, o_hi, o_lo_sat, o_hi_sat, o_u, o_u_safe, size = _k.alloc_offsets(n)
+        self.kernel_state = ws = _k.state_buffer(buffer, size, "allocator")
+        ws[_k.ALLOC_SCALE] = self._u_scale
+        self._w_B = ws[_k.ALLOC_W_B : _k.ALLOC_W_B + 6]  # body-frame reference [N; N·m]
+        self._f = ws[o_f : o_f + n]
+        self._A_key = ws[o_key : o_key + 6 * n].reshape(6, n)
+        self._A_key[:] = math.nan  # no map yet
+        self._G = ws[o_G : o_G + 6 * n].reshape(n, 6)  # -(A u_scale)ᵀ: f = G w_B
+        self._lo = ws[o_lo : o_lo + n]
+        self._hi = ws[o_hi : o_hi + n]
+        self._lo_sat = ws[o_lo_sat : o_lo_sat + n]
+        self._hi_sat = ws[o_hi_sat : o_hi_sat + n]
+        self._u = ws[o_u : o_u + n]  # returned to the caller [Hz²]
+        self._u_safe = ws[o_u_safe : o_u_safe + n]  # last finite, in-bounds command [Hz²]
+        # Scaled bounds of every rotor.
         self._lo_all = np.full(n, vehicle.u_min / self._u_scale)
         self._hi_all = np.full(n, vehicle.u_max / self._u_scale)
-        self._lo = self._lo_all.copy()
-        self._hi = self._hi_all.copy()
+        self._lo[:] = self._lo_all
+        self._hi[:] = self._hi_all
         self._failed = np.zeros(n, dtype=bool)
         self._sat_margin = self.params.saturation_tol * float(self._hi_all[0] - self._lo_all[0])
-        # Plain-float copies for the per-step clipping loop, refreshed by set_failed_rotors().
-        self._lo_list: list[float] = []
-        self._hi_list: list[float] = []
-        self._lo_sat: list[float] = []
-        self._hi_sat: list[float] = []
         # Problem data in the scaled variables, rebuilt when the map changes.
-        self._A_key = b""
         self._As = np.empty((6, n))  # A * u_scale  [N, N·m per unit x]
-        self._G = np.empty((n, 6))  # -(A u_scale)ᵀ: f = G w_B
         self._H = np.empty((n, n))
         self._diag = np.arange(n) * (n + 1)
-        self._w_B = np.zeros(6)  # body-frame reference [N; N·m]
-        self._w_B_force = self._w_B[:3]
-        self._f = np.zeros(n)
-        self._u = np.zeros(n)  # returned to the caller [Hz²]
-        self._u_safe = np.zeros(n)  # last finite, in-bounds command [Hz²]
         self.status = AllocationStatus.OK
         self.n_fallbacks = 0
         self.n_nonfinite = 0
@@ -254,7 +266,7 @@ class Allocator:
         np.negative(self._As.T, out=self._G)
         np.matmul(self._As.T, self._As, out=self._H)
         self._H.flat[self._diag] += self._lam_scaled
-        self._A_key = A.tobytes()
+        self._A_key[:] = A
 
     @property
     def failed_rotors(self) -> np.ndarray:
@@ -288,12 +300,11 @@ class Allocator:
         np.clip(self._u_safe, self._lo * self._u_scale, self._hi * self._u_scale, out=self._u_safe)
 
     def _refresh_bound_lists(self) -> None:
+        """Saturation thresholds: a failed rotor sits at its [0, 0] bounds by design and never counts."""
         inf = math.inf
-        self._lo_list = self._lo.tolist()
-        self._hi_list = self._hi.tolist()
-        # A failed rotor sits at its [0, 0] bounds by design: it never counts as saturated.
-        self._lo_sat = [-inf if f else lo + self._sat_margin for f, lo in zip(self._failed, self._lo_list, strict=True)]
-        self._hi_sat = [inf if f else hi - self._sat_margin for f, hi in zip(self._failed, self._hi_list, strict=True)]
+        margin = self._sat_margin
+        self._lo_sat[:] = np.where(self._failed, -inf, self._lo + margin)
+        self._hi_sat[:] = np.where(self._failed, inf, self._hi - margin)
 
     def reset(self) -> None:
         """Forget the history: cold-start the solver, clear counters, hold the clipped upright hover input.
@@ -323,44 +334,37 @@ class Allocator:
             (n,) inputs u [Hz²], finite and within bounds. The array belongs to the allocator and is
             overwritten by the next call: copy it to keep it.
         """
-        if A.tobytes() != self._A_key:
+        f64 = np.float64
+        w_ref = np.asarray(w_ref, dtype=f64)
+        R_WB = np.asarray(R_WB, dtype=f64)
+        A = np.asarray(A, dtype=f64)
+        code = _k.alloc_prepare(self.kernel_state, w_ref, R_WB, A)
+        if code != _k.PRE_OK and not self._resolve(code, w_ref, R_WB, A):
+            return self._hold()
+        return self._finish(self._backend.solve(self._f))
+
+    def _resolve(self, code: int, w_ref: np.ndarray, R_WB: np.ndarray, A: np.ndarray) -> bool:
+        """After :func:`alloc_prepare` did not return OK: rebuild the QP for a new map and prepare again.
+
+        Returns:
+            True when the linear term is ready, False when the inputs are not finite (the caller holds).
+        """
+        if code == _k.PRE_MAP_CHANGED:
             if not math.isfinite(float(A.sum())):
-                return self._hold()
+                return False
             self._set_map(A)
             self._backend.set_hessian(self._H)
-        # Body-frame reference w_B = [R_WBᵀ f_ref_W; m_ref_B], then the linear term f = -(A u_scale)ᵀ w_B.
-        w_B = self._w_B
-        w_ref[:3].dot(R_WB, out=self._w_B_force)
-        w_B[3:] = w_ref[3:]
-        f = self._f
-        self._G.dot(w_B, out=f)
-        # A NaN/inf anywhere in w_ref or R_WB reaches f (0 * inf is NaN too); f·f is one cheap reduction.
-        if not math.isfinite(float(f.dot(f))):
-            return self._hold()
-        x = self._backend.solve(f)
-        if x is None:
-            xs = self._fallback()
+            code = _k.alloc_prepare(self.kernel_state, w_ref, R_WB, A)
+        return code == _k.PRE_OK
+
+    def _finish(self, x: np.ndarray | None) -> np.ndarray:
+        """Clip, scale and flag saturation (:func:`alloc_finish`); the clipped pseudo-inverse if x failed."""
+        sat = -1 if x is None else _k.alloc_finish(self.kernel_state, np.asarray(x, dtype=np.float64), _k.FINISH_QP)
+        if sat < 0:
+            sat = _k.alloc_finish(self.kernel_state, self._fallback(), _k.FINISH_FALLBACK)
         else:
-            xs = x.tolist()
-            if math.isfinite(sum(xs)):
-                self.status = AllocationStatus.OK
-            else:
-                xs = self._fallback()
-        # Clip, scale and flag saturation on plain floats (8 numpy calls cost more than this loop).
-        lo, hi, lo_sat, hi_sat, scale = self._lo_list, self._hi_list, self._lo_sat, self._hi_sat, self._u_scale
-        saturated = False
-        for i in range(self.n):
-            xi = xs[i]
-            if xi < lo[i]:
-                xi = lo[i]
-            elif xi > hi[i]:
-                xi = hi[i]
-            if xi <= lo_sat[i] or xi >= hi_sat[i]:
-                saturated = True
-            xs[i] = xi * scale
-        self.saturated = saturated
-        self._u[:] = xs
-        self._u_safe[:] = self._u
+            self.status = AllocationStatus.OK
+        self.saturated = bool(sat)
         return self._u
 
     def _hold(self) -> np.ndarray:
@@ -369,9 +373,9 @@ class Allocator:
         self._u[:] = self._u_safe
         return self._u
 
-    def _fallback(self) -> list[float]:
+    def _fallback(self) -> np.ndarray:
         """Pseudo-inverse of the map restricted to the working rotors (scaled x; clipped by the caller)."""
         self.status = AllocationStatus.FALLBACK
         self.n_fallbacks += 1
         As = np.where(self._failed, 0.0, self._As)
-        return (np.linalg.pinv(As) @ self._w_B).tolist()
+        return np.linalg.pinv(As) @ self._w_B

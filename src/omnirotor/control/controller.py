@@ -29,18 +29,24 @@ consumes that frame (the estimator starts from it); the command for the first pe
 Every step is logged in :attr:`InteractionController.log` (a :class:`~omnirotor.recorder.Recorder`, groups
 in :data:`LOG_GROUPS`): time, estimate, actual EE position, desired and compliant EE poses, admittance
 offset, estimated wrench, wrench reference, pose errors, u, omega command, region index and status.
+
+Cost. The blocks keep their states in slices of one array (:func:`omnirotor.control._kernels.controller_layout`),
+and :meth:`InteractionController.step` runs steps 3-6 in one compiled call
+(:func:`~omnirotor.control._kernels.controller_pre`), the QP through daqp's Python interface, and step 7 with
+the log row in a second compiled call (:func:`~omnirotor.control._kernels.controller_post`). These run the
+same kernels as the blocks' own ``step`` methods.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
 
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
-from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee, ee_wrench_W
+from omnirotor.control import _kernels as _k
+from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
 from omnirotor.control.allocation import AllocationParams, AllocationStatus, Allocator
 from omnirotor.control.estimator import EstimatorParams, make_estimator
 from omnirotor.control.maps import MapParams, MapScheduler
@@ -111,14 +117,6 @@ def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noq
         ("u_hz2", rotors),
         ("omega_cmd_hz", rotors),
     ]
-
-
-# Layout of the controller's own logged buffer: t, region, status, estimate (p, v, a, R, omega), EE tip.
-_H_SCALARS = slice(0, 3)
-_H_EST = slice(3, 24)
-_H_P = slice(3, 6)
-_H_P_E = slice(24, 27)
-_H_SIZE = 27
 
 
 @dataclasses.dataclass(frozen=True)
@@ -208,37 +206,44 @@ class InteractionController:
         self.params = params if params is not None else ControllerParams()
         p = self.params
         n = vehicle.n_rotors
+        # Every block's packed state is a slice of one array (layout: _kernels.controller_layout), so that the
+        # compiled step takes one array for all of them.
+        o_obs, o_adm, o_pose, o_des, o_comp, o_body, o_alloc, size = _k.controller_layout(n)
+        self._arena = arena = np.zeros(size)
         self.estimator = make_estimator(vehicle, p.estimator)
         self.scheduler = MapScheduler(vehicle, maps, p.maps)
-        self.observer = WrenchObserver(vehicle, p.observer)
-        self.admittance = AdmittanceFilter(p.admittance)
-        self.pose = PoseController(vehicle, p.pose)
-        self.allocator = Allocator(vehicle, p.allocation)
+        self.observer = WrenchObserver(vehicle, p.observer, buffer=arena[o_obs:o_adm])
+        self.admittance = AdmittanceFilter(p.admittance, buffer=arena[o_adm:o_pose])
+        self.pose = PoseController(vehicle, p.pose, buffer=arena[o_pose:o_des])
+        self.allocator = Allocator(vehicle, p.allocation, buffer=arena[o_alloc:size])
         self._dt = p.dt
         self._measured_input = p.observer_input == "measured"
         self._p_E_B = vehicle.p_E_B_array
-        self._p_E_B_floats = tuple(float(x) for x in vehicle.p_E_B)
         self._omega_lo = float(vehicle.omega_min_hz)
         self._omega_hi = float(vehicle.omega_max_hz)
         self._n = n
-        # References and wrench buffers.
-        self.desired_ee = ReferenceSample()
-        self.compliant_ee = ReferenceSample()
-        self.body_ref = ReferenceSample()
-        self._f_comp_W = self.observer.filtered[0:3]
-        self._m_comp_B = self.observer.filtered[3:6]
-        self._f_E_W = np.zeros(3)
-        self._m_E_W = np.zeros(3)
-        # Inputs and commands.
-        self._u_obs = np.zeros(n)  # u fed to the observer [Hz²]
-        self._u_cmd = np.zeros(n)  # last allocated u [Hz²]
-        self._omega_cmd = np.zeros(n)  # last command [Hz]
-        self._omega_safe = np.zeros(n)  # last finite command [Hz]
+        self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
+        # References.
+        self.desired_ee = ReferenceSample(arena[o_des:o_comp])
+        self.compliant_ee = ReferenceSample(arena[o_comp:o_body])
+        self.body_ref = ReferenceSample(arena[o_body:o_alloc])
+        # The controller's own values (layout CTL_* of control._kernels): the logged head (t, region, status,
+        # estimate, EE tip), the EE wrench, p_E_B, the speed limits, the inputs and commands.
+        self._ws = ws = arena[0:o_obs]
+        self._head = ws[_k.CTL_HEAD : _k.CTL_HEAD + _k.CTL_HEAD_SIZE]
+        self._f_E_W = ws[_k.CTL_F_E : _k.CTL_F_E + 3]
+        self._m_E_W = ws[_k.CTL_M_E : _k.CTL_M_E + 3]
+        ws[_k.CTL_P_E_B : _k.CTL_P_E_B + 3] = vehicle.p_E_B
+        ws[_k.CTL_OMEGA_LO] = self._omega_lo
+        ws[_k.CTL_OMEGA_HI] = self._omega_hi
+        o = _k.CTL_U_OBS
+        self._u_obs = ws[o : o + n]  # u fed to the observer [Hz²]
+        self._u_cmd = ws[o + n : o + 2 * n]  # last allocated u [Hz²]
+        self._omega_cmd = ws[o + 2 * n : o + 3 * n]  # last command [Hz]
+        self._omega_safe = ws[o + 3 * n : o + 4 * n]  # last finite command [Hz]
         self._excluded = False
-        # The controller's own logged values (scalars, estimate, EE tip) in one buffer; the log row is
-        # that buffer followed by the blocks' own buffers (one np.concatenate per step).
-        self._head = np.zeros(_H_SIZE)
-        self._head_est = self._head[_H_EST]
+        # The log row is the head followed by the blocks' own buffers; the compiled step writes it directly
+        # (_kernels.write_log_row), the rare held step through these bound sources.
         self.log = Recorder(p.log_capacity, LOG_GROUPS(n))
         self.log.bind(
             self._head,
@@ -251,6 +256,8 @@ class InteractionController:
             self._u_cmd,
             self._omega_cmd,
         )
+        self._no_row = np.zeros(0)
+        self._no_x = np.zeros(n)
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
 
@@ -318,70 +325,69 @@ class InteractionController:
         Returns:
             A command with fresh arrays; its speeds are finite and within the vehicle's limits.
         """
-        if self._trajectory is None:
+        trajectory = self._trajectory
+        if trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
-        dt = self._dt
         t = frame.t - self._t0
         bits = 0
-        state = self.estimator.step(frame)
-        if self.estimator.degraded or not state.valid:
+        estimator = self.estimator
+        state = estimator.step(frame)
+        if estimator.degraded or not state.valid:
             bits |= _DEGRADED
-        if self.estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
+        if estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
             bits |= _NONFINITE
-        head = self._head
-        est = self._head_est
-        np.concatenate((state.p_W, state.v_W, state.a_W, state.R_WB.reshape(9), state.omega_B), out=est)
-        finite = math.isfinite(est.sum())
-        if self._measured_input and finite:
-            hz = frame.rotor_hz
-            np.multiply(np.abs(hz), hz, out=self._u_obs)
-            finite = math.isfinite(self._u_obs.sum())
-        if finite:
-            R = state.R_WB
-            A = self.scheduler.select(R)
-            u_obs = self._u_obs if self._measured_input else self._u_cmd
-            f_hat, m_hat = self.observer.step(state, u_obs, A, dt)  # interaction estimate
-            ee_wrench_W(f_hat, m_hat, R, self._p_E_B, self._f_E_W, self._m_E_W)
-            self.admittance.step(self._f_E_W, self._m_E_W, dt)
-            self._trajectory.sample(t, self.desired_ee)
-            self.admittance.compliant_reference(self.desired_ee, self.compliant_ee)
-            body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
-            # The pose controller compensates the whole unexplained wrench (before bias and zeroing).
-            w_ref = self.pose.step(self.body_ref, state, self._f_comp_W, self._m_comp_B, dt)
-            u = self.allocator.solve(w_ref, R, A)
-            status = self.allocator.status
-            if status == AllocationStatus.FALLBACK:
-                bits |= _QP_FALLBACK
-            elif status == AllocationStatus.NONFINITE:
-                bits |= _NONFINITE
-            if self.allocator.saturated:
-                bits |= _SATURATED
-            # omega = sign(u) sqrt(|u|), clipped to the rotor limits.
-            lo, hi = self._omega_lo, self._omega_hi
-            omegas = [math.copysign(math.sqrt(abs(x)), x) for x in u.tolist()]
-            omegas = [lo if w < lo else (hi if w > hi else w) for w in omegas]
-            total = math.fsum(omegas)
-            if math.isfinite(total):
-                self._u_cmd[:] = u
-                self._omega_cmd[:] = omegas
-                self._omega_safe[:] = omegas
-            else:
-                bits |= _NONFINITE
-                self._omega_cmd[:] = self._omega_safe
-            # Estimated EE tip, for the log.
-            ex, ey, ez = self._p_E_B_floats
-            (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-            px, py, pz = head[_H_P].tolist()
-            head[_H_P_E] = (
-                px + r00 * ex + r01 * ey + r02 * ez,
-                py + r10 * ex + r11 * ey + r12 * ez,
-                pz + r20 * ex + r21 * ey + r22 * ez,
-            )
-        else:
-            bits |= _NONFINITE
-            self._omega_cmd[:] = self._omega_safe
         if self._excluded:
             bits |= _EXCLUDED
-        head[_H_SCALARS] = (t, self.scheduler.region_index, bits)
-        self.log.record_bound()
-        return RotorCommand(t=frame.t, omega_hz=self._omega_cmd.copy(), status=_STATUS_BY_BITS[bits])
+        ws = self._ws
+        p_W, v_W, a_W, R, omega_B = state.p_W, state.v_W, state.a_W, state.R_WB, state.omega_B
+        measured = self._measured_input
+        scheduler = self.scheduler
+        packed = False
+        if self._piecewise:  # the region follows the attitude only while the estimate is finite
+            packed = _k.pack_inputs(ws, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured)
+            A = scheduler.select(R) if packed else None
+        else:
+            A = scheduler.select(R)
+        if A is None:
+            code = _k.PRE_STATE_NONFINITE
+        else:
+            code = _k.controller_pre(
+                self._arena, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured, packed, A, trajectory.kernel_data,
+                t, self._dt,
+            )  # fmt: skip
+        if code == _k.PRE_STATE_NONFINITE:  # no stateful block was updated: hold the last safe command
+            bits |= _NONFINITE
+            self._omega_cmd[:] = self._omega_safe
+            self._head[0:3] = (t, scheduler.region_index, bits)
+            self.log.record_bound()
+            return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+        alloc = self.allocator
+        mode = _k.FINISH_QP
+        x = self._no_x
+        if code != _k.PRE_OK and not alloc._resolve(code, self.pose.w_ref, R, A):
+            alloc._hold()
+            bits |= _NONFINITE
+            mode = _k.FINISH_HELD
+        else:
+            x = alloc._backend.solve(alloc._f)
+            if x is None:
+                x = alloc._fallback()
+                bits |= _QP_FALLBACK
+                mode = _k.FINISH_FALLBACK
+        row = self.log.next_row()
+        if row is None:
+            row = self._no_row
+        region = float(scheduler.region_index)
+        arena = self._arena
+        out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
+        if out < 0:  # the QP's answer was not finite: nothing was written
+            bits |= _QP_FALLBACK
+            mode = _k.FINISH_FALLBACK
+            x = alloc._fallback()
+            out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
+        bits = out
+        if mode != _k.FINISH_HELD:
+            alloc.saturated = bool(sat)
+            if mode == _k.FINISH_QP:
+                alloc.status = AllocationStatus.OK
+        return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])

@@ -16,16 +16,19 @@ attitude error on the right, ``R = R_hat exp(dtheta)``, and covariance ``P`` (15
 
 How it spends its time (cost matters: this runs every 1 ms inside the controller):
 
-* every IMU sample: only the **mean** is propagated, noise-free, on plain floats (quaternion, exact
+* every IMU sample: only the **mean** is propagated, noise-free (quaternion, exact
   exponential), as in UKF-M (Brossard, Barrau and Bonnabel, "A code for unscented Kalman filtering on
   manifolds", ICRA 2020): the unscented transform is used for the covariance, not for the mean;
-* at each motion-capture arrival: the unscented transform (2n+1 = 31 sigma points, vectorised) carries P
+* at each motion-capture arrival: the unscented transform (2n+1 = 31 sigma points) carries P
   over the buffered interval since the last fusion, in steps of at most 10 ms with the step's mean IMU
   reading (one step per 100 Hz period; the error this makes in P is second order in ``omega * step``),
   then the pose is fused. The pose measurement is linear in the error coordinates (``h = (dp, dtheta)``
   exactly, as ``log(R_hatᵀ R_hat exp(dtheta)) = dtheta``), so the unscented update reduces exactly to the
   Kalman update and is computed in that closed form. The attitude error is then folded into the mean and
   ``P`` transported by the reset Jacobian ``I - [dtheta/2]x`` (skipped below 1 mrad, where it is < 0.05 %).
+
+The arithmetic runs in compiled kernels (:mod:`omnirotor.control._estimator_kernels`): a step without
+motion capture is one compiled call, a step with a sample three.
 
 Latency. A motion-capture sample taken at ``mocap_t`` arrives ``t - mocap_t`` later (5-10 ms on a typical
 rig). The filter therefore keeps a *delayed* fused state at the time of the last fused sample and a ring
@@ -66,9 +69,10 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf as _dpotrf
 
 from omnirotor.config import check_finite, check_positive
+from omnirotor.control import _estimator_kernels as _ek
+from omnirotor.control import _kernels as _k
 from omnirotor.errors import InputError
 from omnirotor.messages import SensorFrame, StateEstimate
 from omnirotor.vehicle import VehicleParams
@@ -81,7 +85,6 @@ ESTIMATOR_KINDS = ("ukf", "bypass")
 _N_ERR = 15  # error-state dimension: dp, dv, dtheta, db_a, db_g
 _ADVANCE_CHUNK_S = 0.01  # without motion capture, advance the delayed fused state in steps of this much
 _COV_STEP_S = 0.01  # longest step of the sigma-point (covariance) propagation [s]
-_RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] above which P is reset-transported
 _QUAT_NORM_TOL = 0.1  # a motion-capture quaternion whose norm is off by more than this is rejected
 
 
@@ -198,26 +201,6 @@ class EstimatorParams:
 # -- small helpers --------------------------------------------------------------------------------------------
 
 
-def _lpf_gain(dt: float, cutoff_hz: float) -> float:
-    """Gain ``lam`` of the discrete first-order filter ``y += lam (x - y)`` (SPEC §4.3); 1 when off."""
-    if cutoff_hz <= 0.0:
-        return 1.0
-    k = 2.0 * math.pi * dt * cutoff_hz
-    return k / (k + 1.0)
-
-
-def _R_from_q(qw: float, qx: float, qy: float, qz: float) -> list[float]:
-    """Row-major ``R_WB`` (9 floats) of a unit quaternion wxyz."""
-    xx, yy, zz = qx * qx, qy * qy, qz * qz
-    xy, xz, yz = qx * qy, qx * qz, qy * qz
-    wx, wy, wz = qw * qx, qw * qy, qw * qz
-    return [
-        1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
-        2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
-        2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy),
-    ]  # fmt: skip
-
-
 def _q_from_R(R: np.ndarray) -> list[float]:
     """Unit quaternion wxyz (w >= 0) of a (3, 3) rotation matrix (Shepperd)."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]
@@ -236,116 +219,7 @@ def _q_from_R(R: np.ndarray) -> list[float]:
     if q[0] < 0:
         q = [-c for c in q]
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [c / n for c in q]
-
-
-def _propagate(s: list[float], R: list[float], dt: float, g: float, imu: list[float]) -> None:
-    """One IMU sample on the nominal state, in place (module docstring).
-
-    Args:
-        s: 16 floats ``[p_W(3), v_W(3), q_WB wxyz(4), b_a(3), b_g(3)]``.
-        R: the 9 floats of ``R_WB(q)``, row-major; updated to the new attitude.
-        dt: sample duration [s].
-        g: gravity [m/s²].
-        imu: ``[gyro_B(3) [rad/s], acc_B(3) [m/s²]]`` (lever-arm corrected).
-    """
-    fx, fy, fz = imu[3] - s[10], imu[4] - s[11], imu[5] - s[12]
-    ax = R[0] * fx + R[1] * fy + R[2] * fz
-    ay = R[3] * fx + R[4] * fy + R[5] * fz
-    az = R[6] * fx + R[7] * fy + R[8] * fz - g
-    h = 0.5 * dt * dt
-    s[0] += s[3] * dt + ax * h
-    s[1] += s[4] * dt + ay * h
-    s[2] += s[5] * dt + az * h
-    s[3] += ax * dt
-    s[4] += ay * dt
-    s[5] += az * dt
-    wx, wy, wz = (imu[0] - s[13]) * dt, (imu[1] - s[14]) * dt, (imu[2] - s[15]) * dt
-    th2 = wx * wx + wy * wy + wz * wz
-    if th2 > 1e-24:
-        th = math.sqrt(th2)
-        c, k = math.cos(0.5 * th), math.sin(0.5 * th) / th
-    else:
-        c, k = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0
-    dx, dy, dz = k * wx, k * wy, k * wz
-    qw, qx, qy, qz = s[6], s[7], s[8], s[9]
-    nw = qw * c - qx * dx - qy * dy - qz * dz
-    nx = qw * dx + qx * c + qy * dz - qz * dy
-    ny = qw * dy - qx * dz + qy * c + qz * dx
-    nz = qw * dz + qx * dy - qy * dx + qz * c
-    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    s[6], s[7], s[8], s[9] = nw * inv, nx * inv, ny * inv, nz * inv
-    R[:] = _R_from_q(s[6], s[7], s[8], s[9])
-
-
-# so(3) generators: hat(a) = sum_k a_k _GEN[k], and vee(skew(M)) = 0.5 sum_ij _GEN[k, i, j] M[i, j].
-_GEN = np.zeros((3, 3, 3))
-_GEN[0, 2, 1], _GEN[0, 1, 2] = 1.0, -1.0
-_GEN[1, 0, 2], _GEN[1, 2, 0] = 1.0, -1.0
-_GEN[2, 1, 0], _GEN[2, 0, 1] = 1.0, -1.0
-_GEN_FLAT = _GEN.reshape(3, 9)
-_I3 = np.eye(3)
-
-
-def _exp_batch(phi: np.ndarray) -> np.ndarray:
-    """(S, 3, 3) rotation matrices of (S, 3) rotation vectors [rad] (Rodrigues, few numpy calls)."""
-    th2 = np.add.reduce(phi * phi, axis=1)
-    th = np.sqrt(th2)
-    big = th2 > 1e-8  # below, the series to th² are exact in double precision
-    a = np.divide(np.sin(th), th, out=1.0 - th2 / 6.0, where=big)  # sin(th) / th
-    b = np.divide(1.0 - np.cos(th), th2, out=0.5 - th2 / 24.0, where=big)  # (1 - cos th) / th²
-    K = (phi @ _GEN_FLAT).reshape(-1, 3, 3)
-    R = K @ K
-    R *= b[:, None, None]
-    K *= a[:, None, None]
-    R += K
-    R += _I3
-    return R
-
-
-def _log_batch(R: np.ndarray) -> np.ndarray:
-    """(S, 3) rotation vectors [rad] of (S, 3, 3) rotations with angles below pi."""
-    w = R.reshape(-1, 9) @ _GEN_FLAT.T
-    w *= 0.5  # sin(th) * axis
-    sn = np.sqrt(np.einsum("sk,sk->s", w, w))
-    th = np.arctan2(sn, 0.5 * (np.einsum("sii->s", R) - 1.0))
-    k = np.divide(th, sn, out=np.ones_like(th), where=sn > 1e-12)
-    w *= k[:, None]
-    return w
-
-
-def _q_mul(a: list[float], b: list[float]) -> list[float]:
-    """Hamilton product ``a ⊗ b`` of wxyz quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return [
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ]
-
-
-def _q_log(q: list[float]) -> list[float]:
-    """Rotation vector [rad] of a unit quaternion wxyz (the shorter way round)."""
-    w, x, y, z = q
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    n = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
-    return [k * x, k * y, k * z]
-
-
-def _q_exp(phi: list[float]) -> list[float]:
-    """Unit quaternion wxyz of a rotation vector [rad]."""
-    th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    k = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
-    return [math.cos(0.5 * th), k * phi[0], k * phi[1], k * phi[2]]
-
-
-def _q_normalised(q: list[float]) -> list[float]:
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [c / n for c in q]
+    return [float(c / n) for c in q]
 
 
 # -- the UKF ------------------------------------------------------------------------------------------------
@@ -353,6 +227,10 @@ def _q_normalised(q: list[float]) -> list[float]:
 
 class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
+
+    The filter's arrays live in one float array (layout in :mod:`omnirotor.control._estimator_kernels`),
+    which the compiled kernels of a step read and write: a plain IMU step is one compiled call, a step with
+    a motion-capture sample three.
 
     Attributes:
         degraded: True while no motion-capture sample was accepted for ``mocap_timeout_s`` (or before the
@@ -365,6 +243,7 @@ class UKFEstimator:
         last_input_rejected: True when something in the last frame was rejected.
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
+        P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
     """
 
     def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
@@ -382,31 +261,46 @@ class UKFEstimator:
         self._lag_n = int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz))
         self._chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
         self._cap = self._lag_n + self._chunk_n + 8
-        self._buf = [[0.0] * 8 for _ in range(self._cap)]
-        self._sbuf = [[0.0] * 16 for _ in range(self._cap)]  # output state after each buffered sample
         self._cov_n = max(1, int(round(_COV_STEP_S * p.imu_rate_hz)))
-        # Unscented-transform weights.
+        o_buf, o_sbuf, o_P, o_W, o_M, size = _ek.memory_layout(self._cap)
+        self._mem = mem = np.zeros(size)
+        self._x = x = mem[0 : _ek.UKF_SIZE]
+        self.P = mem[o_P:o_W].reshape(_N_ERR, _N_ERR)
+        # Unscented-transform weights (mean, covariance).
         n = _N_ERR
         lam = p.ut_alpha**2 * (n + p.ut_kappa) - n
-        self._ut_scale = math.sqrt(n + lam)
-        self._wm = np.full(2 * n + 1, 0.5 / (n + lam))
-        self._wc = self._wm.copy()
-        self._wm[0] = lam / (n + lam)
-        self._wc[0] = lam / (n + lam) + 1.0 - p.ut_alpha**2 + p.ut_beta
-        # Measurement noise (position, attitude) and the initial covariance.
-        att = math.radians(p.mocap_att_std_deg)
-        self._Rn = np.diag([p.mocap_pos_std**2] * 3 + [att * att] * 3)
-        self._P0 = np.diag(
+        W = mem[o_W:o_M].reshape(2, 2 * n + 1)
+        W[0] = 0.5 / (n + lam)
+        W[1] = W[0]
+        W[0, 0] = lam / (n + lam)
+        W[1, 0] = lam / (n + lam) + 1.0 - p.ut_alpha**2 + p.ut_beta
+        # Process noise terms, initial covariance, measurement noise (position, attitude).
+        M = mem[o_M:size].reshape(5, n, n)
+        M[_ek.M_Q1], M[_ek.M_Q2], M[_ek.M_Q3] = self._process_noise_terms()
+        M[_ek.M_P0] = self._P0 = np.diag(
             [p.init_pos_std**2] * 3 + [p.init_vel_std**2] * 3 + [math.radians(p.init_att_std_deg) ** 2] * 3
             + [p.init_acc_bias_std**2] * 3 + [p.init_gyro_bias_std**2] * 3
         )  # fmt: skip
-        self._r = [float(c) for c in p.imu_offset_B]
-        self._lever = any(c != 0.0 for c in self._r)
-        self._Q1, self._Q2, self._Q3 = self._process_noise_terms()
-        self._E = np.zeros((2 * n + 1, n))  # sigma-point errors
-        self._D = np.zeros((2 * n + 1, n))  # sigma-point offsets
-        self._n_sigma = 2 * n + 1
-        self.P = self._P0.copy()
+        att = math.radians(p.mocap_att_std_deg)
+        M[_ek.M_RN, 0:6, 0:6] = np.diag([p.mocap_pos_std**2] * 3 + [att * att] * 3)
+        x[_ek.UKF_G] = self._g
+        x[_ek.UKF_DT_NOM] = self._dt_nom
+        x[_ek.UKF_GYRO_RANGE] = p.gyro_range
+        x[_ek.UKF_ACC_RANGE] = p.acc_range
+        x[_ek.UKF_R_IMU : _ek.UKF_R_IMU + 3] = [float(c) for c in p.imu_offset_B]
+        x[_ek.UKF_LEVER] = 1.0 if any(c != 0.0 for c in p.imu_offset_B) else 0.0
+        x[_ek.UKF_LEVER_CUT] = p.lever_arm_cutoff_hz
+        x[_ek.UKF_GYRO_CUT] = p.gyro_cutoff_hz
+        x[_ek.UKF_ACC_CUT] = p.acc_cutoff_hz
+        x[_ek.UKF_CAP] = self._cap
+        x[_ek.UKF_COV_N] = self._cov_n
+        x[_ek.UKF_UT_SCALE] = math.sqrt(n + lam)
+        x[_ek.UKF_MAX_LAT] = p.mocap_max_latency_s
+        x[_ek.UKF_GATE] = p.mocap_gate_chi2
+        x[_ek.UKF_REINIT_AFTER] = p.mocap_reinit_after
+        x[_ek.UKF_LAG_N] = self._lag_n
+        x[_ek.UKF_CHUNK_N] = self._chunk_n
+        x[_ek.UKF_TIMEOUT] = p.mocap_timeout_s
         self._clear()
 
     # -- state -------------------------------------------------------------------------------------------
@@ -420,23 +314,17 @@ class UKFEstimator:
         self.last_input_rejected = False
         self.n_mocap_fused = 0
         self.n_reinit = 0
-        self._gate_fails = 0
-        self._s = [0.0] * 6 + [1.0, 0.0, 0.0, 0.0] + [0.0] * 6  # output (current) nominal state
-        self._Rs = _R_from_q(1.0, 0.0, 0.0, 0.0)
-        self._f = list(self._s)  # delayed fused state
-        self._Rf = list(self._Rs)
-        self._t_f = 0.0
-        self._k = 0  # IMU samples pushed so far
-        self._kf = 0  # samples already in the fused state
-        self._t = 0.0
-        self._t_accept = -math.inf  # frame time of the last accepted motion-capture sample
-        self._just_reset = True  # no sample fused since the start-up pose
-        self._imu = [0.0, 0.0, 0.0, 0.0, 0.0, self._g]  # last good sample: gyro_B, acc_B (raw)
-        self._gyro_lp = [0.0, 0.0, 0.0]  # for the lever arm's omega_dot
-        self._omega_out = [0.0, 0.0, 0.0]
-        self._acc_out = [0.0, 0.0, 0.0]
-        self._lpf_dt = math.nan
-        self._lam_w = self._lam_a = 1.0
+        x = self._x
+        x[0 : _ek.UKF_G] = 0.0  # states, times and counters (parameters kept)
+        x[_ek.UKF_S + 6] = 1.0  # output (current) nominal state: p, v, q (wxyz), b_a, b_g
+        _ek.R9_from_quat_into(1.0, 0.0, 0.0, 0.0, x, _ek.UKF_RS)
+        x[_ek.UKF_F : _ek.UKF_F + 16] = x[_ek.UKF_S : _ek.UKF_S + 16]  # delayed fused state
+        x[_ek.UKF_RF : _ek.UKF_RF + 9] = x[_ek.UKF_RS : _ek.UKF_RS + 9]
+        x[_ek.UKF_T_ACCEPT] = -math.inf  # frame time of the last accepted motion-capture sample
+        x[_ek.UKF_JUST_RESET] = 1.0  # no sample fused since the start-up pose
+        x[_ek.UKF_IMU + 5] = self._g  # last good sample: gyro_B, acc_B (raw)
+        x[_ek.UKF_LPF_DT] = math.nan
+        x[_ek.UKF_LAM_W] = x[_ek.UKF_LAM_A] = 1.0
         self.P[:] = self._P0
 
     def reset(self, frame: SensorFrame) -> None:
@@ -449,56 +337,54 @@ class UKFEstimator:
             InputError: the frame has neither a valid motion-capture sample nor a state.
         """
         self._clear()
-        s = self._s
+        x = self._x
+        S = _ek.UKF_S
         state = frame.state if frame.state is not None and _state_finite(frame.state) else None
         if state is not None:
-            s[3:6] = state.v_W.tolist()
+            x[S + 3 : S + 6] = state.v_W
         if self._mocap_valid(frame):
-            s[0:3] = frame.mocap_p_W.tolist()
+            x[S : S + 3] = frame.mocap_p_W
             q = np.asarray(frame.mocap_q_WB, dtype=float)
-            s[6:10] = (q / np.linalg.norm(q)).tolist()
+            x[S + 6 : S + 10] = q / np.linalg.norm(q)
         elif state is not None:
-            s[0:3] = state.p_W.tolist()
-            s[6:10] = _q_from_R(state.R_WB)
+            x[S : S + 3] = state.p_W
+            x[S + 6 : S + 10] = _q_from_R(np.asarray(state.R_WB, dtype=float))
         else:
             raise InputError("the estimator needs a motion-capture sample or a state to initialise")
-        self._Rs = _R_from_q(*s[6:10])
-        self._f = list(s)
-        self._Rf = list(self._Rs)
-        self._t = self._t_f = frame.t
-        self._t_accept = frame.t
+        _ek.R9_from_quat_into(x[S + 6], x[S + 7], x[S + 8], x[S + 9], x, _ek.UKF_RS)
+        x[_ek.UKF_F : _ek.UKF_F + 16] = x[S : S + 16]
+        x[_ek.UKF_RF : _ek.UKF_RF + 9] = x[_ek.UKF_RS : _ek.UKF_RS + 9]
+        x[_ek.UKF_T] = x[_ek.UKF_T_F] = frame.t
+        x[_ek.UKF_T_ACCEPT] = frame.t
         self.initialised = True
         self.degraded = False
         gyro, acc = frame.imu_gyro_B.tolist(), frame.imu_acc_B.tolist()
         if self._imu_valid(gyro, acc):
-            self._imu = gyro + acc
-        self._gyro_lp = list(self._imu[0:3])
-        self._omega_out = [self._imu[i] - s[13 + i] for i in range(3)]
-        self._acc_out = [0.0, 0.0, 0.0]
+            x[_ek.UKF_IMU : _ek.UKF_IMU + 6] = gyro + acc
+        imu = x[_ek.UKF_IMU : _ek.UKF_IMU + 6]
+        x[_ek.UKF_GLP : _ek.UKF_GLP + 3] = imu[0:3]
+        x[_ek.UKF_WO : _ek.UKF_WO + 3] = [imu[i] - x[S + 13 + i] for i in range(3)]
+        x[_ek.UKF_AO : _ek.UKF_AO + 3] = 0.0
 
     @property
     def bias_acc_B(self) -> np.ndarray:
         """(3,) estimated accelerometer bias [m/s²]."""
-        return np.array(self._s[10:13])
+        return self._x[_ek.UKF_S + 10 : _ek.UKF_S + 13].copy()
 
     @property
     def bias_gyro_B(self) -> np.ndarray:
         """(3,) estimated gyro bias [rad/s]."""
-        return np.array(self._s[13:16])
+        return self._x[_ek.UKF_S + 13 : _ek.UKF_S + 16].copy()
 
     @property
     def lag_s(self) -> float:
         """How far the delayed fused state lags the output [s]."""
-        return self._t - self._t_f
+        return float(self._x[_ek.UKF_T] - self._x[_ek.UKF_T_F])
 
     # -- validation ----------------------------------------------------------------------------------------
 
     def _imu_valid(self, gyro: list[float], acc: list[float]) -> bool:
-        sg, sa = gyro[0] + gyro[1] + gyro[2], acc[0] + acc[1] + acc[2]
-        if not (math.isfinite(sg) and math.isfinite(sa)):
-            return False
-        gr, ar = self.params.gyro_range, self.params.acc_range
-        return max(abs(gyro[0]), abs(gyro[1]), abs(gyro[2])) <= gr and max(abs(acc[0]), abs(acc[1]), abs(acc[2])) <= ar
+        return bool(_ek.imu_valid(self._x, np.asarray(gyro, dtype=float), np.asarray(acc, dtype=float)))
 
     @staticmethod
     def _mocap_valid(frame: SensorFrame) -> bool:
@@ -507,9 +393,7 @@ class UKFEstimator:
         p, q = frame.mocap_p_W, frame.mocap_q_WB
         if p.shape != (3,) or q.shape != (4,) or not math.isfinite(frame.mocap_t):
             return False
-        if not (math.isfinite(float(p.sum())) and math.isfinite(float(q.sum()))):
-            return False
-        return abs(float(np.linalg.norm(q)) - 1.0) <= _QUAT_NORM_TOL
+        return bool(_ek.mocap_sample_valid(p, q, _QUAT_NORM_TOL))
 
     # -- the 1 kHz step ------------------------------------------------------------------------------------
 
@@ -522,175 +406,44 @@ class UKFEstimator:
         Returns:
             The estimate at ``frame.t`` (fresh arrays). ``valid`` is False while degraded.
         """
+        out = np.empty(21)
         if not self.initialised:
             if self._mocap_valid(frame) or (frame.state is not None and _state_finite(frame.state)):
                 self.reset(frame)
-                return self._estimate(frame.t)
-            return self._estimate(frame.t)
-        p = self.params
-        rejected = False
-        # Period: an invalid one (not finite, not increasing) is replaced by the nominal period.
-        dt = frame.t - self._t
-        if not (dt > 0.0 and math.isfinite(dt)):
-            dt = self._dt_nom
-            rejected = True
-        t = self._t + dt
-        self._t = t
-        # IMU sample: an invalid one is replaced by the last good one.
-        gyro, acc = frame.imu_gyro_B.tolist(), frame.imu_acc_B.tolist()
-        if self._imu_valid(gyro, acc):
-            self._imu = gyro + acc
-        else:
-            rejected = True
-        imu = list(self._imu)
-        s = self._s
-        if self._lever:
-            self._correct_lever_arm(imu, dt)
-        # Buffer the sample and move the output state.
-        row = self._buf[self._k % self._cap]
-        row[0] = t
-        row[1] = dt
-        row[2:8] = imu
-        _propagate(s, self._Rs, dt, self._g, imu)
-        self._sbuf[self._k % self._cap][:] = s
-        self._k += 1
-        # Motion capture.
-        if frame.mocap_new:
+            _ek.write_estimate(self._x, out)
+            return self._estimate(frame.t, out)
+        mem = self._mem
+        mocap = frame.mocap_new
+        # The IMU arrays go to the kernel as they are (a non-float64 array compiles a variant once).
+        code, t = _ek.ukf_imu_step(mem, frame.imu_gyro_B, frame.imu_acc_B, frame.t, not mocap, out)
+        rejected = code & _ek.STEP_REJECTED
+        if mocap:
             if self._mocap_valid(frame):
-                t_m = frame.mocap_t if p.compensate_latency else t
-                if not self._fuse(t_m, frame.mocap_p_W, frame.mocap_q_WB, t):
+                t_m = frame.mocap_t if self.params.compensate_latency else t
+                f64 = np.float64
+                p_m, q_m = np.asarray(frame.mocap_p_W, dtype=f64), np.asarray(frame.mocap_q_WB, dtype=f64)
+                fused = _ek.ukf_fuse(mem, float(t_m), p_m, q_m)
+                if fused == _ek.FUSE_OK:
+                    self.n_mocap_fused += 1
+                else:
+                    self.rejected_mocap += 1
+                    self.n_reinit += fused == _ek.FUSE_REINIT
                     rejected = True
             else:
                 self.rejected_mocap += 1
                 rejected = True
-        # Without motion capture, keep the delayed state within the buffer.
-        if self._k - self._kf > self._lag_n + self._chunk_n:
-            self._predict(self._k - self._lag_n)
+            code = _ek.ukf_finish(mem, out)
         if rejected:
             self.rejected_inputs += 1
-        self.last_input_rejected = rejected
-        self.degraded = t - self._t_accept > p.mocap_timeout_s
-        # Outputs: bias-corrected rate and acceleration, low-passed.
-        if dt != self._lpf_dt:
-            self._lpf_dt = dt
-            self._lam_w = _lpf_gain(dt, p.gyro_cutoff_hz)
-            self._lam_a = _lpf_gain(dt, p.acc_cutoff_hz)
-        lam_w, lam_a = self._lam_w, self._lam_a
-        R = self._Rs
-        fx, fy, fz = imu[3] - s[10], imu[4] - s[11], imu[5] - s[12]
-        wo, ao = self._omega_out, self._acc_out
-        wo[0] += lam_w * (imu[0] - s[13] - wo[0])
-        wo[1] += lam_w * (imu[1] - s[14] - wo[1])
-        wo[2] += lam_w * (imu[2] - s[15] - wo[2])
-        ao[0] += lam_a * (R[0] * fx + R[1] * fy + R[2] * fz - ao[0])
-        ao[1] += lam_a * (R[3] * fx + R[4] * fy + R[5] * fz - ao[1])
-        ao[2] += lam_a * (R[6] * fx + R[7] * fy + R[8] * fz - self._g - ao[2])
-        return self._estimate(t)
+        self.last_input_rejected = bool(rejected)
+        self.degraded = degraded = bool(code & _ek.STEP_DEGRADED)
+        return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], not degraded)
 
-    def _correct_lever_arm(self, imu: list[float], dt: float) -> None:
-        """Remove ``omega x (omega x r) + omega_dot x r`` from the accelerometer sample, in place."""
-        r = self._r
-        s = self._s
-        lam = _lpf_gain(dt, self.params.lever_arm_cutoff_hz)
-        lp = self._gyro_lp
-        wd = [0.0, 0.0, 0.0]
-        for i in range(3):
-            new = lp[i] + lam * (imu[i] - lp[i])
-            wd[i] = (new - lp[i]) / dt
-            lp[i] = new
-        wx, wy, wz = imu[0] - s[13], imu[1] - s[14], imu[2] - s[15]
-        cx, cy, cz = wy * r[2] - wz * r[1], wz * r[0] - wx * r[2], wx * r[1] - wy * r[0]  # omega x r
-        imu[3] -= wy * cz - wz * cy + wd[1] * r[2] - wd[2] * r[1]
-        imu[4] -= wz * cx - wx * cz + wd[2] * r[0] - wd[0] * r[2]
-        imu[5] -= wx * cy - wy * cx + wd[0] * r[1] - wd[1] * r[0]
-
-    def _estimate(self, t: float) -> StateEstimate:
+    def _estimate(self, t: float, x: np.ndarray) -> StateEstimate:
         # One fresh array per message; the fields are views into it.
-        x = np.array(self._s[0:6] + self._acc_out + self._Rs + self._omega_out)
         return StateEstimate(
-            t=t,
-            p_W=x[0:3],
-            v_W=x[3:6],
-            a_W=x[6:9],
-            R_WB=x[9:18].reshape(3, 3),
-            omega_B=x[18:21],
-            valid=self.initialised and not self.degraded,
+            float(t), x[0:3], x[3:6], x[6:9], x[9:18].reshape(3, 3), x[18:21], self.initialised and not self.degraded
         )
-
-    # -- unscented prediction of the delayed state -----------------------------------------------------------
-
-    def _predict(self, k_end: int) -> None:
-        """Unscented prediction of the delayed fused state over the buffered samples [kf, k_end).
-
-        The mean is the noise-free propagation of the previous mean, sample by sample: exactly the output
-        state the filter already computed for sample ``k_end - 1`` (kept in the state buffer), as in UKF-M
-        (Brossard, Barrau and Bonnabel, 2020). The covariance is the unscented transform of P through the
-        same motion model, applied in steps of at most ``_COV_STEP_S`` with the step's mean IMU reading
-        (one step per 10 ms motion-capture period): the error this makes in P is second order in
-        ``omega * step``.
-        """
-        if k_end <= self._kf:
-            return
-        n = _N_ERR
-        L, info = _dpotrf(self.P, lower=1)  # LAPACK directly: np.linalg.cholesky costs 2.5x more here
-        if info != 0:  # lost positive definiteness to rounding: symmetrise and add a little jitter
-            L, info = _dpotrf(0.5 * (self.P + self.P.T) + 1e-12 * np.eye(n), lower=1)
-            if info != 0:
-                self.P[:] = self._P0
-                L, info = _dpotrf(self.P, lower=1)
-        D = self._D
-        np.multiply(L.T, self._ut_scale, out=D[1 : n + 1])
-        np.negative(D[1 : n + 1], out=D[n + 1 :])
-        f = self._f
-        X = np.array(f[0:6] + f[10:16]) + D[:, _NOT_ATT]  # p, v, b_a, b_g of the sigma points
-        Ps, Vs, BA, BG = X[:, 0:3], X[:, 3:6], X[:, 6:9], X[:, 9:12]
-        # Mean IMU reading [gyro (3), acc (3)] and duration of each covariance step.
-        cap, buf = self._cap, self._buf
-        steps: list[tuple[float, list[float]]] = []
-        k = self._kf
-        while k < k_end:
-            k1 = min(k_end, k + self._cov_n)
-            T = 0.0
-            m = [0.0] * 6
-            for j in range(k, k1):
-                row = buf[j % cap]
-                dt = row[1]
-                T += dt
-                for i in range(6):
-                    m[i] += row[2 + i] * dt
-            steps.append((T, [x / T for x in m]))
-            k = k1
-        # One Rodrigues call for the sigma points' attitudes and every step's rotation increment.
-        phi = np.empty(((1 + len(steps)) * self._n_sigma, 3))
-        S = self._n_sigma
-        phi[:S] = D[:, 6:9]
-        for i, (T, m) in enumerate(steps):
-            np.multiply(np.subtract(m[0:3], BG), T, out=phi[(i + 1) * S : (i + 2) * S])
-        rot = _exp_batch(phi)
-        Rs = np.array(self._Rf).reshape(3, 3) @ rot[:S]
-        g = self._g
-        T_total = 0.0
-        for i, (T, m) in enumerate(steps):
-            a = np.einsum("sij,sj->si", Rs, np.subtract(m[3:6], BA))
-            a[:, 2] -= g
-            Ps += Vs * T + a * (0.5 * T * T)
-            Vs += a * T
-            Rs = Rs @ rot[(i + 1) * S : (i + 2) * S]
-            T_total += T
-        E = self._E
-        np.subtract(Ps, Ps[0], out=E[:, 0:3])
-        np.subtract(Vs, Vs[0], out=E[:, 3:6])
-        E[:, 6:9] = _log_batch(np.einsum("ji,sjk->sik", Rs[0], Rs))
-        E[:, 9:15] = D[:, 9:15]
-        dE = E - self._wm @ E
-        P_new = (dE.T * self._wc) @ dE  # symmetric up to rounding, which the update's symmetrisation removes
-        P_new += self._process_noise(T_total)
-        self.P = P_new
-        # The mean: the output state already propagated to sample k_end - 1.
-        f[:] = self._sbuf[(k_end - 1) % cap]
-        self._Rf = _R_from_q(f[6], f[7], f[8], f[9])
-        self._t_f = buf[(k_end - 1) % cap][0]
-        self._kf = k_end
 
     def _process_noise_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Q(T) = T Q1 + T² Q2 + T³ Q3: additive process noise over T seconds, error coordinates.
@@ -710,112 +463,10 @@ class UKFEstimator:
         Q1[12:15, 12:15] = p.gyro_bias_walk**2 * i3
         return Q1, Q2, Q3
 
-    def _process_noise(self, T: float) -> np.ndarray:
-        """Additive process noise over an interval of T seconds (error-state coordinates)."""
-        Q = self._Q1 * T
-        Q += self._Q2 * (T * T)
-        Q += self._Q3 * (T * T * T)
-        return Q
-
-    # -- fusion ----------------------------------------------------------------------------------------------
-
-    def _fuse(self, t_m: float, p_m: np.ndarray, q_m: np.ndarray, t_now: float) -> bool:
-        """Fuse a pose taken at ``t_m``: predict the delayed state there, update, re-propagate to now.
-
-        Returns:
-            False when the sample was rejected (stale, from the future, or outside the gate).
-        """
-        half = 0.5 * self._dt_nom
-        if t_m < self._t_f - half and self._just_reset:
-            t_m = self._t_f  # taken before the start-up pose: there is no earlier state, fuse it at start-up
-        if t_m < self._t_f - half or t_m > t_now + half or t_now - t_m > self.params.mocap_max_latency_s + half:
-            self.rejected_mocap += 1  # stale (older than the fused state or the buffer) or from the future
-            return False
-        # The buffered samples up to t_m (nearest sample).
-        k_m = self._kf
-        while k_m < self._k and self._buf[k_m % self._cap][0] <= t_m + half:
-            k_m += 1
-        self._predict(k_m)
-        f = self._f
-        qm = _q_normalised(q_m.tolist())
-        pm = p_m.tolist()
-        # Innovation in the error coordinates: (p_m - p, log(R_fᵀ R_m)).
-        q_conj = [f[6], -f[7], -f[8], -f[9]]
-        r = np.array([pm[0] - f[0], pm[1] - f[1], pm[2] - f[2], *_q_log(_q_mul(q_conj, qm))])
-        P = self.P
-        PHt = P[:, _SEL]
-        S = PHt[_SEL] + self._Rn
-        try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            self.rejected_mocap += 1
-            return False
-        d2 = float(r @ S_inv @ r)
-        if not d2 <= self.params.mocap_gate_chi2:
-            self.rejected_mocap += 1
-            self._gate_fails += 1
-            if self._gate_fails >= self.params.mocap_reinit_after:
-                self._reinit_pose(pm, qm)
-            return False
-        self._gate_fails = 0
-        K = PHt @ S_inv
-        dx = (K @ r).tolist()
-        P = P - K @ PHt.T  # (I - K H) P
-        # Inject the error into the nominal state.
-        for i in (0, 1, 2, 3, 4, 5):
-            f[i] += dx[i]
-        f[6:10] = _q_normalised(_q_mul(f[6:10], _q_exp(dx[6:9])))
-        self._Rf = _R_from_q(*f[6:10])
-        for i in range(9, 15):
-            f[i + 1] += dx[i]
-        # Reset: the attitude error is now relative to the corrected mean, P -> G P Gᵀ, G = I - [dtheta/2]x.
-        # It changes P by a relative |dtheta|/2, so it is skipped for the usual sub-milliradian corrections.
-        hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
-        if hx * hx + hy * hy + hz * hz > _RESET_MIN_RAD2:
-            Gt = np.array([[1.0, hz, -hy], [-hz, 1.0, hx], [hy, -hx, 1.0]])
-            P[6:9] = Gt @ P[6:9]
-            P[:, 6:9] = P[:, 6:9] @ Gt.T
-        P += P.T
-        P *= 0.5
-        self.P = P
-        self.n_mocap_fused += 1
-        self._t_accept = t_now
-        self._just_reset = False
-        self._repropagate()
-        return True
-
-    def _reinit_pose(self, p_m: list[float], q_m: list[float]) -> None:
-        """The filter is lost: take the motion-capture pose, keep velocity and biases, reset P."""
-        f = self._f
-        f[0:3] = p_m
-        f[6:10] = q_m
-        self._Rf = _R_from_q(*f[6:10])
-        self.P = self._P0.copy()
-        self._gate_fails = 0
-        self.n_reinit += 1
-        self._t_accept = self._t
-        self._repropagate()
-
-    def _repropagate(self) -> None:
-        """Output state = fused state moved over the buffered samples after it (mean only)."""
-        s = self._s
-        s[:] = self._f
-        R = list(self._Rf)
-        g = self._g
-        cap, buf, sbuf = self._cap, self._buf, self._sbuf
-        for k in range(self._kf, self._k):
-            row = buf[k % cap]
-            _propagate(s, R, row[1], g, row[2:8])
-            sbuf[k % cap][:] = s
-        self._Rs = R
-
-
-_SEL = np.array([0, 1, 2, 6, 7, 8])  # error coordinates measured by motion capture: dp, dtheta
-_NOT_ATT = np.r_[0:6, 9:15]  # error coordinates other than the attitude
-
 
 def _state_finite(state: StateEstimate) -> bool:
-    return all(math.isfinite(float(np.sum(a))) for a in (state.p_W, state.v_W, state.a_W, state.R_WB, state.omega_B))
+    """True if every entry of the estimate's arrays is finite (one compiled call)."""
+    return _k.state_finite(state.p_W, state.v_W, state.a_W, state.R_WB, state.omega_B)
 
 
 # -- bypass ----------------------------------------------------------------------------------------------------

@@ -42,6 +42,8 @@ import math
 import numpy as np
 
 from omnirotor.config import check_finite, check_positive
+from omnirotor.control import _kernels as _k
+from omnirotor.control._kernels import lowpass_coefficient
 from omnirotor.errors import InputError
 from omnirotor.messages import StateEstimate
 from omnirotor.vehicle import VehicleParams
@@ -49,19 +51,6 @@ from omnirotor.vehicle import VehicleParams
 __all__ = ["ObserverParams", "WrenchObserver", "lowpass_coefficient"]
 
 Vec3 = tuple[float, float, float]
-
-
-def lowpass_coefficient(cutoff_hz: float, dt: float) -> float:
-    """Coefficient ``lambda_f`` of the discrete low-pass ``y += lambda_f (x - y)`` (SPEC §4.3).
-
-    Args:
-        cutoff_hz: cut-off frequency [Hz]; ``inf`` disables the filter (coefficient 1).
-        dt: sample period [s].
-    """
-    if math.isinf(cutoff_hz):
-        return 1.0
-    a = 2.0 * math.pi * dt * cutoff_hz
-    return a / (a + 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +101,8 @@ class WrenchObserver:
     Args:
         vehicle: mass, gravity and the (diagonal) inertia are used.
         params: gains, filter, bias and zeroing.
+        buffer: optional (``OBS_SIZE``,) float64 array to hold :attr:`kernel_state` (e.g. a slice of a larger
+            array); a new one by default.
 
     Attributes:
         output: (6,) ``[f_ext_W [N]; m_ext_B [N·m]]`` after filtering, bias and zeroing.
@@ -120,54 +111,54 @@ class WrenchObserver:
         filtered: (6,) the low-passed estimates ``[f_hat_W; m_hat_B]``, before bias and zeroing.
         offset: (6,) the offset captured by the zeroing (zeros until captured or when disabled).
         zeroed: True once the offset is captured (always False without ``zero_at_start``).
+        kernel_state: the packed state, parameters and outputs the compiled step reads and writes (layout
+            ``OBS_*`` of :mod:`omnirotor.control._kernels`; the arrays above are views into it).
     """
 
-    def __init__(self, vehicle: VehicleParams, params: ObserverParams | None = None) -> None:
+    def __init__(
+        self, vehicle: VehicleParams, params: ObserverParams | None = None, *, buffer: np.ndarray | None = None
+    ) -> None:
         self.params = params if params is not None else ObserverParams()
         self.vehicle = vehicle
-        self._m = vehicle.mass
-        self._g = vehicle.gravity
-        self._J = tuple(float(j) for j in vehicle.inertia_diag)
-        self.output = np.zeros(6)
+        prm = self.params
+        # State, parameters and outputs in one array, the layout of control._kernels (OBS_*).
+        self.kernel_state = x = _k.state_buffer(buffer, _k.OBS_SIZE, "observer")
+        x[_k.OBS_GAIN_F : _k.OBS_GAIN_F + 3] = prm.gain_force
+        x[_k.OBS_GAIN_M : _k.OBS_GAIN_M + 3] = prm.gain_moment
+        x[_k.OBS_MASS] = vehicle.mass
+        x[_k.OBS_GRAVITY] = vehicle.gravity
+        x[_k.OBS_J : _k.OBS_J + 3] = [float(j) for j in vehicle.inertia_diag]
+        x[_k.OBS_CUTOFF] = prm.cutoff_hz
+        x[_k.OBS_BIAS : _k.OBS_BIAS + 6] = prm.bias
+        x[_k.OBS_SETTLE] = prm.zero_settle_s
+        x[_k.OBS_WINDOW] = prm.zero_window_s
+        x[_k.OBS_LPF_DT] = math.nan
+        self.output = x[_k.OBS_OUTPUT : _k.OBS_OUTPUT + 6]
         self.f_ext_W = self.output[0:3]
         self.m_ext_B = self.output[3:6]
-        self.filtered = np.zeros(6)
-        self.offset = np.zeros(6)
-        self._w = np.zeros(6)  # A u, body frame
-        self._lpf_cache = (math.nan, 1.0)
+        self.filtered = x[_k.OBS_FILTERED : _k.OBS_FILTERED + 6]
+        self.offset = x[_k.OBS_OFFSET : _k.OBS_OFFSET + 6]
         self.reset()
 
     def reset(self) -> None:
         """Restart: zero estimates and filters; the momentum reference q0 is taken at the next step."""
-        self._f = [0.0, 0.0, 0.0]
-        self._mh = [0.0, 0.0, 0.0]
-        self._s = [0.0, 0.0, 0.0]
-        self._q0 = None
-        self._y = [0.0] * 6
-        self._elapsed = 0.0
-        self._acc = [0.0] * 6
-        self._n_acc = 0
-        self._subtract = list(self.params.bias)
-        self._capturing = self.params.zero_at_start
-        self.zeroed = False
-        self.output[:] = 0.0
-        self.filtered[:] = 0.0
-        self.offset[:] = 0.0
+        x = self.kernel_state
+        x[0 : _k.OBS_GAIN_F] = 0.0  # outputs and state (parameters kept)
+        x[_k.OBS_SUBTRACT : _k.OBS_SUBTRACT + 6] = self.params.bias
+        x[_k.OBS_CAPTURING] = 1.0 if self.params.zero_at_start else 0.0
+
+    @property
+    def zeroed(self) -> bool:
+        """True once the offset is captured (always False without ``zero_at_start``)."""
+        return bool(self.kernel_state[_k.OBS_ZEROED])
 
     @property
     def raw(self) -> np.ndarray:
         """(6,) the unfiltered estimates ``[f_hat_W [N]; m_hat_B [N·m]]`` (a new array)."""
-        return np.array(self._f + self._mh)
-
-    def _lambda(self, dt: float) -> float:
-        cached_dt, lam = self._lpf_cache
-        if dt != cached_dt:
-            lam = lowpass_coefficient(self.params.cutoff_hz, dt)
-            self._lpf_cache = (dt, lam)
-        return lam
+        return self.kernel_state[_k.OBS_F : _k.OBS_F + 6].copy()
 
     def step(self, state: StateEstimate, u_hz2: np.ndarray, A: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """One observer step.
+        """One observer step (:func:`omnirotor.control._kernels.observer_step`).
 
         Args:
             state: state estimate (``a_W``, ``R_WB``, ``omega_B`` are used).
@@ -178,63 +169,14 @@ class WrenchObserver:
         Returns:
             ``(f_ext_W, m_ext_B)``: views of :attr:`output` (overwritten by the next step).
         """
-        prm = self.params
-        m, g = self._m, self._g
-        jx, jy, jz = self._J
-        lx, ly, lz = prm.gain_force
-        kx, ky, kz = prm.gain_moment
-        np.dot(A, u_hz2, out=self._w)
-        f1, f2, f3, t1, t2, t3 = self._w.tolist()
-        ax, ay, az = state.a_W.tolist()
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = state.R_WB.tolist()
-        wx, wy, wz = state.omega_B.tolist()
-
-        # Force: first-order filter of m (a + g e3) - R A1 u.
-        f = self._f
-        f[0] += lx * dt * (m * ax - (r00 * f1 + r01 * f2 + r02 * f3) - f[0])
-        f[1] += ly * dt * (m * ay - (r10 * f1 + r11 * f2 + r12 * f3) - f[1])
-        f[2] += lz * dt * (m * (az + g) - (r20 * f1 + r21 * f2 + r22 * f3) - f[2])
-
-        # Moment: generalized momentum q = J omega.
-        hx, hy, hz = jx * wx, jy * wy, jz * wz
-        s, mh = self._s, self._mh
-        q0 = self._q0
-        if q0 is None:  # first step after reset: t0, the momentum reference (m_hat stays 0)
-            self._q0 = (hx, hy, hz)
-        else:
-            s[0] += (wy * hz - wz * hy - t1 - mh[0]) * dt
-            s[1] += (wz * hx - wx * hz - t2 - mh[1]) * dt
-            s[2] += (wx * hy - wy * hx - t3 - mh[2]) * dt
-            mh[0] = kx * (hx - q0[0] + s[0])
-            mh[1] = ky * (hy - q0[1] + s[1])
-            mh[2] = kz * (hz - q0[2] + s[2])
-
-        # Output low-pass, bias, zeroing.
-        lam = self._lambda(dt)
-        y = self._y
-        raw = (f[0], f[1], f[2], mh[0], mh[1], mh[2])
-        for i in range(6):
-            y[i] += lam * (raw[i] - y[i])
-        self.filtered[:] = y
-        if self._capturing:
-            self._capture(y, dt)
-        else:
-            c = self._subtract  # bias, plus the captured offset once zeroed
-            self.output[:] = (y[0] - c[0], y[1] - c[1], y[2] - c[2], y[3] - c[3], y[4] - c[4], y[5] - c[5])
+        f64 = np.float64
+        _k.observer_step(
+            self.kernel_state,
+            np.asarray(A, dtype=f64),
+            np.asarray(u_hz2, dtype=f64),
+            np.asarray(state.a_W, dtype=f64),
+            np.asarray(state.R_WB, dtype=f64),
+            np.asarray(state.omega_B, dtype=f64),
+            float(dt),
+        )
         return self.f_ext_W, self.m_ext_B
-
-    def _capture(self, y: list[float], dt: float) -> None:
-        """Zeroing phase: output zero, average the filtered estimate over the window, then latch it."""
-        self._elapsed += dt
-        prm = self.params
-        if self._elapsed > prm.zero_settle_s:
-            acc = self._acc
-            for i in range(6):
-                acc[i] += y[i]
-            self._n_acc += 1
-            if self._elapsed >= prm.zero_settle_s + prm.zero_window_s:
-                self._subtract = [a / self._n_acc for a in acc]  # output = filtered - its mean at hover
-                self.offset[:] = [a - b for a, b in zip(self._subtract, prm.bias, strict=True)]
-                self.zeroed = True
-                self._capturing = False
-        self.output[:] = 0.0

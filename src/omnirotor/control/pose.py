@@ -26,6 +26,7 @@ import dataclasses
 import numpy as np
 
 from omnirotor.config import check_finite, check_positive
+from omnirotor.control import _kernels as _k
 from omnirotor.control.trajectory import ReferenceSample
 from omnirotor.errors import InputError
 from omnirotor.messages import StateEstimate
@@ -81,44 +82,53 @@ class PoseControlParams:
         check_positive("pose.max_integral", self.max_integral)
 
 
-def _sat(x: float, lim: float) -> float:
-    return lim if x > lim else (-lim if x < -lim else x)
-
-
 class PoseController:
     """The pose controller of SPEC §4.1 (module docstring): body reference + state -> wrench reference.
 
     Args:
         vehicle: mass, inertia (diagonal) and gravity are used.
         params: gains and saturations.
+        buffer: optional (``POSE_SIZE``,) float64 array to hold :attr:`kernel_state`; a new one by default.
 
     Attributes:
         w_ref: (6,) output ``[f_ref_W [N]; m_ref_B [N·m]]``, overwritten by every :meth:`step`.
         errors: (12,) the errors of the last step ``[e_p_W [m], e_v_W [m/s], e_R_B [-], e_omega_B [rad/s]]``.
+        kernel_state: the packed outputs, state and parameters the compiled step reads and writes (layout
+            ``POSE_*`` of :mod:`omnirotor.control._kernels`; the arrays above are views into it).
     """
 
-    def __init__(self, vehicle: VehicleParams, params: PoseControlParams | None = None) -> None:
+    def __init__(
+        self, vehicle: VehicleParams, params: PoseControlParams | None = None, *, buffer: np.ndarray | None = None
+    ) -> None:
         self.params = params if params is not None else PoseControlParams()
         self.vehicle = vehicle
         p = self.params
-        self._m = vehicle.mass
-        self._g = vehicle.gravity
-        jx, jy, jz = vehicle.inertia_diag
-        self._J = (float(jx), float(jy), float(jz))
-        self._comp = 1.0 if p.compensate_ext_wrench else 0.0
-        self._ff = 1.0 if p.feedforward_angular_acc else 0.0
-        self.w_ref = np.zeros(6)
-        self.errors = np.zeros(12)
-        self._ei = [0.0, 0.0, 0.0]
+        # Outputs, state and parameters in one array, the layout of control._kernels (POSE_*).
+        self.kernel_state = x = _k.state_buffer(buffer, _k.POSE_SIZE, "pose controller")
+        x[_k.POSE_MASS] = vehicle.mass
+        x[_k.POSE_GRAVITY] = vehicle.gravity
+        x[_k.POSE_J : _k.POSE_J + 3] = [float(j) for j in vehicle.inertia_diag]
+        x[_k.POSE_COMP] = 1.0 if p.compensate_ext_wrench else 0.0
+        x[_k.POSE_FF] = 1.0 if p.feedforward_angular_acc else 0.0
+        for name, at in (("k_p", _k.POSE_KP), ("k_v", _k.POSE_KV), ("k_i", _k.POSE_KI)):
+            x[at : at + 3] = getattr(p, name)
+        x[_k.POSE_KR : _k.POSE_KR + 3] = p.k_R
+        x[_k.POSE_KW : _k.POSE_KW + 3] = p.k_omega
+        x[_k.POSE_LIM_P] = p.max_pos_error
+        x[_k.POSE_LIM_V] = p.max_vel_error
+        x[_k.POSE_LIM_I] = p.max_integral
+        self.w_ref = x[_k.POSE_W_REF : _k.POSE_W_REF + 6]
+        self.errors = x[_k.POSE_ERRORS : _k.POSE_ERRORS + 12]
+        self._ei = x[_k.POSE_EI : _k.POSE_EI + 3]
 
     def reset(self) -> None:
         """Zero the integral."""
-        self._ei = [0.0, 0.0, 0.0]
+        self._ei[:] = 0.0
 
     @property
     def e_i_W(self) -> np.ndarray:
         """(3,) the clamped integral of the position error [m·s] (a new array)."""
-        return np.array(self._ei)
+        return self._ei.copy()
 
     def step(
         self,
@@ -128,7 +138,7 @@ class PoseController:
         m_ext_hat_B: np.ndarray,
         dt: float,
     ) -> np.ndarray:
-        """One control step.
+        """One control step (:func:`omnirotor.control._kernels.pose_step`).
 
         Args:
             ref: body (CoM) reference, world-frame rates.
@@ -140,63 +150,16 @@ class PoseController:
         Returns:
             :attr:`w_ref`, the (6,) wrench reference ``[f_ref_W; m_ref_B]`` (reused buffer; copy to keep).
         """
-        p = self.params
-        m, g = self._m, self._g
-        jx, jy, jz = self._J
-        kp, kv, ki, kR, kw = p.k_p, p.k_v, p.k_i, p.k_R, p.k_omega
-        lim_p, lim_v, lim_i = p.max_pos_error, p.max_vel_error, p.max_integral
-        rd = ref.data.tolist()  # p 0:3, v 3:6, a 6:9, R 9:18 (row-major), omega_W 18:21, alpha_W 21:24
-        px, py, pz = state.p_W.tolist()
-        vx, vy, vz = state.v_W.tolist()
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = state.R_WB.tolist()
-        wx, wy, wz = state.omega_B.tolist()
-        fhx, fhy, fhz = f_ext_hat_W.tolist()
-        mhx, mhy, mhz = m_ext_hat_B.tolist()
-
-        # --- translation (world frame)
-        epx = _sat(rd[0] - px, lim_p)
-        epy = _sat(rd[1] - py, lim_p)
-        epz = _sat(rd[2] - pz, lim_p)
-        evx = _sat(rd[3] - vx, lim_v)
-        evy = _sat(rd[4] - vy, lim_v)
-        evz = _sat(rd[5] - vz, lim_v)
-        ei = self._ei
-        eix = ei[0] = _sat(ei[0] + epx * dt, lim_i)
-        eiy = ei[1] = _sat(ei[1] + epy * dt, lim_i)
-        eiz = ei[2] = _sat(ei[2] + epz * dt, lim_i)
-        c = self._comp
-        fx = m * (rd[6] + kp[0] * epx + kv[0] * evx + ki[0] * eix) - c * fhx
-        fy = m * (rd[7] + kp[1] * epy + kv[1] * evy + ki[1] * eiy) - c * fhy
-        fz = m * (rd[8] + g + kp[2] * epz + kv[2] * evz + ki[2] * eiz) - c * fhz
-
-        # --- rotation (body frame): E = R^T R^r, e_R = 1/2 (E - E^T)^v
-        q00, q01, q02, q10, q11, q12, q20, q21, q22 = rd[9:18]
-        e01 = r00 * q01 + r10 * q11 + r20 * q21
-        e02 = r00 * q02 + r10 * q12 + r20 * q22
-        e10 = r01 * q00 + r11 * q10 + r21 * q20
-        e12 = r01 * q02 + r11 * q12 + r21 * q22
-        e20 = r02 * q00 + r12 * q10 + r22 * q20
-        e21 = r02 * q01 + r12 * q11 + r22 * q21
-        eRx = 0.5 * (e21 - e12)
-        eRy = 0.5 * (e02 - e20)
-        eRz = 0.5 * (e10 - e01)
-        # R^T omega^r_W and R^T alpha^r_W
-        ox, oy, oz, ax, ay, az = rd[18:24]
-        ewx = r00 * ox + r10 * oy + r20 * oz - wx
-        ewy = r01 * ox + r11 * oy + r21 * oz - wy
-        ewz = r02 * ox + r12 * oy + r22 * oz - wz
-        ff = self._ff
-        dwx = kR[0] * eRx + kw[0] * ewx + ff * (r00 * ax + r10 * ay + r20 * az)
-        dwy = kR[1] * eRy + kw[1] * ewy + ff * (r01 * ax + r11 * ay + r21 * az)
-        dwz = kR[2] * eRz + kw[2] * ewz + ff * (r02 * ax + r12 * ay + r22 * az)
-        hx, hy, hz = jx * wx, jy * wy, jz * wz  # J omega
-        self.w_ref[:] = (
-            fx,
-            fy,
-            fz,
-            wy * hz - wz * hy + jx * dwx - c * mhx,
-            wz * hx - wx * hz + jy * dwy - c * mhy,
-            wx * hy - wy * hx + jz * dwz - c * mhz,
+        f64 = np.float64
+        _k.pose_step(
+            self.kernel_state,
+            ref.data,
+            np.asarray(state.p_W, dtype=f64),
+            np.asarray(state.v_W, dtype=f64),
+            np.asarray(state.R_WB, dtype=f64),
+            np.asarray(state.omega_B, dtype=f64),
+            np.asarray(f_ext_hat_W, dtype=f64),
+            np.asarray(m_ext_hat_B, dtype=f64),
+            float(dt),
         )
-        self.errors[:] = (epx, epy, epz, evx, evy, evz, eRx, eRy, eRz, ewx, ewy, ewz)
         return self.w_ref

@@ -16,7 +16,7 @@ direction: ``omega_W = R_i phi_i s_R'`` and ``alpha_W = R_i phi_i s_R''``. Every
 therefore linear in the eight scalars ``(1, s, s', s'', sin(theta s_R), 1 - cos(theta s_R), s_R', s_R'')``
 (Rodrigues' formula with ``theta = |phi_i|``); a segment stores that linear map as one (24, 8) matrix, and
 sampling is a single matrix-vector product into the flat buffer of a :class:`ReferenceSample` (no
-allocation per call).
+allocation per call; :func:`omnirotor.control._kernels.trajectory_sample`).
 
 Velocities are zero at every waypoint; before the first and after the last waypoint the trajectory holds
 that pose at rest. Angular velocity and acceleration are **world-frame** vectors (``omega_W``,
@@ -25,13 +25,13 @@ that pose at rest. Angular velocity and acceleration are **world-frame** vectors
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
 from collections.abc import Sequence
 
 import numpy as np
 
+from omnirotor.control import _kernels as _k
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
 
@@ -64,8 +64,14 @@ class ReferenceSample:
 
     __slots__ = ("data", "p_W", "v_W", "a_W", "R_WB", "omega_W", "alpha_W")
 
-    def __init__(self) -> None:
-        self.data = np.zeros(_N_FLAT)
+    def __init__(self, data: np.ndarray | None = None) -> None:
+        """A sample at the origin with identity attitude, at rest.
+
+        Args:
+            data: optional (24,) float64 array to use as :attr:`data` (e.g. a slice of a larger array); a new
+                one by default.
+        """
+        self.data = _k.state_buffer(data, _N_FLAT, "ReferenceSample")
         self.p_W = self.data[_P]
         self.v_W = self.data[_V]
         self.a_W = self.data[_A]
@@ -180,22 +186,25 @@ class PoseTrajectory:
         self.waypoints = wps
         self.attitude_profile = attitude_profile
         self._times = [w.t for w in wps]
-        self._bases = []
-        self._thetas = []
+        bases = []
+        thetas = []
         for w0, w1 in zip(wps[:-1], wps[1:], strict=True):
             M, theta = _segment_basis(w0, w1)
-            self._bases.append(M)
-            self._thetas.append(theta)
-        self._hold_first = np.zeros((_N_FLAT, _N_BASIS))
-        self._hold_first[_P, _K_ONE] = wps[0].p_W
-        self._hold_first[_R, _K_ONE] = wps[0].R_WB.reshape(-1)
-        self._hold_last = np.zeros((_N_FLAT, _N_BASIS))
-        self._hold_last[_P, _K_ONE] = wps[-1].p_W
-        self._hold_last[_R, _K_ONE] = wps[-1].R_WB.reshape(-1)
-        self._cubic = attitude_profile == "cubic"
-        self._k = np.zeros(_N_BASIS)
-        self._k_rest = np.zeros(_N_BASIS)
-        self._k_rest[_K_ONE] = 1.0
+            bases.append(M)
+            thetas.append(theta)
+        hold_first = np.zeros((_N_FLAT, _N_BASIS))
+        hold_first[_P, _K_ONE] = wps[0].p_W
+        hold_first[_R, _K_ONE] = wps[0].R_WB.reshape(-1)
+        hold_last = np.zeros((_N_FLAT, _N_BASIS))
+        hold_last[_P, _K_ONE] = wps[-1].p_W
+        hold_last[_R, _K_ONE] = wps[-1].R_WB.reshape(-1)
+        self.kernel_data = np.concatenate(
+            [[float(len(wps)), 1.0 if attitude_profile == "cubic" else 0.0], self._times, thetas]
+            + [M.reshape(-1) for M in (hold_first, hold_last, *bases)]
+        )
+        """The packed trajectory :func:`omnirotor.control._kernels.trajectory_sample` reads: waypoint count,
+        cubic flag, times, segment angles theta [rad], then the (24, 8) bases (hold first, hold last, one per
+        segment), row-major."""
 
     @property
     def t_start(self) -> float:
@@ -208,7 +217,7 @@ class PoseTrajectory:
         return self._times[-1]
 
     def sample(self, t: float, out: ReferenceSample) -> ReferenceSample:
-        """Write the reference at time ``t`` [s] into ``out`` and return it.
+        """Write the reference at time ``t`` [s] into ``out`` and return it (one compiled call).
 
         Args:
             t: time [s] on the waypoints' clock; outside their range the first/last pose is held at rest.
@@ -217,34 +226,7 @@ class PoseTrajectory:
         Returns:
             ``out``.
         """
-        times = self._times
-        if not t > times[0]:
-            np.dot(self._hold_first, self._k_rest, out=out.data)
-            return out
-        if not t < times[-1]:
-            np.dot(self._hold_last, self._k_rest, out=out.data)
-            return out
-        i = bisect.bisect_right(times, t) - 1
-        t0 = times[i]
-        T = times[i + 1] - t0
-        tau = (t - t0) / T
-        tau2 = tau * tau
-        tau3 = tau2 * tau
-        k = self._k
-        k[_K_ONE] = 1.0
-        k[_K_S] = s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
-        k[_K_SD] = sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
-        k[_K_SDD] = sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
-        if self._cubic:
-            s = tau2 * (3.0 - 2.0 * tau)
-            sd = 6.0 * tau * (1.0 - tau) / T
-            sdd = (6.0 - 12.0 * tau) / (T * T)
-        angle = self._thetas[i] * s
-        k[_K_SIN] = math.sin(angle)
-        k[_K_VERS] = 1.0 - math.cos(angle)
-        k[_K_SR_D] = sd
-        k[_K_SR_DD] = sdd
-        np.dot(self._bases[i], k, out=out.data)
+        _k.trajectory_sample(self.kernel_data, float(t), out.data)
         return out
 
     def __call__(self, t: float) -> ReferenceSample:

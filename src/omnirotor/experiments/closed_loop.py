@@ -144,20 +144,10 @@ def run_closed_loop(
         tic = clock()
         cmd = controller.step(frame)
         step_us = (clock() - tic) * 1e6
-        tr = sim.truth
-        truth_log.record(
-            tr.t,
-            tr.p_W,
-            tr.v_W,
-            tr.R_WB.reshape(9),
-            tr.omega_B,
-            tr.p_E_W,
-            tr.contact_force_W,
-            tr.contact_moment_W,
-            float(tr.in_contact),
-            tr.rotor_hz,
-            step_us,
-        )
+        row = truth_log.next_row()  # the TRUTH_GROUPS in order: the simulator's truth row, then the timing
+        if row is not None:
+            sim.truth_row(row)
+            row[-1] = step_us
         if progress is not None and (k + 1) % every == 0:
             progress((k + 1) / n_steps)
     if progress is not None:

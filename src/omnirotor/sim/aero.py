@@ -14,7 +14,8 @@ with ``n_i = |u_i|^(1/2)`` [rev/s]. The true wrench is ``A (kappa0 eta * u)`` wi
 
 Everything geometric is precomputed: since ``s = -sign(u_j) (r . z_j)`` and ``r_perp`` does not depend on
 the sign, the disk-averaged profile ``<U_j / v_j>_disk_i`` takes one of two precomputed values per pair
-(i, j), chosen by the sign of ``u_j``. A call is then a handful of vector operations on n-vectors.
+(i, j), chosen by the sign of ``u_j``. A call is then one compiled pass over an (n, 2n) matrix
+(:func:`omnirotor.sim._kernels.interference_wrench`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import math
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.sim import _kernels as _k
 from omnirotor.sim.params import AeroParams
 from omnirotor.vehicle import VehicleParams, wrench_map
 
@@ -48,6 +50,9 @@ class NominalAero:
         self.n_rotors = vehicle.n_rotors
         self.A_nom = vehicle.A_nom.copy()
         self.A_true = self.A_nom
+        self.kernel_kind = _k.AERO_NOMINAL
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        self.kernel_model = np.ascontiguousarray(self.A_nom, dtype=np.float64)
 
     def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Body wrench at the CoM.
@@ -112,18 +117,15 @@ class InterferenceAero:
         self._K2 = np.hstack([prof_pos * cos_ij, prof_neg * cos_ij])
         # v_j = sqrt(kappa0 g_j c_f |u_j| / (2 rho pi R²)) = v_coef_j * n_j
         self._v_coef = np.sqrt(p.kappa0 * gains * vehicle.c_f / (2.0 * p.rho * math.pi * radius * radius))
-        self._neg_eta_gain = -p.gamma / (p.advance_ratio_ref * diameter)
+        self._neg_eta_gain = float(-p.gamma / (p.advance_ratio_ref * diameter))
         self._A_kappa = p.kappa0 * self.A_true
-        self._eta_lo, self._eta_hi = p.eta_min, p.eta_max
-        # Scratch buffers (one call at a time).
-        self._n = np.empty(n)
-        self._sn = np.empty(n)
-        self._tmp = np.empty(n)
-        self._buf = np.empty(2 * n)
-        self._lo = self._buf[:n]
-        self._hi = self._buf[n:]
-        self._eta = np.empty(n)
-        self._x = np.empty(n)
+        self._eta_lo, self._eta_hi = float(p.eta_min), float(p.eta_max)
+        self._model = _k.pack_interference(
+            self._K2, self._v_coef, self._A_kappa, self._neg_eta_gain, self._eta_lo, self._eta_hi, _N_FLOOR
+        )
+        self.kernel_kind = _k.AERO_INTERFERENCE
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        self.kernel_model = self._model
 
     def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Per-rotor efficiencies eta_i of SPEC §7.
@@ -135,31 +137,12 @@ class InterferenceAero:
         Returns:
             (n,) eta (a fresh array unless ``out`` is given).
         """
-        eta = self._efficiency(np.asarray(u_hz2, dtype=float))
+        eta = np.empty(self.n_rotors)
+        _k.interference_efficiency(np.asarray(u_hz2, dtype=np.float64), self._model, eta)
         if out is None:
-            return eta.copy()
+            return eta
         out[:] = eta
         return out
-
-    def _efficiency(self, u: np.ndarray) -> np.ndarray:
-        nrm, sn, tmp, eta = self._n, self._sn, self._tmp, self._eta
-        np.abs(u, out=nrm)
-        np.sqrt(nrm, out=nrm)  # n_i [rev/s]
-        np.maximum(nrm, _N_FLOOR, out=nrm)
-        np.divide(u, nrm, out=sn)  # sign_i n_i
-        np.multiply(sn, self._v_coef, out=tmp)  # sign_j v_j
-        np.minimum(tmp, 0.0, out=self._lo)
-        np.maximum(tmp, 0.0, out=self._hi)
-        np.matmul(self._K2, self._buf, out=eta)  # sign_i V_i
-        # eta = 1 - gamma V_i / (J0 n_i D), with V_i = sign_i (K2 @ buf)_i and sign_i / n_i = sn_i / n_i².
-        np.multiply(nrm, nrm, out=tmp)
-        np.divide(sn, tmp, out=tmp)
-        eta *= tmp
-        eta *= self._neg_eta_gain
-        eta += 1.0
-        np.minimum(eta, self._eta_hi, out=eta)
-        np.maximum(eta, self._eta_lo, out=eta)
-        return eta
 
     def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """True body wrench at the CoM.
@@ -171,9 +154,10 @@ class InterferenceAero:
         Returns:
             (6,) ``[f_B [N]; m_B [N·m]]``.
         """
-        u = u_hz2 if isinstance(u_hz2, np.ndarray) else np.asarray(u_hz2, dtype=float)
-        x = np.multiply(self._efficiency(u), u, out=self._x)
-        return np.matmul(self._A_kappa, x, out=out)
+        if out is None:
+            out = np.empty(6)
+        _k.interference_wrench(np.asarray(u_hz2, dtype=np.float64), self._model, out)
+        return out
 
 
 TruthAero = InterferenceAero | NominalAero

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from omnirotor.sim import _kernels as _k
 from omnirotor.sim.params import RotorDynamicsParams
 from omnirotor.vehicle import VehicleParams
 
@@ -31,20 +32,19 @@ class RotorBank:
         self.omega_min_hz = float(vehicle.omega_min_hz)
         self.omega_max_hz = float(vehicle.omega_max_hz)
         self.alpha = 1.0 - math.exp(-dt / params.tau_m)
-        self.dead_band_hz = params.dead_band_hz if params.dead_band else 0.0
+        self.dead_band_hz = float(params.dead_band_hz) if params.dead_band else 0.0
         n = vehicle.n_rotors
         self.n_rotors = n
         self.omega_hz = np.zeros(n)
         """(n,) current signed speeds [Hz]."""
         self.u_hz2 = np.zeros(n)
         """(n,) current inputs ``|omega| omega`` [Hz²]."""
-        # The loop runs on Python floats: for a handful of rotors that beats a chain of numpy calls.
-        self._w = [0.0] * n
+        self.kernel_params = np.array([self.omega_min_hz, self.omega_max_hz, self.alpha, self.dead_band_hz])
+        """``lo, hi, alpha, dead_band_hz`` for :func:`omnirotor.sim._kernels.rotor_step`."""
 
     def reset(self, omega_hz: np.ndarray) -> None:
         """Set the speeds (clipped to the limits) [Hz]."""
         w = np.clip(np.asarray(omega_hz, dtype=float), self.omega_min_hz, self.omega_max_hz)
-        self._w = w.tolist()
         self.omega_hz[:] = w
         self.u_hz2[:] = np.abs(w) * w
 
@@ -60,16 +60,12 @@ class RotorBank:
 
         Out-of-range commands (±inf included) are clipped; a NaN entry holds its rotor's speed.
         """
-        lo, hi, a = self.omega_min_hz, self.omega_max_hz, self.alpha
-        cmd = omega_cmd_hz.tolist()
-        if self.dead_band_hz > 0.0:
-            db = self.dead_band_hz
-            cmd = [0.0 if -db < c < db else c for c in cmd]
-        w = [
-            wi + a * ((c if lo <= c <= hi else hi if c > hi else lo if c < lo else wi) - wi)
-            for c, wi in zip(cmd, self._w, strict=True)
-        ]
-        self._w = w
-        self.omega_hz[:] = w
-        np.abs(self.omega_hz, out=self.u_hz2)
-        self.u_hz2 *= self.omega_hz
+        _k.rotor_step(
+            self.omega_hz,
+            self.u_hz2,
+            np.asarray(omega_cmd_hz, dtype=np.float64),
+            self.omega_min_hz,
+            self.omega_max_hz,
+            self.alpha,
+            self.dead_band_hz,
+        )

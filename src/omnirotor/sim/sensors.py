@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 
+from omnirotor.sim import _kernels as _k
 from omnirotor.sim.params import SensorParams
 
 __all__ = ["NoiseStream", "Imu", "Mocap", "MocapSample", "quat_perturb", "R9_from_quat"]
@@ -50,7 +51,8 @@ class NoiseStream:
         if self._i >= _BLOCK:
             self._rng.standard_normal(out=self._buf)
             self._buf *= self._scale
-            self._rows = self._buf.tolist() if self._as_list else self._buf
+            # Rows as a list (of lists, or of row views made once per block): indexing it is cheap.
+            self._rows = self._buf.tolist() if self._as_list else list(self._buf)
             self._i = 0
         row = self._rows[self._i]
         self._i += 1
@@ -92,28 +94,32 @@ class Imu:
         self.params = params
         self.gravity = gravity
         self.offset_B = np.asarray(params.imu_offset_B, dtype=float)
-        self._r = [float(x) for x in params.imu_offset_B]
-        self._has_offset = any(x != 0.0 for x in self._r)
         self.acc_bias_B = np.zeros(3)
         self.gyro_bias_B = np.zeros(3)
-        self._ba = [0.0, 0.0, 0.0]
-        self._bg = [0.0, 0.0, 0.0]
-        self._noise: NoiseStream | None = None
+        self.kernel_params = np.zeros(_k.IMU_PAR_SIZE)
+        """Gravity, biases and offset packed for :func:`omnirotor.sim._kernels.imu_measure_into`."""
+        self.noise: NoiseStream | None = None
+        """The white-noise stream (6: accelerometer, gyroscope), set by :meth:`reset`."""
+        self._pack()
+
+    def _pack(self) -> None:
+        r = [float(x) for x in self.params.imu_offset_B]
+        has_offset = 1.0 if any(x != 0.0 for x in r) else 0.0
+        self.kernel_params[:] = [self.gravity, *self.acc_bias_B, *self.gyro_bias_B, *r, has_offset]
 
     def reset(self, bias_rng: np.random.Generator, noise_rng: np.random.Generator) -> None:
         """Draw the constant biases and take over the white-noise generator."""
         p = self.params
         self.acc_bias_B[:] = p.acc_bias_std * bias_rng.standard_normal(3)
         self.gyro_bias_B[:] = p.gyro_bias_std * bias_rng.standard_normal(3)
-        self._ba = self.acc_bias_B.tolist()
-        self._bg = self.gyro_bias_B.tolist()
+        self._pack()
         scale = np.array([p.acc_noise_std] * 3 + [p.gyro_noise_std] * 3)
-        self._noise = NoiseStream(noise_rng, scale, 6, as_list=True)
+        self.noise = NoiseStream(noise_rng, scale, 6)
 
     def measure(
         self, R9: list[float], a_W: list[float], omega_B: list[float], omega_dot_B: list[float]
     ) -> tuple[np.ndarray, np.ndarray]:
-        """One IMU sample (float arithmetic on 3-vectors).
+        """One IMU sample (:func:`omnirotor.sim._kernels.imu_measure_into`).
 
         Args:
             R9: the 9 entries of ``R_WB``, row-major.
@@ -124,25 +130,19 @@ class Imu:
         Returns:
             ``(acc_B [m/s²], gyro_B [rad/s])``, fresh (3,) arrays.
         """
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = R9
-        sx, sy, sz = a_W[0], a_W[1], a_W[2] + self.gravity
-        e = self._noise.next()
-        ba, bg = self._ba, self._bg
-        ax = r00 * sx + r10 * sy + r20 * sz + ba[0] + e[0]
-        ay = r01 * sx + r11 * sy + r21 * sz + ba[1] + e[1]
-        az = r02 * sx + r12 * sy + r22 * sz + ba[2] + e[2]
-        wx, wy, wz = omega_B
-        if self._has_offset:
-            rx, ry, rz = self._r
-            dx, dy, dz = omega_dot_B
-            # omega_dot x r + omega x (omega x r)
-            cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
-            ax += dy * rz - dz * ry + wy * cz - wz * cy
-            ay += dz * rx - dx * rz + wz * cx - wx * cz
-            az += dx * ry - dy * rx + wx * cy - wy * cx
-        acc = np.array((ax, ay, az))
-        gyro = np.array((wx + bg[0] + e[3], wy + bg[1] + e[4], wz + bg[2] + e[5]))
-        return acc, gyro
+        out = np.empty(6)
+        f64 = np.float64
+        _k.imu_measure_into(
+            np.asarray(R9, dtype=f64).reshape(9),
+            np.asarray(a_W, dtype=f64),
+            np.asarray(omega_B, dtype=f64),
+            np.asarray(omega_dot_B, dtype=f64),
+            self.kernel_params,
+            self.noise.next(),
+            out,
+            0,
+        )
+        return out[0:3], out[3:6]
 
 
 class MocapSample:
@@ -177,7 +177,7 @@ class Mocap:
         self.latency_steps = int(round(params.mocap_latency_s / dt))
         cap = int(math.ceil((self.latency_steps + 1) * dt / self.period)) + 2
         self._t = np.zeros(cap)
-        self._due = np.zeros(cap, dtype=np.int64)
+        self._due = [0] * cap  # step of each queued sample's delivery (a list: read every step)
         self._p = np.zeros((cap, 3))
         self._q = np.zeros((cap, 4))
         self._head = 0

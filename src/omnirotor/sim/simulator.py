@@ -31,16 +31,20 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate
+from omnirotor.sim import _kernels as _k
 from omnirotor.sim.aero import make_aero
 from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
 from omnirotor.sim.params import SimParams
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.scenes import SCENES, SceneAnchors, default_start_pose, scene_anchors
-from omnirotor.sim.sensors import Imu, Mocap, NoiseStream, R9_from_quat, quat_perturb
+from omnirotor.sim.sensors import Imu, Mocap, NoiseStream
 from omnirotor.so3 import quat_wxyz_from_R
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["Simulator", "GroundTruth"]
+__all__ = ["Simulator", "GroundTruth", "TRUTH_ROW_SIZE"]
+
+TRUTH_ROW_SIZE = _k.TRUTH_ROW_SIZE
+"""Entries of :meth:`Simulator.truth_row` before the rotor speeds: t, p, v, R (9), omega, p_E, contact f, m, flag."""
 
 _N_STREAMS = 5
 """Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state."""
@@ -148,10 +152,10 @@ class Simulator:
         self._p_E_B = vehicle.p_E_B_array.copy()
         n = vehicle.n_rotors
         self._n_shape = (n,)
-        # Preallocated buffers of the step.
+        # Preallocated buffers of the step; views of MuJoCo's arrays resolved once (MjData never reallocates).
         self._w_B = np.zeros(6)
-        self._qn = [1.0, 0.0, 0.0, 0.0]
-        self._p_E_B_list = self._p_E_B.tolist()
+        self._ext = np.zeros(_k.EXT_SIZE)  # external wrench: f_W, m_W, p_E_B, active, at the EE tip
+        self._ext[6:9] = self._p_E_B
         self._ext_f = [0.0, 0.0, 0.0]
         self._ext_m = [0.0, 0.0, 0.0]
         self._ext_at_ee = False
@@ -170,6 +174,22 @@ class Simulator:
             and s.state_att_noise_std == 0.0
             and s.state_omega_noise_std == 0.0
         )
+        if not self._provide_state:
+            self._state_mode = _k.STATE_NONE
+        else:
+            self._state_mode = _k.STATE_EXACT if self._state_exact else _k.STATE_NOISY
+        self._frame_size = 6 + n + (21 if self._provide_state else 0)
+        self._no_noise = np.zeros(15)  # stands for the state noise when none is drawn
+        d = self.data
+        self._qpos, self._qvel, self._qacc, self._xmat = d.qpos, d.qvel, d.qacc, d.xmat
+        self._xfrc = d.xfrc_applied[self._body]
+        self._site_xpos = d.site_xpos
+        self._p_view = d.qpos[self._qp : self._qp + 3]
+        self._q_view = d.qpos[self._qp + 3 : self._qp + 7]
+        self._last_substep = self.substeps - 1
+        # The aero model and rotor bank the fused actuation kernel was set up for (see step()).
+        self._fused_aero = self.aero if hasattr(self.aero, "kernel_model") else None
+        self._fused_rotors = self.rotors
         self.reset()
 
     # ------------------------------------------------------------------------------------------------
@@ -215,6 +235,7 @@ class Simulator:
         self._ext_f = [0.0, 0.0, 0.0]
         self._ext_m = [0.0, 0.0, 0.0]
         self._has_ext = False
+        self._pack_ext()
         if omega_hz is None:
             self.rotors.reset(self.hover_speeds_hz(R))
         else:
@@ -237,7 +258,7 @@ class Simulator:
             ],
             3,
         )
-        self._state_noise = NoiseStream(streams[4], state_scale, 15, as_list=True)
+        self._state_noise = NoiseStream(streams[4], state_scale, 15)
         self._apply_wrench(recompute_rotors=True)
         mujoco.mj_forward(m, d)
         return self._frame()
@@ -263,6 +284,14 @@ class Simulator:
         self._ext_m = mo.tolist()
         self._ext_at_ee = at == "ee"
         self._has_ext = bool(np.any(f != 0.0) or np.any(mo != 0.0))
+        self._pack_ext()
+
+    def _pack_ext(self) -> None:
+        e = self._ext
+        e[0:3] = self._ext_f
+        e[3:6] = self._ext_m
+        e[9] = 1.0 if self._has_ext else 0.0
+        e[10] = 1.0 if self._ext_at_ee else 0.0
 
     # ------------------------------------------------------------------------------------------------
     def step(self, cmd: RotorCommand) -> SensorFrame:
@@ -275,15 +304,26 @@ class Simulator:
         Returns:
             The sensor frame at ``t + dt``.
         """
-        if cmd.omega_hz.shape != self._n_shape:
-            raise InputError(f"step: omega_hz must have shape {self._n_shape}, got {cmd.omega_hz.shape}")
+        omega_cmd = cmd.omega_hz
+        if omega_cmd.shape != self._n_shape:
+            raise InputError(f"step: omega_hz must have shape {self._n_shape}, got {omega_cmd.shape}")
         m, d = self.model, self.data
+        last = self._last_substep
+        rotors, aero = self.rotors, self.aero
+        # The rotor lag, the truth wrench and xfrc_applied in one compiled call for the project's own models.
+        fused = aero is self._fused_aero and rotors is self._fused_rotors
         for i in range(self.substeps):
             mujoco.mj_Euler(m, d)
-            last = i == self.substeps - 1
-            if last:
-                self.rotors.step(cmd.omega_hz)
-            self._apply_wrench(recompute_rotors=last)
+            if i != last:
+                self._apply_wrench(recompute_rotors=False)
+            elif fused:
+                _k.actuate(
+                    rotors.omega_hz, rotors.u_hz2, omega_cmd, rotors.kernel_params, aero.kernel_kind,
+                    aero.kernel_model, self._qpos, self._qp, self._w_B, self._ext, self._xfrc,
+                )  # fmt: skip
+            else:
+                rotors.step(omega_cmd)
+                self._apply_wrench(recompute_rotors=True)
             mujoco.mj_forward(m, d)
         self._k += 1
         self._truth = None
@@ -291,83 +331,43 @@ class Simulator:
 
     def _apply_wrench(self, recompute_rotors: bool) -> None:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
-        d = self.data
         if recompute_rotors:
             self.aero.wrench_B(self.rotors.u_hz2, out=self._w_B)
-        qp = self._qp
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = R9_from_quat(d.qpos[qp + 3 : qp + 7].tolist())
-        fx, fy, fz, mx, my, mz = self._w_B.tolist()
-        Fx = r00 * fx + r01 * fy + r02 * fz
-        Fy = r10 * fx + r11 * fy + r12 * fz
-        Fz = r20 * fx + r21 * fy + r22 * fz
-        Mx = r00 * mx + r01 * my + r02 * mz
-        My = r10 * mx + r11 * my + r12 * mz
-        Mz = r20 * mx + r21 * my + r22 * mz
-        if self._has_ext:
-            ex, ey, ez = self._ext_f
-            Fx, Fy, Fz = Fx + ex, Fy + ey, Fz + ez
-            Mx, My, Mz = Mx + self._ext_m[0], My + self._ext_m[1], Mz + self._ext_m[2]
-            if self._ext_at_ee:  # moment of the force applied at the EE tip: (R p_E_B) x f
-                px, py, pz = self._p_E_B_list
-                rx = r00 * px + r01 * py + r02 * pz
-                ry = r10 * px + r11 * py + r12 * pz
-                rz = r20 * px + r21 * py + r22 * pz
-                Mx += ry * ez - rz * ey
-                My += rz * ex - rx * ez
-                Mz += rx * ey - ry * ex
-        d.xfrc_applied[self._body] = (Fx, Fy, Fz, Mx, My, Mz)
+        _k.apply_wrench(self._qpos, self._qp, self._w_B, self._ext, self._xfrc)
 
     def _frame(self) -> SensorFrame:
-        d = self.data
-        qp, qv = self._qp, self._qv
-        t = self._k * self.dt
-        qpos = d.qpos.tolist()
-        qvel = d.qvel.tolist()
-        qacc = d.qacc.tolist()
-        R9 = d.xmat[self._body].tolist()
-        p_W, q_WB = qpos[qp : qp + 3], qpos[qp + 3 : qp + 7]
-        v_W, omega_B = qvel[qv : qv + 3], qvel[qv + 3 : qv + 6]
-        a_W, omega_dot_B = qacc[qv : qv + 3], qacc[qv + 3 : qv + 6]
-        acc_B, gyro_B = self.imu.measure(R9, a_W, omega_B, omega_dot_B)
-        rotor_hz = self.rotors.omega_hz + self._rotor_noise.next()
-        sample = self.mocap.step(self._k, t, p_W, q_WB)
-        state = self._state(t, p_W, v_W, a_W, q_WB, R9, omega_B) if self._provide_state else None
+        """The frame at the current time: sensors from MuJoCo's state in one compiled call (_kernels.sense)."""
+        k = self._k
+        t = k * self.dt
+        out = np.empty(self._frame_size)
+        mode = self._state_mode
+        _k.sense(
+            self._qpos,
+            self._qvel,
+            self._qacc,
+            self._xmat,
+            self._qp,
+            self._qv,
+            self._body,
+            self.imu.kernel_params,
+            self.imu.noise.next(),
+            self.rotors.omega_hz,
+            self._rotor_noise.next(),
+            mode,
+            self._state_noise.next() if mode == _k.STATE_NOISY else self._no_noise,
+            out,
+        )
+        n6 = self._frame_size - (21 if mode else 0)
+        state = None
+        if mode:
+            state = StateEstimate(
+                t, out[n6 : n6 + 3], out[n6 + 3 : n6 + 6], out[n6 + 6 : n6 + 9], out[n6 + 9 : n6 + 18].reshape(3, 3),
+                out[n6 + 18 : n6 + 21],
+            )  # fmt: skip
+        sample = self.mocap.step(k, t, self._p_view, self._q_view)
         if sample is None:
-            return SensorFrame(t=t, imu_acc_B=acc_B, imu_gyro_B=gyro_B, rotor_hz=rotor_hz, state=state)
-        return SensorFrame(
-            t=t,
-            imu_acc_B=acc_B,
-            imu_gyro_B=gyro_B,
-            rotor_hz=rotor_hz,
-            mocap_new=True,
-            mocap_t=sample.t,
-            mocap_p_W=sample.p_W,
-            mocap_q_WB=sample.q_WB,
-            state=state,
-        )
-
-    def _state(self, t: float, p_W: list, v_W: list, a_W: list, q_WB: list, R9: list, omega_B: list) -> StateEstimate:
-        """Ground truth plus white noise (float arithmetic; exact copies when the noise is zero)."""
-        if self._state_exact:
-            return StateEstimate(
-                t=t,
-                p_W=np.array(p_W),
-                v_W=np.array(v_W),
-                a_W=np.array(a_W),
-                R_WB=np.array(R9).reshape(3, 3),
-                omega_B=np.array(omega_B),
-            )
-        e = self._state_noise.next()
-        qn = self._qn
-        quat_perturb(q_WB, e[9:12], qn)
-        return StateEstimate(
-            t=t,
-            p_W=np.array((p_W[0] + e[0], p_W[1] + e[1], p_W[2] + e[2])),
-            v_W=np.array((v_W[0] + e[3], v_W[1] + e[4], v_W[2] + e[5])),
-            a_W=np.array((a_W[0] + e[6], a_W[1] + e[7], a_W[2] + e[8])),
-            R_WB=np.array(R9_from_quat(qn)).reshape(3, 3),
-            omega_B=np.array((omega_B[0] + e[12], omega_B[1] + e[13], omega_B[2] + e[14])),
-        )
+            return SensorFrame(t, out[0:3], out[3:6], out[6:n6], False, 0.0, None, None, state)
+        return SensorFrame(t, out[0:3], out[3:6], out[6:n6], True, sample.t, sample.p_W, sample.q_WB, state)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -377,12 +377,33 @@ class Simulator:
             self._truth = self._ground_truth()
         return self._truth
 
-    def _ground_truth(self) -> GroundTruth:
+    def truth_row(self, out: np.ndarray) -> None:
+        """Write the ground truth at the current time as one flat row, for dense logs (no record is built).
+
+        Layout of ``out[0 : TRUTH_ROW_SIZE + n]`` (n rotors; later entries are left alone): ``t`` [s],
+        ``p_W`` (3), ``v_W`` (3), ``R_WB`` (9, row-major), ``omega_B`` (3), ``p_E_W`` (3),
+        ``contact_force_W`` (3), ``contact_moment_W`` (3), ``in_contact`` (1.0 or 0.0), ``rotor_hz`` (n): the
+        same values as :attr:`truth`.
+
+        Args:
+            out: a 1-D float64 array of at least ``TRUTH_ROW_SIZE + n`` entries.
+        """
+        _k.truth_row_into(
+            self._qpos, self._qvel, self._xmat, self._site_xpos, self._qp, self._qv, self._body, self._ee_site,
+            self.rotors.omega_hz, self._k * self.dt, out,
+        )  # fmt: skip
+        if self.data.ncon:
+            _, _, in_contact, _ = self._contact_wrench(out[19:22], out[22:25], out[25:28])
+            out[28] = 1.0 if in_contact else 0.0
+
+    def _contact_wrench(self, p_E_W: np.ndarray, force: np.ndarray, moment: np.ndarray) -> tuple:
+        """Add the environment's contact force on the end-effector and its moment about ``p_E_W`` (world frame).
+
+        Returns:
+            ``(force, moment, in_contact, other_contact)``: the two arrays given, updated in place, and whether
+            the end-effector, or another part of the vehicle, touches the environment.
+        """
         m, d = self.model, self.data
-        qp, qv = self._qp, self._qv
-        p_E_W = d.site_xpos[self._ee_site].copy()
-        force = np.zeros(3)
-        moment = np.zeros(3)
         in_contact = False
         other = False
         f6 = self._cf6
@@ -408,21 +429,22 @@ class Simulator:
                 f_W = sign * (F.T @ f6[:3])
                 force += f_W
                 moment += sign * (F.T @ f6[3:]) + np.cross(pos[c] - p_E_W, f_W)
+        return force, moment, in_contact, other
+
+    def _ground_truth(self) -> GroundTruth:
+        n = self.vehicle.n_rotors
+        # Every array of the record is a view into one fresh buffer (_kernels.truth_into gives the layout).
+        g = np.empty(_k.TRUTH_SIZE + n)
+        _k.truth_into(
+            self._qpos, self._qvel, self._qacc, self._xmat, self._site_xpos, self._qp, self._qv, self._body,
+            self._ee_site, self.rotors.omega_hz, self._w_B, g,
+        )  # fmt: skip
+        p_E_W = g[27:30]
+        force, moment, in_contact, other = self._contact_wrench(p_E_W, g[30:33], g[33:36])
         return GroundTruth(
-            t=self.t,
-            p_W=d.qpos[qp : qp + 3].copy(),
-            v_W=d.qvel[qv : qv + 3].copy(),
-            a_W=d.qacc[qv : qv + 3].copy(),
-            R_WB=d.xmat[self._body].reshape(3, 3).copy(),
-            omega_B=d.qvel[qv + 3 : qv + 6].copy(),
-            rotor_hz=self.rotors.omega_hz.copy(),
-            rotor_wrench_B=self._w_B.copy(),
-            contact_force_W=force,
-            contact_moment_W=moment,
-            in_contact=in_contact,
-            p_E_W=p_E_W,
-            other_contact=other,
-        )
+            self.t, g[0:3], g[3:6], g[6:9], g[9:18].reshape(3, 3), g[18:21], g[36 : 36 + n], g[21:27], force,
+            moment, in_contact, p_E_W, other,
+        )  # fmt: skip
 
     def hover_speeds_hz(self, R_WB: np.ndarray | None = None) -> np.ndarray:
         """(n,) speeds [Hz] that hover at ``R_WB`` under the nominal map (clipped to the limits)."""

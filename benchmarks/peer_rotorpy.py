@@ -1,0 +1,267 @@
+"""The shared quadrotor hover task, in omnirotor and in RotorPy (https://github.com/spencerfolk/rotorpy).
+
+Both sides hover RotorPy's default Crazyflie from rest at 1 kHz simulation and control rate, at the free
+scene's start position (0, 0, 1.5) m:
+
+* RotorPy (optional dependency, the ``bench`` extra pins 3.0.0): ``Multirotor`` with the Crazyflie
+  parameters and its defaults (``aero=True``: rotor drag and induced inflow; SciPy ``solve_ivp`` RK45 over
+  one 1 ms step, rotor speeds as first-order states) and ``SE3Control`` with the true state, driven step by
+  step here: ``flat = traj.update(t); u = ctl.update(t, state, flat); state = veh.step(state, u, dt)``.
+  That is the core of ``rotorpy.simulate.simulate`` without its IMU, motion capture, estimator, extra
+  ``statedot`` call and per-step list appends, so it is RotorPy's cheapest closed loop.
+  :func:`rotorpy_simulate` times ``simulate()`` itself, for reference.
+* omnirotor: the ``quadrotor`` vehicle preset in :class:`~omnirotor.sim.Simulator` (MuJoCo rigid body, the
+  first-order rotor loop with RotorPy's ``tau_m``, the slipstream-interference truth aerodynamics, IMU,
+  motion capture and noisy ground-truth state) and the whole
+  :class:`~omnirotor.control.controller.InteractionController` (trajectory, admittance, wrench observer,
+  pose control, QP allocation; the estimator is the ground-truth bypass, as SE3Control reads the true state)
+  inside ``run_closed_loop``, which also logs every step of both sides.
+
+The interaction controller is for fully actuated vehicles: on the coplanar quadrotor its allocation returns
+the best least-squares wrench, which holds a hover from rest (no lateral force is ever needed) but cannot
+correct a lateral offset. Its regulariser is scaled to the quadrotor (:func:`quad_reg_lambda`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from omnirotor.control.admittance import AdmittanceParams
+from omnirotor.control.allocation import AllocationParams
+from omnirotor.control.controller import ControllerParams, InteractionController
+from omnirotor.control.estimator import EstimatorParams
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.experiments.closed_loop import run_closed_loop
+from omnirotor.messages import RotorCommand
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim.params import RotorDynamicsParams
+from omnirotor.vehicle import VehicleParams, load_vehicle
+
+DT_S = 1e-3
+"""Simulation and control period of the shared task [s]."""
+QUAD_PRESET = "quadrotor"
+REFERENCE_PRESET = "omnirotor"
+ROTORPY_TAU_M_S = 0.072
+"""The Crazyflie's motor time constant in RotorPy's ``crazyflie_params`` (used when RotorPy is absent)."""
+
+
+def rotorpy_version() -> str | None:
+    """Installed RotorPy version, or None when it is not installed."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("rotorpy")
+    except PackageNotFoundError:
+        return None
+
+
+def _crazyflie() -> dict:
+    from rotorpy.vehicles.crazyflie_params import quad_params
+
+    return quad_params
+
+
+def quad_reg_lambda(quad: VehicleParams, reference: VehicleParams) -> float:
+    """The allocation regulariser for ``quad``, with the same weight relative to c_f² as on the reference.
+
+    SPEC §4.2 gives lambda = 1e-12 [N²/Hz⁴] for the Omnirotor (c_f = 1.5e-4 N/Hz²). The Crazyflie's c_f is
+    165 times smaller, so the same absolute lambda would weigh ||u||² against the wrench error 27 000 times
+    more: its thrust falls 23 % short at hover and the vehicle sags ~9 cm. Scaling by (c_f / c_f,ref)² keeps
+    the regulariser's effect what it is on the Omnirotor.
+    """
+    return AllocationParams().reg_lambda * (quad.c_f / reference.c_f) ** 2
+
+
+def tau_m_s() -> float:
+    """RotorPy's Crazyflie motor time constant [s] (the pinned value if RotorPy is absent)."""
+    return float(_crazyflie()["tau_m"]) if rotorpy_version() else ROTORPY_TAU_M_S
+
+
+# -- parameter check ------------------------------------------------------------------------------------
+
+
+def crazyflie_comparison(quad: VehicleParams | None = None) -> list[dict]:
+    """Compare the ``quadrotor`` preset with RotorPy's ``crazyflie_params`` (needs RotorPy).
+
+    Rotor speeds convert from rad/s to Hz by 1/(2π), so ``c_f = k_eta (2π)²`` and ``c_tau = k_m (2π)²``.
+
+    Returns:
+        Rows ``{"quantity", "rotorpy", "preset", "rel_diff", "match"}`` (rel_diff = |preset/rotorpy − 1|;
+        match when below 1e-4, the preset's rounding to 5–7 digits).
+    """
+    quad = quad or load_vehicle(QUAD_PRESET)
+    qp = _crazyflie()
+    two_pi = 2.0 * math.pi
+    d = float(np.linalg.norm(qp["rotor_pos"]["r1"]))
+    rotorpy_pos = np.array([qp["rotor_pos"][k] for k in ("r1", "r2", "r3", "r4")])
+    pairs = [
+        ("mass [kg]", qp["mass"], quad.mass),
+        ("Ixx [kg m²]", qp["Ixx"], quad.inertia_diag[0]),
+        ("Iyy [kg m²]", qp["Iyy"], quad.inertia_diag[1]),
+        ("Izz [kg m²]", qp["Izz"], quad.inertia_diag[2]),
+        ("arm length [m]", d, float(np.mean(np.linalg.norm(quad.positions_B, axis=1)))),
+        ("c_f = k_eta (2π)² [N/Hz²]", qp["k_eta"] * two_pi**2, quad.c_f),
+        ("c_tau = k_m (2π)² [N m/Hz²]", qp["k_m"] * two_pi**2, quad.c_tau),
+        ("max rotor speed [Hz]", qp["rotor_speed_max"] / two_pi, quad.omega_max_hz),
+        ("min rotor speed [Hz]", qp["rotor_speed_min"] / two_pi, quad.omega_min_hz),
+        ("rotor positions, max abs. diff. [m]", 0.0, float(np.max(np.abs(rotorpy_pos - quad.positions_B)))),
+        ("spin directions equal", 1.0, float(np.array_equal(qp["rotor_directions"], quad.spins))),
+        ("motor time constant [s] (sim param)", qp["tau_m"], RotorDynamicsParams().tau_m),
+    ]
+    rows = []
+    for name, theirs, ours in pairs:
+        theirs, ours = float(theirs), float(ours)
+        if name.startswith("rotor positions"):
+            rel = ours  # an absolute difference [m]
+            ok = ours < 1e-6
+        elif theirs == 0.0:
+            rel = abs(ours)
+            ok = ours == 0.0
+        else:
+            rel = abs(ours / theirs - 1.0)
+            ok = rel < 1e-4
+        rows.append({"quantity": name, "rotorpy": theirs, "preset": ours, "rel_diff": rel, "match": bool(ok)})
+    return rows
+
+
+# -- omnirotor side -------------------------------------------------------------------------------------
+
+
+def _quad_sim(seed: int) -> tuple[VehicleParams, Simulator]:
+    quad = load_vehicle(QUAD_PRESET)
+    params = SimParams(dt=DT_S, rotors=RotorDynamicsParams(tau_m=tau_m_s()))
+    return quad, Simulator(quad, "free", params, seed=seed)
+
+
+def ours_hover(duration_s: float, estimator: str = "bypass", seed: int = 0) -> dict:
+    """Hover the quadrotor with the interaction controller; time ``run_closed_loop`` only.
+
+    Returns:
+        ``wall_s``, ``rtf``, ``final_pos_err_mm`` and ``max_pos_err_mm`` (true CoM against the start).
+    """
+    quad, sim = _quad_sim(seed)
+    p0, R0 = sim.default_start()
+    trajectory = PoseTrajectory([Waypoint(0.0, p0 + R0 @ quad.p_E_B_array, R0)])
+    cparams = ControllerParams(
+        dt=DT_S,
+        admittance=AdmittanceParams.preset("free"),
+        estimator=EstimatorParams(kind=estimator),
+        allocation=dataclasses.replace(
+            AllocationParams(), reg_lambda=quad_reg_lambda(quad, load_vehicle(REFERENCE_PRESET))
+        ),
+    )
+    ctl = InteractionController(quad, cparams)
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    _, truth_log = run_closed_loop(sim, ctl, trajectory, duration_s)
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    err = np.linalg.norm(truth_log.group("p_W") - p0, axis=1) * 1e3
+    return {
+        "wall_s": wall,
+        "rtf": duration_s / wall,
+        "rtf_cpu": duration_s / cpu,
+        "final_pos_err_mm": float(err[-1]),
+        "max_pos_err_mm": float(err.max()),
+    }
+
+
+def ours_sim_only(duration_s: float, seed: int = 0) -> dict:
+    """Step the quadrotor's simulator alone under its constant hover command (timed loop only)."""
+    _, sim = _quad_sim(seed)
+    sim.reset()
+    cmd = RotorCommand(0.0, sim.hover_speeds_hz())
+    n = int(round(duration_s / DT_S))
+    step = sim.step
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    for _ in range(n):
+        step(cmd)
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    return {"wall_s": wall, "rtf": duration_s / wall, "rtf_cpu": duration_s / cpu}
+
+
+# -- RotorPy side ---------------------------------------------------------------------------------------
+
+
+def _rotorpy_setup(x0: np.ndarray):
+    from rotorpy.controllers.quadrotor_control import SE3Control
+    from rotorpy.trajectories.hover_traj import HoverTraj
+    from rotorpy.vehicles.multirotor import Multirotor
+
+    qp = _crazyflie()
+    w_hover = math.sqrt(qp["mass"] * 9.81 / (qp["num_rotors"] * qp["k_eta"]))  # rad/s
+    state = {
+        "x": x0.copy(),
+        "v": np.zeros(3),
+        "q": np.array([0.0, 0.0, 0.0, 1.0]),  # xyzw
+        "w": np.zeros(3),
+        "wind": np.zeros(3),
+        "rotor_speeds": np.full(qp["num_rotors"], w_hover),
+    }
+    vehicle = Multirotor(qp, initial_state=state)  # defaults: cmd_motor_speeds, aero=True, RK45
+    return vehicle, SE3Control(qp), HoverTraj(x0=x0.copy()), state, w_hover
+
+
+def start_position() -> np.ndarray:
+    _, sim = _quad_sim(0)
+    return sim.default_start()[0]
+
+
+def rotorpy_hover(duration_s: float, x0: np.ndarray | None = None) -> dict:
+    """Hover RotorPy's Crazyflie with SE3Control, stepping ``Multirotor.step`` at 1 kHz (timed loop only)."""
+    x0 = start_position() if x0 is None else x0
+    vehicle, controller, trajectory, state, _ = _rotorpy_setup(x0)
+    n = int(round(duration_s / DT_S))
+    xs = [None] * n
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    for k in range(n):
+        t = k * DT_S
+        control = controller.update(t, state, trajectory.update(t))
+        state = vehicle.step(state, control, DT_S)
+        xs[k] = state["x"]
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    err = np.linalg.norm(np.asarray(xs) - x0, axis=1) * 1e3
+    return {
+        "wall_s": wall,
+        "rtf": duration_s / wall,
+        "rtf_cpu": duration_s / cpu,
+        "final_pos_err_mm": float(err[-1]),
+        "max_pos_err_mm": float(err.max()),
+    }
+
+
+def rotorpy_sim_only(duration_s: float, x0: np.ndarray | None = None) -> dict:
+    """Step RotorPy's ``Multirotor`` alone under the constant hover speeds (timed loop only)."""
+    x0 = start_position() if x0 is None else x0
+    vehicle, _, _, state, w_hover = _rotorpy_setup(x0)
+    control = {"cmd_motor_speeds": np.full(4, w_hover)}
+    n = int(round(duration_s / DT_S))
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    for _ in range(n):
+        state = vehicle.step(state, control, DT_S)
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    return {"wall_s": wall, "rtf": duration_s / wall, "rtf_cpu": duration_s / cpu}
+
+
+def rotorpy_simulate(duration_s: float, x0: np.ndarray | None = None) -> dict:
+    """RotorPy's own ``simulate()`` loop on the same hover (its default IMU, mocap and null estimator)."""
+    from rotorpy.estimators.nullestimator import NullEstimator
+    from rotorpy.sensors.external_mocap import MotionCapture
+    from rotorpy.sensors.imu import Imu
+    from rotorpy.simulate import simulate
+    from rotorpy.wind.default_winds import NoWind
+    from rotorpy.world import World
+
+    x0 = start_position() if x0 is None else x0
+    vehicle, controller, trajectory, state, _ = _rotorpy_setup(x0)
+    rate = 1.0 / DT_S
+    world = World.empty((-3.0, 3.0, -3.0, 3.0, -3.0, 3.0))
+    imu = Imu(p_BS=np.zeros(3), R_BS=np.eye(3), sampling_rate=rate)
+    mocap = MotionCapture(sampling_rate=rate, with_artifacts=False)
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    simulate(world, state, vehicle, controller, trajectory, NoWind(), imu, mocap, NullEstimator(), duration_s, DT_S,
+             0.25, use_mocap=False, terminate=False)  # fmt: skip
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    return {"wall_s": wall, "rtf": duration_s / wall, "rtf_cpu": duration_s / cpu}

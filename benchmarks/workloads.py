@@ -1,0 +1,81 @@
+"""The closed-loop workloads timed by ``benchmarks/run.py``: the sliding task, the hover task, a campaign worker.
+
+Every function builds its simulator and controller first and times only the loop (``run_closed_loop``), except
+:func:`hover_task_wall`, which times a whole ``run_task("hover")`` (set-up included) as a campaign sees it.
+This module is imported by name from ``benchmarks/`` so that campaign worker processes can import it too.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from omnirotor.control.admittance import AdmittanceParams
+from omnirotor.control.controller import ControllerParams, InteractionController
+from omnirotor.control.estimator import EstimatorParams
+from omnirotor.control.trajectory import PoseTrajectory
+from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
+from omnirotor.experiments.scenarios import sliding
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.vehicle import load_vehicle
+
+SLIDING_SEED = 0
+DT_S = SimParams().dt
+"""Simulator and controller period [s] (1 kHz)."""
+
+
+def sliding_setup(estimator: str, quick_scenario: bool, seed: int = SLIDING_SEED):
+    """Simulator, controller and trajectory of the paper's sliding task on the pipe (SPEC §5.2, preset "SD").
+
+    Args:
+        estimator: "ukf" or "bypass" (ground truth plus noise).
+        quick_scenario: the shortened holds of ``sliding(..., quick=True)`` (same path, contact after 6 s
+            instead of 10 s).
+        seed: simulator noise seed.
+
+    Returns:
+        ``(sim, controller, trajectory, scenario)``.
+    """
+    params = SimParams()
+    scenario = sliding(params.scene, quick=quick_scenario)
+    vehicle = load_vehicle("omnirotor")
+    sim = Simulator(vehicle, scenario.scene, params, seed=seed)
+    trajectory = PoseTrajectory(list(scenario.waypoints))
+    cparams = ControllerParams(
+        admittance=AdmittanceParams.preset(scenario.admittance), estimator=EstimatorParams(kind=estimator)
+    )
+    return sim, InteractionController(vehicle, cparams), trajectory, scenario
+
+
+def run_sliding(estimator: str, duration_s: float, quick_scenario: bool, seed: int = SLIDING_SEED) -> dict:
+    """Fly the first ``duration_s`` of the sliding task; time ``run_closed_loop`` only (set-up excluded).
+
+    Returns:
+        ``wall_s``, ``sim_s``, ``rtf`` (simulated seconds per wall second), ``controller_step_us_median``,
+        ``_mean`` and ``_p99`` (measured in the loop), ``steps_flagged`` (controller status bits set),
+        ``contact_fraction`` (of the steps).
+    """
+    sim, ctl, traj, _ = sliding_setup(estimator, quick_scenario, seed)
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    ctl_log, truth_log = run_closed_loop(sim, ctl, traj, duration_s)
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    step_us = truth_log.group("controller_step_us")
+    return {
+        "wall_s": wall,
+        "sim_s": duration_s,
+        "rtf": duration_s / wall,
+        "rtf_cpu": duration_s / cpu,
+        "controller_step_us_median": float(np.median(step_us)),
+        "controller_step_us_mean": float(np.mean(step_us)),
+        "controller_step_us_p99": float(np.percentile(step_us, 99)),
+        "steps_flagged": int(np.count_nonzero(ctl_log.group("status"))),
+        "contact_fraction": float(np.mean(truth_log.group("in_contact") > 0.5)),
+    }
+
+
+def hover_task_wall(duration_s: float, seed: int = 0) -> float:
+    """Wall time [s] of one whole ``run_task("hover")`` (simulator and controller set-up included)."""
+    tic = time.perf_counter()
+    run_task("hover", TaskOptions(duration_s=duration_s, seed=seed))
+    return time.perf_counter() - tic

@@ -1,0 +1,713 @@
+"""Compiled kernels of the UKF state estimator (:class:`omnirotor.control.estimator.UKFEstimator`, SPEC §4.5).
+
+The estimator keeps its state in a few arrays: ``x`` (the nominal states, times, counters and parameters,
+layout ``UKF_*`` below), the ring buffers ``buf`` (cap, 8: t, dt, gyro_B, acc_B of each IMU sample) and
+``sbuf`` (cap, 16: the output state after each sample), the covariance ``P`` (15, 15), the unscented weights
+``W`` (2, 31: mean, covariance) and the constant matrices ``M`` (5, 15, 15: the process-noise terms Q1, Q2,
+Q3, the initial covariance P0 and, in its top-left 6 x 6 corner, the measurement noise Rn). The model and the
+filter are described in the estimator's module docstring; these kernels implement them:
+
+* :func:`ukf_imu_step`: one IMU sample (validation, lever arm, buffering, noise-free mean propagation) and,
+  when no motion-capture sample is to be fused, the end of the step (:func:`ukf_finish`: the outputs);
+* :func:`ukf_predict`: the unscented covariance prediction of the delayed fused state;
+* :func:`ukf_fuse`: the delayed motion-capture update (closed-form Kalman update, error injection, reset
+  Jacobian, re-propagation of the mean to now).
+
+The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
+product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from omnirotor._jit import R9_from_quat_into, jit
+
+N_ERR = 15
+"""Error-state dimension: dp, dv, dtheta, db_a, db_g."""
+N_SIGMA = 2 * N_ERR + 1
+
+# Layout of the scalar part x = mem[0:UKF_SIZE] of the estimator's memory.
+UKF_S = 0  # (16,) output (current) nominal state: p_W, v_W, q_WB (wxyz), b_a, b_g
+UKF_RS = 16  # (9,) R_WB of the output state, row-major
+UKF_F = 25  # (16,) delayed fused state
+UKF_RF = 41  # (9,) its R_WB
+UKF_IMU = 50  # (6,) last good raw IMU sample: gyro_B, acc_B
+UKF_IMU_C = 56  # (6,) the sample of this step, lever-arm corrected
+UKF_GLP = 62  # (3,) low-passed gyro (for the lever arm's omega_dot)
+UKF_WO = 65  # (3,) omega_B output
+UKF_AO = 68  # (3,) a_W output
+UKF_T = 71  # time of the output state [s]
+UKF_T_F = 72  # time of the fused state [s]
+UKF_T_ACCEPT = 73  # frame time of the last accepted motion-capture sample [s]
+UKF_LPF_DT = 74  # dt of the cached output-filter gains (NaN: none yet)
+UKF_LAM_W = 75
+UKF_LAM_A = 76
+UKF_K = 77  # IMU samples pushed so far
+UKF_KF = 78  # samples already in the fused state
+UKF_JUST_RESET = 79  # 1 until a sample is fused after the start-up pose
+UKF_GATE_FAILS = 80  # consecutive gate failures
+UKF_DT = 81  # period of the last IMU sample [s]
+# Parameters.
+UKF_G = 82
+UKF_DT_NOM = 83
+UKF_GYRO_RANGE = 84
+UKF_ACC_RANGE = 85
+UKF_R_IMU = 86  # (3,) IMU offset from the CoM [m]
+UKF_LEVER = 89  # 1 when the offset is not zero
+UKF_LEVER_CUT = 90
+UKF_GYRO_CUT = 91
+UKF_ACC_CUT = 92
+UKF_CAP = 93  # ring-buffer length
+UKF_COV_N = 94  # samples per covariance step
+UKF_UT_SCALE = 95  # sqrt(n + lambda)
+UKF_MAX_LAT = 96  # largest motion-capture latency [s]
+UKF_GATE = 97  # chi-square gate
+UKF_REINIT_AFTER = 98
+UKF_LAG_N = 99  # samples the fused state may lag ...
+UKF_CHUNK_N = 100  # ... plus this many before it is advanced without motion capture
+UKF_TIMEOUT = 101  # motion-capture timeout [s]
+UKF_SIZE = 102
+
+# Bits of the code ukf_imu_step and ukf_finish return.
+STEP_REJECTED = 1  # the period or the IMU sample was rejected
+STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeout
+
+M_Q1, M_Q2, M_Q3, M_P0, M_RN = 0, 1, 2, 3, 4
+
+# Return codes of ukf_fuse.
+FUSE_OK = 0
+FUSE_STALE = 1  # older than the fused state or the buffer, or from the future
+FUSE_SINGULAR = 2  # innovation covariance not invertible
+FUSE_GATE = 3  # outside the chi-square gate
+FUSE_REINIT = 4  # outside the gate once too often: the pose was re-initialised from motion capture
+
+_RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] above which P is reset-transported
+
+
+def memory_layout(cap: int) -> tuple[int, int, int, int, int, int]:
+    """Offsets of buf (cap x 8), sbuf (cap x 16), P (15 x 15), W (2 x 31), M (5 x 15 x 15), and the size.
+
+    Args:
+        cap: ring-buffer length [samples].
+    """
+    o_buf = UKF_SIZE
+    o_sbuf = o_buf + 8 * cap
+    o_P = o_sbuf + 16 * cap
+    o_W = o_P + N_ERR * N_ERR
+    o_M = o_W + 2 * N_SIGMA
+    return o_buf, o_sbuf, o_P, o_W, o_M, o_M + 5 * N_ERR * N_ERR
+
+
+@jit
+def views(mem):
+    """``(x, buf, sbuf, P, W, M)``: the parts of the estimator's memory (module docstring)."""
+    cap = int(mem[UKF_CAP])
+    o_buf = UKF_SIZE
+    o_sbuf = o_buf + 8 * cap
+    o_P = o_sbuf + 16 * cap
+    o_W = o_P + N_ERR * N_ERR
+    o_M = o_W + 2 * N_SIGMA
+    return (
+        mem[0:UKF_SIZE],
+        mem[o_buf:o_sbuf].reshape(cap, 8),
+        mem[o_sbuf:o_P].reshape(cap, 16),
+        mem[o_P:o_W].reshape(N_ERR, N_ERR),
+        mem[o_W:o_M].reshape(2, N_SIGMA),
+        mem[o_M : o_M + 5 * N_ERR * N_ERR].reshape(5, N_ERR, N_ERR),
+    )
+
+
+@jit
+def lpf_gain(dt: float, cutoff_hz: float) -> float:
+    """Gain ``lam`` of the discrete first-order filter ``y += lam (x - y)`` (SPEC §4.3); 1 when off."""
+    if cutoff_hz <= 0.0:
+        return 1.0
+    k = 2.0 * math.pi * dt * cutoff_hz
+    return k / (k + 1.0)
+
+
+@jit
+def propagate(s, o: int, R, oR: int, dt: float, g: float, imu, oi: int) -> None:
+    """One IMU sample on the nominal state ``s[o:o+16]``, in place; ``R[oR:oR+9]`` becomes ``R_WB(q)``.
+
+    ``imu[oi:oi+6]`` is ``gyro_B [rad/s], acc_B [m/s²]`` (lever-arm corrected); see the estimator's model.
+    """
+    fx, fy, fz = imu[oi + 3] - s[o + 10], imu[oi + 4] - s[o + 11], imu[oi + 5] - s[o + 12]
+    ax = R[oR] * fx + R[oR + 1] * fy + R[oR + 2] * fz
+    ay = R[oR + 3] * fx + R[oR + 4] * fy + R[oR + 5] * fz
+    az = R[oR + 6] * fx + R[oR + 7] * fy + R[oR + 8] * fz - g
+    h = 0.5 * dt * dt
+    s[o] += s[o + 3] * dt + ax * h
+    s[o + 1] += s[o + 4] * dt + ay * h
+    s[o + 2] += s[o + 5] * dt + az * h
+    s[o + 3] += ax * dt
+    s[o + 4] += ay * dt
+    s[o + 5] += az * dt
+    wx, wy, wz = (imu[oi] - s[o + 13]) * dt, (imu[oi + 1] - s[o + 14]) * dt, (imu[oi + 2] - s[o + 15]) * dt
+    th2 = wx * wx + wy * wy + wz * wz
+    if th2 > 1e-24:
+        th = math.sqrt(th2)
+        c, k = math.cos(0.5 * th), math.sin(0.5 * th) / th
+    else:
+        c, k = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0
+    dx, dy, dz = k * wx, k * wy, k * wz
+    qw, qx, qy, qz = s[o + 6], s[o + 7], s[o + 8], s[o + 9]
+    nw = qw * c - qx * dx - qy * dy - qz * dz
+    nx = qw * dx + qx * c + qy * dz - qz * dy
+    ny = qw * dy - qx * dz + qy * c + qz * dx
+    nz = qw * dz + qx * dy - qy * dx + qz * c
+    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    s[o + 6], s[o + 7], s[o + 8], s[o + 9] = nw * inv, nx * inv, ny * inv, nz * inv
+    R9_from_quat_into(s[o + 6], s[o + 7], s[o + 8], s[o + 9], R, oR)
+
+
+@jit
+def _correct_lever_arm(x, dt: float) -> None:
+    """Remove ``omega x (omega x r) + omega_dot x r`` from the accelerometer sample ``x[UKF_IMU_C+3:+6]``."""
+    r0, r1, r2 = x[UKF_R_IMU], x[UKF_R_IMU + 1], x[UKF_R_IMU + 2]
+    lam = lpf_gain(dt, x[UKF_LEVER_CUT])
+    C, L, S = UKF_IMU_C, UKF_GLP, UKF_S
+    wd = np.empty(3)
+    for i in range(3):
+        new = x[L + i] + lam * (x[C + i] - x[L + i])
+        wd[i] = (new - x[L + i]) / dt
+        x[L + i] = new
+    wx, wy, wz = x[C] - x[S + 13], x[C + 1] - x[S + 14], x[C + 2] - x[S + 15]
+    cx, cy, cz = wy * r2 - wz * r1, wz * r0 - wx * r2, wx * r1 - wy * r0  # omega x r
+    x[C + 3] -= wy * cz - wz * cy + wd[1] * r2 - wd[2] * r1
+    x[C + 4] -= wz * cx - wx * cz + wd[2] * r0 - wd[0] * r2
+    x[C + 5] -= wx * cy - wy * cx + wd[0] * r1 - wd[1] * r0
+
+
+@jit
+def mocap_sample_valid(p, q, tol: float) -> bool:
+    """Finite position and quaternion, the quaternion's norm within ``tol`` of 1."""
+    if not (math.isfinite(p[0] + p[1] + p[2]) and math.isfinite(q[0] + q[1] + q[2] + q[3])):
+        return False
+    return abs(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) <= tol
+
+
+@jit
+def imu_valid(x, gyro, acc) -> bool:
+    """A finite sample within the sensor ranges."""
+    sg, sa = gyro[0] + gyro[1] + gyro[2], acc[0] + acc[1] + acc[2]
+    if not (math.isfinite(sg) and math.isfinite(sa)):
+        return False
+    gr, ar = x[UKF_GYRO_RANGE], x[UKF_ACC_RANGE]
+    return max(abs(gyro[0]), abs(gyro[1]), abs(gyro[2])) <= gr and max(abs(acc[0]), abs(acc[1]), abs(acc[2])) <= ar
+
+
+@jit
+def ukf_imu_step(mem, gyro, acc, t_frame: float, finish: bool, out) -> tuple:
+    """One IMU sample: period and sample validation, lever arm, buffering, mean propagation.
+
+    An invalid period (not finite, not increasing) is replaced by the nominal one, an invalid sample by the
+    last good one. With ``finish`` (no motion-capture sample to fuse in this frame) :func:`ukf_finish` follows.
+
+    Returns:
+        ``(code, t)``: ``STEP_REJECTED`` when the period or the sample was rejected, plus ``STEP_DEGRADED``
+        from :func:`ukf_finish` with ``finish``; the time of the estimate [s].
+    """
+    x, buf, sbuf, P, W, M = views(mem)
+    rejected = False
+    dt = t_frame - x[UKF_T]
+    if not (dt > 0.0 and math.isfinite(dt)):
+        dt = x[UKF_DT_NOM]
+        rejected = True
+    t = x[UKF_T] + dt
+    x[UKF_T] = t
+    x[UKF_DT] = dt
+    if imu_valid(x, gyro, acc):
+        for i in range(3):
+            x[UKF_IMU + i] = gyro[i]
+            x[UKF_IMU + 3 + i] = acc[i]
+    else:
+        rejected = True
+    for i in range(6):
+        x[UKF_IMU_C + i] = x[UKF_IMU + i]
+    if x[UKF_LEVER] != 0.0:
+        _correct_lever_arm(x, dt)
+    k = int(x[UKF_K])
+    row = k % buf.shape[0]
+    buf[row, 0] = t
+    buf[row, 1] = dt
+    for i in range(6):
+        buf[row, 2 + i] = x[UKF_IMU_C + i]
+    propagate(x, UKF_S, x, UKF_RS, dt, x[UKF_G], x, UKF_IMU_C)
+    for i in range(16):
+        sbuf[row, i] = x[UKF_S + i]
+    x[UKF_K] = k + 1
+    code = STEP_REJECTED if rejected else 0
+    if finish:
+        code |= ukf_finish(mem, out)
+    return code, t
+
+
+@jit
+def ukf_finish(mem, out) -> int:
+    """End of a step: advance the delayed state when no motion capture came for too long, then the outputs.
+
+    Outputs: bias-corrected rate and acceleration, low-passed, and the estimate ``p_W, v_W, a_W, R_WB
+    (row-major), omega_B`` into ``out`` (21,).
+
+    Returns:
+        ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, else 0.
+    """
+    x = mem[0:UKF_SIZE]
+    k, kf = int(x[UKF_K]), int(x[UKF_KF])
+    lag_n = int(x[UKF_LAG_N])
+    if k - kf > lag_n + int(x[UKF_CHUNK_N]):
+        ukf_predict(mem, k - lag_n)
+    dt = x[UKF_DT]
+    if dt != x[UKF_LPF_DT]:
+        x[UKF_LPF_DT] = dt
+        x[UKF_LAM_W] = lpf_gain(dt, x[UKF_GYRO_CUT])
+        x[UKF_LAM_A] = lpf_gain(dt, x[UKF_ACC_CUT])
+    lam_w, lam_a = x[UKF_LAM_W], x[UKF_LAM_A]
+    S, R, C, g = UKF_S, UKF_RS, UKF_IMU_C, x[UKF_G]
+    fx, fy, fz = x[C + 3] - x[S + 10], x[C + 4] - x[S + 11], x[C + 5] - x[S + 12]
+    Wo, Ao = UKF_WO, UKF_AO
+    x[Wo] += lam_w * (x[C] - x[S + 13] - x[Wo])
+    x[Wo + 1] += lam_w * (x[C + 1] - x[S + 14] - x[Wo + 1])
+    x[Wo + 2] += lam_w * (x[C + 2] - x[S + 15] - x[Wo + 2])
+    x[Ao] += lam_a * (x[R] * fx + x[R + 1] * fy + x[R + 2] * fz - x[Ao])
+    x[Ao + 1] += lam_a * (x[R + 3] * fx + x[R + 4] * fy + x[R + 5] * fz - x[Ao + 1])
+    x[Ao + 2] += lam_a * (x[R + 6] * fx + x[R + 7] * fy + x[R + 8] * fz - g - x[Ao + 2])
+    write_estimate(x, out)
+    return STEP_DEGRADED if x[UKF_T] - x[UKF_T_ACCEPT] > x[UKF_TIMEOUT] else 0
+
+
+@jit
+def write_estimate(x, out) -> None:
+    """The estimate ``p_W, v_W, a_W, R_WB, omega_B`` (21,) of the output state into ``out``."""
+    for i in range(6):
+        out[i] = x[UKF_S + i]
+    for i in range(3):
+        out[6 + i] = x[UKF_AO + i]
+        out[18 + i] = x[UKF_WO + i]
+    for i in range(9):
+        out[9 + i] = x[UKF_RS + i]
+
+
+# -- linear algebra and SO(3) on small arrays -------------------------------------------------------------------
+
+
+@jit
+def cholesky_lower(A, L) -> int:
+    """Lower Cholesky factor of A into L (upper triangle zeroed).
+
+    Returns:
+        0, or the 1-based column where A is not positive definite (LAPACK dpotrf's ``info``).
+    """
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return j + 1
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+        for i in range(j):
+            L[i, j] = 0.0
+    return 0
+
+
+@jit
+def invert(A, out) -> bool:
+    """Inverse of a small square matrix by Gauss-Jordan elimination with partial pivoting; False if singular."""
+    n = A.shape[0]
+    a = A.copy()
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+    for c in range(n):
+        piv = c
+        big = abs(a[c, c])
+        for r in range(c + 1, n):
+            if abs(a[r, c]) > big:
+                big = abs(a[r, c])
+                piv = r
+        if big == 0.0 or big != big:
+            return False
+        if piv != c:
+            for j in range(n):
+                a[c, j], a[piv, j] = a[piv, j], a[c, j]
+                out[c, j], out[piv, j] = out[piv, j], out[c, j]
+        inv_p = 1.0 / a[c, c]
+        for j in range(n):
+            a[c, j] *= inv_p
+            out[c, j] *= inv_p
+        for r in range(n):
+            if r != c:
+                fct = a[r, c]
+                if fct != 0.0:
+                    for j in range(n):
+                        a[r, j] -= fct * a[c, j]
+                        out[r, j] -= fct * out[c, j]
+    return True
+
+
+@jit
+def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
+    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into R (3, 3) (Rodrigues, series near 0).
+
+    ``R = I + a K + b K²`` with ``K = [phi]x``, ``a = sin(th)/th``, ``b = (1 - cos th)/th²``.
+    """
+    th2 = p0 * p0 + p1 * p1 + p2 * p2
+    th = math.sqrt(th2)
+    if th2 > 1e-8:  # below, the series to th² are exact in double precision
+        a = math.sin(th) / th
+        b = (1.0 - math.cos(th)) / th2
+    else:
+        a = 1.0 - th2 / 6.0
+        b = 0.5 - th2 / 24.0
+    # K = [[0, -p2, p1], [p2, 0, -p0], [-p1, p0, 0]]; R = (K K) b + K a + I, entry by entry.
+    k01, k02, k10, k12, k20, k21 = -p2, p1, p2, -p0, -p1, p0
+    R[0, 0] = (0.0 * 0.0 + k01 * k10 + k02 * k20) * b + 0.0 * a + 1.0
+    R[0, 1] = (0.0 * k01 + k01 * 0.0 + k02 * k21) * b + k01 * a
+    R[0, 2] = (0.0 * k02 + k01 * k12 + k02 * 0.0) * b + k02 * a
+    R[1, 0] = (k10 * 0.0 + 0.0 * k10 + k12 * k20) * b + k10 * a
+    R[1, 1] = (k10 * k01 + 0.0 * 0.0 + k12 * k21) * b + 0.0 * a + 1.0
+    R[1, 2] = (k10 * k02 + 0.0 * k12 + k12 * 0.0) * b + k12 * a
+    R[2, 0] = (k20 * 0.0 + k21 * k10 + 0.0 * k20) * b + k20 * a
+    R[2, 1] = (k20 * k01 + k21 * 0.0 + 0.0 * k21) * b + k21 * a
+    R[2, 2] = (k20 * k02 + k21 * k12 + 0.0 * 0.0) * b + 0.0 * a + 1.0
+
+
+@jit
+def log_so3_into(R, out, o: int) -> None:
+    """Rotation vector [rad] of a rotation R (3, 3) with angle below pi into ``out[o:o+3]``."""
+    w0 = (R[2, 1] - R[1, 2]) * 0.5  # sin(th) * axis
+    w1 = (R[0, 2] - R[2, 0]) * 0.5
+    w2 = (R[1, 0] - R[0, 1]) * 0.5
+    sn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    th = math.atan2(sn, 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0))
+    k = th / sn if sn > 1e-12 else 1.0
+    out[o], out[o + 1], out[o + 2] = w0 * k, w1 * k, w2 * k
+
+
+@jit
+def _copy2(src, dst) -> None:
+    """``dst[...] = src`` for 2-D arrays of one shape (an explicit loop compiles much faster than a slice copy)."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@jit
+def _matmul33(A, B, out) -> None:
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+# -- unscented prediction --------------------------------------------------------------------------------------
+
+
+@jit
+def ukf_predict(mem, k_end: int) -> None:
+    """Unscented prediction of the delayed fused state over the buffered samples [kf, k_end).
+
+    The mean is the output state already propagated to sample ``k_end - 1`` (UKF-M); the covariance is the
+    unscented transform of P through the motion model in steps of at most ``cov_n`` samples with the step's
+    mean IMU reading, plus the additive process noise (see the estimator's module docstring).
+    """
+    x, buf, sbuf, P, W, M = views(mem)
+    kf = int(x[UKF_KF])
+    if k_end <= kf:
+        return
+    n, S = N_ERR, N_SIGMA
+    cap = buf.shape[0]
+    cov_n = int(x[UKF_COV_N])
+    g = x[UKF_G]
+    L = np.zeros((n, n))
+    info = cholesky_lower(P, L)
+    if info != 0:  # lost positive definiteness to rounding: symmetrise and add a little jitter
+        Pj = np.empty((n, n))
+        for i in range(n):
+            for j in range(n):
+                Pj[i, j] = 0.5 * (P[i, j] + P[j, i]) + (1e-12 if i == j else 0.0)
+        info = cholesky_lower(Pj, L)
+        if info != 0:
+            _copy2(M[M_P0], P)
+            cholesky_lower(P, L)
+    # Sigma-point offsets D (S, n): 0, +columns of L, -columns of L, scaled.
+    scale = x[UKF_UT_SCALE]
+    D = np.zeros((S, n))
+    for j in range(n):
+        for i in range(n):
+            D[1 + j, i] = L[i, j] * scale
+            D[1 + n + j, i] = -(L[i, j] * scale)
+    F = UKF_F
+    Ps = np.empty((S, 3))
+    Vs = np.empty((S, 3))
+    BA = np.empty((S, 3))
+    BG = np.empty((S, 3))
+    Rs = np.empty((S, 3, 3))
+    Rf = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Rf[i, j] = x[UKF_RF + 3 * i + j]
+    rot = np.empty((3, 3))
+    for s in range(S):
+        for i in range(3):
+            Ps[s, i] = x[F + i] + D[s, i]
+            Vs[s, i] = x[F + 3 + i] + D[s, 3 + i]
+            BA[s, i] = x[F + 10 + i] + D[s, 9 + i]
+            BG[s, i] = x[F + 13 + i] + D[s, 12 + i]
+        exp_so3_into(D[s, 6], D[s, 7], D[s, 8], rot)
+        _matmul33(Rf, rot, Rs[s])
+    # Covariance steps: duration and mean IMU reading [gyro (3), acc (3)] of each.
+    T_total = 0.0
+    m = np.empty(6)
+    a = np.empty(3)
+    tmp = np.empty((3, 3))
+    k = kf
+    while k < k_end:
+        k1 = min(k_end, k + cov_n)
+        T = 0.0
+        for i in range(6):
+            m[i] = 0.0
+        for j in range(k, k1):
+            dtj = buf[j % cap, 1]
+            T += dtj
+            for i in range(6):
+                m[i] += buf[j % cap, 2 + i] * dtj
+        for i in range(6):
+            m[i] = m[i] / T
+        half_T2 = 0.5 * T * T
+        for s in range(S):
+            b0, b1, b2 = m[3] - BA[s, 0], m[4] - BA[s, 1], m[5] - BA[s, 2]
+            for i in range(3):
+                a[i] = Rs[s, i, 0] * b0 + Rs[s, i, 1] * b1 + Rs[s, i, 2] * b2
+            a[2] -= g
+            for i in range(3):
+                Ps[s, i] += Vs[s, i] * T + a[i] * half_T2
+                Vs[s, i] += a[i] * T
+            exp_so3_into((m[0] - BG[s, 0]) * T, (m[1] - BG[s, 1]) * T, (m[2] - BG[s, 2]) * T, rot)
+            _matmul33(Rs[s], rot, tmp)
+            _copy2(tmp, Rs[s])
+        T_total += T
+        k = k1
+    # Errors of the propagated sigma points relative to the first (the mean's) point.
+    E = np.empty((S, n))
+    R0T = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            R0T[i, j] = Rs[0, j, i]
+    for s in range(S):
+        for i in range(3):
+            E[s, i] = Ps[s, i] - Ps[0, i]
+            E[s, 3 + i] = Vs[s, i] - Vs[0, i]
+        _matmul33(R0T, Rs[s], tmp)
+        log_so3_into(tmp, E[s], 6)
+        for i in range(9, 15):
+            E[s, i] = D[s, i]
+    wm, wc = W[0], W[1]
+    mean = np.zeros(n)
+    for s in range(S):
+        for i in range(n):
+            mean[i] += wm[s] * E[s, i]
+    for s in range(S):
+        for i in range(n):
+            E[s, i] -= mean[i]
+    # P = sum_s wc_s dE_s dE_sᵀ (one triangle, as rank-one updates: contiguous and independent), plus Q(T).
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = 0.0
+    for s in range(S):
+        w = wc[s]
+        for i in range(n):
+            c = E[s, i] * w
+            for j in range(i, n):
+                P[i, j] += c * E[s, j]
+    T2 = T_total * T_total
+    T3 = T_total * T_total * T_total
+    for i in range(n):
+        for j in range(i, n):
+            q = M[M_Q1, i, j] * T_total
+            q += M[M_Q2, i, j] * T2
+            q += M[M_Q3, i, j] * T3
+            P[i, j] += q
+            P[j, i] = P[i, j]
+    # The mean: the output state already propagated to sample k_end - 1.
+    last = (k_end - 1) % cap
+    for i in range(16):
+        x[F + i] = sbuf[last, i]
+    R9_from_quat_into(x[F + 6], x[F + 7], x[F + 8], x[F + 9], x, UKF_RF)
+    x[UKF_T_F] = buf[last, 0]
+    x[UKF_KF] = k_end
+
+
+# -- motion-capture update -------------------------------------------------------------------------------------
+
+
+@jit
+def _q_mul(aw, ax, ay, az, bw, bx, by, bz):
+    """Hamilton product ``a ⊗ b`` of wxyz quaternions."""
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+@jit
+def _repropagate(x, buf, sbuf) -> None:
+    """Output state = fused state moved over the buffered samples after it (mean only)."""
+    for i in range(16):
+        x[UKF_S + i] = x[UKF_F + i]
+    for i in range(9):
+        x[UKF_RS + i] = x[UKF_RF + i]
+    cap = buf.shape[0]
+    g = x[UKF_G]
+    for k in range(int(x[UKF_KF]), int(x[UKF_K])):
+        row = k % cap
+        propagate(x, UKF_S, x, UKF_RS, buf[row, 1], g, buf[row], 2)
+        for i in range(16):
+            sbuf[row, i] = x[UKF_S + i]
+
+
+@jit
+def ukf_fuse(mem, t_m: float, p_m, q_m) -> int:
+    """Fuse a pose taken at ``t_m`` [s]: predict the delayed state there, update, re-propagate to now.
+
+    Args:
+        mem: the estimator's memory.
+        t_m: time the pose was taken [s].
+        p_m: (3,) measured position [m].
+        q_m: (4,) measured attitude, wxyz (normalised here).
+
+    Returns:
+        ``FUSE_OK``, or why the sample was rejected (``FUSE_*``).
+    """
+    x, buf, sbuf, P, W, M = views(mem)
+    t_now = x[UKF_T]
+    half = 0.5 * x[UKF_DT_NOM]
+    if t_m < x[UKF_T_F] - half and x[UKF_JUST_RESET] != 0.0:
+        t_m = x[UKF_T_F]  # taken before the start-up pose: there is no earlier state, fuse it at start-up
+    if t_m < x[UKF_T_F] - half or t_m > t_now + half or t_now - t_m > x[UKF_MAX_LAT] + half:
+        return FUSE_STALE
+    # The buffered samples up to t_m (nearest sample).
+    cap = buf.shape[0]
+    k_m = int(x[UKF_KF])
+    k = int(x[UKF_K])
+    while k_m < k and buf[k_m % cap, 0] <= t_m + half:
+        k_m += 1
+    ukf_predict(mem, k_m)
+    F = UKF_F
+    qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
+    mw, mx, my, mz = q_m[0] / qn, q_m[1] / qn, q_m[2] / qn, q_m[3] / qn
+    # Innovation in the error coordinates: (p_m - p, log(R_fᵀ R_m)).
+    r = np.empty(6)
+    for i in range(3):
+        r[i] = p_m[i] - x[F + i]
+    ew, ex, ey, ez = _q_mul(x[F + 6], -x[F + 7], -x[F + 8], -x[F + 9], mw, mx, my, mz)
+    if ew < 0.0:
+        ew, ex, ey, ez = -ew, -ex, -ey, -ez
+    nv = math.sqrt(ex * ex + ey * ey + ez * ez)
+    kq = 2.0 * math.atan2(nv, ew) / nv if nv > 1e-12 else 2.0
+    r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
+    sel = np.array([0, 1, 2, 6, 7, 8])
+    n = N_ERR
+    PHt = np.empty((n, 6))
+    for i in range(n):
+        for j in range(6):
+            PHt[i, j] = P[i, sel[j]]
+    S_mat = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            S_mat[i, j] = PHt[sel[i], j] + M[M_RN, i, j]
+    S_inv = np.empty((6, 6))
+    if not invert(S_mat, S_inv):
+        return FUSE_SINGULAR
+    d2 = 0.0
+    for j in range(6):
+        acc = 0.0
+        for i in range(6):
+            acc += r[i] * S_inv[i, j]
+        d2 += acc * r[j]
+    if not d2 <= x[UKF_GATE]:
+        x[UKF_GATE_FAILS] += 1.0
+        if x[UKF_GATE_FAILS] >= x[UKF_REINIT_AFTER]:
+            # The filter is lost: take the motion-capture pose, keep velocity and biases, reset P.
+            for i in range(3):
+                x[F + i] = p_m[i]
+            x[F + 6], x[F + 7], x[F + 8], x[F + 9] = mw, mx, my, mz
+            R9_from_quat_into(mw, mx, my, mz, x, UKF_RF)
+            _copy2(M[M_P0], P)
+            x[UKF_GATE_FAILS] = 0.0
+            x[UKF_T_ACCEPT] = t_now
+            _repropagate(x, buf, sbuf)
+            return FUSE_REINIT
+        return FUSE_GATE
+    x[UKF_GATE_FAILS] = 0.0
+    K = np.empty((n, 6))
+    for i in range(n):
+        for j in range(6):
+            acc = 0.0
+            for l in range(6):
+                acc += PHt[i, l] * S_inv[l, j]
+            K[i, j] = acc
+    dx = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(6):
+            acc += K[i, j] * r[j]
+        dx[i] = acc
+    Pn = np.empty((n, n))  # (I - K H) P
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for l in range(6):
+                acc += K[i, l] * PHt[j, l]
+            Pn[i, j] = P[i, j] - acc
+    # Inject the error into the nominal state.
+    for i in range(6):
+        x[F + i] += dx[i]
+    th = math.sqrt(dx[6] * dx[6] + dx[7] * dx[7] + dx[8] * dx[8])
+    kq = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
+    qw, qx, qy, qz = _q_mul(
+        x[F + 6], x[F + 7], x[F + 8], x[F + 9], math.cos(0.5 * th), kq * dx[6], kq * dx[7], kq * dx[8]
+    )
+    qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    x[F + 6], x[F + 7], x[F + 8], x[F + 9] = qw / qn, qx / qn, qy / qn, qz / qn
+    R9_from_quat_into(x[F + 6], x[F + 7], x[F + 8], x[F + 9], x, UKF_RF)
+    for i in range(9, 15):
+        x[F + i + 1] += dx[i]
+    # Reset: the attitude error is now relative to the corrected mean, P -> G P Gᵀ, G = I - [dtheta/2]x.
+    # It changes P by a relative |dtheta|/2, so it is skipped for the usual sub-milliradian corrections.
+    hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
+    if hx * hx + hy * hy + hz * hz > _RESET_MIN_RAD2:
+        Gt = np.array([[1.0, hz, -hy], [-hz, 1.0, hx], [hy, -hx, 1.0]])
+        rows = np.empty((3, n))
+        for i in range(3):
+            for j in range(n):
+                rows[i, j] = Gt[i, 0] * Pn[6, j] + Gt[i, 1] * Pn[7, j] + Gt[i, 2] * Pn[8, j]
+        for i in range(3):
+            for j in range(n):
+                Pn[6 + i, j] = rows[i, j]
+        cols = np.empty((n, 3))
+        for i in range(n):
+            for j in range(3):
+                cols[i, j] = Pn[i, 6] * Gt[j, 0] + Pn[i, 7] * Gt[j, 1] + Pn[i, 8] * Gt[j, 2]
+        for i in range(n):
+            for j in range(3):
+                Pn[i, 6 + j] = cols[i, j]
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
+    x[UKF_T_ACCEPT] = t_now
+    x[UKF_JUST_RESET] = 0.0
+    _repropagate(x, buf, sbuf)
+    return FUSE_OK

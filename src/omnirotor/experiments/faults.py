@@ -1,0 +1,537 @@
+"""Faults and plant-only perturbations for robustness studies (issue "Robustness"; SPEC §1.4, §4.5, §7).
+
+Two things make a simulated run differ from what the controller and the reference believe:
+
+* :class:`PlantPerturbation`: the plant is not the model. The simulator flies a vehicle whose mass and
+  inertia differ from the controller's (``mass_scale``, ``inertia_scale``), in a scene moved by
+  ``scene_offset_W`` from where the reference trajectory was planned, with simulator overrides (truth
+  aerodynamics, sensors, friction, ...) that only the plant sees, and a schedule of faults.
+* Faults, timed events applied by a :class:`FaultInjector`, a wrapper that sits between the simulator and the
+  controller and edits the :class:`~omnirotor.messages.SensorFrame` and
+  :class:`~omnirotor.messages.RotorCommand` they exchange. It looks like a :class:`~omnirotor.sim.Simulator`
+  to :func:`~omnirotor.experiments.closed_loop.run_closed_loop` (same ``reset``, ``step``, ``truth``,
+  ``dt``, ``t``; everything else is forwarded to the wrapped simulator).
+
+Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s)``):
+
+* :class:`MocapDropout`: no motion-capture sample is delivered in the window (nor any taken in it). The
+  UKF flies on the IMU, flags the estimate ``ESTIMATE_DEGRADED`` after its ``mocap_timeout_s`` and clears
+  the flag at the next accepted sample. The bypass estimator reads ``SensorFrame.state``, which stands for
+  a working estimator, so a dropout does not touch it unless ``drop_state`` is set (the state is then
+  missing, and the bypass estimator holds its last state flagged degraded).
+* :class:`RotorFailure`: from ``t_start_s`` on, the command of one rotor is forced to 0 Hz at the plant
+  boundary (the motor stops; its speed decays through the rotor lag, SPEC §1.4). With ``tell_controller``
+  the controller is told after ``detect_delay_s`` through
+  :meth:`~omnirotor.control.controller.InteractionController.set_failed_rotors`, and its allocation then
+  excludes the rotor.
+* :class:`SensorCorruption`: NaN, inf, or an added spike in one signal of the frame (accelerometer,
+  gyroscope, rotor speeds, motion capture, bypass state) over a window.
+* :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"
+  profile, applied through :meth:`~omnirotor.sim.Simulator.set_external_wrench` (the gust owns the external
+  wrench while it blows and clears it after).
+
+The injector also checks every command the controller sends (``commands_nonfinite``,
+``commands_out_of_limits``): the project's rule is that nothing non-finite, nor beyond the rotor limits,
+reaches the motors. :func:`safety_stats` gives the same verdict, and the count of each status flag, from
+a controller log.
+
+Unreachable references (a waypoint 5 m away in 0.5 s, a 180° flip in 0.2 s) need no injector: they are
+trajectories (:func:`unreachable_reference`), and the allocation saturates them safely (``SATURATED``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from omnirotor.config import apply_overrides, check_finite, check_positive
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.errors import InputError
+from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.so3 import rot_x
+from omnirotor.vehicle import VehicleParams
+
+__all__ = [
+    "MocapDropout",
+    "RotorFailure",
+    "SensorCorruption",
+    "WindGust",
+    "Fault",
+    "PlantPerturbation",
+    "FaultInjector",
+    "plant_simulator",
+    "safety_stats",
+    "unreachable_reference",
+    "CORRUPTIBLE_SIGNALS",
+    "CORRUPTION_KINDS",
+    "GUST_PROFILES",
+]
+
+CORRUPTIBLE_SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state")
+"""Signals of a :class:`~omnirotor.messages.SensorFrame` a :class:`SensorCorruption` can hit."""
+CORRUPTION_KINDS = ("nan", "inf", "spike")
+GUST_PROFILES = ("1-cos", "step")
+_SCENE_POINTS = ("wall_point", "tilted_wall_point", "pipe_centre", "hole_entrance", "free_start")
+"""The scene anchors moved by :attr:`PlantPerturbation.scene_offset_W`."""
+
+
+def _check_window(name: str, t_start_s: float, duration_s: float | None) -> None:
+    check_finite(f"{name}.t_start_s", t_start_s)
+    if t_start_s < 0:
+        raise InputError(f"{name}.t_start_s must be >= 0, got {t_start_s}")
+    if duration_s is not None:
+        check_positive(f"{name}.duration_s", duration_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class MocapDropout:
+    """Motion capture lost for a while (module docstring).
+
+    Attributes:
+        t_start_s: start of the dropout [s].
+        duration_s: its length [s].
+        drop_state: also remove ``SensorFrame.state`` (what the bypass estimator reads) in the window.
+    """
+
+    t_start_s: float
+    duration_s: float
+    drop_state: bool = False
+
+    def __post_init__(self) -> None:
+        _check_window("mocap_dropout", self.t_start_s, self.duration_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class RotorFailure:
+    """One motor stops for good (module docstring).
+
+    Attributes:
+        rotor: the failed rotor, numbered from 1 as in the logs.
+        t_start_s: when it stops [s].
+        tell_controller: tell the controller (``set_failed_rotors``) after ``detect_delay_s``.
+        detect_delay_s: time from the failure to the controller being told [s].
+    """
+
+    rotor: int
+    t_start_s: float
+    tell_controller: bool = True
+    detect_delay_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.rotor, bool) or not isinstance(self.rotor, (int, np.integer)) or self.rotor < 1:
+            raise InputError(f"rotor_failure.rotor must be an integer >= 1, got {self.rotor!r}")
+        _check_window("rotor_failure", self.t_start_s, None)
+        check_finite("rotor_failure.detect_delay_s", self.detect_delay_s)
+        if self.detect_delay_s < 0:
+            raise InputError(f"rotor_failure.detect_delay_s must be >= 0, got {self.detect_delay_s}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorCorruption:
+    """Bad values in one sensor signal over a window (module docstring).
+
+    Attributes:
+        signal: one of :data:`CORRUPTIBLE_SIGNALS`.
+        t_start_s: start [s].
+        duration_s: length [s] (one control period for a single bad sample).
+        kind: "nan", "inf" or "spike" (``magnitude`` added to every component).
+        magnitude: the spike, in the signal's unit (m/s², rad/s, Hz, m; for "state": m on the position).
+        component: only this component (0-based) of the signal; None for all of them.
+    """
+
+    signal: str
+    t_start_s: float
+    duration_s: float
+    kind: str = "nan"
+    magnitude: float = 0.0
+    component: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.signal not in CORRUPTIBLE_SIGNALS:
+            raise InputError(f"sensor_corruption.signal must be one of {', '.join(CORRUPTIBLE_SIGNALS)}")
+        if self.kind not in CORRUPTION_KINDS:
+            raise InputError(f"sensor_corruption.kind must be one of {', '.join(CORRUPTION_KINDS)}")
+        _check_window("sensor_corruption", self.t_start_s, self.duration_s)
+        check_finite("sensor_corruption.magnitude", self.magnitude)
+        if self.component is not None and (
+            isinstance(self.component, bool) or not isinstance(self.component, int) or self.component < 0
+        ):
+            raise InputError(f"sensor_corruption.component must be an integer >= 0, got {self.component!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class WindGust:
+    """An external wrench at the CoM, world frame, over a window (module docstring).
+
+    Attributes:
+        t_start_s: start [s].
+        duration_s: length [s].
+        force_W: (3,) peak force [N].
+        moment_W: (3,) peak moment [N·m].
+        profile: "1-cos" (``0.5 (1 - cos(2 pi tau))`` of the peak, ``tau`` the fraction of the window) or
+            "step" (the peak throughout).
+    """
+
+    t_start_s: float
+    duration_s: float
+    force_W: tuple[float, float, float]
+    moment_W: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    profile: str = "1-cos"
+
+    def __post_init__(self) -> None:
+        _check_window("wind_gust", self.t_start_s, self.duration_s)
+        if len(self.force_W) != 3 or len(self.moment_W) != 3:
+            raise InputError("wind_gust.force_W and moment_W must have 3 components")
+        check_finite("wind_gust.force_W", *self.force_W)
+        check_finite("wind_gust.moment_W", *self.moment_W)
+        if self.profile not in GUST_PROFILES:
+            raise InputError(f"wind_gust.profile must be one of {', '.join(GUST_PROFILES)}")
+
+    def scale(self, t: float) -> float:
+        """Fraction of the peak at time ``t`` [s] (0 outside the window)."""
+        tau = (t - self.t_start_s) / self.duration_s
+        if not 0.0 <= tau < 1.0:
+            return 0.0
+        return 1.0 if self.profile == "step" else 0.5 * (1.0 - math.cos(2.0 * math.pi * tau))
+
+
+Fault = MocapDropout | RotorFailure | SensorCorruption | WindGust
+_FAULT_TYPES = (MocapDropout, RotorFailure, SensorCorruption, WindGust)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantPerturbation:
+    """How the plant differs from what the controller and the reference believe (module docstring).
+
+    Attributes:
+        mass_scale: true mass over the believed one.
+        inertia_scale: (3,) true principal inertia over the believed one, per axis.
+        scene_offset_W: (3,) the true scene's displacement from the planned one [m] (walls, pipe, hole).
+        sim_overrides: dotted ``key=value`` overrides of the simulator parameters seen by the plant only.
+        faults: the fault schedule.
+    """
+
+    mass_scale: float = 1.0
+    inertia_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    scene_offset_W: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sim_overrides: tuple[str, ...] = ()
+    faults: tuple[Fault, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_positive("plant.mass_scale", self.mass_scale)
+        if len(self.inertia_scale) != 3 or len(self.scene_offset_W) != 3:
+            raise InputError("plant.inertia_scale and plant.scene_offset_W must have 3 components")
+        for s in self.inertia_scale:
+            check_positive("plant.inertia_scale", s)
+        check_finite("plant.scene_offset_W", *self.scene_offset_W)
+        for f in self.faults:
+            if not isinstance(f, _FAULT_TYPES):
+                raise InputError(f"plant.faults: not a fault: {f!r}")
+
+    @property
+    def is_identity(self) -> bool:
+        """True when the plant is exactly the believed model and nothing is injected."""
+        return self == PlantPerturbation()
+
+    def vehicle(self, believed: VehicleParams) -> VehicleParams:
+        """The true vehicle: the believed one with the mass and inertia scaled.
+
+        Raises:
+            InputError: the scaled inertia is not physical.
+        """
+        if self.mass_scale == 1.0 and tuple(self.inertia_scale) == (1.0, 1.0, 1.0):
+            return believed
+        J = tuple(float(j * s) for j, s in zip(believed.inertia_diag, self.inertia_scale, strict=True))
+        return dataclasses.replace(believed, mass=believed.mass * self.mass_scale, inertia_diag=J)
+
+    def sim_params(self, believed: SimParams) -> SimParams:
+        """The true simulator parameters: the scene moved by ``scene_offset_W``, then ``sim_overrides``."""
+        params = believed
+        if any(self.scene_offset_W):
+            d = self.scene_offset_W
+            moved = {
+                name: tuple(float(a + b) for a, b in zip(getattr(params.scene, name), d, strict=True))
+                for name in _SCENE_POINTS
+            }
+            params = dataclasses.replace(params, scene=dataclasses.replace(params.scene, **moved))
+        return apply_overrides(params, list(self.sim_overrides))
+
+
+class FaultInjector:
+    """A :class:`~omnirotor.sim.Simulator` with a fault schedule between it and the controller.
+
+    Args:
+        sim: the simulator (the plant).
+        faults: the schedule.
+        controller: the controller to tell about rotor failures (anything with ``set_failed_rotors``);
+            None: nobody is told.
+
+    Attributes:
+        sim: the wrapped simulator.
+        faults: the schedule.
+        events: ``(t [s], description)`` of each fault's onset and end, in order (for reports).
+        commands_checked: commands received since the last reset.
+        commands_nonfinite: of those, commands with a non-finite speed.
+        commands_out_of_limits: of those, commands with a speed beyond the vehicle's limits.
+
+    Raises:
+        InputError: a fault names a rotor the vehicle does not have, or a controller is needed but has
+            no ``set_failed_rotors``.
+    """
+
+    def __init__(self, sim: Simulator, faults: Sequence[Fault] = (), controller=None) -> None:
+        self.sim = sim
+        self.faults = tuple(faults)
+        self.controller = controller
+        n = sim.vehicle.n_rotors
+        for f in self.faults:
+            if not isinstance(f, _FAULT_TYPES):
+                raise InputError(f"not a fault: {f!r}")
+            if isinstance(f, RotorFailure):
+                if f.rotor > n:
+                    raise InputError(f"rotor_failure.rotor {f.rotor}: the vehicle has {n} rotors")
+                if f.tell_controller and controller is not None and not hasattr(controller, "set_failed_rotors"):
+                    raise InputError("rotor_failure.tell_controller needs a controller with set_failed_rotors")
+        self._failures = [f for f in self.faults if isinstance(f, RotorFailure)]
+        self._dropouts = [f for f in self.faults if isinstance(f, MocapDropout)]
+        self._corruptions = [f for f in self.faults if isinstance(f, SensorCorruption)]
+        self._gusts = [f for f in self.faults if isinstance(f, WindGust)]
+        self._frame_faults = bool(self._dropouts or self._corruptions)
+        self._lo = float(sim.vehicle.omega_min_hz)
+        self._hi = float(sim.vehicle.omega_max_hz)
+        self._failed = np.zeros(n, dtype=bool)
+        self._omega = np.zeros(n)
+        self._failed_on: list[bool] = []
+        self._told: list[bool] = []
+        self._gust_on = False
+        self._drop_on = [False] * len(self._dropouts)
+        self._corr_on = [False] * len(self._corruptions)
+        self.events: list[tuple[float, str]] = []
+        self.commands_checked = 0
+        self.commands_nonfinite = 0
+        self.commands_out_of_limits = 0
+
+    # -- the Simulator interface ---------------------------------------------------------------------------
+
+    def __getattr__(self, name: str):
+        # Only called for attributes not found on the injector: vehicle, params, scene, model, data, ...
+        if name == "sim":
+            raise AttributeError(name)
+        return getattr(self.sim, name)
+
+    @property
+    def dt(self) -> float:
+        """Control period [s]."""
+        return self.sim.dt
+
+    @property
+    def t(self) -> float:
+        """Simulation time [s]."""
+        return self.sim.t
+
+    @property
+    def truth(self):
+        """The wrapped simulator's ground truth (unaffected by the faults, except through the physics)."""
+        return self.sim.truth
+
+    def reset(self, *args, **kwargs) -> SensorFrame:
+        """Reset the simulator (same arguments as :meth:`Simulator.reset`) and the schedule."""
+        frame = self.sim.reset(*args, **kwargs)
+        self._failed[:] = False
+        self._failed_on = [False] * len(self._failures)
+        self._told = [False] * len(self._failures)
+        self._gust_on = False
+        self._drop_on = [False] * len(self._dropouts)
+        self._corr_on = [False] * len(self._corruptions)
+        self.events = []
+        self.commands_checked = self.commands_nonfinite = self.commands_out_of_limits = 0
+        if self.controller is not None and any(f.tell_controller for f in self._failures):
+            self.controller.set_failed_rotors(None)
+        return self._edit_frame(frame) if self._frame_faults else frame
+
+    def step(self, cmd: RotorCommand) -> SensorFrame:
+        """Check ``cmd``, apply the faults due at the current time, step the plant, edit its frame."""
+        t = self.sim.t
+        omega = cmd.omega_hz
+        self.commands_checked += 1
+        lo, hi = omega.min(), omega.max()
+        if not (lo >= self._lo and hi <= self._hi):  # also catches NaN
+            if not np.all(np.isfinite(omega)):
+                self.commands_nonfinite += 1
+            else:
+                self.commands_out_of_limits += 1
+        if self._failures:
+            cmd = self._apply_failures(t, cmd)
+        if self._gusts:
+            self._apply_gusts(t)
+        frame = self.sim.step(cmd)
+        return self._edit_frame(frame) if self._frame_faults else frame
+
+    # -- faults --------------------------------------------------------------------------------------------
+
+    def _apply_failures(self, t: float, cmd: RotorCommand) -> RotorCommand:
+        for i, f in enumerate(self._failures):
+            if t + 1e-12 < f.t_start_s:
+                continue
+            if not self._failed_on[i]:
+                self._failed_on[i] = True
+                self._failed[f.rotor - 1] = True
+                self.events.append((t, f"rotor {f.rotor} fails"))
+            if f.tell_controller and not self._told[i] and t + 1e-12 >= f.t_start_s + f.detect_delay_s:
+                self._told[i] = True
+                if self.controller is not None:
+                    self.controller.set_failed_rotors(self._failed.copy())
+                    self.events.append((t, f"controller told rotor {f.rotor} failed"))
+        if not self._failed.any():
+            return cmd
+        np.copyto(self._omega, cmd.omega_hz)
+        self._omega[self._failed] = 0.0
+        return RotorCommand(cmd.t, self._omega.copy(), cmd.status)
+
+    def _apply_gusts(self, t: float) -> None:
+        f = [0.0, 0.0, 0.0]
+        m = [0.0, 0.0, 0.0]
+        on = False
+        for g in self._gusts:
+            s = g.scale(t)
+            if s > 0.0:
+                on = True
+                for k in range(3):
+                    f[k] += s * g.force_W[k]
+                    m[k] += s * g.moment_W[k]
+        if on or self._gust_on:
+            self.sim.set_external_wrench(np.array(f), np.array(m), at="com")
+        if on != self._gust_on:
+            self.events.append((t, "wind gust starts" if on else "wind gust ends"))
+        self._gust_on = on
+
+    def _edit_frame(self, frame: SensorFrame) -> SensorFrame:
+        t = frame.t
+        changes: dict = {}
+        for i, d in enumerate(self._dropouts):
+            t1 = d.t_start_s + d.duration_s
+            active = d.t_start_s <= t < t1
+            if active != self._drop_on[i]:
+                self._drop_on[i] = active
+                self.events.append((t, "motion-capture dropout " + ("starts" if active else "ends")))
+            taken_in = frame.mocap_new and d.t_start_s <= frame.mocap_t < t1
+            if active or taken_in:
+                changes.update(mocap_new=False, mocap_t=0.0, mocap_p_W=None, mocap_q_WB=None)
+                if d.drop_state and active:
+                    changes["state"] = None
+        for i, c in enumerate(self._corruptions):
+            active = c.t_start_s <= t < c.t_start_s + c.duration_s
+            if active != self._corr_on[i]:
+                self._corr_on[i] = active
+                self.events.append((t, f"{c.kind} on {c.signal} " + ("starts" if active else "ends")))
+            if active:
+                self._corrupt(frame, c, changes)
+        return dataclasses.replace(frame, **changes) if changes else frame
+
+    @staticmethod
+    def _bad(values: np.ndarray, c: SensorCorruption) -> np.ndarray:
+        out = np.array(values, dtype=float)
+        idx = slice(None) if c.component is None else c.component
+        if c.component is not None and c.component >= out.size:
+            return out
+        if c.kind == "nan":
+            out[idx] = math.nan
+        elif c.kind == "inf":
+            out[idx] = math.inf
+        else:
+            out[idx] += c.magnitude
+        return out
+
+    def _corrupt(self, frame: SensorFrame, c: SensorCorruption, changes: dict) -> None:
+        if c.signal == "imu_acc":
+            changes["imu_acc_B"] = self._bad(changes.get("imu_acc_B", frame.imu_acc_B), c)
+        elif c.signal == "imu_gyro":
+            changes["imu_gyro_B"] = self._bad(changes.get("imu_gyro_B", frame.imu_gyro_B), c)
+        elif c.signal == "rotor_hz":
+            changes["rotor_hz"] = self._bad(changes.get("rotor_hz", frame.rotor_hz), c)
+        elif c.signal == "mocap":
+            if changes.get("mocap_new", frame.mocap_new) and frame.mocap_p_W is not None:
+                changes["mocap_p_W"] = self._bad(changes.get("mocap_p_W", frame.mocap_p_W), c)
+                if c.kind != "spike":
+                    changes["mocap_q_WB"] = self._bad(changes.get("mocap_q_WB", frame.mocap_q_WB), c)
+        else:  # state
+            state = changes.get("state", frame.state)
+            if state is not None:
+                changes["state"] = dataclasses.replace(state, p_W=self._bad(state.p_W, c))
+
+
+def plant_simulator(
+    believed_vehicle: VehicleParams,
+    scene: str,
+    believed_params: SimParams,
+    seed: int,
+    plant: PlantPerturbation | None,
+    controller=None,
+) -> Simulator | FaultInjector:
+    """The simulator of the true plant: the believed one perturbed by ``plant``, faults injected.
+
+    Args:
+        believed_vehicle: the vehicle the controller flies with.
+        scene: scene name.
+        believed_params: the simulator parameters the reference was planned with.
+        seed: simulator noise seed.
+        plant: the perturbation (None: the believed plant, no faults).
+        controller: told about rotor failures.
+
+    Returns:
+        A :class:`~omnirotor.sim.Simulator`, wrapped in a :class:`FaultInjector` when faults are scheduled.
+    """
+    if plant is None:
+        return Simulator(believed_vehicle, scene=scene, params=believed_params, seed=seed)
+    sim = Simulator(plant.vehicle(believed_vehicle), scene=scene, params=plant.sim_params(believed_params), seed=seed)
+    return FaultInjector(sim, plant.faults, controller) if plant.faults else sim
+
+
+def safety_stats(omega_cmd_hz: np.ndarray, status: np.ndarray, vehicle: VehicleParams) -> dict:
+    """Were all commands finite and within the limits, and how often was each status flag raised?
+
+    Args:
+        omega_cmd_hz: (k, n) the commands of a run [Hz] (the controller log's ``omega_cmd_hz``).
+        status: (k,) the :class:`~omnirotor.messages.ControlStatus` bits of each step.
+        vehicle: the vehicle whose limits apply.
+
+    Returns:
+        ``{"commands_finite", "commands_within_limits", "steps", "flags": {name: steps}}``.
+    """
+    w = np.asarray(omega_cmd_hz, dtype=float)
+    bits = np.asarray(status).astype(np.int64)
+    finite = bool(np.all(np.isfinite(w)))
+    within = finite and bool(np.all((w >= vehicle.omega_min_hz) & (w <= vehicle.omega_max_hz)))
+    flags = {
+        f.name.lower(): int(np.count_nonzero(bits & int(f))) for f in ControlStatus if f != ControlStatus.OK and f.name
+    }
+    return {"commands_finite": finite, "commands_within_limits": within, "steps": int(bits.size), "flags": flags}
+
+
+def unreachable_reference(
+    p_E_W: np.ndarray, R_WB: np.ndarray, kind: str, t_start_s: float = 1.0, hold_s: float = 4.0
+) -> PoseTrajectory:
+    """An EE reference the vehicle cannot follow: "jump" (5 m sideways in 0.5 s) or "flip" (180° in 0.2 s).
+
+    The reference rests at ``(p_E_W, R_WB)`` until ``t_start_s``, makes the impossible move, and holds the
+    new pose for ``hold_s`` [s], long enough to see the vehicle recover.
+
+    Raises:
+        InputError: unknown kind.
+    """
+    p0 = np.asarray(p_E_W, dtype=float)
+    R0 = np.asarray(R_WB, dtype=float)
+    if kind == "jump":
+        move_s, p1, R1 = 0.5, p0 + np.array([5.0, 0.0, 0.0]), R0
+    elif kind == "flip":
+        move_s, p1, R1 = 0.2, p0, R0 @ rot_x(math.pi)
+    else:
+        raise InputError(f"unreachable reference kind must be 'jump' or 'flip', got {kind!r}")
+    t1 = t_start_s + move_s
+    return PoseTrajectory(
+        [Waypoint(0.0, p0, R0), Waypoint(t_start_s, p0, R0), Waypoint(t1, p1, R1), Waypoint(t1 + hold_s, p1, R1)]
+    )

@@ -1,0 +1,423 @@
+"""Compiled kernels of the simulator's step (see :mod:`omnirotor._jit` for how they are compiled).
+
+Each kernel is the only implementation of its math, and the docstring of the module that calls it states
+the model (SPEC section cited there):
+
+* :func:`rotor_step`: the first-order speed lag of :mod:`omnirotor.sim.rotors` (SPEC §1.4);
+* :func:`interference_efficiency`, :func:`interference_wrench`: the slipstream-interference truth of
+  :mod:`omnirotor.sim.aero` (SPEC §7), on its precomputed (n, 2n) inflow matrix;
+* :func:`apply_wrench`: body wrench to ``xfrc_applied`` (world frame, at the CoM) plus the external wrench,
+  :meth:`omnirotor.sim.simulator.Simulator.step`;
+* :func:`imu_measure_into`, :func:`sense`: the sensor models of :mod:`omnirotor.sim.sensors` (IMU, measured
+  rotor speeds, the bypass state) read straight from MuJoCo's ``qpos``, ``qvel``, ``qacc``, ``xmat``.
+
+The arithmetic is written in the order of the NumPy / Python float code it replaced, so that results agree to
+the last bit except where a matrix-vector product was summed by BLAS (a rounding).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from omnirotor._jit import R9_from_quat_into, jit
+
+__all__ = [
+    "rotor_step",
+    "pack_interference",
+    "interference_efficiency",
+    "interference_wrench",
+    "apply_wrench",
+    "imu_measure_into",
+    "quat_perturb_into",
+    "sense",
+    "EXT_SIZE",
+    "IMU_PAR_SIZE",
+    "STATE_NONE",
+    "STATE_EXACT",
+    "STATE_NOISY",
+    "actuate",
+    "AERO_NOMINAL",
+    "AERO_INTERFERENCE",
+    "truth_into",
+    "truth_row_into",
+    "TRUTH_SIZE",
+    "TRUTH_ROW_SIZE",
+]
+
+# Layout of the external-wrench array of apply_wrench: f_W (3), m_W (3), p_E_B (3), active, at the EE tip.
+_EXT_F, _EXT_M, _EXT_PE, _EXT_ON, _EXT_AT_EE = 0, 3, 6, 9, 10
+EXT_SIZE = 11
+# Layout of the IMU parameter array: gravity, acc bias (3), gyro bias (3), offset r_B (3), has offset.
+_IMU_G, _IMU_BA, _IMU_BG, _IMU_R, _IMU_HAS_R = 0, 1, 4, 7, 10
+IMU_PAR_SIZE = 11
+# What sense() writes after the rotor speeds.
+STATE_NONE, STATE_EXACT, STATE_NOISY = 0, 1, 2
+
+
+@jit
+def rotor_step(omega_hz, u_hz2, cmd_hz, lo: float, hi: float, alpha: float, dead_band_hz: float) -> None:
+    """One period of the rotor speed lag, in place.
+
+    Per rotor: the command is set to 0 inside the dead band ``(-db, db)`` (when ``db > 0``), clipped to
+    ``[lo, hi]`` (a NaN command holds the speed), and ``omega += alpha (target - omega)``; then
+    ``u = |omega| omega``.
+
+    Args:
+        omega_hz: (n,) speeds [Hz], updated.
+        u_hz2: (n,) output inputs [Hz²].
+        cmd_hz: (n,) commanded speeds [Hz].
+        lo: lower speed limit [Hz].
+        hi: upper speed limit [Hz].
+        alpha: ``1 - exp(-dt / tau_m)``.
+        dead_band_hz: dead band half-width [Hz]; 0 disables it.
+    """
+    for i in range(omega_hz.shape[0]):
+        c = cmd_hz[i]
+        if dead_band_hz > 0.0 and -dead_band_hz < c < dead_band_hz:
+            c = 0.0
+        w = omega_hz[i]
+        if lo <= c <= hi:
+            target = c
+        elif c > hi:
+            target = hi
+        elif c < lo:
+            target = lo
+        else:  # NaN: hold
+            target = w
+        w = w + alpha * (target - w)
+        omega_hz[i] = w
+        u_hz2[i] = abs(w) * w
+
+
+def pack_interference(K2, v_coef, A_kappa, neg_eta_gain: float, eta_lo: float, eta_hi: float, n_floor: float):
+    """The (n + 8, 2n) array the interference kernels read (one argument instead of seven).
+
+    Rows ``0:n``: the inflow matrix ``K2`` (n, 2n); rows ``n:n+6``, columns ``0:n``: ``A_kappa`` (6, n);
+    row ``n+6``, columns ``0:n``: ``v_coef``; row ``n+7``: ``neg_eta_gain, eta_lo, eta_hi, n_floor``.
+    """
+    n = v_coef.shape[0]
+    model = np.zeros((n + 8, max(2 * n, 4)))
+    model[0:n, 0 : 2 * n] = K2
+    model[n : n + 6, 0:n] = A_kappa
+    model[n + 6, 0:n] = v_coef
+    model[n + 7, 0:4] = (neg_eta_gain, eta_lo, eta_hi, n_floor)
+    return model
+
+
+@jit
+def interference_efficiency(u, model, eta) -> None:
+    """Rotor efficiencies of SPEC §7 (:class:`omnirotor.sim.aero.InterferenceAero`), written into ``eta``.
+
+    ``n_i = max(sqrt|u_i|, n_floor)``, ``b = [min(s v, 0); max(s v, 0)]`` with ``s_j v_j = u_j / n_j v_coef_j``,
+    ``eta_i = clip(1 + neg_eta_gain (K2 b)_i (u_i / n_i) / n_i², eta_lo, eta_hi)`` (NaN propagates).
+
+    Args:
+        u: (n,) inputs [Hz²].
+        model: the packed model of :func:`pack_interference`.
+        eta: (n,) output.
+    """
+    n = u.shape[0]
+    v_coef = model[n + 6]
+    neg_eta_gain, eta_lo, eta_hi, n_floor = model[n + 7, 0], model[n + 7, 1], model[n + 7, 2], model[n + 7, 3]
+    b = np.empty(2 * n)
+    for j in range(n):
+        nj = math.sqrt(abs(u[j]))
+        if nj < n_floor:
+            nj = n_floor
+        t = (u[j] / nj) * v_coef[j]
+        b[j] = t if (t < 0.0 or t != t) else 0.0
+        b[n + j] = t if (t > 0.0 or t != t) else 0.0
+    for i in range(n):
+        acc = 0.0
+        for j in range(2 * n):
+            acc += model[i, j] * b[j]
+        ni = math.sqrt(abs(u[i]))
+        if ni < n_floor:
+            ni = n_floor
+        e = acc * ((u[i] / ni) / (ni * ni))
+        e = e * neg_eta_gain
+        e = e + 1.0
+        if e > eta_hi:
+            e = eta_hi
+        if e < eta_lo:
+            e = eta_lo
+        eta[i] = e
+
+
+@jit
+def interference_wrench(u, model, out) -> None:
+    """True body wrench ``A_kappa (eta * u)`` of SPEC §7 into ``out`` (6,) (model: :func:`pack_interference`)."""
+    n = u.shape[0]
+    eta = np.empty(n)
+    interference_efficiency(u, model, eta)
+    for r in range(6):
+        acc = 0.0
+        for j in range(n):
+            acc += model[n + r, j] * (eta[j] * u[j])
+        out[r] = acc
+
+
+@jit
+def apply_wrench(qpos, qp: int, w_B, ext, xfrc) -> None:
+    """Rotor wrench (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
+
+    ``R_WB`` is that of the quaternion ``qpos[qp+3 : qp+7]``; ``ext`` holds ``f_W, m_W, p_E_B, active, at_ee``
+    (see ``EXT_SIZE``): an active force applied at the EE tip adds its moment ``(R p_E_B) x f_W``.
+    """
+    R = np.empty(9)
+    R9_from_quat_into(qpos[qp + 3], qpos[qp + 4], qpos[qp + 5], qpos[qp + 6], R, 0)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R[0], R[1], R[2], R[3], R[4], R[5], R[6], R[7], R[8]
+    fx, fy, fz, mx, my, mz = w_B[0], w_B[1], w_B[2], w_B[3], w_B[4], w_B[5]
+    Fx = r00 * fx + r01 * fy + r02 * fz
+    Fy = r10 * fx + r11 * fy + r12 * fz
+    Fz = r20 * fx + r21 * fy + r22 * fz
+    Mx = r00 * mx + r01 * my + r02 * mz
+    My = r10 * mx + r11 * my + r12 * mz
+    Mz = r20 * mx + r21 * my + r22 * mz
+    if ext[_EXT_ON] != 0.0:
+        ex, ey, ez = ext[_EXT_F], ext[_EXT_F + 1], ext[_EXT_F + 2]
+        Fx, Fy, Fz = Fx + ex, Fy + ey, Fz + ez
+        Mx, My, Mz = Mx + ext[_EXT_M], My + ext[_EXT_M + 1], Mz + ext[_EXT_M + 2]
+        if ext[_EXT_AT_EE] != 0.0:
+            px, py, pz = ext[_EXT_PE], ext[_EXT_PE + 1], ext[_EXT_PE + 2]
+            rx = r00 * px + r01 * py + r02 * pz
+            ry = r10 * px + r11 * py + r12 * pz
+            rz = r20 * px + r21 * py + r22 * pz
+            Mx += ry * ez - rz * ey
+            My += rz * ex - rx * ez
+            Mz += rx * ey - ry * ex
+    xfrc[0] = Fx
+    xfrc[1] = Fy
+    xfrc[2] = Fz
+    xfrc[3] = Mx
+    xfrc[4] = My
+    xfrc[5] = Mz
+
+
+AERO_NOMINAL, AERO_INTERFERENCE = 0, 1
+"""Kinds of truth model :func:`actuate` evaluates: ``A_nom u``, or :func:`interference_wrench`."""
+
+
+@jit
+def actuate(omega_hz, u_hz2, cmd_hz, rotor_par, aero_kind: int, aero_model, qpos, qp: int, w_B, ext, xfrc) -> None:
+    """The actuation of a control period in one call: :func:`rotor_step`, the truth wrench, :func:`apply_wrench`.
+
+    Args:
+        omega_hz: (n,) rotor speeds [Hz], updated.
+        u_hz2: (n,) rotor inputs [Hz²], updated.
+        cmd_hz: (n,) commanded speeds [Hz].
+        rotor_par: (4,) ``lo, hi, alpha, dead_band_hz`` of :func:`rotor_step`.
+        aero_kind: ``AERO_NOMINAL`` (``aero_model`` is the (6, n) map) or ``AERO_INTERFERENCE`` (``aero_model``
+            from :func:`pack_interference`).
+        aero_model: see ``aero_kind``.
+        qpos: MuJoCo's generalized positions.
+        qp: address of the vehicle's joint in ``qpos``.
+        w_B: (6,) output: the rotor wrench at the CoM, body frame.
+        ext: the external wrench (see :func:`apply_wrench`).
+        xfrc: (6,) output: the vehicle's row of ``xfrc_applied``.
+    """
+    rotor_step(omega_hz, u_hz2, cmd_hz, rotor_par[0], rotor_par[1], rotor_par[2], rotor_par[3])
+    if aero_kind == AERO_INTERFERENCE:
+        interference_wrench(u_hz2, aero_model, w_B)
+    else:
+        n = u_hz2.shape[0]
+        for r in range(6):
+            acc = 0.0
+            for j in range(n):
+                acc += aero_model[r, j] * u_hz2[j]
+            w_B[r] = acc
+    apply_wrench(qpos, qp, w_B, ext, xfrc)
+
+
+@jit
+def imu_measure_into(R9, a_W, omega_B, omega_dot_B, par, noise, out, o: int) -> None:
+    """One IMU sample into ``out[o:o+6]`` = ``acc_B (3) [m/s²], gyro_B (3) [rad/s]``.
+
+    ``acc_B = R^T (a_W + g e3) + b_a + n_a`` plus ``omega_dot x r + omega x (omega x r)`` when the IMU sits at
+    ``r != 0``; ``gyro_B = omega_B + b_g + n_g``.
+
+    Args:
+        R9: (9,) ``R_WB`` row-major.
+        a_W: (3,) CoM acceleration without gravity [m/s²].
+        omega_B: (3,) angular velocity [rad/s].
+        omega_dot_B: (3,) angular acceleration [rad/s²].
+        par: IMU parameters (``IMU_PAR_SIZE``: gravity, acc bias, gyro bias, offset, has offset).
+        noise: (6,) white noise ``n_a, n_g``.
+        out: output array.
+        o: offset in ``out``.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R9[0], R9[1], R9[2], R9[3], R9[4], R9[5], R9[6], R9[7], R9[8]
+    sx, sy, sz = a_W[0], a_W[1], a_W[2] + par[_IMU_G]
+    ax = r00 * sx + r10 * sy + r20 * sz + par[_IMU_BA] + noise[0]
+    ay = r01 * sx + r11 * sy + r21 * sz + par[_IMU_BA + 1] + noise[1]
+    az = r02 * sx + r12 * sy + r22 * sz + par[_IMU_BA + 2] + noise[2]
+    wx, wy, wz = omega_B[0], omega_B[1], omega_B[2]
+    if par[_IMU_HAS_R] != 0.0:
+        rx, ry, rz = par[_IMU_R], par[_IMU_R + 1], par[_IMU_R + 2]
+        dx, dy, dz = omega_dot_B[0], omega_dot_B[1], omega_dot_B[2]
+        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
+        ax += dy * rz - dz * ry + wy * cz - wz * cy
+        ay += dz * rx - dx * rz + wz * cx - wx * cz
+        az += dx * ry - dy * rx + wx * cy - wy * cx
+    out[o + 0] = ax
+    out[o + 1] = ay
+    out[o + 2] = az
+    out[o + 3] = wx + par[_IMU_BG] + noise[3]
+    out[o + 4] = wy + par[_IMU_BG + 1] + noise[4]
+    out[o + 5] = wz + par[_IMU_BG + 2] + noise[5]
+
+
+@jit
+def quat_perturb_into(qw: float, qx: float, qy: float, qz: float, a: float, b: float, c: float, out, o: int) -> None:
+    """``q ⊗ [1, dtheta/2]`` normalised into ``out[o:o+4]`` (as :func:`omnirotor.sim.sensors.quat_perturb`)."""
+    a, b, c = 0.5 * a, 0.5 * b, 0.5 * c
+    rw = qw - qx * a - qy * b - qz * c
+    rx = qx + qw * a + qy * c - qz * b
+    ry = qy + qw * b + qz * a - qx * c
+    rz = qz + qw * c + qx * b - qy * a
+    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    out[o + 0] = rw * s
+    out[o + 1] = rx * s
+    out[o + 2] = ry * s
+    out[o + 3] = rz * s
+
+
+@jit
+def sense(
+    qpos, qvel, qacc, xmat, qp: int, qv: int, body: int, imu_par, imu_noise, omega_hz, rotor_noise, mode: int,
+    state_noise, out,
+) -> None:  # fmt: skip
+    """The sensor part of a frame, from MuJoCo's state, into one fresh buffer ``out``.
+
+    Layout of ``out``: ``acc_B (3), gyro_B (3), rotor_hz (n)`` and, unless ``mode`` is ``STATE_NONE``, the
+    bypass state ``p_W (3), v_W (3), a_W (3), R_WB (9, row-major), omega_B (3)``: the truth
+    (``STATE_EXACT``) or the truth plus ``state_noise`` (15: p, v, a, small body rotation, omega;
+    ``STATE_NOISY``, the attitude perturbed as :func:`quat_perturb_into`).
+
+    Args:
+        qpos: MuJoCo's generalized positions (the free joint's ``[p_W, q_WB]`` at ``qp``).
+        qvel: generalized velocities (``[v_W, omega_B]`` at ``qv``).
+        qacc: generalized accelerations (``[p_ddot_W, omega_dot_B]`` at ``qv``).
+        xmat: (nbody, 9) body orientations; row ``body`` is ``R_WB``.
+        qp: address of the vehicle's joint in ``qpos``.
+        qv: address of the vehicle's joint in ``qvel`` and ``qacc``.
+        body: the vehicle's body id.
+        imu_par: IMU parameters (see :func:`imu_measure_into`).
+        imu_noise: (6,) IMU white noise.
+        omega_hz: (n,) true rotor speeds [Hz].
+        rotor_noise: (n,) speed-measurement noise [Hz].
+        mode: ``STATE_NONE``, ``STATE_EXACT`` or ``STATE_NOISY``.
+        state_noise: (15,) bypass-state noise (read in ``STATE_NOISY`` only).
+        out: the output buffer, ``6 + n`` (+ 21 with a state) floats.
+    """
+    R9 = xmat[body]
+    imu_measure_into(R9, qacc[qv : qv + 3], qvel[qv + 3 : qv + 6], qacc[qv + 3 : qv + 6], imu_par, imu_noise, out, 0)
+    n = omega_hz.shape[0]
+    for i in range(n):
+        out[6 + i] = omega_hz[i] + rotor_noise[i]
+    if mode == STATE_NONE:
+        return
+    o = 6 + n
+    if mode == STATE_EXACT:
+        for i in range(3):
+            out[o + i] = qpos[qp + i]
+            out[o + 3 + i] = qvel[qv + i]
+            out[o + 6 + i] = qacc[qv + i]
+            out[o + 18 + i] = qvel[qv + 3 + i]
+        for i in range(9):
+            out[o + 9 + i] = R9[i]
+        return
+    e = state_noise
+    for i in range(3):
+        out[o + i] = qpos[qp + i] + e[i]
+        out[o + 3 + i] = qvel[qv + i] + e[3 + i]
+        out[o + 6 + i] = qacc[qv + i] + e[6 + i]
+        out[o + 18 + i] = qvel[qv + 3 + i] + e[12 + i]
+    q = np.empty(4)
+    quat_perturb_into(qpos[qp + 3], qpos[qp + 4], qpos[qp + 5], qpos[qp + 6], e[9], e[10], e[11], q, 0)
+    R9_from_quat_into(q[0], q[1], q[2], q[3], out, o + 9)
+
+
+TRUTH_SIZE = 36
+"""Length of the fixed part of :func:`truth_into`'s buffer (the rotor speeds follow)."""
+
+
+@jit
+def truth_into(qpos, qvel, qacc, xmat, site_xpos, qp: int, qv: int, body: int, site: int, omega_hz, w_B, out) -> None:
+    """The ground truth of :class:`omnirotor.sim.simulator.GroundTruth` into one buffer ``out``.
+
+    Layout: ``p_W (3), v_W (3), a_W (3), R_WB (9), omega_B (3), rotor_wrench_B (6), p_E_W (3)``, then the
+    contact force and moment (6, zeroed here; the simulator sums the contacts into them) and the rotor
+    speeds (n).
+
+    Args:
+        qpos: MuJoCo's generalized positions (see :func:`sense`).
+        qvel: generalized velocities.
+        qacc: generalized accelerations.
+        xmat: (nbody, 9) body orientations.
+        site_xpos: (nsite, 3) site positions; row ``site`` is the EE tip.
+        qp: address of the vehicle's joint in ``qpos``.
+        qv: address of the vehicle's joint in ``qvel`` and ``qacc``.
+        body: the vehicle's body id.
+        site: the EE tip's site id.
+        omega_hz: (n,) rotor speeds [Hz].
+        w_B: (6,) rotor wrench at the CoM, body frame.
+        out: the buffer, ``TRUTH_SIZE + n`` floats.
+    """
+    for i in range(3):
+        out[i] = qpos[qp + i]
+        out[3 + i] = qvel[qv + i]
+        out[6 + i] = qacc[qv + i]
+        out[18 + i] = qvel[qv + 3 + i]
+        out[27 + i] = site_xpos[site, i]
+        out[30 + i] = 0.0
+        out[33 + i] = 0.0
+    for i in range(9):
+        out[9 + i] = xmat[body, i]
+    for i in range(6):
+        out[21 + i] = w_B[i]
+    for i in range(omega_hz.shape[0]):
+        out[TRUTH_SIZE + i] = omega_hz[i]
+
+
+TRUTH_ROW_SIZE = 29
+"""Length of the fixed part of :func:`truth_row_into`'s row (the rotor speeds follow)."""
+
+
+@jit
+def truth_row_into(
+    qpos, qvel, xmat, site_xpos, qp: int, qv: int, body: int, site: int, omega_hz, t: float, out
+) -> None:
+    """The ground truth as one flat row (:meth:`omnirotor.sim.simulator.Simulator.truth_row`).
+
+    Layout: ``t, p_W (3), v_W (3), R_WB (9), omega_B (3), p_E_W (3)``, the contact force and moment (6, zeroed
+    here; the simulator sums the contacts into them), the contact flag (0 here) and the rotor speeds (n).
+
+    Args:
+        qpos: MuJoCo's generalized positions (see :func:`sense`).
+        qvel: generalized velocities.
+        xmat: (nbody, 9) body orientations.
+        site_xpos: (nsite, 3) site positions; row ``site`` is the EE tip.
+        qp: address of the vehicle's joint in ``qpos``.
+        qv: address of the vehicle's joint in ``qvel``.
+        body: the vehicle's body id.
+        site: the EE tip's site id.
+        omega_hz: (n,) rotor speeds [Hz].
+        t: time [s].
+        out: the row, at least ``TRUTH_ROW_SIZE + n`` floats.
+    """
+    out[0] = t
+    for i in range(3):
+        out[1 + i] = qpos[qp + i]
+        out[4 + i] = qvel[qv + i]
+        out[16 + i] = qvel[qv + 3 + i]
+        out[19 + i] = site_xpos[site, i]
+        out[22 + i] = 0.0
+        out[25 + i] = 0.0
+    for i in range(9):
+        out[7 + i] = xmat[body, i]
+    out[28] = 0.0
+    for i in range(omega_hz.shape[0]):
+        out[TRUTH_ROW_SIZE + i] = omega_hz[i]

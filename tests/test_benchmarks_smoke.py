@@ -1,0 +1,161 @@
+"""Smoke test of benchmarks/run.py: a tiny run produces every documented key, and the Markdown section renders.
+
+No speed is asserted here (speed goals live in the benchmarks); only structure and the bookkeeping.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _load_run():
+    spec = importlib.util.spec_from_file_location("omnirotor_bench_run", BENCH_DIR / "run.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+bench = _load_run()
+
+TOP_KEYS = (
+    "controller_step_us",
+    "allocation_us",
+    "identify_region_us",
+    "identify_region_data",
+    "sim_step_us",
+    "closed_loop_rtf_ukf",
+    "closed_loop_rtf_fast",
+    "quad_hover_rtf_ours",
+    "quad_hover_rtf_rotorpy",
+    "rtf_ratio_vs_rotorpy",
+    "machine",
+    "date",
+    "git_commit",
+    "python",
+    "numpy",
+    "scaling",
+    "profile",
+    "goals",
+)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> dict:
+    missing = tmp_path_factory.mktemp("nodata") / "omnirotor-hover-flight"
+    return bench.collect(bench.CONFIGS["tiny"], data_dir=missing)
+
+
+def _positive(x) -> bool:
+    return isinstance(x, float) and math.isfinite(x) and x > 0
+
+
+def test_tiny_run_has_every_documented_key_and_is_json(tiny):
+    for key in TOP_KEYS:
+        assert key in tiny, key
+    again = json.loads(json.dumps(tiny))
+    assert again["controller_step_us"] == tiny["controller_step_us"]
+    assert set(tiny["allocation_us"]) == {"daqp", "proxsuite"}
+    assert all(_positive(v) for v in tiny["allocation_us"].values())
+    assert set(tiny["sim_step_us"]) >= {"with_truth_model", "without_truth_model"}
+    for key in ("controller_step_us", "identify_region_us", "closed_loop_rtf_ukf", "closed_loop_rtf_fast"):
+        assert _positive(tiny[key]), key
+    assert _positive(tiny["quad_hover_rtf_ours"])
+    for kind in ("ukf", "bypass"):
+        d = tiny["closed_loop_detail"][kind]
+        assert d["controller_step_us_in_loop_p99"] >= d["controller_step_us_in_loop"] > 0
+    assert tiny["machine"]["cores"] >= 1 and tiny["machine"]["cpu_model"]
+    assert tiny["python"].startswith("3.") and tiny["numpy"]
+
+
+def test_identification_falls_back_to_synthetic_points_and_says_so(tiny):
+    info = tiny["identify_region_data"]
+    assert info["source"] == "synthetic" and info["path"] is None
+    assert info["points"] >= 5  # n - 3 independent points are needed for the Omnirotor's 8 rotors
+
+
+def test_identification_on_the_real_data(flight_data):
+    us, info = bench.measure_identify_region(2, flight_data)
+    assert _positive(us)
+    # R4 holds the most points of the three files (16, per the data README)
+    assert (info["source"], info["region"], info["points"]) == ("real", "R4", 16)
+
+
+def test_rotorpy_figures_are_consistent(tiny):
+    if tiny["quad_hover_detail"]["rotorpy_version"] is None:
+        assert tiny["quad_hover_rtf_rotorpy"] is None and tiny["rtf_ratio_vs_rotorpy"] is None
+        assert tiny["rtf_ratio_vs_rotorpy_cpu"] is None
+        assert tiny["goals"]["rtf_ratio_vs_rotorpy"]["met"] is None
+        return
+    ratio = tiny["quad_hover_rtf_ours"] / tiny["quad_hover_rtf_rotorpy"]
+    assert tiny["rtf_ratio_vs_rotorpy"] == pytest.approx(ratio)
+    q = tiny["quad_hover_detail"]
+    cpu_ratio = q["ours"]["rtf_cpu_median"] / q["rotorpy"]["rtf_cpu_median"]
+    assert tiny["rtf_ratio_vs_rotorpy_cpu"] == pytest.approx(cpu_ratio)
+    so = tiny["quad_hover_detail"]["sim_only"]
+    assert so["ratio"] == pytest.approx(so["rtf_ours"] / so["rtf_rotorpy"])
+
+
+def test_quadrotor_preset_matches_rotorpy_crazyflie():
+    pytest.importorskip("rotorpy")
+    rows = {r["quantity"]: r for r in bench.peer.crazyflie_comparison()}
+    mismatched = {name for name, r in rows.items() if not r["match"]}
+    # The preset reproduces the vehicle; only the simulator's default motor time constant differs, and the
+    # benchmark runs the simulator with RotorPy's value.
+    assert mismatched == {"motor time constant [s] (sim param)"}
+    assert bench.peer.tau_m_s() == pytest.approx(rows["motor time constant [s] (sim param)"]["rotorpy"])
+
+
+def test_scaling_rows_cover_every_campaign(tiny):
+    cfg = bench.CONFIGS["tiny"]
+    camp = tiny["scaling"]["campaign"]
+    assert {(c["tasks"], c["workers"]) for c in camp} == {
+        (n, w) for n in cfg.campaign_sizes for w in cfg.campaign_workers
+    }
+    for c in camp:
+        if c["workers"] == min(cfg.campaign_workers):
+            assert c["speedup"] == pytest.approx(1.0)
+    assert [d["sim_s"] for d in tiny["scaling"]["duration"]] == list(cfg.scaling_s)
+
+
+def test_goal_bookkeeping():
+    goals = bench.evaluate_goals(
+        {
+            "controller_step_us": 15.0,
+            "closed_loop_rtf_ukf": 10.0,
+            "closed_loop_rtf_fast": 80.0,
+            "rtf_ratio_vs_rotorpy": None,
+        }
+    )
+    assert goals["controller_step_us"]["met"] and goals["controller_step_us"]["margin"] == pytest.approx(2.0)
+    assert not goals["closed_loop_rtf_ukf"]["met"] and goals["closed_loop_rtf_ukf"]["margin"] == pytest.approx(0.5)
+    assert goals["closed_loop_rtf_fast"]["met"]
+    assert goals["rtf_ratio_vs_rotorpy"]["met"] is None
+
+
+def test_markdown_section_is_replaced_in_place(tiny, tmp_path):
+    doc = tmp_path / "BENCHMARKS.md"
+    doc.write_text(f"# Title\n\nintro\n\n{bench.MARK_BEGIN}\nold figures\n{bench.MARK_END}\n\n## After\ntext\n")
+    bench.write_markdown(doc, tiny)
+    bench.write_markdown(doc, tiny)  # idempotent: one section, surroundings kept
+    text = doc.read_text()
+    assert text.count(bench.MARK_BEGIN) == 1 and text.count(bench.MARK_END) == 1
+    assert "old figures" not in text
+    assert text.startswith("# Title\n\nintro\n\n") and text.endswith("\n\n## After\ntext\n")
+    assert f"{tiny['controller_step_us']:.1f}" in text or f"{tiny['controller_step_us']:,.0f}" in text
+    assert (tiny["git_commit"] or "?")[:12] in text
+
+
+def test_peer_comparison_without_rotorpy_reports_nulls_not_zeros():
+    quad = bench.measure_peer(bench.CONFIGS["tiny"], with_rotorpy=False)
+    assert quad["rotorpy"] is None and quad["rotorpy_version"] is None and quad["params_check"] is None
+    assert quad["sim_only"]["rtf_rotorpy"] is None
+    assert _positive(quad["ours"]["rtf_median"]) and _positive(quad["sim_only"]["rtf_ours"])

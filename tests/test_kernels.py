@@ -1,0 +1,246 @@
+"""The compiled kernels of the 1 kHz loop against reference implementations, and the fast paths around them.
+
+* the fused controller step (two compiled calls around the QP) gives the same commands and log as the
+  blocks' own public methods composed by hand;
+* small kernels (SO(3), Cholesky, inverse, quaternion perturbation, the interference truth) agree with
+  NumPy / Python float references;
+* the simulator's flat truth row is the :class:`GroundTruth` record in the layout of the closed loop's
+  truth log, contact included;
+* a block accepts a caller's buffer for its packed state, and rejects a wrong one;
+* the messages stay frozen dataclasses with their signatures;
+* ``Recorder.next_row`` hands out rows and counts drops.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.control import _estimator_kernels as ek
+from omnirotor.control import _kernels as ck
+from omnirotor.control.admittance import AdmittanceFilter, body_reference_from_ee, ee_wrench_W
+from omnirotor.control.controller import ControllerParams, InteractionController
+from omnirotor.control.estimator import EstimatorParams
+from omnirotor.control.observer import WrenchObserver
+from omnirotor.control.pose import PoseController
+from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample, Waypoint
+from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import TRUTH_GROUPS
+from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, StateEstimate
+from omnirotor.recorder import Recorder
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim import _kernels as sk
+from omnirotor.sim.aero import InterferenceAero
+from omnirotor.sim.params import AeroParams
+from omnirotor.sim.sensors import R9_from_quat, quat_perturb
+from omnirotor.so3 import exp_so3, log_so3, rot_x, rot_z
+from omnirotor.vehicle import load_vehicle
+
+V = load_vehicle("omnirotor")
+DT = 1e-3
+
+
+def _random_rotation(rng):
+    return exp_so3(rng.uniform(-1.0, 1.0, 3))
+
+
+def _frames(n, seed=0):
+    """Frames of a simulated hover with a small move, flown by a bypass controller."""
+    sim = Simulator(V, "free", SimParams(), seed=seed)
+    p, R = sim.default_start()
+    p_E = p + R @ V.p_E_B_array
+    traj = PoseTrajectory([Waypoint(0.0, p_E, R), Waypoint(n * DT, p_E + [0.04, -0.02, 0.03], rot_z(0.2) @ R)])
+    ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=n))
+    first = sim.reset(p, R)
+    ctl.reset(first, traj)
+    cmd = ctl.hold_command()
+    frames = []
+    for _ in range(n):
+        frame = sim.step(cmd)
+        cmd = ctl.step(frame)
+        frames.append(frame)
+    return traj, first, frames
+
+
+def test_fused_controller_step_equals_the_blocks_composed_by_hand():
+    traj, first, frames = _frames(300)
+    ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=400))
+    ctl.reset(first, traj)
+    # The same blocks, stepped one by one through their public methods.
+    obs, adm, pose = WrenchObserver(V), AdmittanceFilter(), PoseController(V)
+    from omnirotor.control.allocation import Allocator
+
+    alloc = Allocator(V)
+    des, comp, body = ReferenceSample(), ReferenceSample(), ReferenceSample()
+    f_E, m_E = np.zeros(3), np.zeros(3)
+    p_E_B = V.p_E_B_array
+    for frame in frames:
+        cmd = ctl.step(frame)
+        st = frame.state
+        u_obs = np.abs(frame.rotor_hz) * frame.rotor_hz
+        f_hat, m_hat = obs.step(st, u_obs, V.A_nom, DT)
+        ee_wrench_W(f_hat, m_hat, st.R_WB, p_E_B, f_E, m_E)
+        adm.step(f_E, m_E, DT)
+        traj.sample(frame.t - first.t, des)
+        adm.compliant_reference(des, comp)
+        body_reference_from_ee(comp, p_E_B, body)
+        w_ref = pose.step(body, st, obs.filtered[:3], obs.filtered[3:], DT)
+        u = alloc.solve(w_ref, st.R_WB, V.A_nom)
+        omega = np.clip(np.sign(u) * np.sqrt(np.abs(u)), V.omega_min_hz, V.omega_max_hz)
+        np.testing.assert_allclose(cmd.omega_hz, omega, rtol=1e-12, atol=1e-9)
+        assert bool(cmd.status & ControlStatus.SATURATED) == alloc.saturated
+    np.testing.assert_allclose(ctl.observer.output, obs.output, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(ctl.admittance.xi_p_W, adm.xi_p_W, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(ctl.body_ref.data, body.data, rtol=1e-12, atol=1e-15)
+    # The compiled step wrote the same log row as the bound sources describe.
+    row = ctl.log.data[ctl.log.n - 1]
+    np.testing.assert_array_equal(row[27:51], ctl.compliant_ee.data)
+    np.testing.assert_array_equal(row[51:75], ctl.desired_ee.data)
+    np.testing.assert_array_equal(ctl.log.group("omega_cmd_hz")[-1], cmd.omega_hz)
+    np.testing.assert_array_equal(ctl.log.group("w_ref")[-1], ctl.pose.w_ref)
+    np.testing.assert_array_equal(ctl.log.group("f_ext_W")[-1], ctl.observer.f_ext_W)
+    np.testing.assert_allclose(ctl.log.group("p_E_W")[-1], st.p_W + st.R_WB @ p_E_B, rtol=1e-14)
+
+
+def test_so3_cholesky_and_inverse_kernels_match_numpy():
+    rng = np.random.default_rng(3)
+    R = np.empty((3, 3))
+    out = np.empty(3)
+    for phi in (rng.normal(0.0, 1.0, 3), np.array([1e-6, -2e-6, 5e-7]), np.zeros(3)):
+        ek.exp_so3_into(phi[0], phi[1], phi[2], R)
+        np.testing.assert_allclose(R, exp_so3(phi), atol=1e-15)
+        ek.log_so3_into(R, out, 0)
+        np.testing.assert_allclose(out, log_so3(R), atol=1e-12)
+    A = rng.normal(size=(15, 15))
+    P = A @ A.T + 1e-3 * np.eye(15)
+    L = np.empty((15, 15))
+    assert ek.cholesky_lower(P, L) == 0
+    np.testing.assert_allclose(L, np.linalg.cholesky(P), rtol=1e-10, atol=1e-12)
+    P[4, 4] = -1.0
+    assert ek.cholesky_lower(P, L) == 5  # LAPACK's info: the first column that is not positive definite
+    S = rng.normal(size=(6, 6))
+    S_inv = np.empty((6, 6))
+    assert ek.invert(S, S_inv)
+    np.testing.assert_allclose(S_inv @ S, np.eye(6), atol=1e-12)
+    S[:, 2] = 0.0  # singular
+    assert not ek.invert(S, S_inv)
+
+
+def test_sensor_kernels_match_the_python_references():
+    rng = np.random.default_rng(4)
+    out = np.empty(9)
+    q4 = np.empty(4)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        d = rng.normal(0.0, 0.01, 3)
+        sk.quat_perturb_into(*q, *d, q4, 0)
+        np.testing.assert_array_equal(q4, quat_perturb(q.tolist(), d.tolist(), [0.0] * 4))
+        sk.R9_from_quat_into(*q4, out, 0)
+        np.testing.assert_array_equal(out, R9_from_quat(q4.tolist()))
+
+
+def test_interference_kernel_matches_the_vectorised_spec_formula():
+    aero = InterferenceAero(V, AeroParams(tilt_error_std_deg=1.0, gain_error_std=0.02))
+    p = aero.params
+    radius = 0.5 * V.propeller_diameter
+    K2 = aero._K2
+    v_coef = np.sqrt(p.kappa0 * aero.gains * V.c_f / (2.0 * p.rho * math.pi * radius**2))
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        u = rng.normal(0.0, 2.5e4, 8) * (rng.random(8) > 0.2)  # some rotors stopped
+        n = np.maximum(np.sqrt(np.abs(u)), 1e-6)
+        sv = u / n * v_coef
+        V_i = K2 @ np.concatenate([np.minimum(sv, 0.0), np.maximum(sv, 0.0)]) * (u / n) / n**2
+        eta = np.clip(1.0 - p.gamma / (p.advance_ratio_ref * 2 * radius) * V_i, p.eta_min, p.eta_max)
+        np.testing.assert_allclose(aero.efficiency(u), eta, rtol=1e-13)
+        np.testing.assert_allclose(aero.wrench_B(u), p.kappa0 * aero.A_true @ (eta * u), rtol=1e-12, atol=1e-12)
+
+
+def test_truth_row_is_the_ground_truth_in_the_truth_log_layout():
+    sim = Simulator(V, "wall", SimParams(aero=AeroParams(model="nominal")), seed=1)
+    p0, R0 = sim.default_start()
+    n_W = sim.scene.normal_W
+    sim.reset(p0 - (sim.params.scene.start_standoff - 0.005) * n_W, R0)
+    sim.set_external_wrench(-3.0 * n_W, at="ee")
+    cmd = RotorCommand(0.0, sim.hover_speeds_hz(R0))
+    width = Recorder(1, TRUTH_GROUPS(V.n_rotors)).n_signals
+    row = np.full(width, -7.0)
+    seen_contact = False
+    for k in range(1500):
+        sim.step(cmd)
+        if k % 100 == 99 or k == 0:
+            sim.truth_row(row)
+            tr = sim.truth
+            expect = np.concatenate(
+                [
+                    [tr.t],
+                    tr.p_W,
+                    tr.v_W,
+                    tr.R_WB.reshape(9),
+                    tr.omega_B,
+                    tr.p_E_W,
+                    tr.contact_force_W,
+                    tr.contact_moment_W,
+                    [float(tr.in_contact)],
+                    tr.rotor_hz,
+                ]
+            )
+            np.testing.assert_array_equal(row[:-1], expect)
+            assert row[-1] == -7.0  # the timing column is the caller's
+            seen_contact |= tr.in_contact
+    assert seen_contact and np.linalg.norm(sim.truth.contact_force_W) > 1.0
+
+
+def test_blocks_keep_their_state_in_a_given_buffer():
+    arena = np.full(ck.OBS_SIZE + 10, 3.0)
+    obs = WrenchObserver(V, buffer=arena[5 : 5 + ck.OBS_SIZE])
+    assert np.shares_memory(obs.output, arena) and np.all(obs.output == 0.0)
+    assert arena[0] == 3.0 and arena[-1] == 3.0  # only its slice is used
+    sample = ReferenceSample(np.ones(24))
+    np.testing.assert_array_equal(sample.R_WB, np.eye(3))
+    for bad in (np.zeros(ck.OBS_SIZE - 1), np.zeros(ck.OBS_SIZE, dtype=np.float32), np.zeros(2 * ck.OBS_SIZE)[::2]):
+        with pytest.raises(InputError):
+            WrenchObserver(V, buffer=bad)
+    # The controller's blocks share one array; a step changes them through it.
+    ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=10))
+    for block in (ctl.observer, ctl.admittance, ctl.pose, ctl.allocator):
+        assert np.shares_memory(block.kernel_state, ctl._arena)
+
+
+def test_messages_stay_frozen_dataclasses():
+    x = np.zeros(3)
+    st = StateEstimate(0.1, x, x, x, np.eye(3), x)
+    by_name = StateEstimate(t=0.1, p_W=x, v_W=x, a_W=x, R_WB=st.R_WB, omega_B=x, valid=False)
+    assert st.valid and not by_name.valid and by_name.p_W is x and by_name.R_WB is st.R_WB
+    frame = SensorFrame(0.2, x, x, np.zeros(8))
+    assert not frame.mocap_new and frame.mocap_p_W is None and frame.state is None
+    cmd = RotorCommand(0.3, np.ones(8))
+    assert cmd.status is ControlStatus.OK
+    for msg, field in ((st, "t"), (frame, "imu_acc_B"), (cmd, "status")):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(msg, field, None)
+    assert dataclasses.replace(frame, mocap_new=True).mocap_new
+    with pytest.raises(TypeError):
+        SensorFrame(0.0, x)
+
+
+def test_recorder_next_row_fills_in_place_and_counts_drops():
+    rec = Recorder(2, [("a", 1), ("b", ("x", "y"))])
+    rec.next_row()[:] = (1.0, 2.0, 3.0)
+    rec.next_row()[:] = (4.0, 5.0, 6.0)
+    assert rec.next_row() is None and rec.dropped == 1 and rec.n == 2
+    np.testing.assert_array_equal(rec.group("b"), [[2.0, 3.0], [5.0, 6.0]])
+
+
+def test_trajectory_kernel_holds_outside_and_interpolates_inside():
+    w0 = Waypoint(1.0, np.array([0.0, 0.0, 1.0]), np.eye(3))
+    w1 = Waypoint(2.0, np.array([1.0, 0.0, 1.0]), rot_x(0.5))
+    for profile in ("quintic", "cubic"):
+        traj = PoseTrajectory([w0, w1], attitude_profile=profile)
+        np.testing.assert_array_equal(traj(0.5).p_W, w0.p_W)
+        np.testing.assert_array_equal(traj(3.0).R_WB, w1.R_WB)
+        mid = traj(1.5)
+        np.testing.assert_allclose(mid.p_W, [0.5, 0.0, 1.0], atol=1e-15)
+        np.testing.assert_allclose(mid.R_WB, rot_x(0.25), atol=1e-15)
