@@ -10,8 +10,11 @@ filter are described in the estimator's module docstring; these kernels implemen
 * :func:`ukf_imu_step`: one IMU sample (validation, lever arm, buffering, noise-free mean propagation) and,
   when no motion-capture sample is to be fused, the end of the step (:func:`ukf_finish`: the outputs);
 * :func:`ukf_predict`: the unscented covariance prediction of the delayed fused state;
-* :func:`ukf_fuse`: the delayed motion-capture update (closed-form Kalman update, error injection, reset
-  Jacobian, re-propagation of the mean to now).
+* :func:`ukf_fuse_at` and :func:`ukf_fuse`: where a delayed motion-capture sample belongs, and its update
+  (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now).
+
+Each is called from Python, not from another kernel: a kernel calling another compiles the callee again
+inside itself, and :func:`ukf_predict` is the slowest to compile.
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -74,6 +77,7 @@ UKF_SIZE = 102
 # Bits of the code ukf_imu_step and ukf_finish return.
 STEP_REJECTED = 1  # the period or the IMU sample was rejected
 STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeout
+STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (ukf_predict to k - lag_n)
 
 M_Q1, M_Q2, M_Q3, M_P0, M_RN = 0, 1, 2, 3, 4
 
@@ -248,19 +252,21 @@ def ukf_imu_step(mem, gyro, acc, t_frame: float, finish: bool, out) -> tuple:
 
 @jit
 def ukf_finish(mem, out) -> int:
-    """End of a step: advance the delayed state when no motion capture came for too long, then the outputs.
+    """End of a step: the outputs, and whether the delayed state must be advanced.
 
     Outputs: bias-corrected rate and acceleration, low-passed, and the estimate ``p_W, v_W, a_W, R_WB
-    (row-major), omega_B`` into ``out`` (21,).
+    (row-major), omega_B`` into ``out`` (21,). The delayed fused state is advanced by the caller
+    (``ukf_predict(mem, k - lag_n)``) when motion capture has not come for too long; that does not change the
+    outputs. (:func:`ukf_predict` is called only from Python, so that it is compiled once.)
 
     Returns:
-        ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, else 0.
+        ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, plus
+        ``STEP_ADVANCE`` when the delayed state lags by more than the latency plus one chunk.
     """
     x = mem[0:UKF_SIZE]
-    k, kf = int(x[UKF_K]), int(x[UKF_KF])
-    lag_n = int(x[UKF_LAG_N])
-    if k - kf > lag_n + int(x[UKF_CHUNK_N]):
-        ukf_predict(mem, k - lag_n)
+    code = 0
+    if int(x[UKF_K]) - int(x[UKF_KF]) > int(x[UKF_LAG_N]) + int(x[UKF_CHUNK_N]):
+        code = STEP_ADVANCE
     dt = x[UKF_DT]
     if dt != x[UKF_LPF_DT]:
         x[UKF_LPF_DT] = dt
@@ -277,7 +283,9 @@ def ukf_finish(mem, out) -> int:
     x[Ao + 1] += lam_a * (x[R + 3] * fx + x[R + 4] * fy + x[R + 5] * fz - x[Ao + 1])
     x[Ao + 2] += lam_a * (x[R + 6] * fx + x[R + 7] * fy + x[R + 8] * fz - g - x[Ao + 2])
     write_estimate(x, out)
-    return STEP_DEGRADED if x[UKF_T] - x[UKF_T_ACCEPT] > x[UKF_TIMEOUT] else 0
+    if x[UKF_T] - x[UKF_T_ACCEPT] > x[UKF_TIMEOUT]:
+        code |= STEP_DEGRADED
+    return code
 
 
 @jit
@@ -579,12 +587,35 @@ def _repropagate(x, buf, sbuf) -> None:
 
 
 @jit
-def ukf_fuse(mem, t_m: float, p_m, q_m) -> int:
-    """Fuse a pose taken at ``t_m`` [s]: predict the delayed state there, update, re-propagate to now.
+def ukf_fuse_at(mem, t_m: float) -> int:
+    """The buffered sample at which a pose taken at ``t_m`` [s] is fused (the nearest), or -1 if it is stale.
+
+    A sample older than the fused state or the buffer, or from the future, is stale; one taken just before the
+    start-up pose is fused at start-up. The caller then predicts the delayed state there
+    (:func:`ukf_predict`) and updates it (:func:`ukf_fuse`).
+    """
+    x, buf, sbuf, P, W, M = views(mem)
+    t_now = x[UKF_T]
+    half = 0.5 * x[UKF_DT_NOM]
+    if t_m < x[UKF_T_F] - half and x[UKF_JUST_RESET] != 0.0:
+        t_m = x[UKF_T_F]  # taken before the start-up pose: there is no earlier state, fuse it at start-up
+    if t_m < x[UKF_T_F] - half or t_m > t_now + half or t_now - t_m > x[UKF_MAX_LAT] + half:
+        return -1
+    # The buffered samples up to t_m (nearest sample).
+    cap = buf.shape[0]
+    k_m = int(x[UKF_KF])
+    k = int(x[UKF_K])
+    while k_m < k and buf[k_m % cap, 0] <= t_m + half:
+        k_m += 1
+    return k_m
+
+
+@jit
+def ukf_fuse(mem, p_m, q_m) -> int:
+    """Update the delayed state (already predicted to the sample's time) with a pose, re-propagate to now.
 
     Args:
         mem: the estimator's memory.
-        t_m: time the pose was taken [s].
         p_m: (3,) measured position [m].
         q_m: (4,) measured attitude, wxyz (normalised here).
 
@@ -593,18 +624,6 @@ def ukf_fuse(mem, t_m: float, p_m, q_m) -> int:
     """
     x, buf, sbuf, P, W, M = views(mem)
     t_now = x[UKF_T]
-    half = 0.5 * x[UKF_DT_NOM]
-    if t_m < x[UKF_T_F] - half and x[UKF_JUST_RESET] != 0.0:
-        t_m = x[UKF_T_F]  # taken before the start-up pose: there is no earlier state, fuse it at start-up
-    if t_m < x[UKF_T_F] - half or t_m > t_now + half or t_now - t_m > x[UKF_MAX_LAT] + half:
-        return FUSE_STALE
-    # The buffered samples up to t_m (nearest sample).
-    cap = buf.shape[0]
-    k_m = int(x[UKF_KF])
-    k = int(x[UKF_K])
-    while k_m < k and buf[k_m % cap, 0] <= t_m + half:
-        k_m += 1
-    ukf_predict(mem, k_m)
     F = UKF_F
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
     mw, mx, my, mz = q_m[0] / qn, q_m[1] / qn, q_m[2] / qn, q_m[3] / qn

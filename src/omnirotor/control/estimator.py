@@ -28,7 +28,7 @@ How it spends its time (cost matters: this runs every 1 ms inside the controller
   ``P`` transported by the reset Jacobian ``I - [dtheta/2]x`` (skipped below 1 mrad, where it is < 0.05 %).
 
 The arithmetic runs in compiled kernels (:mod:`omnirotor.control._estimator_kernels`): a step without
-motion capture is one compiled call, a step with a sample three.
+motion capture is one compiled call, a step with a sample five.
 
 Latency. A motion-capture sample taken at ``mocap_t`` arrives ``t - mocap_t`` later (5-10 ms on a typical
 rig). The filter therefore keeps a *delayed* fused state at the time of the last fused sample and a ring
@@ -230,7 +230,7 @@ class UKFEstimator:
 
     The filter's arrays live in one float array (layout in :mod:`omnirotor.control._estimator_kernels`),
     which the compiled kernels of a step read and write: a plain IMU step is one compiled call, a step with
-    a motion-capture sample three.
+    a motion-capture sample five.
 
     Attributes:
         degraded: True while no motion-capture sample was accepted for ``mocap_timeout_s`` (or before the
@@ -422,7 +422,12 @@ class UKFEstimator:
                 t_m = frame.mocap_t if self.params.compensate_latency else t
                 f64 = np.float64
                 p_m, q_m = np.asarray(frame.mocap_p_W, dtype=f64), np.asarray(frame.mocap_q_WB, dtype=f64)
-                fused = _ek.ukf_fuse(mem, float(t_m), p_m, q_m)
+                k_m = _ek.ukf_fuse_at(mem, float(t_m))
+                if k_m < 0:
+                    fused = _ek.FUSE_STALE
+                else:
+                    _ek.ukf_predict(mem, k_m)
+                    fused = _ek.ukf_fuse(mem, p_m, q_m)
                 if fused == _ek.FUSE_OK:
                     self.n_mocap_fused += 1
                 else:
@@ -433,6 +438,8 @@ class UKFEstimator:
                 self.rejected_mocap += 1
                 rejected = True
             code = _ek.ukf_finish(mem, out)
+        if code & _ek.STEP_ADVANCE:
+            _ek.ukf_predict(mem, int(self._x[_ek.UKF_K]) - self._lag_n)
         if rejected:
             self.rejected_inputs += 1
         self.last_input_rejected = bool(rejected)
