@@ -264,6 +264,7 @@ BYPASS = '[options]\nestimator = "bypass"\n'
         (HEAD + '[vary."sim.aero.gama"]\ndist = "constant"\nvalue = 5\n', "unknown key 'gama'"),
         (HEAD + '[vary.friction]\ndist = "choice"\nvalues = [0.1, "x"]\n', "all numbers"),
         (HEAD + '[vary.friction]\ndist = "choice"\nvalues = [0.1, 0.2]\nweights = [1]\n', "weights must be"),
+        (HEAD + '[vary.gust_duration_s]\ndist = "constant"\nvalue = 2.0\n', "does nothing without vary.gust_force_N"),
         (HEAD + '[options]\nmap = "piecewise"\n', "needs maps"),
         (HEAD + '[options]\nestimator = "magic"\n', "estimator must be one of"),
         (HEAD + "[options]\nduration_s = -1.0\n", "duration must be"),
@@ -365,3 +366,14 @@ def test_unreachable_ray_address_is_refused_quickly():
     with pytest.raises(InputError, match="expected host:port"):
         _check_reachable("somewhere")
     _check_reachable("auto")  # Ray's own discovery: nothing to check here
+
+
+def test_wilson_interval_holds_the_rate_and_matches_the_textbook():
+    assert wilson_interval(0, 0) is None
+    lo, hi = wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)  # the 95 % upper bound of 0 in 10
+    for n in range(1, 40):
+        for k in range(n + 1):
+            a, b = wilson_interval(k, n)
+            assert 0.0 <= a <= k / n <= b <= 1.0
+            assert (a, b) == pytest.approx(tuple(1 - x for x in wilson_interval(n - k, n)[::-1]))

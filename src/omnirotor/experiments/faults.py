@@ -23,7 +23,10 @@ Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s
   boundary (the motor stops; its speed decays through the rotor lag, SPEC §1.4). With ``tell_controller``
   the controller is told after ``detect_delay_s`` through
   :meth:`~omnirotor.control.controller.InteractionController.set_failed_rotors`, and its allocation then
-  excludes the rotor.
+  excludes the rotor. Told, the seven others hold the hover as before (within a few millimetres of the
+  undisturbed hover in ``tests/test_faults.py``); not told, the allocation keeps asking the dead rotor for
+  thrust, the others saturate and the vehicle sags ~15 cm to a new equilibrium (the pose loop has no
+  integrator), every command still within the limits.
 * :class:`SensorCorruption`: NaN, inf, or an added spike in one signal of the frame (accelerometer,
   gyroscope, rotor speeds, motion capture, bypass state) over a window.
 * :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"

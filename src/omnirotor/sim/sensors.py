@@ -200,7 +200,9 @@ class Mocap:
         self._t[i] = t
         self._due[i] = due_step
         np.add(noise[:3], p_W, out=self._p[i])
-        quat_perturb(q_WB, noise[3:], self._q[i])
+        # On Python floats: arithmetic on NumPy scalars costs ten times more.
+        q = quat_perturb(np.asarray(q_WB, dtype=float).tolist(), noise[3:].tolist(), [0.0] * 4)
+        self._q[i] = q
         self._count += 1
 
     def reset(self, rng: np.random.Generator, p_W: np.ndarray, q_WB: np.ndarray) -> None:

@@ -1,0 +1,372 @@
+"""Reading a campaign folder, summarising its runs, and plotting success against each varied parameter.
+
+See :mod:`omnirotor.experiments.campaign` for the folder's layout. :func:`summarize` gives the success rate
+with its 95 % Wilson interval, the distribution of every numeric metric of the runs' summaries (flattened
+to dotted names, e.g. ``contact.fraction``), and the success rate per bin of each varied parameter;
+:func:`plot_campaign` and :func:`plot_comparison` draw them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omnirotor.errors import InputError
+from omnirotor.experiments.campaign_spec import KEY_METRICS, PARAMETERS, CampaignSpec
+
+__all__ = [
+    "RESULTS_FILE",
+    "DEFINITION_FILE",
+    "SUMMARY_FILE",
+    "PLOTS_DIR",
+    "load_results",
+    "jsonable",
+    "wilson_interval",
+    "metric_value",
+    "binned_success",
+    "summarize",
+    "plot_campaign",
+    "plot_comparison",
+]
+
+RESULTS_FILE = "results.jsonl"
+DEFINITION_FILE = "campaign.json"
+SUMMARY_FILE = "summary.json"
+PLOTS_DIR = "plots"
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def jsonable(obj: Any) -> Any:
+    """Plain JSON data: numpy scalars and arrays converted, non-finite floats as None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def load_results(out_dir: str | Path, repair: bool = False) -> dict[int, dict]:
+    """The records of ``DIR/results.jsonl`` by run index (the last record of an index wins).
+
+    A last line without its newline is what a killed campaign leaves: it is ignored (and cut off with
+    ``repair``). Any other unreadable line is an :class:`InputError`.
+    """
+    path = Path(out_dir) / RESULTS_FILE
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        return {}
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    end = raw.rfind(b"\n") + 1
+    if end < len(raw) and repair:
+        with path.open("r+b") as fh:
+            fh.truncate(end)
+    out: dict[int, dict] = {}
+    for n, line in enumerate(raw[:end].splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise InputError(f"{path}: line {n} is not valid JSON (fix it or start again with --restart)") from None
+        idx = rec.get("index") if isinstance(rec, dict) else None
+        if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
+            raise InputError(f"{path}: line {n} has no run index (fix it or start again with --restart)")
+        out[idx] = rec
+    return out
+
+
+# -- summary -----------------------------------------------------------------------------------------------------
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float] | None:
+    """The 95 % Wilson score interval of a success rate (None when n = 0)."""
+    if n == 0:
+        return None
+    p = successes / n
+    den = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    # the interval always holds p; rounding could put an end a hair past it at p = 0 or 1
+    return (min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half)))
+
+
+def _flatten(obj: Any, prefix: str = "") -> dict[str, float]:
+    out: dict[str, float] = {}
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            out.update(_flatten(v, f"{prefix}{k}."))
+    elif isinstance(obj, list) and all(_is_number(v) for v in obj) and len(obj) <= 8:
+        for i, v in enumerate(obj):
+            out[f"{prefix}{'xyzabcde'[i] if len(obj) == 3 else i}"] = float(v)
+    elif _is_number(obj):
+        out[prefix[:-1]] = float(obj)
+    return out
+
+
+def metric_value(record: dict, metric: str) -> float | None:
+    """The value of a dotted metric in a run record (None when absent)."""
+    if record.get("metrics") is None:
+        return None
+    return _flatten(record["metrics"]).get(metric)
+
+
+def _bins(values: list[Any], k: int) -> list[tuple[Any, Any]]:
+    nums = [v for v in values if _is_number(v)]
+    if len(nums) != len(values) or len(set(nums)) <= k:
+        return [(v, v) for v in sorted(set(values), key=lambda x: (str(type(x)), x))]
+    lo, hi = min(nums), max(nums)
+    edges = np.linspace(lo, hi, k + 1)
+    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _in_bin(v: Any, b: tuple[Any, Any], last: bool) -> bool:
+    if b[0] == b[1] or not _is_number(v):
+        return v == b[0]
+    return b[0] <= v < b[1] or (last and v == b[1])
+
+
+def binned_success(records: list[dict], param: str, k: int) -> list[dict]:
+    """Success rate of the runs with a verdict per bin of a parameter (numbers: k equal bins; else per value)."""
+    rows = [
+        (r["params"][param], bool(r["success"]))
+        for r in records
+        if r.get("success") is not None and param in r.get("params", {})
+    ]
+    if not rows:
+        return []
+    bins = _bins([v for v, _ in rows], k)
+    out = []
+    for j, b in enumerate(bins):
+        hits = [s for v, s in rows if _in_bin(v, b, j == len(bins) - 1)]
+        ci = wilson_interval(sum(hits), len(hits))
+        out.append(
+            {
+                "low": b[0],
+                "high": b[1],
+                "runs": len(hits),
+                "successes": int(sum(hits)),
+                "rate": sum(hits) / len(hits) if hits else None,
+                "ci95": list(ci) if ci else None,
+            }
+        )
+    return out
+
+
+def summarize(spec: CampaignSpec, records: list[dict], runs: int) -> dict:
+    """The campaign's summary: counts, success rate, metric distributions, binned success per parameter."""
+    ok = [r for r in records if r.get("status") == "ok"]
+    judged = [r for r in ok if r.get("success") is not None]
+    wins = sum(bool(r["success"]) for r in judged)
+    ci = wilson_interval(wins, len(judged))
+    flat = [_flatten(r["metrics"]) for r in ok]
+    keys = sorted({k for f in flat for k in f})
+    metrics = {}
+    for k in keys:
+        v = np.array([f[k] for f in flat if k in f])
+        metrics[k] = {
+            "n": int(v.size),
+            "mean": float(v.mean()),
+            "std": float(v.std()),
+            "min": float(v.min()),
+            "p5": float(np.percentile(v, 5)),
+            "median": float(np.median(v)),
+            "p95": float(np.percentile(v, 95)),
+            "max": float(v.max()),
+        }
+    unsafe = [r["index"] for r in ok if not r["metrics"].get("safety", {}).get("commands_within_limits", True)]
+    return jsonable(
+        {
+            "task": spec.task,
+            "hash": spec.digest(),
+            "runs_requested": runs,
+            "runs_done": len(records),
+            "runs_ok": len(ok),
+            "runs_error": len(records) - len(ok),
+            "errors": {str(r["index"]): r.get("error") for r in records if r.get("status") != "ok"},
+            "runs_judged": len(judged),
+            "successes": wins,
+            "success_rate": wins / len(judged) if judged else None,
+            "success_rate_ci95": list(ci) if ci else None,
+            "runs_with_unsafe_commands": unsafe,
+            "key_metric": spec.key_metric,
+            "metrics": metrics,
+            "parameters": {name: binned_success(ok, name, spec.bins) for name, _ in spec.vary},
+        }
+    )
+
+
+# -- plots -------------------------------------------------------------------------------------------------------
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    from omnirotor.experiments.figures import save_figure
+
+    return save_figure(fig, path)
+
+
+def _draw_success(
+    ax, bins: list[dict], label: str | None = None, color: str = "#2c3e50", shift: float = 0.0, counts: bool = True
+) -> None:
+    """Success rate per bin with its 95 % interval; ``shift`` moves numeric x (to tell overlapping series apart)."""
+    rows = [b for b in bins if b["runs"]]
+    if not rows:
+        return
+    numeric = all(_is_number(b["low"]) for b in rows)
+    x = [0.5 * (b["low"] + b["high"]) + shift if numeric else str(b["low"]) for b in rows]
+    y = [b["rate"] for b in rows]
+    lo = [b["rate"] - b["ci95"][0] for b in rows]
+    hi = [b["ci95"][1] - b["rate"] for b in rows]
+    ax.errorbar(x, y, yerr=[lo, hi], marker="o", capsize=3, color=color, label=label)
+    for xi, b in zip(x, rows, strict=True) if counts else ():
+        ax.annotate(f"{b['successes']}/{b['runs']}", (xi, b["rate"]), textcoords="offset points", xytext=(4, 6),
+                    fontsize=7, color=color)  # fmt: skip
+    ax.set_ylim(-0.05, 1.12)
+    ax.set_ylabel("success rate (95 % CI)")
+    ax.grid(alpha=0.3)
+
+
+def _scatter(
+    ax,
+    records: list[dict],
+    param: str,
+    metric: str,
+    color: str | None = None,
+    label: str | None = None,
+    marker: str = "o",
+    size: float = 16.0,
+):
+    """The metric of each run against the parameter: green/red by verdict, or one series in ``color``."""
+    pts = [(r["params"].get(param), metric_value(r, metric), r.get("success")) for r in records]
+    pts = [(x, y, s) for x, y, s in pts if x is not None and y is not None]
+    if not pts:
+        return
+    if color is None:
+        for flag, c, lab in ((True, "#27ae60", "success"), (False, "#c0392b", "failure"), (None, "0.5", "no verdict")):
+            sel = [(x, y) for x, y, s in pts if s is flag]
+            if sel:
+                ax.scatter(*zip(*sel, strict=True), s=16, color=c, label=lab, alpha=0.8)
+    else:
+        ok = [(x, y) for x, y, s in pts if s is not False]
+        bad = [(x, y) for x, y, s in pts if s is False]
+        if ok:  # hollow, so that series lying on each other stay visible
+            ax.scatter(*zip(*ok, strict=True), s=size, facecolors="none", edgecolors=color, marker=marker,
+                       label=f"{label} success")  # fmt: skip
+        if bad:
+            ax.scatter(*zip(*bad, strict=True), s=22, color=color, marker="x", label=f"{label} failure")
+    ax.set_ylabel(metric)
+    ax.grid(alpha=0.3)
+
+
+def _unit(param: str) -> str:
+    p = PARAMETERS.get(param)
+    return f"{param} [{p.unit}]" if p is not None and p.unit else param
+
+
+def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path) -> list[Path]:
+    """One PNG per varied parameter: binned success rate, and the key metric of each run against it."""
+    plt = _plt()
+    ok = [r for r in records if r.get("status") == "ok"]
+    paths = []
+    for name, _ in spec.vary:
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+        _draw_success(a1, binned_success(ok, name, spec.bins))
+        a1.set_xlabel(_unit(name))
+        a1.set_title(f"{spec.task}: success against {name}")
+        _scatter(a2, ok, name, spec.key_metric)
+        a2.set_xlabel(_unit(name))
+        a2.set_title(f"{spec.key_metric} of each run")
+        if a2.has_data():
+            a2.legend(fontsize=8)
+        paths.append(_save(fig, Path(out_dir) / f"success-vs-{name.replace('.', '_')}.png"))
+    return paths
+
+
+def _load_folder(folder: str | Path) -> tuple[dict, list[dict]]:
+    path = Path(folder) / DEFINITION_FILE
+    try:
+        stored = json.loads(path.read_text())
+        definition = stored["definition"]
+    except FileNotFoundError:
+        raise InputError(f"{folder}: not a campaign folder (no {DEFINITION_FILE})") from None
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError(f"{path}: unreadable campaign definition") from None
+    return definition, [r for r in load_results(folder).values() if r.get("status") == "ok"]
+
+
+def plot_comparison(
+    folders: list[str | Path], param: str, out: str | Path, labels: list[str] | None = None, bins: int = 6
+) -> Path:
+    """Success rate (and the key metric) against one parameter for several campaigns on shared bins.
+
+    Args:
+        folders: campaign folders.
+        param: the varied parameter to plot against.
+        out: PNG file.
+        labels: legend labels (default: each campaign's map and folder name).
+        bins: number of equal bins over the union of the drawn values.
+
+    Raises:
+        InputError: a folder is not a campaign, or does not vary ``param``.
+    """
+    if not str(out).lower().endswith(".png"):
+        raise InputError(f"{out}: the output must be a .png file")
+    if labels is not None and len(labels) != len(folders):
+        raise InputError(f"{len(labels)} labels for {len(folders)} campaigns")
+    loaded = [_load_folder(f) for f in folders]
+    for f, (definition, _) in zip(folders, loaded, strict=True):
+        if param not in definition.get("vary", {}):
+            raise InputError(f"{f}: the campaign does not vary {param!r}")
+    values = [r["params"][param] for _, recs in loaded for r in recs if param in r["params"]]
+    if not values:
+        raise InputError(f"no finished runs to plot in {', '.join(map(str, folders))}")
+    edges = _bins(values, bins)
+    numeric = all(_is_number(v) for v in values)
+    step = 0.012 * (max(values) - min(values)) if numeric else 0.0
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    colors = ("#c0392b", "#27ae60", "#2980b9", "#8e44ad", "#d35400")
+    task = loaded[0][0].get("task", "")
+    metric = KEY_METRICS.get(task, "ee_rms_error.x_cm")
+    for j, (folder, (definition, recs)) in enumerate(zip(folders, loaded, strict=True)):
+        label = labels[j] if labels else f"{definition['options']['map']} map ({Path(folder).name})"
+        color = colors[j % len(colors)]
+        rows = []
+        judged = [(r["params"][param], bool(r["success"])) for r in recs if r.get("success") is not None]
+        for i, b in enumerate(edges):
+            hits = [s for v, s in judged if _in_bin(v, b, i == len(edges) - 1)]
+            ci = wilson_interval(sum(hits), len(hits))
+            rows.append({"low": b[0], "high": b[1], "runs": len(hits), "successes": sum(hits),
+                         "rate": sum(hits) / len(hits) if hits else None, "ci95": ci})  # fmt: skip
+        _draw_success(a1, rows, label=label, color=color, shift=(j - 0.5 * (len(folders) - 1)) * step, counts=False)
+        _scatter(a2, recs, param, metric, color=color, label=label, marker="osD^v"[j % 5], size=14.0 + 22.0 * j)
+    a1.set_xlabel(_unit(param))
+    a1.set_title(f"{task}: success rate against {param} ({len(values)} runs, {len(edges)} bins)")
+    a1.legend(fontsize=8, loc="lower left")
+    a2.set_xlabel(_unit(param))
+    a2.set_title(f"{metric} of each run")
+    a2.legend(fontsize=8)
+    return _save(fig, Path(out))
