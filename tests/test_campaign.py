@@ -131,7 +131,7 @@ value = 5.0
     assert kinds[RotorFailure].rotor == 4 and not kinds[RotorFailure].tell_controller
     # events start inside the contact phase of the task
     t0, t1 = (job.derived[k] for k in ("mocap_dropout_t_s", "gust_t_s"))
-    assert 1.0 + 6.0 <= t0 <= 1.0 + 21.0 and 1.0 + 6.0 <= t1 <= 1.0 + 21.0
+    assert (1.0 + 6.0 <= t0 <= 1.0 + 21.0) and (1.0 + 6.0 <= t1 <= 1.0 + 21.0)
 
 
 def test_campaign_runs_saves_summarises_and_plots(tmp_path):

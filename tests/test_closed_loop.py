@@ -118,7 +118,7 @@ def test_interference_bias_and_zeroing(vehicle):
     ctl = InteractionController(vehicle, _params("bypass"))
     ctl_log, _ = run_closed_loop(sim, ctl, traj, 2.5)
     f_end = ctl_log.group("f_ext_W")[-1]
-    assert 1.6 < f_end[2] < 2.2 and np.abs(f_end[:2]).max() < 0.2
+    assert (1.6 < f_end[2] < 2.2) and np.abs(f_end[:2]).max() < 0.2
     assert ctl_log.group("xi_p_W")[-1, 2] == pytest.approx(f_end[2] / 100.0, rel=0.05)
     obs = ObserverParams(zero_at_start=True, zero_settle_s=1.0, zero_window_s=0.5)
     ctl = InteractionController(vehicle, _params("bypass", observer=obs))
