@@ -54,7 +54,7 @@ def run_one(task: str, options: ExperimentOptions) -> tuple[str, dict, dict | No
     from omnirotor.experiments.closed_loop import run_task
 
     result = run_task(task, options)
-    samples = getattr(result, "force_samples", None)
+    samples = getattr(result, "force_samples", None)  # only experiment results carry them
     if samples is not None:
         samples = {r: np.asarray(v).tolist() for r, v in samples.items()}
     return f"{task}/{options.map_mode}", result.summary(), samples

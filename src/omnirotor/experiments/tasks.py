@@ -50,7 +50,7 @@ from omnirotor.experiments.scenarios import (
 )
 from omnirotor.identification import write_csv
 from omnirotor.regions import load_partition
-from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim import SimParams, default_start_pose, scene_anchors
 from omnirotor.so3 import project_to_SO3
 from omnirotor.vehicle import VehicleParams, load_vehicle
 from omnirotor.wrench_maps import WrenchMapSet, load_wrench_maps
@@ -164,6 +164,8 @@ class ExperimentResult(TaskResult):
     log: RunLog | None = None
     scenario: Scenario | None = None
     region_names: tuple[str, ...] = ()
+    force_samples: dict[str, np.ndarray] | None = None
+    """Hover validation: (k, 3) estimated world-force samples per region, for the violin figure."""
 
     def summary(self) -> dict:
         """The run's JSON object (see the module docstring)."""
@@ -343,7 +345,7 @@ for _name in CONTACT_TASKS:
 # -- hover protocols ------------------------------------------------------------------------------------------
 
 
-def _hover_run(task: str, opts: TaskOptions, progress, seed_offset: int, per_region_attr: str) -> tuple:
+def _hover_run(opts: TaskOptions, progress, seed_offset: int, per_region_attr: str) -> tuple:
     opts = _options(opts)
     vehicle = load_vehicle(opts.vehicle)
     proto = opts.protocol or (HoverProtocol.quick() if opts.quick else HoverProtocol())
@@ -352,8 +354,8 @@ def _hover_run(task: str, opts: TaskOptions, progress, seed_offset: int, per_reg
     attitudes = hover_attitudes(
         partition, list(proto.regions), getattr(proto, per_region_attr), rng, vehicle, proto.min_speed_hz
     )
-    sim_probe = Simulator(vehicle, scene="free", params=opts.sim_params(), seed=opts.seed)
-    p_body, _ = sim_probe.default_start()
+    scene = opts.sim_params().scene
+    p_body, _ = default_start_pose(scene_anchors("free", scene), vehicle, scene)
     wps, holds = hover_schedule(attitudes, p_body, vehicle, proto.transition_s, proto.hold_s)
     duration = wps[-1].t + 0.5
     ctl_log, truth_log, names = _fly(
@@ -373,7 +375,7 @@ def identify_flights(options: TaskOptions, progress=None) -> ExperimentResult:
     average removes). The controller flies the nominal map, as the authors' did.
     """
     opts, vehicle, proto, log, ctl_log, truth_log, windows, duration, attitudes = _hover_run(
-        "identify-flights", options, progress, 1, "points_per_region"
+        options, progress, 1, "points_per_region"
     )
     rotor = truth_log.group("rotor_hz")[: log.t.size]
     R_est = ctl_log.group("R_WB")[: log.t.size].reshape(-1, 3, 3)
@@ -407,7 +409,7 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
     No external wrench acts: whatever the observer reports is model error seen through the map in use.
     """
     opts, vehicle, proto, log, ctl_log, truth_log, windows, duration, _ = _hover_run(
-        "hover-validation", options, progress, 2, "validation_per_region"
+        options, progress, 2, "validation_per_region"
     )
     m = _base("hover-validation", opts, log, duration, truth_log.group("controller_step_us"))
     regions = {}
@@ -430,7 +432,7 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
         samples[r] = f[:: max(1, f.shape[0] // 400)]
     m["regions"] = regions
     m["success"] = bool(m["steps_flagged"] == 0)
-    result = ExperimentResult(
+    return ExperimentResult(
         task="hover-validation",
         options=opts,
         duration_s=duration,
@@ -438,6 +440,5 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
         truth_log=truth_log,
         metrics=m,
         log=log,
+        force_samples=samples,
     )
-    result.force_samples = samples  # type: ignore[attr-defined]
-    return result
