@@ -259,5 +259,6 @@ def test_backends_agree_step_by_step():
     for _ in range(100):  # a warm-started sequence near hover
         R = R @ rot_x(rng.normal(0, 0.02))
         w_ref = np.concatenate([[0, 0, VEHICLE.weight] + rng.normal(0, 0.5, 3), rng.normal(0, 0.1, 3)])
-        u0, u1 = (a.solve(w_ref, R, VEHICLE.A_nom).copy() for a in allocs)
-        np.testing.assert_allclose(u0, u1, atol=1e-5 * VEHICLE.u_max)
+        u0, *others = (a.solve(w_ref, R, VEHICLE.A_nom).copy() for a in allocs)
+        for u1 in others:
+            np.testing.assert_allclose(u0, u1, atol=1e-5 * VEHICLE.u_max)

@@ -160,7 +160,7 @@ def test_hover_task_and_cli(capsys):
     code = main(["run", "hover", "--estimator", "bypass", "--duration", "0.5", "--truth", "nominal", "--json"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["task"] == "hover" and out["solver"] == "daqp" and out["estimator"] == "bypass"
+    assert out["task"] == "hover" and out["solver"] == "active-set" and out["estimator"] == "bypass"
     assert out["duration_s"] == 0.5 and "ee_rms_error" in out and "controller_step_us_median" in out
 
 

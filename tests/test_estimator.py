@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from omnirotor.config import from_mapping
+from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
 from omnirotor.errors import InputError
 from omnirotor.messages import SensorFrame, StateEstimate
@@ -341,3 +342,144 @@ def test_estimates_are_fresh_and_runs_deterministic():
     for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
         assert not np.shares_memory(getattr(first, name), getattr(second, name))
     np.testing.assert_allclose(est_a.P, est_b.P)
+
+
+# -- the compiled step against the orchestration it replaced ---------------------------------------------------
+
+
+def _reference_mocap_valid(frame):
+    """The motion-capture checks UKFEstimator.step made in Python before ukf_step."""
+    if not frame.mocap_new or frame.mocap_p_W is None or frame.mocap_q_WB is None:
+        return False
+    p, q = frame.mocap_p_W, frame.mocap_q_WB
+    if p.shape != (3,) or q.shape != (4,) or not math.isfinite(frame.mocap_t):
+        return False
+    return bool(_ek.mocap_sample_valid(p, q, _ek.QUAT_NORM_TOL))
+
+
+def _reference_step(est, frame, c):
+    """UKFEstimator.step as it was before ukf_step: one kernel call per stage, counters in the dict ``c``.
+
+    ``est`` supplies the memory and the Python start-up (reset); its own counters are not used. ``c`` also
+    counts the stale samples and the advances of the delayed state, to show what the sequence exercised.
+    """
+    out = np.empty(21)
+    if not est.initialised:
+        if _reference_mocap_valid(frame):
+            est.reset(frame)
+            c.update(fused=0, rejected_mocap=0, reinit=0, rejected_inputs=0, last_rejected=False, degraded=False)
+        _ek.write_estimate(est.kernel_mem[0 : _ek.UKF_SIZE], out)
+        valid = est.initialised and not c["degraded"]
+        return StateEstimate(float(frame.t), out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
+    mem = est.kernel_mem
+    mocap = frame.mocap_new
+    code, t = _ek.ukf_imu_step(mem, frame.imu_gyro_B, frame.imu_acc_B, frame.t, not mocap, out)
+    rejected = code & _ek.STEP_REJECTED
+    if mocap:
+        if _reference_mocap_valid(frame):
+            t_m = frame.mocap_t if est.params.compensate_latency else t
+            p_m, q_m = np.asarray(frame.mocap_p_W, dtype=float), np.asarray(frame.mocap_q_WB, dtype=float)
+            k_m = _ek.ukf_fuse_at(mem, float(t_m))
+            if k_m < 0:
+                fused = _ek.FUSE_STALE
+                c["stale"] += 1
+            else:
+                _ek.ukf_predict(mem, k_m)
+                fused = _ek.ukf_fuse(mem, p_m, q_m)
+            if fused == _ek.FUSE_OK:
+                c["fused"] += 1
+            else:
+                c["rejected_mocap"] += 1
+                c["reinit"] += fused == _ek.FUSE_REINIT
+                rejected = True
+        else:
+            c["rejected_mocap"] += 1
+            rejected = True
+        code = _ek.ukf_finish(mem, out)
+    if code & _ek.STEP_ADVANCE:
+        c["advance"] += 1
+        _ek.ukf_predict(mem, int(mem[_ek.UKF_K]) - int(mem[_ek.UKF_LAG_N]))
+    if rejected:
+        c["rejected_inputs"] += 1
+    c["last_rejected"] = bool(rejected)
+    c["degraded"] = degraded = bool(code & _ek.STEP_DEGRADED)
+    return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], not degraded)
+
+
+def _faulty_frames():
+    """A flight with every kind of bad input, a dropout that degrades, and a re-zeroed rig that re-initialises.
+
+    Returns the frames, the indices of the frames in which something is rejected by construction, and those of
+    the samples that are rejected only when the latency is compensated (taken too early or in the future).
+    """
+    fl = make_flight(T=1.6, seed=3, dropout=(0.9, 1.15), mocap_shift=(1.3, np.array([0.3, 0.0, 0.0])))
+    frames = list(fl.frames)
+    mocap_ks = [k for k, f in enumerate(frames) if f.mocap_new]
+
+    def mocap_after(t):
+        return next(k for k in mocap_ks if frames[k].t > t)
+
+    rep = dataclasses.replace
+    changes = {
+        300: dict(imu_acc_B=np.array([np.nan, 0.0, G])),
+        301: dict(imu_gyro_B=np.array([0.0, 100.0, 0.0])),  # beyond the range
+        350: dict(t=frames[349].t),  # the period does not increase
+    }
+    k = mocap_after(0.4)
+    changes[k] = dict(mocap_q_WB=frames[k].mocap_q_WB * 0.1)  # not a unit quaternion
+    k = mocap_after(0.45)
+    changes[k] = dict(mocap_p_W=np.array([np.nan, 0.0, 1.0]))
+    late = [mocap_after(0.5), mocap_after(0.55)]
+    changes[late[0]] = dict(mocap_t=frames[late[0]].t - 0.1)  # stale: older than the largest latency
+    changes[late[1]] = dict(mocap_t=frames[late[1]].t + 0.01)  # from the future
+    k = mocap_after(0.6)
+    changes[k] = dict(mocap_p_W=None)  # announced without a pose
+    k = mocap_after(0.65)
+    changes[k] = dict(mocap_t=math.nan)
+    k = mocap_after(0.7)
+    changes[k] = dict(mocap_p_W=frames[k].mocap_p_W + [0.0, 0.3, 0.0])  # outside the gate
+    k = mocap_after(0.75)
+    changes[k] = dict(imu_gyro_B=np.array([np.inf, 0.0, 0.0]))  # a bad IMU sample with a good pose
+    for k, change in changes.items():
+        frames[k] = rep(frames[k], **change)
+    return frames, sorted(set(changes) - set(late)), late
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        EstimatorParams(),
+        EstimatorParams(
+            compensate_latency=False, mocap_reinit_after=3, imu_offset_B=(0.01, -0.02, 0.04), gyro_cutoff_hz=20.0
+        ),
+    ],
+    ids=["default", "naive-lever-arm"],
+)
+def test_compiled_step_is_bit_identical_to_the_kernel_orchestration(params):
+    frames, bad, late = _faulty_frames()
+    if params.compensate_latency:
+        bad = bad + late
+    est, ref = UKFEstimator(VEHICLE, params), UKFEstimator(VEHICLE, params)
+    c = dict(fused=0, rejected_mocap=0, reinit=0, rejected_inputs=0, last_rejected=False, degraded=True)
+    c.update(stale=0, advance=0)
+    flagged, degraded = [], []
+    for k, f in enumerate(frames):
+        a, b = est.step(f), _reference_step(ref, f, c)
+        assert a.t == b.t and a.valid == b.valid, k
+        for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
+        assert est.kernel_mem.tobytes() == ref.kernel_mem.tobytes(), k  # every state, buffer and P
+        counters = (est.n_mocap_fused, est.rejected_mocap, est.n_reinit, est.rejected_inputs)
+        assert counters == (c["fused"], c["rejected_mocap"], c["reinit"], c["rejected_inputs"]), k
+        assert (est.last_input_rejected, est.degraded) == (c["last_rejected"], c["degraded"]), k
+        flagged.append(est.last_input_rejected)
+        degraded.append(est.degraded)
+    # The sequence exercised what it was built for.
+    assert set(bad) <= {k for k, x in enumerate(flagged) if x}  # plus the gate failures of the re-zeroed rig
+    assert (
+        c["stale"] >= (len(late) if params.compensate_latency else 0)
+        and c["reinit"] == 1
+        and c["fused"] > 0
+        and c["advance"] > 0
+    )
+    assert any(degraded) and not degraded[-1]

@@ -10,16 +10,67 @@ Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, cove
 
 The few SO(3) helpers both kernel modules need live here, as the simulator and the controller must not
 import each other. They follow the conventions of :mod:`omnirotor.so3` (quaternions wxyz, Hamilton).
+
+C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
+the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
+library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (the C library's
+``clock_gettime``, to time a block inside a compiled loop).
 """
 
 from __future__ import annotations
 
-import numba
+import functools
+import os
 
-__all__ = ["jit", "R9_from_quat_into"]
+import llvmlite.binding
+import numba
+from numba import types
+
+__all__ = ["jit", "R9_from_quat_into", "mujoco_function", "monotonic_ns"]
 
 jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
 """The decorator of every kernel (see the module docstring)."""
+
+
+@functools.cache
+def _load_mujoco_library() -> None:
+    """Make the symbols of the ``libmujoco`` of the installed ``mujoco`` package visible to compiled code."""
+    import mujoco
+
+    folder = os.path.dirname(mujoco.__file__)
+    names = sorted(f for f in os.listdir(folder) if f.startswith("libmujoco.so") or f.startswith("libmujoco."))
+    if not names:
+        raise ImportError(f"no libmujoco shared library in {folder}")
+    # The same file the bindings loaded, so the process has one MuJoCo (one set of globals and callbacks).
+    llvmlite.binding.load_library_permanently(os.path.join(folder, names[0]))
+
+
+def mujoco_function(name: str) -> types.ExternalFunction:
+    """MuJoCo's ``void name(const mjModel* m, mjData* d)``, callable from kernels with the two addresses.
+
+    The addresses are ``MjModel._address`` and ``MjData._address`` of the Python bindings, passed as integers.
+    MuJoCo's warnings land in ``MjData.warning`` as usual; a MuJoCo *error* inside such a call cannot be turned
+    into a Python exception (the bindings' handler would unwind through compiled code), so only functions that
+    raise none for a valid model are bound (the step functions).
+    """
+    _load_mujoco_library()
+    return types.ExternalFunction(name, types.void(types.uintp, types.uintp))
+
+
+_clock_gettime = types.ExternalFunction("clock_gettime", types.int32(types.int32, types.uintp))
+_CLOCK_MONOTONIC = 1  # Linux's CLOCK_MONOTONIC (the clock of time.perf_counter on Linux)
+_NS_PER_S = 1_000_000_000
+
+
+@jit
+def monotonic_ns(ts) -> int:
+    """Monotonic clock [ns] (``clock_gettime(CLOCK_MONOTONIC)``) for timing inside a compiled loop.
+
+    Args:
+        ts: (2,) int64 scratch array (a ``struct timespec``).
+    """
+    _clock_gettime(_CLOCK_MONOTONIC, ts.ctypes.data)
+    return ts[0] * _NS_PER_S + ts[1]
 
 
 @jit

@@ -37,7 +37,9 @@ def run(
         bool | None,
         typer.Option("--zero/--no-zero", help="Zero the observer at the start attitude (default: per task)."),
     ] = None,
-    solver: Annotated[str, typer.Option(help="Allocation QP backend: daqp or proxsuite.")] = "daqp",
+    solver: Annotated[
+        str, typer.Option(help="Allocation QP backend: active-set (compiled, default), daqp or proxsuite.")
+    ] = "active-set",
     estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass (truth plus noise).")] = "ukf",
     duration: Annotated[float | None, typer.Option(help="Simulated time [s]; default: the task's.")] = None,
     truth: Annotated[str, typer.Option(help="Simulator aerodynamics: interference or nominal.")] = "interference",

@@ -11,10 +11,13 @@ filter are described in the estimator's module docstring; these kernels implemen
   when no motion-capture sample is to be fused, the end of the step (:func:`ukf_finish`: the outputs);
 * :func:`ukf_predict`: the unscented covariance prediction of the delayed fused state;
 * :func:`ukf_fuse_at` and :func:`ukf_fuse`: where a delayed motion-capture sample belongs, and its update
-  (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now).
+  (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now);
+* :func:`ukf_step`: the estimator's whole 1 kHz step after initialisation in one call (the above in order,
+  the motion-capture sample checks, the latency choice and the counters ``CNT_*``), for
+  :meth:`UKFEstimator.step` and for a compiled control loop.
 
-Each is called from Python, not from another kernel: a kernel calling another compiles the callee again
-inside itself, and :func:`ukf_predict` is the slowest to compile.
+A kernel calling another compiles the callee again inside itself, so :func:`ukf_step` (which holds all of
+them, :func:`ukf_predict` the slowest) takes the longest to compile; the compiled code is cached on disk.
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -80,6 +83,18 @@ STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeo
 STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (ukf_predict to k - lag_n)
 
 M_Q1, M_Q2, M_Q3, M_P0, M_RN = 0, 1, 2, 3, 4
+
+# Layout of the counters array (int64) that ukf_step updates.
+CNT_MOCAP_FUSED = 0  # motion-capture samples fused
+CNT_REJECTED_MOCAP = 1  # motion-capture samples rejected (invalid, stale, singular or outside the gate)
+CNT_REINIT = 2  # re-initialisations from motion capture after repeated gate failures
+CNT_REJECTED_INPUTS = 3  # frames in which something (period, IMU sample, motion-capture sample) was rejected
+CNT_LAST_REJECTED = 4  # 1 when something in the last frame was rejected
+CNT_DEGRADED = 5  # 1 while no motion-capture sample was accepted for longer than the timeout
+CNT_SIZE = 6
+
+QUAT_NORM_TOL = 0.1
+"""A motion-capture quaternion whose norm is off 1 by more than this is rejected."""
 
 # Return codes of ukf_fuse.
 FUSE_OK = 0
@@ -256,8 +271,8 @@ def ukf_finish(mem, out) -> int:
 
     Outputs: bias-corrected rate and acceleration, low-passed, and the estimate ``p_W, v_W, a_W, R_WB
     (row-major), omega_B`` into ``out`` (21,). The delayed fused state is advanced by the caller
-    (``ukf_predict(mem, k - lag_n)``) when motion capture has not come for too long; that does not change the
-    outputs. (:func:`ukf_predict` is called only from Python, so that it is compiled once.)
+    (``ukf_predict(mem, k - lag_n)``, as :func:`ukf_step` does) when motion capture has not come for too long;
+    that does not change the outputs.
 
     Returns:
         ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, plus
@@ -730,3 +745,70 @@ def ukf_fuse(mem, p_m, q_m) -> int:
     x[UKF_JUST_RESET] = 0.0
     _repropagate(x, buf, sbuf)
     return FUSE_OK
+
+
+# -- the whole step ----------------------------------------------------------------------------------------------
+
+
+@jit
+def ukf_step(
+    mem, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, compensate_latency: bool, out, counters
+) -> tuple:
+    """The estimator's 1 kHz step once initialised (SPEC §4.5): IMU sample, motion-capture fusion, outputs.
+
+    In order: :func:`ukf_imu_step`; with a motion-capture sample, its checks (finite ``mocap_t``, finite pose,
+    quaternion norm within ``QUAT_NORM_TOL`` of 1), :func:`ukf_fuse_at` at ``mocap_t`` (or at the frame time
+    without ``compensate_latency``), :func:`ukf_predict` there, :func:`ukf_fuse` and :func:`ukf_finish`;
+    finally :func:`ukf_predict` to ``k - lag_n`` when the delayed fused state lags too far. The same
+    arithmetic, in the same order, as calling those kernels one by one.
+
+    Args:
+        mem: the estimator's memory (float64, layout :func:`memory_layout`).
+        gyro: (3,) gyro sample [rad/s], body frame (float64).
+        acc: (3,) accelerometer sample [m/s²], body frame (float64).
+        t_frame: frame time [s].
+        mocap_new: a motion-capture sample arrived in this frame.
+        mocap_t: time the sample was taken [s] (ignored without ``mocap_new``).
+        p_m: (3,) measured position [m], world frame (float64; ignored without ``mocap_new``). A frame that
+            announces a sample without a well-formed pose passes NaN here: it is rejected and counted.
+        q_m: (4,) measured attitude, wxyz (float64; as ``p_m``).
+        compensate_latency: fuse at ``mocap_t`` (True) or at the frame time (False).
+        out: (21,) the estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (as :func:`write_estimate`).
+        counters: (CNT_SIZE,) int64 counters and flags (``CNT_*``), updated.
+
+    Returns:
+        ``(code, t)``: ``STEP_REJECTED`` when something in the frame was rejected, plus ``STEP_DEGRADED``
+        while degraded (the estimate is then not valid); the time of the estimate [s] (``t_frame``, or the
+        previous time plus the nominal period when the frame's period was rejected).
+    """
+    code, t = ukf_imu_step(mem, gyro, acc, t_frame, not mocap_new, out)
+    rejected = (code & STEP_REJECTED) != 0
+    if mocap_new:
+        if math.isfinite(mocap_t) and mocap_sample_valid(p_m, q_m, QUAT_NORM_TOL):
+            t_m = mocap_t if compensate_latency else t
+            k_m = ukf_fuse_at(mem, t_m)
+            if k_m < 0:
+                fused = FUSE_STALE
+            else:
+                ukf_predict(mem, k_m)
+                fused = ukf_fuse(mem, p_m, q_m)
+            if fused == FUSE_OK:
+                counters[CNT_MOCAP_FUSED] += 1
+            else:
+                counters[CNT_REJECTED_MOCAP] += 1
+                if fused == FUSE_REINIT:
+                    counters[CNT_REINIT] += 1
+                rejected = True
+        else:
+            counters[CNT_REJECTED_MOCAP] += 1
+            rejected = True
+        code = ukf_finish(mem, out)
+    if code & STEP_ADVANCE:
+        ukf_predict(mem, int(mem[UKF_K]) - int(mem[UKF_LAG_N]))
+    result = code & STEP_DEGRADED
+    if rejected:
+        counters[CNT_REJECTED_INPUTS] += 1
+        result |= STEP_REJECTED
+    counters[CNT_LAST_REJECTED] = 1 if rejected else 0
+    counters[CNT_DEGRADED] = 1 if result & STEP_DEGRADED else 0
+    return result, t

@@ -2,12 +2,13 @@
 
 Each block keeps its state, parameters and outputs in **one** float64 array (its ``kernel_state``; the public
 attributes are views into it) whose layout is fixed here. The block's own Python method (``step``,
-``sample``, ...) calls the kernel of this module that implements it, and the controller calls the two
-fused kernels :func:`controller_pre` and :func:`controller_post`, which run the same kernels one after the
-other, so that a control period costs two compiled calls around the allocation QP (daqp, called from
-Python between them). Each block's equations and their SPEC section are in the docstring of the block's
-module; the arithmetic here is written in the order of the Python float code it replaced, so results agree
-with it to the last bit except where a small matrix-vector product used to be summed by BLAS (a rounding).
+``sample``, ...) calls the kernel of this module that implements it; the controller's compiled step
+(:mod:`omnirotor.control._step_kernels`) calls the two fused kernels :func:`controller_pre` and
+:func:`controller_post`, which run the same kernels one after the other, around the allocation QP (and the
+Python path of the controller calls them around a QP solver with a Python interface). Each block's
+equations and their SPEC section are in the docstring of the block's module; the arithmetic here is written
+in the order of the Python float code it replaced, so results agree with it to the last bit
+except where a small matrix-vector product used to be summed by BLAS (a rounding).
 """
 
 from __future__ import annotations
@@ -97,6 +98,7 @@ ALLOC_SCALE = 0  # u_scale [Hz²]
 ALLOC_W_B = 1  # (6,) body-frame wrench reference
 
 
+@jit
 def alloc_offsets(n: int) -> tuple[int, int, int, int, int, int, int, int, int, int]:
     """Offsets of the n-dependent parts of the allocation state, and its size.
 

@@ -15,8 +15,16 @@ instead of O(1e-8); the regulariser becomes ``lambda u_scale²`` in scaled units
 
 Backends (set up once, then only their numbers change, warm-started):
 
-* ``daqp`` (default): a persistent :class:`daqp.Model` with simple bounds; ``update`` keeps the previous
-  active set as the warm start (a dual active-set method, exact to machine precision on a problem this size).
+* ``active-set`` (default): our own compiled primal active-set solver (:func:`omnirotor.control._qp.boxqp_solve`),
+  exact to machine precision, warm-started from the last step's active set (one Cholesky factorisation of an
+  8 x 8 matrix when the saturated rotors did not change). A QP this small is solved in about a microsecond, so
+  the cost of calling an external solver from Python dominated the allocation; and the whole control period is
+  to run inside one compiled loop, which can call this solver but not a Python interface. Its arrays are
+  attributes of the backend (``H``, ``lo``, ``hi``, ``x``, ``active``, ``work``, ``max_iter``), ready to be
+  passed to the kernel.
+* ``daqp``: a persistent :class:`daqp.Model` with simple bounds; ``update`` keeps the previous active set as the
+  warm start (a dual active-set method, exact to machine precision on a problem this size). Kept as an option
+  and as the tests' oracle (daqp also solves the identification QP, SPEC §3.2).
 * ``proxsuite``: the paper's solver, a dense :class:`proxsuite.proxqp.dense.QP` with box constraints,
   ``WARM_START_WITH_PREVIOUS_RESULT``. ProxSuite 0.8 needs three precautions, all taken here: the option is
   set before ``init``, one ``solve`` follows ``init`` (an ``update`` before the first solve segfaults), and
@@ -47,12 +55,14 @@ import numpy as np
 
 from omnirotor.config import check_positive
 from omnirotor.control import _kernels as _k
+from omnirotor.control import _qp
+from omnirotor.control import _step_kernels as _sk
 from omnirotor.errors import InputError
 from omnirotor.vehicle import VehicleParams
 
 __all__ = ["AllocationParams", "AllocationStatus", "Allocator", "SOLVERS"]
 
-SOLVERS = ("daqp", "proxsuite")
+SOLVERS = ("active-set", "daqp", "proxsuite")
 """Names of the QP backends :class:`Allocator` can use."""
 
 _DAQP_SIMPLE_BOUND = 0  # daqp ``sense`` value of an inactive inequality (warm start picks the rest)
@@ -63,16 +73,16 @@ class AllocationParams:
     """Parameters of the allocation QP (SPEC §4.2).
 
     Attributes:
-        solver: QP backend, "daqp" (default) or "proxsuite" (the paper's solver).
+        solver: QP backend, "active-set" (default, compiled), "daqp" or "proxsuite" (the paper's solver).
         reg_lambda: weight lambda of ``lambda ||u||²`` with u in Hz² [N²/Hz⁴]; SPEC §4.2: 1e-12 (2e-4 N
             wrench error at hover, and a unique solution since AᵀA has rank 6 < n).
         max_iter: iteration cap of the backend (a solve that hits it counts as a failure).
         eps_abs: ProxSuite absolute KKT tolerance, in the scaled problem (x = u / u_scale, wrench in N and
-            N·m); daqp is an active-set method and solves to machine precision regardless.
+            N·m); the active-set solvers (ours and daqp) solve to machine precision regardless.
         saturation_tol: relative distance to a bound [-] below which a rotor counts as saturated.
     """
 
-    solver: str = "daqp"
+    solver: str = "active-set"
     reg_lambda: float = 1e-12
     max_iter: int = 200
     eps_abs: float = 1e-9
@@ -99,6 +109,50 @@ class AllocationStatus(enum.IntEnum):
     """The QP failed; the command is the pseudo-inverse solution clipped to the bounds."""
     NONFINITE = 2
     """An input was NaN or inf; the last safe command is held."""
+
+
+class _ActiveSetBackend:
+    """Our compiled primal active-set solver (:func:`omnirotor.control._qp.boxqp_solve`), warm-started.
+
+    Attributes:
+        H: (n, n) the allocator's Hessian array itself (not a copy), scaled units.
+        lo, hi: (n,) the allocator's scaled bound arrays (changed in place by the allocator).
+        x: (n,) the last solution (scaled).
+        active: (n,) int64 working set of the last solve (0 free, -1 at lo, +1 at hi), the next warm start.
+        work: float64 scratch of ``boxqp_work_size(n)`` entries.
+        max_iter: iteration cap (``AllocationParams.max_iter``).
+        iterations: iterations of the last solve, or its negative ``BOXQP_*`` code.
+    """
+
+    def __init__(self, H: np.ndarray, f: np.ndarray, lo: np.ndarray, hi: np.ndarray, params: AllocationParams):
+        n = f.shape[0]
+        self.H = H
+        self.lo = lo
+        self.hi = hi
+        self.x = np.zeros(n)
+        self.active = np.zeros(n, dtype=np.int64)
+        self.work = np.zeros(_qp.boxqp_work_size(n))
+        self.max_iter = int(params.max_iter)
+        self.iterations = 0
+        self.setup(H, f)
+
+    def setup(self, H: np.ndarray, f: np.ndarray) -> None:
+        """Cold start: every variable free in the next solve's initial working set."""
+        self.H = H
+        self.active[:] = _qp.FREE
+        self.iterations = 0
+
+    def set_hessian(self, H: np.ndarray) -> None:
+        """New Hessian (a new wrench map); the active set of the last solve stays as warm start."""
+        self.H = H
+
+    def set_bounds(self) -> None:
+        """The bound arrays given at construction changed in place (read at every solve: nothing to do)."""
+
+    def solve(self, f: np.ndarray) -> np.ndarray | None:
+        """Solve with linear term ``f``; the minimiser (scaled, the array :attr:`x`), or None on failure."""
+        self.iterations = _qp.boxqp_solve(self.H, f, self.lo, self.hi, self.x, self.active, self.work, self.max_iter)
+        return self.x if self.iterations >= 1 else None
 
 
 class _DaqpBackend:
@@ -240,11 +294,14 @@ class Allocator:
         self._lo[:] = self._lo_all
         self._hi[:] = self._hi_all
         self._failed = np.zeros(n, dtype=bool)
+        self.kernel_failed = np.zeros(n)
+        """(n,) 1.0 for a failed rotor (the mask as floats, for the compiled fallback)."""
+        self.kernel_counters = np.zeros(_sk.AC_SIZE, dtype=np.int64)
+        """int64 ``AC_*`` of :mod:`omnirotor.control._step_kernels`: status, counts and the saturation flag."""
         self._sat_margin = self.params.saturation_tol * float(self._hi_all[0] - self._lo_all[0])
         # Problem data in the scaled variables, rebuilt when the map changes.
         self._As = np.empty((6, n))  # A * u_scale  [N, N·m per unit x]
         self._H = np.empty((n, n))
-        self._diag = np.arange(n) * (n + 1)
         self.status = AllocationStatus.OK
         self.n_fallbacks = 0
         self.n_nonfinite = 0
@@ -256,17 +313,70 @@ class Allocator:
 
     # -- set-up -----------------------------------------------------------------------------------------
 
-    def _make_backend(self) -> _DaqpBackend | _ProxsuiteBackend:
-        cls = _DaqpBackend if self.params.solver == "daqp" else _ProxsuiteBackend
-        return cls(self._H, self._f, self._lo, self._hi, self.params)
+    # -- the outcome of the last solve, kept in kernel_counters (the compiled controller step updates it) ---------
+
+    @property
+    def status(self) -> AllocationStatus:
+        """:class:`AllocationStatus` of the last solve."""
+        return AllocationStatus(int(self.kernel_counters[_sk.AC_STATUS]))
+
+    @status.setter
+    def status(self, value: AllocationStatus) -> None:
+        self.kernel_counters[_sk.AC_STATUS] = int(value)
+
+    @property
+    def n_fallbacks(self) -> int:
+        """Solver failures (pseudo-inverse fallbacks) since construction or :meth:`reset`."""
+        return int(self.kernel_counters[_sk.AC_N_FALLBACKS])
+
+    @n_fallbacks.setter
+    def n_fallbacks(self, value: int) -> None:
+        self.kernel_counters[_sk.AC_N_FALLBACKS] = value
+
+    @property
+    def n_nonfinite(self) -> int:
+        """Calls with a NaN/inf input since construction or :meth:`reset`."""
+        return int(self.kernel_counters[_sk.AC_N_NONFINITE])
+
+    @n_nonfinite.setter
+    def n_nonfinite(self, value: int) -> None:
+        self.kernel_counters[_sk.AC_N_NONFINITE] = value
+
+    @property
+    def saturated(self) -> bool:
+        """True when some active rotor sits at a bound in the last result."""
+        return bool(self.kernel_counters[_sk.AC_SATURATED])
+
+    @saturated.setter
+    def saturated(self, value: bool) -> None:
+        self.kernel_counters[_sk.AC_SATURATED] = 1 if value else 0
+
+    @property
+    def kernel_backend(self) -> _ActiveSetBackend | None:
+        """The compiled solver's backend (its arrays go to the compiled step), or None for daqp and proxsuite."""
+        return self._backend if isinstance(self._backend, _ActiveSetBackend) else None
+
+    @property
+    def kernel_As(self) -> np.ndarray:  # noqa: N802 (a matrix)
+        """(6, n) the map in use times u_scale, the compiled fallback's and ``alloc_set_map``'s array."""
+        return self._As
+
+    @property
+    def kernel_lam_scaled(self) -> float:
+        """The regulariser in scaled units, ``lambda u_scale²``."""
+        return self._lam_scaled
+
+    def _make_backend(self) -> _ActiveSetBackend | _DaqpBackend | _ProxsuiteBackend:
+        cls = {"active-set": _ActiveSetBackend, "daqp": _DaqpBackend, "proxsuite": _ProxsuiteBackend}
+        return cls[self.params.solver](self._H, self._f, self._lo, self._hi, self.params)
 
     def _set_map(self, A: np.ndarray) -> None:
-        """Rebuild the Hessian for a new wrench map (A already checked finite by the caller)."""
-        np.multiply(A, self._u_scale, out=self._As)
-        np.negative(self._As.T, out=self._G)
-        np.matmul(self._As.T, self._As, out=self._H)
-        self._H.flat[self._diag] += self._lam_scaled
-        self._A_key[:] = A
+        """Rebuild the Hessian for a new wrench map (A already checked finite by the caller).
+
+        Compiled (:func:`omnirotor.control._qp.alloc_set_map`): As = A u_scale, G = -Asᵀ, H = AsᵀAs + lambda_s I
+        and the map key, in place.
+        """
+        _qp.alloc_set_map(self.kernel_state, A, self._As, self._H, self._lam_scaled)
 
     @property
     def failed_rotors(self) -> np.ndarray:
@@ -293,6 +403,7 @@ class Allocator:
             if failed.all():
                 raise InputError("cannot exclude every rotor")
         self._failed[:] = failed
+        self.kernel_failed[:] = failed
         self._lo[:] = np.where(failed, 0.0, self._lo_all)
         self._hi[:] = np.where(failed, 0.0, self._hi_all)
         self._refresh_bound_lists()

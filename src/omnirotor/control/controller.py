@@ -30,11 +30,15 @@ Every step is logged in :attr:`InteractionController.log` (a :class:`~omnirotor.
 in :data:`LOG_GROUPS`): time, estimate, actual EE position, desired and compliant EE poses, admittance
 offset, estimated wrench, wrench reference, pose errors, u, omega command, region index and status.
 
-Cost. The blocks keep their states in slices of one array (:func:`omnirotor.control._kernels.controller_layout`),
-and :meth:`InteractionController.step` runs steps 3-6 in one compiled call
-(:func:`~omnirotor.control._kernels.controller_pre`), the QP through daqp's Python interface, and step 7 with
-the log row in a second compiled call (:func:`~omnirotor.control._kernels.controller_post`). These run the
-same kernels as the blocks' own ``step`` methods.
+Cost. The blocks keep their states in slices of one array (:func:`omnirotor.control._kernels.controller_layout`).
+With the default QP solver ("active-set", compiled) and an initialised estimator, :meth:`step` is **one**
+compiled call, :func:`omnirotor.control._step_kernels.controller_step`, on the frame's packed form
+(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is packed first. That call
+runs the same kernels as the blocks' own ``step`` methods, and a compiled closed loop calls it directly with
+:attr:`InteractionController.kernel_args`. With the "daqp" or "proxsuite" solvers (called from Python), or
+while the UKF waits for its first motion-capture sample, the step runs the blocks from Python around two
+compiled calls (:func:`~omnirotor.control._kernels.controller_pre` and
+:func:`~omnirotor.control._kernels.controller_post`); both paths give the same numbers.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import numpy as np
 
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _kernels as _k
+from omnirotor.control import _step_kernels as _sk
 from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
 from omnirotor.control.allocation import AllocationParams, AllocationStatus, Allocator
 from omnirotor.control.estimator import EstimatorParams, make_estimator
@@ -54,7 +59,7 @@ from omnirotor.control.observer import ObserverParams, WrenchObserver
 from omnirotor.control.pose import PoseController, PoseControlParams
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
-from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame
+from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_size
 from omnirotor.recorder import Recorder
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import WrenchMapSet
@@ -260,6 +265,13 @@ class InteractionController:
         self._no_x = np.zeros(n)
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
+        # The compiled step (_step_kernels.controller_step): its parameters, the packed frame, the estimate.
+        self._ints = np.zeros(_sk.CI_SIZE, dtype=np.int64)
+        self._floats = np.zeros(_sk.CF_SIZE)
+        self._frame_buf = np.zeros(frame_size(n))
+        self._est_out = np.zeros(21)
+        self._kernel_args: tuple | None = None
+        self._kernel_estimator = None  # the estimator whose arrays the kernel arguments hold
 
     # -- set-up -------------------------------------------------------------------------------------------
 
@@ -272,6 +284,74 @@ class InteractionController:
         """Exclude rotors from the allocation (see :meth:`Allocator.set_failed_rotors`)."""
         self.allocator.set_failed_rotors(mask)
         self._excluded = bool(np.any(self.allocator.failed_rotors))
+        self._ints[_sk.CI_EXCLUDED] = 1 if self._excluded else 0
+
+    @property
+    def kernel_args(self) -> tuple | None:
+        """The argument tuple of :func:`omnirotor.control._step_kernels.controller_step` (its module docstring).
+
+        None before :meth:`reset`, with a QP solver called from Python ("daqp", "proxsuite"), while the UKF
+        is not initialised, or when the estimator was replaced after :meth:`reset`: the step then runs from
+        Python. Valid until the next :meth:`reset`.
+        """
+        if self._kernel_args is None or self.estimator is not self._kernel_estimator:
+            return None
+        return self._kernel_args if self.estimator.initialised else None
+
+    @property
+    def kernel_command(self) -> np.ndarray:
+        """(n,) the array the compiled step writes its command into [Hz] (a compiled loop's plant input).
+
+        Read it, never write it: it is the controller's own state (the last command).
+        """
+        return self._omega_cmd
+
+    def sync(self) -> None:
+        """Bring the Python-side attributes up to date after compiled steps made elsewhere (a compiled loop).
+
+        Every block keeps its state in arrays the compiled step updates; only the map scheduler's region name
+        and index are Python attributes.
+        """
+        self.scheduler.sync()
+
+    def _build_kernel_args(self) -> None:
+        alloc, est, sched = self.allocator, self.estimator, self.scheduler
+        backend = alloc.kernel_backend
+        self._kernel_args = None
+        self._kernel_estimator = None
+        if backend is None or not hasattr(est, "kernel_counters"):  # a Python solver, or a stand-in estimator
+            return
+        ints, floats = self._ints, self._floats
+        kind = self.params.estimator.kind
+        ints[_sk.CI_EST_KIND] = _sk.EST_BYPASS if kind == "bypass" else _sk.EST_UKF
+        ints[_sk.CI_MEASURED] = 1 if self._measured_input else 0
+        ints[_sk.CI_PIECEWISE] = 1 if self._piecewise else 0
+        ints[_sk.CI_EXCLUDED] = 1 if self._excluded else 0
+        ints[_sk.CI_MAX_ITER] = backend.max_iter
+        floats[_sk.CF_T0] = self._t0
+        floats[_sk.CF_DT] = self._dt
+        floats[_sk.CF_LAM] = alloc.kernel_lam_scaled
+        if kind == "bypass":
+            est_arrays = (np.zeros(1), np.zeros(1, dtype=np.int64), est.kernel_last, est.kernel_counters)
+        else:
+            ints[_sk.CI_COMPENSATE] = 1 if est.kernel_compensate_latency else 0
+            est_arrays = (est.kernel_mem, est.kernel_counters, np.zeros(1), np.zeros(1, dtype=np.int64))
+        sched_arrays = (
+            sched.kernel_schedule,
+            sched.kernel_maps,
+            sched.kernel_out,
+            sched.kernel_weights,
+            sched.kernel_state,
+        )
+        alloc_arrays = (
+            backend.H, backend.lo, backend.hi, backend.x, backend.active, backend.work, alloc.kernel_As,
+            alloc.kernel_failed, alloc.kernel_counters,
+        )  # fmt: skip
+        self._kernel_args = (
+            self._arena, ints, floats, est_arrays, sched_arrays, alloc_arrays, self._trajectory.kernel_data,
+            self._est_out,
+        )  # fmt: skip
+        self._kernel_estimator = est
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
@@ -305,6 +385,7 @@ class InteractionController:
         self.compliant_ee.copy_from(self.desired_ee)
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
+        self._build_kernel_args()
 
     def hold_command(self, t: float | None = None) -> RotorCommand:
         """The last safe command (after :meth:`reset`: the initial frame's speeds), e.g. for the first period.
@@ -328,6 +409,27 @@ class InteractionController:
         trajectory = self._trajectory
         if trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
+        args = self._kernel_args
+        estimator = self.estimator
+        if args is not None and estimator is self._kernel_estimator and estimator.initialised:
+            packed = frame.packed
+            if packed is None or packed.shape != self._frame_buf.shape:
+                packed = self._frame_buf
+                try:
+                    frame.pack_into(packed)
+                except ValueError as exc:
+                    raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+            row = self.log.next_row()
+            bits = _sk.controller_step(args, packed, self._no_row if row is None else row)
+            if bits == _sk.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
+                raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
+            if self._piecewise:
+                self.scheduler.sync()
+            return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+        return self._step_python(frame, trajectory)
+
+    def _step_python(self, frame: SensorFrame, trajectory: PoseTrajectory) -> RotorCommand:
+        """:meth:`step` with the blocks called from Python (QP solvers with a Python interface, UKF start-up)."""
         t = frame.t - self._t0
         bits = 0
         estimator = self.estimator

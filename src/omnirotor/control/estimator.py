@@ -27,8 +27,9 @@ How it spends its time (cost matters: this runs every 1 ms inside the controller
   Kalman update and is computed in that closed form. The attitude error is then folded into the mean and
   ``P`` transported by the reset Jacobian ``I - [dtheta/2]x`` (skipped below 1 mrad, where it is < 0.05 %).
 
-The arithmetic runs in compiled kernels (:mod:`omnirotor.control._estimator_kernels`): a step without
-motion capture is one compiled call, a step with a sample five.
+The arithmetic runs in compiled kernels (:mod:`omnirotor.control._estimator_kernels`): once initialised, a
+step is one compiled call (:func:`~omnirotor.control._estimator_kernels.ukf_step`), which a compiled control
+loop can also make itself (:class:`UKFEstimator`).
 
 Latency. A motion-capture sample taken at ``mocap_t`` arrives ``t - mocap_t`` later (5-10 ms on a typical
 rig). The filter therefore keeps a *delayed* fused state at the time of the last fused sample and a ring
@@ -73,6 +74,7 @@ import numpy as np
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _kernels as _k
+from omnirotor.control import _step_kernels as _sk
 from omnirotor.errors import InputError
 from omnirotor.messages import SensorFrame, StateEstimate
 from omnirotor.vehicle import VehicleParams
@@ -85,7 +87,7 @@ ESTIMATOR_KINDS = ("ukf", "bypass")
 _N_ERR = 15  # error-state dimension: dp, dv, dtheta, db_a, db_g
 _ADVANCE_CHUNK_S = 0.01  # without motion capture, advance the delayed fused state in steps of this much
 _COV_STEP_S = 0.01  # longest step of the sigma-point (covariance) propagation [s]
-_QUAT_NORM_TOL = 0.1  # a motion-capture quaternion whose norm is off by more than this is rejected
+_F64 = np.dtype(np.float64)  # the dtype of every array the compiled step takes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,8 +231,17 @@ class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
 
     The filter's arrays live in one float array (layout in :mod:`omnirotor.control._estimator_kernels`),
-    which the compiled kernels of a step read and write: a plain IMU step is one compiled call, a step with
-    a motion-capture sample five.
+    its counters and flags in one int64 array; once initialised, a step is one compiled call,
+    :func:`~omnirotor.control._estimator_kernels.ukf_step`, which reads and writes both.
+
+    A compiled loop may step the filter itself, after :meth:`reset` (or a first :meth:`step` that
+    initialised it; ``initialised`` must be True), with
+    ``ukf_step(kernel_mem, gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, kernel_compensate_latency, out,
+    kernel_counters)``: ``gyro_B``, ``acc_B`` (3,), ``p_m`` (3,), ``q_m`` (4,) and ``out`` (21,) float64
+    arrays (``p_m``, ``q_m`` any such arrays without a sample, NaN for a sample announced without a
+    well-formed pose), floats ``t`` and ``mocap_t`` [s], bools ``mocap_new`` and the flag. It returns
+    ``(code, t)``; the estimate is ``out`` (layout of ``write_estimate``) at time ``t``, valid unless ``code``
+    has ``STEP_DEGRADED``; the properties below then read the updated counters.
 
     Attributes:
         degraded: True while no motion-capture sample was accepted for ``mocap_timeout_s`` (or before the
@@ -244,6 +255,10 @@ class UKFEstimator:
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
         P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
+        kernel_mem: the filter's memory (float64 array) that ``ukf_step`` takes.
+        kernel_counters: (``CNT_SIZE``,) int64 counters and flags (``CNT_*``) that ``ukf_step`` updates; the
+            properties above read it.
+        kernel_compensate_latency: ``params.compensate_latency``, the flag ``ukf_step`` takes.
     """
 
     def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
@@ -264,6 +279,12 @@ class UKFEstimator:
         self._cov_n = max(1, int(round(_COV_STEP_S * p.imu_rate_hz)))
         o_buf, o_sbuf, o_P, o_W, o_M, size = _ek.memory_layout(self._cap)
         self._mem = mem = np.zeros(size)
+        self.kernel_mem = mem
+        self.kernel_counters = np.zeros(_ek.CNT_SIZE, dtype=np.int64)
+        self.kernel_compensate_latency = bool(p.compensate_latency)
+        # The pose ukf_step gets for a sample announced without a well-formed one (rejected as non-finite).
+        self._no_p = np.full(3, math.nan)
+        self._no_q = np.full(4, math.nan)
         self._x = x = mem[0 : _ek.UKF_SIZE]
         self.P = mem[o_P:o_W].reshape(_N_ERR, _N_ERR)
         # Unscented-transform weights (mean, covariance).
@@ -308,12 +329,8 @@ class UKFEstimator:
     def _clear(self) -> None:
         """Forget everything: uninitialised, counters cleared, covariance back to the initial one."""
         self.initialised = False
-        self.degraded = True
-        self.rejected_inputs = 0
-        self.rejected_mocap = 0
-        self.last_input_rejected = False
-        self.n_mocap_fused = 0
-        self.n_reinit = 0
+        self.kernel_counters[:] = 0
+        self.kernel_counters[_ek.CNT_DEGRADED] = 1
         x = self._x
         x[0 : _ek.UKF_G] = 0.0  # states, times and counters (parameters kept)
         x[_ek.UKF_S + 6] = 1.0  # output (current) nominal state: p, v, q (wxyz), b_a, b_g
@@ -357,7 +374,7 @@ class UKFEstimator:
         x[_ek.UKF_T] = x[_ek.UKF_T_F] = frame.t
         x[_ek.UKF_T_ACCEPT] = frame.t
         self.initialised = True
-        self.degraded = False
+        self.kernel_counters[_ek.CNT_DEGRADED] = 0
         gyro, acc = frame.imu_gyro_B.tolist(), frame.imu_acc_B.tolist()
         if self._imu_valid(gyro, acc):
             x[_ek.UKF_IMU : _ek.UKF_IMU + 6] = gyro + acc
@@ -381,6 +398,38 @@ class UKFEstimator:
         """How far the delayed fused state lags the output [s]."""
         return float(self._x[_ek.UKF_T] - self._x[_ek.UKF_T_F])
 
+    # The counters and flags, kept in kernel_counters (class docstring).
+
+    @property
+    def degraded(self) -> bool:
+        """True while no motion-capture sample was accepted for the timeout (or before initialisation)."""
+        return bool(self.kernel_counters[_ek.CNT_DEGRADED])
+
+    @property
+    def last_input_rejected(self) -> bool:
+        """True when something in the last frame was rejected."""
+        return bool(self.kernel_counters[_ek.CNT_LAST_REJECTED])
+
+    @property
+    def rejected_inputs(self) -> int:
+        """Count of frames in which the period, the IMU or the motion-capture sample was rejected."""
+        return int(self.kernel_counters[_ek.CNT_REJECTED_INPUTS])
+
+    @property
+    def rejected_mocap(self) -> int:
+        """Count of motion-capture samples rejected (invalid, stale or outside the gate)."""
+        return int(self.kernel_counters[_ek.CNT_REJECTED_MOCAP])
+
+    @property
+    def n_mocap_fused(self) -> int:
+        """Count of motion-capture samples fused."""
+        return int(self.kernel_counters[_ek.CNT_MOCAP_FUSED])
+
+    @property
+    def n_reinit(self) -> int:
+        """Count of re-initialisations from motion capture after repeated gate failures."""
+        return int(self.kernel_counters[_ek.CNT_REINIT])
+
     # -- validation ----------------------------------------------------------------------------------------
 
     def _imu_valid(self, gyro: list[float], acc: list[float]) -> bool:
@@ -393,7 +442,7 @@ class UKFEstimator:
         p, q = frame.mocap_p_W, frame.mocap_q_WB
         if p.shape != (3,) or q.shape != (4,) or not math.isfinite(frame.mocap_t):
             return False
-        return bool(_ek.mocap_sample_valid(p, q, _QUAT_NORM_TOL))
+        return bool(_ek.mocap_sample_valid(p, q, _ek.QUAT_NORM_TOL))
 
     # -- the 1 kHz step ------------------------------------------------------------------------------------
 
@@ -412,39 +461,31 @@ class UKFEstimator:
                 self.reset(frame)
             _ek.write_estimate(self._x, out)
             return self._estimate(frame.t, out)
-        mem = self._mem
-        mocap = frame.mocap_new
-        # The IMU arrays go to the kernel as they are (a non-float64 array compiles a variant once).
-        code, t = _ek.ukf_imu_step(mem, frame.imu_gyro_B, frame.imu_acc_B, frame.t, not mocap, out)
-        rejected = code & _ek.STEP_REJECTED
-        if mocap:
-            if self._mocap_valid(frame):
-                t_m = frame.mocap_t if self.params.compensate_latency else t
-                f64 = np.float64
-                p_m, q_m = np.asarray(frame.mocap_p_W, dtype=f64), np.asarray(frame.mocap_q_WB, dtype=f64)
-                k_m = _ek.ukf_fuse_at(mem, float(t_m))
-                if k_m < 0:
-                    fused = _ek.FUSE_STALE
-                else:
-                    _ek.ukf_predict(mem, k_m)
-                    fused = _ek.ukf_fuse(mem, p_m, q_m)
-                if fused == _ek.FUSE_OK:
-                    self.n_mocap_fused += 1
-                else:
-                    self.rejected_mocap += 1
-                    self.n_reinit += fused == _ek.FUSE_REINIT
-                    rejected = True
-            else:
-                self.rejected_mocap += 1
-                rejected = True
-            code = _ek.ukf_finish(mem, out)
-        if code & _ek.STEP_ADVANCE:
-            _ek.ukf_predict(mem, int(self._x[_ek.UKF_K]) - self._lag_n)
-        if rejected:
-            self.rejected_inputs += 1
-        self.last_input_rejected = bool(rejected)
-        self.degraded = degraded = bool(code & _ek.STEP_DEGRADED)
-        return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], not degraded)
+        # Every array goes to the kernel as float64 (another dtype would compile a variant of the whole step).
+        gyro, acc = frame.imu_gyro_B, frame.imu_acc_B
+        if gyro.dtype is not _F64 or acc.dtype is not _F64:
+            gyro, acc = np.asarray(gyro, dtype=_F64), np.asarray(acc, dtype=_F64)
+        mocap = bool(frame.mocap_new)
+        p_m, q_m = self._no_p, self._no_q
+        if mocap and frame.mocap_p_W is not None and frame.mocap_q_WB is not None:
+            p, q = np.asarray(frame.mocap_p_W, dtype=_F64), np.asarray(frame.mocap_q_WB, dtype=_F64)
+            if p.shape == (3,) and q.shape == (4,):
+                p_m, q_m = p, q
+        code, t = _ek.ukf_step(
+            self._mem,
+            gyro,
+            acc,
+            float(frame.t),
+            mocap,
+            float(frame.mocap_t) if mocap else math.nan,
+            p_m,
+            q_m,
+            self.kernel_compensate_latency,
+            out,
+            self.kernel_counters,
+        )
+        valid = not code & _ek.STEP_DEGRADED
+        return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
 
     def _estimate(self, t: float, x: np.ndarray) -> StateEstimate:
         # One fresh array per message; the fields are views into it.
@@ -482,24 +523,55 @@ def _state_finite(state: StateEstimate) -> bool:
 class BypassEstimator:
     """Pass the plant's ``SensorFrame.state`` (ground truth plus noise) through, for fast studies.
 
-    A frame without a state, or with a non-finite one, repeats the last good state flagged invalid.
+    A frame without a state, or with a non-finite one, repeats the last good state flagged invalid. The last
+    good state and the flags live in arrays (:attr:`kernel_last`, :attr:`kernel_counters`) that the compiled
+    :func:`omnirotor.control._step_kernels.bypass_step` updates, called by the controller's compiled step.
 
     Attributes:
         degraded: True when the last frame's state was missing or non-finite.
         initialised: True once a state was received.
         rejected_inputs: count of frames whose state was missing or non-finite.
         last_input_rejected: True when the last frame's state was rejected.
+        kernel_last: (21,) the last good state (p, v, a, R row-major, omega).
+        kernel_counters: (``BY_SIZE``,) int64 flags and counts (``BY_*`` of ``_step_kernels``).
     """
 
     def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
         """Args: vehicle: the vehicle (unused, for a uniform interface). params: estimator parameters."""
         self.params = params if params is not None else EstimatorParams(kind="bypass")
         self.vehicle = vehicle
-        self._last: StateEstimate | None = None
-        self.initialised = False
-        self.degraded = True
-        self.rejected_inputs = 0
-        self.last_input_rejected = False
+        self.kernel_last = np.zeros(21)
+        self.kernel_counters = np.zeros(_sk.BY_SIZE, dtype=np.int64)
+        self.kernel_counters[_sk.BY_DEGRADED] = 1
+        self._last_t = 0.0
+
+    @property
+    def initialised(self) -> bool:
+        """True once a state was received."""
+        return bool(self.kernel_counters[_sk.BY_INITIALISED])
+
+    @property
+    def degraded(self) -> bool:
+        """True when the last frame's state was missing or non-finite."""
+        return bool(self.kernel_counters[_sk.BY_DEGRADED])
+
+    @property
+    def rejected_inputs(self) -> int:
+        """Count of frames whose state was missing or non-finite."""
+        return int(self.kernel_counters[_sk.BY_REJECTED_INPUTS])
+
+    @property
+    def last_input_rejected(self) -> bool:
+        """True when the last frame's state was rejected."""
+        return bool(self.kernel_counters[_sk.BY_LAST_REJECTED])
+
+    def _take(self, state: StateEstimate) -> None:
+        o = self.kernel_last
+        o[0:3], o[3:6], o[6:9], o[9:18], o[18:21] = state.p_W, state.v_W, state.a_W, np.ravel(state.R_WB), state.omega_B
+        c = self.kernel_counters
+        c[_sk.BY_INITIALISED] = 1
+        c[_sk.BY_DEGRADED] = 0
+        c[_sk.BY_LAST_REJECTED] = 0
 
     def reset(self, frame: SensorFrame) -> None:
         """Start from the frame's state.
@@ -509,11 +581,8 @@ class BypassEstimator:
         """
         if frame.state is None or not _state_finite(frame.state):
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        self._last = frame.state
-        self.initialised = True
-        self.degraded = False
-        self.rejected_inputs = 0
-        self.last_input_rejected = False
+        self.kernel_counters[:] = 0
+        self._take(frame.state)
 
     def step(self, frame: SensorFrame) -> StateEstimate:
         """Return ``frame.state``, or the last good state flagged invalid.
@@ -523,18 +592,16 @@ class BypassEstimator:
         """
         state = frame.state
         if state is not None and _state_finite(state):
-            self._last = state
-            self.initialised = True
-            self.degraded = False
-            self.last_input_rejected = False
+            self._take(state)
             return state
-        if self._last is None:
+        if not self.initialised:
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        self.rejected_inputs += 1
-        self.last_input_rejected = True
-        self.degraded = True
-        last = self._last
-        return dataclasses.replace(last, t=frame.t, valid=False)
+        c = self.kernel_counters
+        c[_sk.BY_REJECTED_INPUTS] += 1
+        c[_sk.BY_LAST_REJECTED] = 1
+        c[_sk.BY_DEGRADED] = 1
+        o = self.kernel_last.copy()
+        return StateEstimate(frame.t, o[0:3], o[3:6], o[6:9], o[9:18].reshape(3, 3), o[18:21], False)
 
 
 def make_estimator(vehicle: VehicleParams, params: EstimatorParams | None = None) -> UKFEstimator | BypassEstimator:

@@ -38,8 +38,9 @@ import math
 import numpy as np
 
 from omnirotor.config import check_positive
+from omnirotor.control import _map_kernels as _mk
 from omnirotor.errors import InputError
-from omnirotor.regions import Partition, Region, azimuth_elevation
+from omnirotor.regions import Partition, Region
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import WrenchMapSet
 
@@ -77,20 +78,6 @@ class MapParams:
         check_positive("map blend_width_deg", self.blend_width_deg)
         if self.blend_width_deg > 90.0:
             raise InputError(f"map blend_width_deg must be <= 90, got {self.blend_width_deg}")
-
-
-def _smoothstep(t: float) -> float:
-    """``3t² - 2t³`` on t clipped to [0, 1]."""
-    if t <= 0.0:
-        return 0.0
-    if t >= 1.0:
-        return 1.0
-    return t * t * (3.0 - 2.0 * t)
-
-
-def _wrap_pi(a: float) -> float:
-    """Angle [rad] wrapped to [-pi, pi)."""
-    return (a + math.pi) % _TWO_PI - math.pi
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,44 +129,13 @@ class _SoftRegion:
             widths.append(2.0 * (self.el_hi + _HALF_PI))
         return min(widths, default=math.inf)
 
-    def weight(self, az: float, el: float, half_band: float, inv_band: float) -> float:
-        """Raw soft membership of (az, el) [rad] for a band of half-width ``half_band`` = 1 / (2 inv_band)."""
-        lo, hi = self.el_lo, self.el_hi
-        if el <= lo - half_band or el >= hi + half_band:
-            return 0.0
-        w = 1.0
-        if el < lo + half_band:
-            w = _smoothstep((el - lo) * inv_band + 0.5)
-        elif el > hi - half_band:
-            w = _smoothstep((hi - el) * inv_band + 0.5)
-        if self.az_full:
-            return w
-        a = 0.0
-        for c, h in zip(self.az_centres, self.az_halves, strict=True):
-            d = h - abs(_wrap_pi(az - c))  # signed distance inside the interval [rad]
-            if d >= half_band:
-                return w
-            if d > -half_band:
-                a += _smoothstep(d * inv_band + 0.5)
-        return w * a
-
-    def depth(self, az: float, el: float) -> float:
-        """Smallest angular distance [rad] from (az, el), inside the region, to one of its borders."""
-        d = math.inf
-        if self.el_lo > -math.inf:
-            d = el - self.el_lo
-        if self.el_hi < math.inf:
-            d = min(d, self.el_hi - el)
-        if not self.az_full:
-            d_az = -math.inf
-            for c, h in zip(self.az_centres, self.az_halves, strict=True):
-                d_az = max(d_az, h - abs(_wrap_pi(az - c)))
-            d = min(d, d_az)
-        return d
-
 
 class MapScheduler:
     """Select the wrench map for the current attitude (SPEC §3.3), for the allocation and the observer.
+
+    The selection runs in one compiled call (:func:`omnirotor.control._map_kernels.schedule_select`) on the
+    arrays below, which a compiled control loop can pass to the same function; after such a call made
+    elsewhere, :meth:`sync` brings :attr:`region_index` and :attr:`region_name` up to date.
 
     Attributes:
         region_index: index in ``maps.partition`` of the attitude's region (first match, as the hard
@@ -188,6 +144,12 @@ class MapScheduler:
         region_name: name of that region, or "nominal" / "global" in those modes.
         weights: (K,) read-only blending weights of the K regions from the last :meth:`select` (one-hot
             with hard blending); empty outside piecewise mode.
+        kernel_schedule: the packed partition and blending parameters (:func:`_map_kernels.pack_schedule`;
+            no regions outside piecewise mode).
+        kernel_maps: (K, 6n) the maps to choose from, each (6, n) row-major (one map outside piecewise mode).
+        kernel_out: (6n,) the array behind the map :meth:`select` returns.
+        kernel_weights: (K,) the array behind :attr:`weights`.
+        kernel_state: (``_map_kernels.STATE_SIZE``,) the selection state: current region index, blend flag.
     """
 
     def __init__(self, vehicle: VehicleParams, maps: WrenchMapSet | None, params: MapParams | None = None):
@@ -229,29 +191,31 @@ class MapScheduler:
         if not np.all(np.isfinite(self._maps)):
             raise InputError("wrench maps contain NaN or inf")
         K = self._maps.shape[0]
-        self._flat = self._maps.reshape(K, 6 * n)
+        self.kernel_maps = self._maps.reshape(K, 6 * n)
         self._out = self._maps[0].copy()
-        self._out_flat = self._out.reshape(6 * n)
+        self.kernel_out = self._out.reshape(6 * n)
         self._view = self._out.view()
         self._view.flags.writeable = False
-        self._smooth = self._partition is not None and self.params.blend == "smooth"
-        self._band = math.radians(self.params.blend_width_deg)
-        self._inv_band = 1.0 / self._band
-        self._soft: tuple[_SoftRegion, ...] = ()
+        smooth = self._partition is not None and self.params.blend == "smooth"
+        band = math.radians(self.params.blend_width_deg)
+        regions: tuple[Region, ...] = ()
+        soft: tuple[_SoftRegion, ...] = ()
         if self._partition is not None:
-            self._soft = tuple(_SoftRegion.from_region(r) for r in self._partition.regions)
-            if self._smooth:
-                narrow = min(s.narrowest_rad() for s in self._soft)
-                if self._band > narrow:
+            regions = self._partition.regions
+            soft = tuple(_SoftRegion.from_region(r) for r in regions)
+            if smooth:
+                narrow = min(s.narrowest_rad() for s in soft)
+                if band > narrow:
                     raise InputError(
                         f"map blend_width_deg {self.params.blend_width_deg} is wider than the narrowest region "
                         f"({math.degrees(narrow):.1f} deg) of partition {self._partition.name!r}"
                     )
-        self._raw = [0.0] * (K if self._partition is not None else 0)
-        self._weights = np.zeros(len(self._raw))
-        self._weights_view = self._weights.view()
+        self._names = tuple(r.name for r in regions)
+        self.kernel_schedule = _mk.pack_schedule(regions, soft, smooth, band)
+        self.kernel_weights = np.zeros(len(regions))
+        self._weights_view = self.kernel_weights.view()
         self._weights_view.flags.writeable = False
-        self._blended = False  # _out currently holds a blend rather than one region's map
+        self.kernel_state = _mk.state_buffer()
         self.region_index = -1
         self.region_name = mode
         if self._partition is not None:
@@ -279,32 +243,25 @@ class MapScheduler:
         """
         if self._partition is None:
             return self._view
-        az, el = azimuth_elevation(R_WB[2])
-        if not (math.isfinite(az) and math.isfinite(el)):
-            return self._view
-        k = -1
-        for j, region in enumerate(self._partition.regions):
-            if region.contains(az, el):
-                k = j
-                break
-        if k < 0:  # a hole in a user partition (the grid check at load missed it): keep the last map
-            return self._view
+        if type(R_WB) is not np.ndarray or R_WB.dtype != np.float64:
+            R_WB = np.asarray(R_WB, dtype=np.float64)
+        k = _mk.schedule_select(
+            self.kernel_schedule, R_WB, self.kernel_maps, self.kernel_out, self.kernel_weights, self.kernel_state
+        )
         if k != self.region_index:
             self.region_index = k
-            self.region_name = self._partition.regions[k].name
-        if self._smooth and self._soft[k].depth(az, el) < 0.5 * self._band:
-            raw, half_band, inv_band = self._raw, 0.5 * self._band, self._inv_band
-            total = 0.0
-            for j, soft in enumerate(self._soft):
-                raw[j] = soft.weight(az, el, half_band, inv_band)
-                total += raw[j]
-            self._weights[:] = raw
-            self._weights *= 1.0 / total
-            np.dot(self._weights, self._flat, out=self._out_flat)
-            self._blended = True
-        elif self._blended or self._weights[k] != 1.0:
-            self._weights[:] = 0.0
-            self._weights[k] = 1.0
-            self._out[:] = self._maps[k]
-            self._blended = False
+            self.region_name = self._names[k]
         return self._view
+
+    def sync(self) -> None:
+        """Update :attr:`region_index` and :attr:`region_name` from :attr:`kernel_state`.
+
+        Needed only after :func:`_map_kernels.schedule_select` was called on this scheduler's arrays from
+        elsewhere (a compiled loop); :meth:`select` keeps them up to date itself.
+        """
+        if self._partition is None:
+            return
+        k = int(self.kernel_state[_mk.STATE_REGION])
+        if k != self.region_index:
+            self.region_index = k
+            self.region_name = self._names[k] if k >= 0 else self.params.mode

@@ -272,7 +272,7 @@ class CampaignOptions:
         blend: piecewise region switching, "hard" or "smooth".
         quick: shortened protocols.
         estimator: "ukf" or "bypass".
-        solver: allocation QP backend, "daqp" or "proxsuite".
+        solver: allocation QP backend, "active-set" (default), "daqp" or "proxsuite".
         truth: truth aerodynamics, "interference" or "nominal".
         vehicle: vehicle preset or TOML file.
         duration_s: simulated time of each run [s] (None: the task's).
@@ -286,7 +286,7 @@ class CampaignOptions:
     blend: str = "hard"
     quick: bool = False
     estimator: str = "ukf"
-    solver: str = "daqp"
+    solver: str = "active-set"
     truth: str = "interference"
     vehicle: str = "omnirotor"
     duration_s: float | None = None

@@ -6,6 +6,12 @@ consumes the initial frame) and records the simulator's ground truth in a second
 :class:`~omnirotor.recorder.Recorder` whose row ``k`` is the instant of the controller log's row ``k`` (the
 truth at the frame the controller saw), ``t = (k + 1) dt``.
 
+When both sides have compiled steps (a :class:`~omnirotor.sim.Simulator` with its own rotor and truth models,
+the compiled QP solver) and nothing needs Python every step (no ``on_step``, no video), the loop itself runs
+compiled (:mod:`omnirotor.experiments._loop`), in chunks of up to a noise block between progress reports:
+the same kernels in the same order, so the logs are identical to the Python loop's (tested), about five times
+faster.
+
 Metrics follow SPEC §6 (Table 1), computed by :mod:`omnirotor.experiments.metrics` on the
 :func:`run_log` of the two recorders: errors of the true EE pose against the compliant EE reference.
 
@@ -133,6 +139,11 @@ def run_closed_loop(
     controller.reset(frame, trajectory)
     truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
     every = max(1, n_steps // _PROGRESS_UPDATES)
+    if video is None and on_step is None and isinstance(sim, Simulator):
+        sim_args, ctl_args = sim.kernel_args, controller.kernel_args
+        if sim_args is not None and ctl_args is not None:
+            _run_compiled(sim, controller, sim_args, ctl_args, truth_log, n_steps, every, progress)
+            return controller.log, truth_log
     clock = time.perf_counter
     cmd = controller.hold_command()  # the reset frame is consumed by reset(); hold its speeds for one period
     for k in range(n_steps):
@@ -153,6 +164,43 @@ def run_closed_loop(
     if progress is not None:
         progress(1.0)
     return controller.log, truth_log
+
+
+def _run_compiled(
+    sim: Simulator,
+    controller: InteractionController,
+    sim_args: tuple,
+    ctl_args: tuple,
+    truth_log: Recorder,
+    n_steps: int,
+    every: int,
+    progress: Callable[[float], None] | None,
+) -> None:
+    """The loop of :func:`run_closed_loop` in compiled chunks (module docstring); the logs are filled in place."""
+    from omnirotor.experiments._loop import run_steps  # compiles on first use
+
+    log = controller.log
+    cmd = controller.kernel_command  # the command array the compiled step writes and the simulator reads
+    frame = sim.packed_frame
+    ts = np.zeros(2, dtype=np.int64)
+    k0_sim = sim.step_index
+    k = 0
+    try:
+        while k < n_steps:
+            for stream in sim.noise_streams:
+                if stream.exhausted:
+                    stream.refill()
+            stop = n_steps if progress is None else min(n_steps, (k // every + 1) * every)
+            k = run_steps(sim_args, ctl_args, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, log.data, ts)
+            if progress is not None and k % every == 0:
+                progress(k / n_steps)
+    finally:  # what was run is logged and the Python side of both reflects it
+        sim.step_index = k0_sim + k
+        truth_log.n = k
+        log.n = k
+        controller.sync()
+    if progress is not None:
+        progress(1.0)
 
 
 def run_log(controller_log: Recorder, truth_log: Recorder) -> RunLog:
@@ -187,7 +235,7 @@ class TaskOptions:
     """Options common to every task of ``omnirotor run``.
 
     Attributes:
-        solver: allocation QP backend, "daqp" or "proxsuite".
+        solver: allocation QP backend, "active-set" (default), "daqp" or "proxsuite".
         estimator: "ukf" or "bypass" (ground truth plus noise).
         duration_s: simulated time [s]; None for the task's default.
         seed: simulator noise seed.
@@ -198,7 +246,7 @@ class TaskOptions:
         video: MP4 file to film the run into (30 fps, offscreen MuJoCo rendering), or None.
     """
 
-    solver: str = "daqp"
+    solver: str = "active-set"
     estimator: str = "ukf"
     duration_s: float | None = None
     seed: int = 0

@@ -8,8 +8,16 @@ the model (SPEC section cited there):
   :mod:`omnirotor.sim.aero` (SPEC §7), on its precomputed (n, 2n) inflow matrix;
 * :func:`apply_wrench`: body wrench to ``xfrc_applied`` (world frame, at the CoM) plus the external wrench,
   :meth:`omnirotor.sim.simulator.Simulator.step`;
-* :func:`imu_measure_into`, :func:`sense`: the sensor models of :mod:`omnirotor.sim.sensors` (IMU, measured
-  rotor speeds, the bypass state) read straight from MuJoCo's ``qpos``, ``qvel``, ``qacc``, ``xmat``.
+* :func:`imu_measure_into`, :func:`sense_into_frame`, :func:`mocap_push`, :func:`mocap_step`: the sensor models
+  of :mod:`omnirotor.sim.sensors` (IMU, motion capture, measured rotor speeds, the bypass state) read straight
+  from MuJoCo's ``qpos``, ``qvel``, ``qacc``, ``xmat``, written into the packed frame of
+  :mod:`omnirotor.messages`;
+* :func:`truth_row_into`, :func:`contact_into_row`: the ground-truth row, the contact wrench from the model's
+  contact sensors;
+* :func:`observe` and :func:`sim_step`: a whole :meth:`omnirotor.sim.simulator.Simulator.step` in one call. It
+  calls MuJoCo's C functions ``mj_Euler`` and ``mj_forward`` directly (:data:`mj_Euler`, :data:`mj_forward`:
+  the symbols of the ``libmujoco`` that the ``mujoco`` package loaded, bound by name, so the cached machine
+  code stays valid across processes), on the addresses of the simulator's ``MjModel`` and ``MjData``.
 
 The arithmetic is written in the order of the NumPy / Python float code it replaced, so that results agree to
 the last bit except where a matrix-vector product was summed by BLAS (a rounding).
@@ -21,7 +29,16 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit
+from omnirotor._jit import R9_from_quat_into, jit, mujoco_function
+from omnirotor.messages import (
+    FRAME_ACC_B,
+    FRAME_HAS_STATE,
+    FRAME_MOCAP_NEW,
+    FRAME_MOCAP_T,
+    FRAME_ROTOR_HZ,
+    FRAME_STATE,
+    FRAME_T,
+)
 
 __all__ = [
     "rotor_step",
@@ -31,7 +48,7 @@ __all__ = [
     "apply_wrench",
     "imu_measure_into",
     "quat_perturb_into",
-    "sense",
+    "sense_into_frame",
     "EXT_SIZE",
     "IMU_PAR_SIZE",
     "STATE_NONE",
@@ -44,7 +61,17 @@ __all__ = [
     "truth_row_into",
     "TRUTH_SIZE",
     "TRUTH_ROW_SIZE",
+    "mocap_push",
+    "mocap_step",
+    "contact_into_row",
+    "observe",
+    "sim_step",
 ]
+
+mj_Euler = mujoco_function("mj_Euler")
+"""MuJoCo's ``void mj_Euler(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
+mj_forward = mujoco_function("mj_forward")
+"""MuJoCo's ``void mj_forward(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
 
 # Layout of the external-wrench array of apply_wrench: f_W (3), m_W (3), p_E_B (3), active, at the EE tip.
 _EXT_F, _EXT_M, _EXT_PE, _EXT_ON, _EXT_AT_EE = 0, 3, 6, 9, 10
@@ -285,16 +312,16 @@ def quat_perturb_into(qw: float, qx: float, qy: float, qz: float, a: float, b: f
 
 
 @jit
-def sense(
+def sense_into_frame(
     qpos, qvel, qacc, xmat, qp: int, qv: int, body: int, imu_par, imu_noise, omega_hz, rotor_noise, mode: int,
-    state_noise, out,
+    state_noise, frame,
 ) -> None:  # fmt: skip
-    """The sensor part of a frame, from MuJoCo's state, into one fresh buffer ``out``.
+    """The IMU, the measured rotor speeds and the bypass state of a frame, from MuJoCo's state.
 
-    Layout of ``out``: ``acc_B (3), gyro_B (3), rotor_hz (n)`` and, unless ``mode`` is ``STATE_NONE``, the
-    bypass state ``p_W (3), v_W (3), a_W (3), R_WB (9, row-major), omega_B (3)``: the truth
-    (``STATE_EXACT``) or the truth plus ``state_noise`` (15: p, v, a, small body rotation, omega;
-    ``STATE_NOISY``, the attitude perturbed as :func:`quat_perturb_into`).
+    Writes the packed frame's (:mod:`omnirotor.messages`) accelerometer, gyroscope and rotor speeds, and its
+    state flag and state: none (``STATE_NONE``), the truth (``STATE_EXACT``) or the truth plus ``state_noise``
+    (15: p, v, a, small body rotation, omega; ``STATE_NOISY``, the attitude perturbed as
+    :func:`quat_perturb_into`).
 
     Args:
         qpos: MuJoCo's generalized positions (the free joint's ``[p_W, q_WB]`` at ``qp``).
@@ -310,34 +337,107 @@ def sense(
         rotor_noise: (n,) speed-measurement noise [Hz].
         mode: ``STATE_NONE``, ``STATE_EXACT`` or ``STATE_NOISY``.
         state_noise: (15,) bypass-state noise (read in ``STATE_NOISY`` only).
-        out: the output buffer, ``6 + n`` (+ 21 with a state) floats.
+        frame: the packed frame.
     """
     R9 = xmat[body]
-    imu_measure_into(R9, qacc[qv : qv + 3], qvel[qv + 3 : qv + 6], qacc[qv + 3 : qv + 6], imu_par, imu_noise, out, 0)
+    imu_measure_into(
+        R9, qacc[qv : qv + 3], qvel[qv + 3 : qv + 6], qacc[qv + 3 : qv + 6], imu_par, imu_noise, frame, FRAME_ACC_B
+    )  # the gyroscope follows the accelerometer in the frame
     n = omega_hz.shape[0]
     for i in range(n):
-        out[6 + i] = omega_hz[i] + rotor_noise[i]
+        frame[FRAME_ROTOR_HZ + i] = omega_hz[i] + rotor_noise[i]
+    o = FRAME_STATE
     if mode == STATE_NONE:
+        frame[FRAME_HAS_STATE] = 0.0
+        for i in range(21):
+            frame[o + i] = 0.0
         return
-    o = 6 + n
+    frame[FRAME_HAS_STATE] = 1.0
     if mode == STATE_EXACT:
         for i in range(3):
-            out[o + i] = qpos[qp + i]
-            out[o + 3 + i] = qvel[qv + i]
-            out[o + 6 + i] = qacc[qv + i]
-            out[o + 18 + i] = qvel[qv + 3 + i]
+            frame[o + i] = qpos[qp + i]
+            frame[o + 3 + i] = qvel[qv + i]
+            frame[o + 6 + i] = qacc[qv + i]
+            frame[o + 18 + i] = qvel[qv + 3 + i]
         for i in range(9):
-            out[o + 9 + i] = R9[i]
+            frame[o + 9 + i] = R9[i]
         return
     e = state_noise
     for i in range(3):
-        out[o + i] = qpos[qp + i] + e[i]
-        out[o + 3 + i] = qvel[qv + i] + e[3 + i]
-        out[o + 6 + i] = qacc[qv + i] + e[6 + i]
-        out[o + 18 + i] = qvel[qv + 3 + i] + e[12 + i]
-    q = np.empty(4)
-    quat_perturb_into(qpos[qp + 3], qpos[qp + 4], qpos[qp + 5], qpos[qp + 6], e[9], e[10], e[11], q, 0)
-    R9_from_quat_into(q[0], q[1], q[2], q[3], out, o + 9)
+        frame[o + i] = qpos[qp + i] + e[i]
+        frame[o + 3 + i] = qvel[qv + i] + e[3 + i]
+        frame[o + 6 + i] = qacc[qv + i] + e[6 + i]
+        frame[o + 18 + i] = qvel[qv + 3 + i] + e[12 + i]
+    # The perturbed quaternion goes through the frame's R slots (overwritten by its matrix right after).
+    quat_perturb_into(qpos[qp + 3], qpos[qp + 4], qpos[qp + 5], qpos[qp + 6], e[9], e[10], e[11], frame, o + 9)
+    R9_from_quat_into(frame[o + 9], frame[o + 10], frame[o + 11], frame[o + 12], frame, o + 9)
+
+
+# -- motion capture (omnirotor.sim.sensors.Mocap) -----------------------------------------------------------------
+MOCAP_HEAD, MOCAP_COUNT, MOCAP_LATENCY = 0, 1, 2  # the int array: queue head, queue length, latency [steps]
+MOCAP_INT_SIZE = 3
+MOCAP_NEXT_T, MOCAP_PERIOD = 0, 1  # the float array: time of the next sample, sample period [s]
+MOCAP_FLOAT_SIZE = 2
+MOCAP_SAMPLE_SIZE = 8
+"""A delivered sample: t [s], p_W (3) [m], q_WB (4, wxyz); the same order as the packed frame's."""
+MOCAP_CLOCK_TOL_S = 1e-9
+"""Tolerance [s] of the sample clock against the step grid (times are multiples of dt up to rounding)."""
+
+
+@jit
+def mocap_push(mi, mf, mt, mdue, mp, mq, noise_buf, noise_pos, t: float, due: int, p, q) -> None:
+    """Queue a sample taken at ``t`` of the pose ``(p, q)``, with its noise, for delivery at step ``due``.
+
+    Takes the noise row ``noise_buf[noise_pos[0]]`` (the caller makes sure one is left) and advances
+    ``noise_pos``. A full queue (only with a sample rate above the step rate) drops its oldest sample.
+    """
+    cap = mt.shape[0]
+    if mi[MOCAP_COUNT] == cap:
+        mi[MOCAP_HEAD] = (mi[MOCAP_HEAD] + 1) % cap
+        mi[MOCAP_COUNT] -= 1
+    i = (mi[MOCAP_HEAD] + mi[MOCAP_COUNT]) % cap
+    r = noise_pos[0]
+    noise_pos[0] = r + 1
+    e = noise_buf[r]
+    mt[i] = t
+    mdue[i] = due
+    for j in range(3):
+        mp[i, j] = e[j] + p[j]
+    quat_perturb_into(q[0], q[1], q[2], q[3], e[3], e[4], e[5], mq[i], 0)
+    mi[MOCAP_COUNT] += 1
+
+
+@jit
+def mocap_step(mi, mf, mt, mdue, mp, mq, noise_buf, noise_pos, k: int, t: float, p, q, out, o: int) -> bool:
+    """One step of the motion capture (:meth:`omnirotor.sim.sensors.Mocap.step`).
+
+    Takes a sample of ``(p, q)`` if one is due at step ``k`` (time ``t`` [s]), then delivers the newest queued
+    sample that has arrived, if any, into ``out[o : o + MOCAP_SAMPLE_SIZE]`` (t, p, q).
+
+    Returns:
+        True when a sample was delivered.
+    """
+    if t >= mf[MOCAP_NEXT_T] - MOCAP_CLOCK_TOL_S:
+        mocap_push(mi, mf, mt, mdue, mp, mq, noise_buf, noise_pos, t, k + mi[MOCAP_LATENCY], p, q)
+        mf[MOCAP_NEXT_T] += mf[MOCAP_PERIOD]
+        while mf[MOCAP_NEXT_T] <= t + MOCAP_CLOCK_TOL_S:  # a rate above the step rate: one sample per step
+            mf[MOCAP_NEXT_T] += mf[MOCAP_PERIOD]
+    if mi[MOCAP_COUNT] == 0 or mdue[mi[MOCAP_HEAD]] > k:
+        return False
+    cap = mt.shape[0]
+    i = mi[MOCAP_HEAD]
+    while True:  # the newest arrived sample wins
+        mi[MOCAP_HEAD] = (mi[MOCAP_HEAD] + 1) % cap
+        mi[MOCAP_COUNT] -= 1
+        if mi[MOCAP_COUNT] == 0 or mdue[mi[MOCAP_HEAD]] > k:
+            break
+        i = mi[MOCAP_HEAD]
+    out[o] = mt[i]
+    for j in range(3):
+        out[o + 1 + j] = mp[i, j]
+    for j in range(4):
+        out[o + 4 + j] = mq[i, j]
+    return True
 
 
 TRUTH_SIZE = 36
@@ -421,3 +521,138 @@ def truth_row_into(
     out[28] = 0.0
     for i in range(omega_hz.shape[0]):
         out[TRUTH_ROW_SIZE + i] = omega_hz[i]
+
+
+# -- the contact wrench on the end-effector (the model's contact sensors, omnirotor.sim.model) ------------------
+CONTACT_SENSOR_SIZE = 10
+"""Entries of one EE contact sensor: contacts found, net force (3) [N], torque (3) [N·m], centroid (3) [m]."""
+
+
+@jit
+def contact_into_row(sensordata, adr, row, o_p: int, o_f: int, o_m: int, o_flag: int) -> None:
+    """Add the environment's contact wrench on the end-effector to a truth row, from the EE contact sensors.
+
+    Each sensor (``reduce="netforce"``, one per EE geom) gives the number of its geom's contacts, and the net
+    force and torque they exert *from* the geom on the environment about their force-weighted centroid, in the
+    world frame. The row gets the reaction on the EE, its moment about the tip ``row[o_p:o_p+3]``, and 1.0 at
+    ``o_flag`` when any EE geom touches the environment.
+
+    Args:
+        sensordata: MuJoCo's ``sensordata``.
+        adr: (k,) int64 addresses of the EE contact sensors in ``sensordata`` (-1: geom absent).
+        row: the truth row; force, moment and flag are added or set.
+        o_p: offset of the tip position in ``row``.
+        o_f: offset of the force.
+        o_m: offset of the moment.
+        o_flag: offset of the contact flag.
+    """
+    for s in range(adr.shape[0]):
+        a = adr[s]
+        if a < 0 or sensordata[a] <= 0.0:
+            continue
+        row[o_flag] = 1.0
+        fx, fy, fz = -sensordata[a + 1], -sensordata[a + 2], -sensordata[a + 3]
+        rx = sensordata[a + 7] - row[o_p]
+        ry = sensordata[a + 8] - row[o_p + 1]
+        rz = sensordata[a + 9] - row[o_p + 2]
+        row[o_f] += fx
+        row[o_f + 1] += fy
+        row[o_f + 2] += fz
+        row[o_m] += -sensordata[a + 4] + ry * fz - rz * fy
+        row[o_m + 1] += -sensordata[a + 5] + rz * fx - rx * fz
+        row[o_m + 2] += -sensordata[a + 6] + rx * fy - ry * fx
+
+
+# -- a whole step --------------------------------------------------------------------------------------------------
+# The int parameters of observe() and sim_step(), one int64 array (omnirotor.sim.simulator.Simulator builds it).
+SI_QP, SI_QV, SI_BODY, SI_SITE, SI_STATE_MODE, SI_SUBSTEPS, SI_AERO_KIND, SI_MODEL, SI_DATA = range(9)
+SI_SIZE = 9
+# Offsets in the truth row (truth_row_into).
+_ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG = 19, 22, 25, 28
+
+
+@jit
+def observe(mjv, si, omega_hz, imu_par, noise, moc, sens_adr, k: int, dt: float, frame, row) -> None:
+    """The frame and the truth row at step ``k`` (time ``k dt``) from MuJoCo's current state.
+
+    Args:
+        mjv: MuJoCo's arrays ``(qpos, qvel, qacc, xmat, site_xpos, sensordata, xfrc_row)``.
+        si: the int parameters (``SI_*``).
+        omega_hz: (n,) true rotor speeds [Hz].
+        imu_par: IMU parameters (:func:`imu_measure_into`).
+        noise: the noise streams' ``(buf, pos)`` pairs flattened: IMU, rotor, state, mocap (each ``pos`` has
+            a row left; the caller refills exhausted streams before the call).
+        moc: the motion capture's arrays (:attr:`omnirotor.sim.sensors.Mocap.kernel_state`).
+        sens_adr: (k,) addresses of the EE contact sensors (:func:`contact_into_row`).
+        k: step index.
+        dt: control period [s].
+        frame: the packed frame (written whole).
+        row: the truth row (:func:`truth_row_into`), at least ``TRUTH_ROW_SIZE + n`` entries.
+    """
+    qpos, qvel, qacc, xmat, site_xpos, sensordata, xfrc = mjv
+    imu_buf, imu_pos, rot_buf, rot_pos, st_buf, st_pos, mc_buf, mc_pos = noise
+    mi, mf, mt, mdue, mp, mq = moc
+    qp, qv, body = si[SI_QP], si[SI_QV], si[SI_BODY]
+    t = k * dt
+    frame[FRAME_T] = t
+    i_imu = imu_pos[0]
+    imu_pos[0] = i_imu + 1
+    i_rot = rot_pos[0]
+    rot_pos[0] = i_rot + 1
+    mode = si[SI_STATE_MODE]
+    i_st = 0
+    if mode == STATE_NOISY:
+        i_st = st_pos[0]
+        st_pos[0] = i_st + 1
+    sense_into_frame(
+        qpos, qvel, qacc, xmat, qp, qv, body, imu_par, imu_buf[i_imu], omega_hz, rot_buf[i_rot], mode,
+        st_buf[i_st], frame,
+    )  # fmt: skip
+    got = mocap_step(
+        mi, mf, mt, mdue, mp, mq, mc_buf, mc_pos, k, t, qpos[qp : qp + 3], qpos[qp + 3 : qp + 7], frame,
+        FRAME_MOCAP_T,
+    )  # fmt: skip
+    if got:
+        frame[FRAME_MOCAP_NEW] = 1.0
+    else:
+        frame[FRAME_MOCAP_NEW] = 0.0
+        for j in range(MOCAP_SAMPLE_SIZE):
+            frame[FRAME_MOCAP_T + j] = 0.0
+    truth_row_into(qpos, qvel, xmat, site_xpos, qp, qv, body, si[SI_SITE], omega_hz, t, row)
+    contact_into_row(sensordata, sens_adr, row, _ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG)
+
+
+@jit
+def sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k: int, dt: float, frame, row) -> None:
+    """A whole control period of :meth:`omnirotor.sim.simulator.Simulator.step` (own rotor and truth models).
+
+    ``substeps`` x (``mj_Euler``, the actuation on the last one, ``mj_forward``), then :func:`observe` at step
+    ``k + 1``.
+
+    Args:
+        mjv: MuJoCo's arrays (:func:`observe`).
+        si: the int parameters (``SI_*``), with the MjModel and MjData addresses.
+        act: the actuation's arrays ``(omega_hz, u_hz2, rotor_par, aero_model, w_B, ext)`` (:func:`actuate`).
+        cmd_hz: (n,) commanded rotor speeds [Hz] (clipped by the rotor model; NaN holds a rotor's speed).
+        imu_par: IMU parameters.
+        noise: the noise streams (:func:`observe`).
+        moc: the motion capture's arrays.
+        sens_adr: the EE contact sensors' addresses.
+        k: the step index before the period.
+        dt: control period [s].
+        frame: the packed frame (output).
+        row: the truth row (output).
+    """
+    qpos, qvel, qacc, xmat, site_xpos, sensordata, xfrc = mjv
+    omega_hz, u_hz2, rotor_par, aero_model, w_B, ext = act
+    m, d = si[SI_MODEL], si[SI_DATA]
+    qp = si[SI_QP]
+    substeps = si[SI_SUBSTEPS]
+    for i in range(substeps):
+        mj_Euler(m, d)
+        if i != substeps - 1:
+            apply_wrench(qpos, qp, w_B, ext, xfrc)
+        else:
+            actuate(omega_hz, u_hz2, cmd_hz, rotor_par, si[SI_AERO_KIND], aero_model, qpos, qp, w_B, ext, xfrc)
+        mj_forward(m, d)
+    observe(mjv, si, omega_hz, imu_par, noise, moc, sens_adr, k + 1, dt, frame, row)

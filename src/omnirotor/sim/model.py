@@ -26,7 +26,7 @@ from omnirotor.sim.params import SceneParams
 from omnirotor.sim.scenes import scene_geoms_xml
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["build_mjcf", "BODY_NAME", "EE_TIP_GEOM", "EE_ROD_GEOM", "EE_SITE", "TIP_RADIUS"]
+__all__ = ["build_mjcf", "BODY_NAME", "EE_TIP_GEOM", "EE_ROD_GEOM", "EE_SITE", "TIP_RADIUS", "ee_contact_sensor"]
 
 BODY_NAME = "vehicle"
 EE_TIP_GEOM = "ee_tip"
@@ -120,6 +120,26 @@ def _ee_elements(vehicle: VehicleParams) -> list[str]:
     return out
 
 
+def ee_contact_sensor(geom: str) -> str:
+    """Name of the contact sensor of EE geom ``geom`` (present when the geom is)."""
+    return f"{geom}_contact"
+
+
+def _ee_sensors(body_xml: str) -> str:
+    """One contact sensor per EE geom: net force, torque and centroid of its contacts (the truth's contact wrench).
+
+    Read by :func:`omnirotor.sim._kernels.contact_into_row`.
+    """
+    out = []
+    for geom in (EE_TIP_GEOM, EE_ROD_GEOM):
+        if f'name="{geom}"' in body_xml:
+            out.append(
+                f'<contact name="{ee_contact_sensor(geom)}" geom1="{geom}" data="found force torque pos" '
+                'reduce="netforce"/>'
+            )
+    return "\n    ".join(out)
+
+
 def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep: float) -> str:
     """The MJCF text of ``vehicle`` in ``scene``.
 
@@ -172,5 +192,8 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
       {body}
     </body>
   </worldbody>
+  <sensor>
+    {_ee_sensors(body)}
+  </sensor>
 </mujoco>
 """

@@ -22,41 +22,53 @@ import numpy as np
 from omnirotor.sim import _kernels as _k
 from omnirotor.sim.params import SensorParams
 
-__all__ = ["NoiseStream", "Imu", "Mocap", "MocapSample", "quat_perturb", "R9_from_quat"]
+__all__ = ["NoiseStream", "Imu", "Mocap", "MocapSample", "quat_perturb", "R9_from_quat", "BLOCK"]
 
-_BLOCK = 1024
+BLOCK = 1024
 """Rows of standard normals drawn at once per stream."""
 
 
 class NoiseStream:
     """Scaled standard normal vectors of a fixed size, drawn from ``rng`` in blocks.
 
+    The block and the read position are arrays (:attr:`buf`, :attr:`pos`) that compiled code reads directly:
+    a compiled consumer takes row ``buf[pos[0]]`` and advances ``pos[0]``, and hands back to Python, which calls
+    :meth:`refill`, when ``pos[0]`` reaches the block's end. Each stream has its own generator, so when a block
+    is drawn does not change the numbers.
+
     Args:
         rng: the generator (owned by this stream from now on).
         scale: standard deviation of each component (scalar or (dim,)).
         dim: size of each vector.
-        as_list: return Python lists of floats (for float arithmetic) instead of numpy rows.
     """
 
-    def __init__(self, rng: np.random.Generator, scale: float | np.ndarray, dim: int, as_list: bool = False) -> None:
+    def __init__(self, rng: np.random.Generator, scale: float | np.ndarray, dim: int) -> None:
         self._rng = rng
         self._scale = np.broadcast_to(np.asarray(scale, dtype=float), (dim,)).copy()
-        self._buf = np.empty((_BLOCK, dim))
-        self._as_list = as_list
-        self._rows: list | np.ndarray = self._buf
-        self._i = _BLOCK
+        self.buf = np.empty((BLOCK, dim))
+        """(BLOCK, dim) the current block of scaled normals."""
+        self.pos = np.full(1, BLOCK, dtype=np.int64)
+        """(1,) index of the next unread row of :attr:`buf` (``BLOCK``: exhausted, refill first)."""
 
-    def next(self) -> np.ndarray | list[float]:
-        """(dim,) the next vector (a numpy view valid until the next block, or a list)."""
-        if self._i >= _BLOCK:
-            self._rng.standard_normal(out=self._buf)
-            self._buf *= self._scale
-            # Rows as a list (of lists, or of row views made once per block): indexing it is cheap.
-            self._rows = self._buf.tolist() if self._as_list else list(self._buf)
-            self._i = 0
-        row = self._rows[self._i]
-        self._i += 1
-        return row
+    @property
+    def exhausted(self) -> bool:
+        """True when the block is used up (the next read needs :meth:`refill`)."""
+        return int(self.pos[0]) >= BLOCK
+
+    def refill(self) -> None:
+        """Draw the next block (the generator's next ``BLOCK x dim`` normals) and rewind."""
+        self._rng.standard_normal(out=self.buf)
+        self.buf *= self._scale
+        self.pos[0] = 0
+
+    def next(self) -> np.ndarray:
+        """(dim,) the next vector (a view, valid until the next block)."""
+        i = int(self.pos[0])
+        if i >= BLOCK:
+            self.refill()
+            i = 0
+        self.pos[0] = i + 1
+        return self.buf[i]
 
 
 def quat_perturb(q_wxyz, dtheta, out):
@@ -165,6 +177,9 @@ class MocapSample:
 class Mocap:
     """Motion capture with a fixed rate and latency.
 
+    The queue of samples taken but not yet delivered lives in arrays (:attr:`kernel_state`) that the compiled
+    :func:`omnirotor.sim._kernels.mocap_step` updates, from :meth:`step` or from the simulator's compiled step.
+
     Args:
         params: sensor parameters.
         dt: control period [s].
@@ -176,14 +191,22 @@ class Mocap:
         self.period = 1.0 / params.mocap_rate_hz
         self.latency_steps = int(round(params.mocap_latency_s / dt))
         cap = int(math.ceil((self.latency_steps + 1) * dt / self.period)) + 2
-        self._t = np.zeros(cap)
-        self._due = [0] * cap  # step of each queued sample's delivery (a list: read every step)
+        self._ints = np.zeros(_k.MOCAP_INT_SIZE, dtype=np.int64)  # head, count, latency [steps]
+        self._ints[_k.MOCAP_LATENCY] = self.latency_steps
+        self._floats = np.zeros(_k.MOCAP_FLOAT_SIZE)  # next sample time, period [s]
+        self._floats[_k.MOCAP_PERIOD] = self.period
+        self._t = np.zeros(cap)  # time each queued sample was taken [s]
+        self._due = np.zeros(cap, dtype=np.int64)  # step of each queued sample's delivery
         self._p = np.zeros((cap, 3))
         self._q = np.zeros((cap, 4))
-        self._head = 0
-        self._count = 0
-        self._next_t = 0.0
-        self._noise: NoiseStream | None = None
+        self._sample = np.zeros(_k.MOCAP_SAMPLE_SIZE)  # t, p (3), q (4) of the last delivery
+        self.noise: NoiseStream | None = None
+        """The measurement-noise stream (6: position, small rotation), set by :meth:`reset`."""
+
+    @property
+    def kernel_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The arrays of :func:`omnirotor.sim._kernels.mocap_step`: ints, floats, t, due, p, q."""
+        return self._ints, self._floats, self._t, self._due, self._p, self._q
 
     @property
     def latency_s(self) -> float:
@@ -191,19 +214,12 @@ class Mocap:
         return self.latency_steps * self.dt
 
     def _push(self, t: float, due_step: int, p_W: np.ndarray, q_WB: np.ndarray) -> None:
-        cap = self._t.shape[0]
-        if self._count == cap:  # only when the rate exceeds the step rate: drop the oldest
-            self._head = (self._head + 1) % cap
-            self._count -= 1
-        i = (self._head + self._count) % cap
-        noise = self._noise.next()
-        self._t[i] = t
-        self._due[i] = due_step
-        np.add(noise[:3], p_W, out=self._p[i])
-        # On Python floats: arithmetic on NumPy scalars costs ten times more.
-        q = quat_perturb(np.asarray(q_WB, dtype=float).tolist(), noise[3:].tolist(), [0.0] * 4)
-        self._q[i] = q
-        self._count += 1
+        if self.noise.exhausted:
+            self.noise.refill()
+        _k.mocap_push(
+            *self.kernel_state, self.noise.buf, self.noise.pos, t, due_step, np.asarray(p_W, dtype=np.float64),
+            np.asarray(q_WB, dtype=np.float64),
+        )  # fmt: skip
 
     def reset(self, rng: np.random.Generator, p_W: np.ndarray, q_WB: np.ndarray) -> None:
         """Restart at step 0 with the vehicle at rest at ``(p_W, q_WB)`` before t = 0.
@@ -213,9 +229,9 @@ class Mocap:
         """
         p = self.params
         scale = np.array([p.mocap_pos_noise_std] * 3 + [p.mocap_att_noise_std] * 3)
-        self._noise = NoiseStream(rng, scale, 6)
-        self._head = 0
-        self._count = 0
+        self.noise = NoiseStream(rng, scale, 6)
+        self._ints[_k.MOCAP_HEAD] = 0
+        self._ints[_k.MOCAP_COUNT] = 0
         # Samples taken before t = 0 on the step grid, newest first, back to the last one already delivered.
         earlier: list[tuple[int, int]] = []
         j = 1
@@ -228,7 +244,7 @@ class Mocap:
             j += 1
         for k, due in reversed(earlier):
             self._push(k * self.dt, max(due, 0), p_W, q_WB)
-        self._next_t = 0.0
+        self._floats[_k.MOCAP_NEXT_T] = 0.0
 
     def step(self, k: int, t: float, p_W: np.ndarray, q_WB: np.ndarray) -> MocapSample | None:
         """Take a sample if one is due at step ``k`` (time ``t``) and deliver the newest one that has arrived.
@@ -242,22 +258,17 @@ class Mocap:
         Returns:
             The delivered sample, or None.
         """
-        if t >= self._next_t - 1e-9:
-            self._push(t, k + self.latency_steps, p_W, q_WB)
-            self._next_t += self.period
-            while self._next_t <= t + 1e-9:  # a rate above the step rate: one sample per step
-                self._next_t += self.period
-        if self._count == 0 or self._due[self._head] > k:
+        if self.noise.exhausted:
+            self.noise.refill()
+        f64 = np.float64
+        got = _k.mocap_step(
+            *self.kernel_state, self.noise.buf, self.noise.pos, k, t, np.asarray(p_W, dtype=f64),
+            np.asarray(q_WB, dtype=f64), self._sample, 0,
+        )  # fmt: skip
+        if not got:
             return None
-        cap = self._t.shape[0]
-        i = self._head
-        while True:  # newest arrived sample wins
-            self._head = (self._head + 1) % cap
-            self._count -= 1
-            if self._count == 0 or self._due[self._head] > k:
-                break
-            i = self._head
-        return MocapSample(float(self._t[i]), self._p[i].copy(), self._q[i].copy())
+        s = self._sample
+        return MocapSample(float(s[0]), s[1:4].copy(), s[4:8].copy())
 
 
 def R9_from_quat(q) -> list[float]:

@@ -30,10 +30,10 @@ import mujoco
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate
+from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import _kernels as _k
 from omnirotor.sim.aero import make_aero
-from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
+from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf, ee_contact_sensor
 from omnirotor.sim.params import SimParams
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.scenes import SCENES, SceneAnchors, default_start_pose, scene_anchors
@@ -178,14 +178,30 @@ class Simulator:
             self._state_mode = _k.STATE_NONE
         else:
             self._state_mode = _k.STATE_EXACT if self._state_exact else _k.STATE_NOISY
-        self._frame_size = 6 + n + (21 if self._provide_state else 0)
-        self._no_noise = np.zeros(15)  # stands for the state noise when none is drawn
         d = self.data
-        self._qpos, self._qvel, self._qacc, self._xmat = d.qpos, d.qvel, d.qacc, d.xmat
         self._xfrc = d.xfrc_applied[self._body]
-        self._site_xpos = d.site_xpos
-        self._p_view = d.qpos[self._qp : self._qp + 3]
-        self._q_view = d.qpos[self._qp + 3 : self._qp + 7]
+        # The compiled step's arguments (sim._kernels.observe / sim_step); MjData never reallocates these arrays.
+        self._mjv = (d.qpos, d.qvel, d.qacc, d.xmat, d.site_xpos, d.sensordata, self._xfrc)
+        adr = []
+        for geom in (EE_TIP_GEOM, EE_ROD_GEOM):
+            sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, ee_contact_sensor(geom))
+            adr.append(int(m.sensor_adr[sid]) if sid >= 0 else -1)
+        self._sens_adr = np.array(adr, dtype=np.int64)
+        si = np.zeros(_k.SI_SIZE, dtype=np.int64)
+        si[_k.SI_QP], si[_k.SI_QV], si[_k.SI_BODY], si[_k.SI_SITE] = self._qp, self._qv, self._body, self._ee_site
+        si[_k.SI_STATE_MODE] = self._state_mode
+        si[_k.SI_SUBSTEPS] = self.substeps
+        si[_k.SI_MODEL] = m._address
+        si[_k.SI_DATA] = d._address
+        self._si = si
+        self._frame_buf = np.zeros(frame_size(n))  # the packed frame (omnirotor.messages) of the last step
+        self._row = np.zeros(_k.TRUTH_ROW_SIZE + n)  # the truth row of the last step
+        self._no_noise = np.zeros((1, 15))  # stands for the state noise stream when none is drawn
+        self._no_noise_pos = np.zeros(1, dtype=np.int64)
+        self._noise: tuple = ()
+        self._streams: tuple[NoiseStream, ...] = ()
+        self._act: tuple = ()
+        self._qpos = d.qpos
         self._last_substep = self.substeps - 1
         # The aero model and rotor bank the fused actuation kernel was set up for (see step()).
         self._fused_aero = self.aero if hasattr(self.aero, "kernel_model") else None
@@ -259,9 +275,63 @@ class Simulator:
             3,
         )
         self._state_noise = NoiseStream(streams[4], state_scale, 15)
+        st = self._state_noise if self._state_mode == _k.STATE_NOISY else None
+        self._streams = tuple(x for x in (self.imu.noise, self._rotor_noise, st, self.mocap.noise) if x is not None)
+        self._noise = (
+            self.imu.noise.buf, self.imu.noise.pos, self._rotor_noise.buf, self._rotor_noise.pos,
+            st.buf if st is not None else self._no_noise, st.pos if st is not None else self._no_noise_pos,
+            self.mocap.noise.buf, self.mocap.noise.pos,
+        )  # fmt: skip
+        self._moc = self.mocap.kernel_state
         self._apply_wrench(recompute_rotors=True)
         mujoco.mj_forward(m, d)
-        return self._frame()
+        self._refill_noise()
+        _k.observe(
+            self._mjv, self._si, self.rotors.omega_hz, self.imu.kernel_params, self._noise, self._moc,
+            self._sens_adr, 0, self.dt, self._frame_buf, self._row,
+        )  # fmt: skip
+        return SensorFrame.from_packed(self._frame_buf)
+
+    def _refill_noise(self) -> None:
+        """Draw the next block of every exhausted noise stream (the compiled step reads one row of each)."""
+        for stream in self._streams:
+            if stream.exhausted:
+                stream.refill()
+
+    @property
+    def kernel_args(self) -> tuple:
+        """The arguments of :func:`omnirotor.sim._kernels.sim_step` but the command, step index and outputs.
+
+        ``(mjv, si, act, imu_par, noise, moc, sens_adr)``, for a compiled loop (valid until the next
+        :meth:`reset`); None when the rotor or truth model was replaced by one without a kernel.
+        """
+        if not (self.aero is self._fused_aero and self.rotors is self._fused_rotors):
+            return None
+        r = self.rotors
+        self._si[_k.SI_AERO_KIND] = self.aero.kernel_kind
+        act = (r.omega_hz, r.u_hz2, r.kernel_params, self.aero.kernel_model, self._w_B, self._ext)
+        return self._mjv, self._si, act, self.imu.kernel_params, self._noise, self._moc, self._sens_adr
+
+    @property
+    def noise_streams(self) -> tuple[NoiseStream, ...]:
+        """The noise streams a compiled step reads (refill the exhausted ones between compiled calls)."""
+        return self._streams
+
+    @property
+    def packed_frame(self) -> np.ndarray:
+        """The packed frame (:mod:`omnirotor.messages`) of the last step, owned by the simulator."""
+        return self._frame_buf
+
+    @property
+    def step_index(self) -> int:
+        """Control periods since :meth:`reset`."""
+        return self._k
+
+    @step_index.setter
+    def step_index(self, k: int) -> None:
+        # A compiled loop that stepped the simulator itself reports where it stopped.
+        self._k = int(k)
+        self._truth = None
 
     def set_external_wrench(self, f_W: np.ndarray, m_W: np.ndarray | None = None, at: str = "ee") -> None:
         """Add a constant wrench every step until changed (disturbances, tests).
@@ -304,70 +374,37 @@ class Simulator:
         Returns:
             The sensor frame at ``t + dt``.
         """
-        omega_cmd = cmd.omega_hz
+        omega_cmd = np.asarray(cmd.omega_hz, dtype=np.float64)
         if omega_cmd.shape != self._n_shape:
             raise InputError(f"step: omega_hz must have shape {self._n_shape}, got {omega_cmd.shape}")
-        m, d = self.model, self.data
-        last = self._last_substep
-        rotors, aero = self.rotors, self.aero
-        # The rotor lag, the truth wrench and xfrc_applied in one compiled call for the project's own models.
-        fused = aero is self._fused_aero and rotors is self._fused_rotors
-        for i in range(self.substeps):
-            mujoco.mj_Euler(m, d)
-            if i != last:
-                self._apply_wrench(recompute_rotors=False)
-            elif fused:
-                _k.actuate(
-                    rotors.omega_hz, rotors.u_hz2, omega_cmd, rotors.kernel_params, aero.kernel_kind,
-                    aero.kernel_model, self._qpos, self._qp, self._w_B, self._ext, self._xfrc,
-                )  # fmt: skip
-            else:
-                rotors.step(omega_cmd)
-                self._apply_wrench(recompute_rotors=True)
-            mujoco.mj_forward(m, d)
+        self._refill_noise()
+        args = self.kernel_args
+        if args is not None:  # the project's own rotor and truth models: the whole step in one compiled call
+            mjv, si, act, imu_par, noise, moc, sens_adr = args
+            _k.sim_step(
+                mjv, si, act, omega_cmd, imu_par, noise, moc, sens_adr, self._k, self.dt, self._frame_buf, self._row
+            )
+        else:
+            m, d = self.model, self.data
+            for i in range(self.substeps):
+                mujoco.mj_Euler(m, d)
+                if i == self._last_substep:
+                    self.rotors.step(omega_cmd)
+                self._apply_wrench(recompute_rotors=i == self._last_substep)
+                mujoco.mj_forward(m, d)
+            _k.observe(
+                self._mjv, self._si, self.rotors.omega_hz, self.imu.kernel_params, self._noise, self._moc,
+                self._sens_adr, self._k + 1, self.dt, self._frame_buf, self._row,
+            )  # fmt: skip
         self._k += 1
         self._truth = None
-        return self._frame()
+        return SensorFrame.from_packed(self._frame_buf)
 
     def _apply_wrench(self, recompute_rotors: bool) -> None:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
         if recompute_rotors:
             self.aero.wrench_B(self.rotors.u_hz2, out=self._w_B)
         _k.apply_wrench(self._qpos, self._qp, self._w_B, self._ext, self._xfrc)
-
-    def _frame(self) -> SensorFrame:
-        """The frame at the current time: sensors from MuJoCo's state in one compiled call (_kernels.sense)."""
-        k = self._k
-        t = k * self.dt
-        out = np.empty(self._frame_size)
-        mode = self._state_mode
-        _k.sense(
-            self._qpos,
-            self._qvel,
-            self._qacc,
-            self._xmat,
-            self._qp,
-            self._qv,
-            self._body,
-            self.imu.kernel_params,
-            self.imu.noise.next(),
-            self.rotors.omega_hz,
-            self._rotor_noise.next(),
-            mode,
-            self._state_noise.next() if mode == _k.STATE_NOISY else self._no_noise,
-            out,
-        )
-        n6 = self._frame_size - (21 if mode else 0)
-        state = None
-        if mode:
-            state = StateEstimate(
-                t, out[n6 : n6 + 3], out[n6 + 3 : n6 + 6], out[n6 + 6 : n6 + 9], out[n6 + 9 : n6 + 18].reshape(3, 3),
-                out[n6 + 18 : n6 + 21],
-            )  # fmt: skip
-        sample = self.mocap.step(k, t, self._p_view, self._q_view)
-        if sample is None:
-            return SensorFrame(t, out[0:3], out[3:6], out[6:n6], False, 0.0, None, None, state)
-        return SensorFrame(t, out[0:3], out[3:6], out[6:n6], True, sample.t, sample.p_W, sample.q_WB, state)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -383,18 +420,12 @@ class Simulator:
         Layout of ``out[0 : TRUTH_ROW_SIZE + n]`` (n rotors; later entries are left alone): ``t`` [s],
         ``p_W`` (3), ``v_W`` (3), ``R_WB`` (9, row-major), ``omega_B`` (3), ``p_E_W`` (3),
         ``contact_force_W`` (3), ``contact_moment_W`` (3), ``in_contact`` (1.0 or 0.0), ``rotor_hz`` (n): the
-        same values as :attr:`truth`.
+        same values as :attr:`truth` (the contact wrench from the EE contact sensors, up to rounding).
 
         Args:
             out: a 1-D float64 array of at least ``TRUTH_ROW_SIZE + n`` entries.
         """
-        _k.truth_row_into(
-            self._qpos, self._qvel, self._xmat, self._site_xpos, self._qp, self._qv, self._body, self._ee_site,
-            self.rotors.omega_hz, self._k * self.dt, out,
-        )  # fmt: skip
-        if self.data.ncon:
-            _, _, in_contact, _ = self._contact_wrench(out[19:22], out[22:25], out[25:28])
-            out[28] = 1.0 if in_contact else 0.0
+        out[: self._row.shape[0]] = self._row
 
     def _contact_wrench(self, p_E_W: np.ndarray, force: np.ndarray, moment: np.ndarray) -> tuple:
         """Add the environment's contact force on the end-effector and its moment about ``p_E_W`` (world frame).
@@ -435,9 +466,10 @@ class Simulator:
         n = self.vehicle.n_rotors
         # Every array of the record is a view into one fresh buffer (_kernels.truth_into gives the layout).
         g = np.empty(_k.TRUTH_SIZE + n)
+        qpos, qvel, qacc, xmat, site_xpos, _, _ = self._mjv
         _k.truth_into(
-            self._qpos, self._qvel, self._qacc, self._xmat, self._site_xpos, self._qp, self._qv, self._body,
-            self._ee_site, self.rotors.omega_hz, self._w_B, g,
+            qpos, qvel, qacc, xmat, site_xpos, self._qp, self._qv, self._body, self._ee_site, self.rotors.omega_hz,
+            self._w_B, g,
         )  # fmt: skip
         p_E_W = g[27:30]
         force, moment, in_contact, other = self._contact_wrench(p_E_W, g[30:33], g[33:36])

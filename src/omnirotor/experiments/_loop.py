@@ -1,0 +1,63 @@
+"""The compiled closed loop: simulator and controller alternate inside one compiled call (no Python per step).
+
+:func:`run_steps` is the fast path of :func:`omnirotor.experiments.closed_loop.run_closed_loop`. Each step is
+exactly what the Python loop does, through the same kernels: the simulator's step
+(:func:`omnirotor.sim._kernels.sim_step`, which calls MuJoCo's C step functions) writes the packed sensor frame
+(:mod:`omnirotor.messages`) and the truth row; the controller's step
+(:func:`omnirotor.control._step_kernels.controller_step`) reads that frame and writes its command, which the
+next simulator step reads. The two sides meet only through the packed frame and the command array, as their
+Python methods meet through :class:`~omnirotor.messages.SensorFrame` and
+:class:`~omnirotor.messages.RotorCommand`; this module (an experiment) is the only place that holds both.
+
+A call runs until ``stop`` or until a noise stream of the simulator has no row left for the next step; the
+caller then refills the streams (:attr:`omnirotor.sim.simulator.Simulator.noise_streams`), reports progress
+and calls again.
+"""
+
+from __future__ import annotations
+
+from omnirotor._jit import jit, monotonic_ns
+from omnirotor.control._step_kernels import controller_step
+from omnirotor.sim import _kernels as _sk
+from omnirotor.sim.sensors import BLOCK
+
+__all__ = ["run_steps"]
+
+_NS_PER_US = 1e3
+
+
+@jit
+def run_steps(sim_args, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
+    """Steps ``k, k+1, ...`` of a closed-loop run, up to ``stop`` or the end of a noise block.
+
+    Args:
+        sim_args: :attr:`omnirotor.sim.simulator.Simulator.kernel_args`.
+        ctl_args: :attr:`omnirotor.control.controller.InteractionController.kernel_args`.
+        cmd_hz: (n,) the controller's command array [Hz] (the simulator's input; the controller writes it).
+        frame: the simulator's packed frame.
+        k: first step of this call (row of both logs).
+        stop: step to stop before.
+        k_sim0: the simulator's step index at k = 0.
+        dt: control period [s].
+        truth: (rows, TRUTH_ROW_SIZE + n + 1) truth log data; the last column gets the controller step [µs].
+        log: the controller log's data (one row per step).
+        ts: (2,) int64 scratch of the clock.
+
+    Returns:
+        The next step to run (== ``stop`` when done).
+    """
+    imu_pos, rot_pos, st_pos, mc_pos = sim_args[4][1], sim_args[4][3], sim_args[4][5], sim_args[4][7]
+    noisy = sim_args[1][_sk.SI_STATE_MODE] == _sk.STATE_NOISY
+    mjv, si, act, imu_par, noise, moc, sens_adr = sim_args
+    timing = truth.shape[1] - 1
+    while k < stop:
+        if imu_pos[0] >= BLOCK or rot_pos[0] >= BLOCK or mc_pos[0] >= BLOCK or (noisy and st_pos[0] >= BLOCK):
+            break
+        row = truth[k]
+        _sk.sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k_sim0 + k, dt, frame, row)
+        tic = monotonic_ns(ts)
+        controller_step(ctl_args, frame, log[k])
+        toc = monotonic_ns(ts)
+        row[timing] = (toc - tic) / _NS_PER_US
+        k += 1
+    return k

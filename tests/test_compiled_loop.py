@@ -1,0 +1,192 @@
+"""The compiled paths of the 1 kHz loop give the Python paths' numbers, bit for bit.
+
+* the controller's compiled step (``_step_kernels.controller_step``, one call per period) against the same
+  step with the blocks called from Python (``InteractionController._step_python``): estimate, map selection
+  (hard switch and smooth blend across the R1/R3 border), QP, command, every log entry and the counters, on a
+  slide over the pipe with contact, with the UKF and with the bypass, with a failed rotor, and with corrupted
+  sensor frames;
+* the compiled closed loop (``experiments._loop.run_steps``, in chunks between progress reports) against the
+  Python loop of ``run_closed_loop``: both logs and the final simulator state;
+* the compiled QP-failure fallback against the allocator's own.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.control import _step_kernels as _sk
+from omnirotor.control.allocation import Allocator
+from omnirotor.control.controller import ControllerParams, InteractionController
+from omnirotor.control.estimator import EstimatorParams
+from omnirotor.control.maps import MapParams
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.experiments.closed_loop import run_closed_loop
+from omnirotor.experiments.faults import FaultInjector, MocapDropout, SensorCorruption
+from omnirotor.regions import load_partition
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.so3 import rot_x
+from omnirotor.vehicle import load_vehicle
+from omnirotor.wrench_maps import MapEntry, WrenchMapSet
+
+V = load_vehicle("omnirotor")
+PARTITION = load_partition("paper")
+
+
+def _maps(seed: int = 3) -> WrenchMapSet:
+    """A different map in every region (force rows scaled by 1.0 ... 1.2), so that every switch matters."""
+    rng = np.random.default_rng(seed)
+    regions = {
+        name: MapEntry(A=V.A_nom * np.r_[rng.uniform(1.0, 1.2, 3), np.ones(3)][:, None], points=10, identified=True)
+        for name in PARTITION.names
+    }
+    return WrenchMapSet(vehicle="omnirotor", nominal=V.A_nom, partition=PARTITION, regions=regions)
+
+
+def _slide(sim: Simulator) -> PoseTrajectory:
+    """Approach the pipe, touch it, slide over it to 45 deg of roll (across the R1/R3 border at 30 deg)."""
+    s = sim.scene
+    c, r = np.asarray(s.pipe_centre_W), s.pipe_radius - 0.01
+    th = math.radians(45.0)
+    touch = c + np.array([0.0, -r, 0.0])
+    apex = c + np.array([0.0, -r * math.cos(th), r * math.sin(th)])
+    R0 = np.eye(3)
+    return PoseTrajectory(
+        [
+            Waypoint(0.0, touch - [0.0, 0.08, 0.0], R0),
+            Waypoint(1.0, touch, R0),
+            Waypoint(1.4, touch, R0),
+            Waypoint(3.4, apex, rot_x(-th)),
+        ]
+    )
+
+
+def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = None):
+    sim = Simulator(V, "pipe", SimParams(), seed=5)
+    params = ControllerParams(
+        estimator=EstimatorParams(kind=estimator), maps=MapParams(mode=mode, blend=blend, blend_width_deg=10.0)
+    )
+    ctl = InteractionController(V, params, maps=_maps() if mode != "nominal" else None)
+    if failed is not None:
+        mask = np.zeros(V.n_rotors, dtype=bool)
+        mask[failed] = True
+        ctl.set_failed_rotors(mask)
+    return sim, ctl, _slide(sim)
+
+
+CASES = [
+    ("ukf", "piecewise", "hard", None),
+    ("bypass", "piecewise", "smooth", None),
+    ("ukf", "nominal", "hard", 2),
+]
+
+
+def _fly(sim, ctl, traj, duration, python_controller: bool, plant=None):
+    """A hand-written loop: ``plant`` (default ``sim``) and the controller's compiled or Python step."""
+    plant = sim if plant is None else plant
+    p0 = traj.waypoints[0].p_W - traj.waypoints[0].R_WB @ V.p_E_B_array
+    frame = plant.reset(p_W=p0, R_WB=traj.waypoints[0].R_WB)
+    ctl.log.ensure_capacity(int(round(duration / ctl.params.dt)))
+    ctl.reset(frame, traj)
+    cmd = ctl.hold_command()
+    statuses, regions = [], []
+    row = np.zeros(64)
+    contact_steps = 0
+    for _ in range(int(round(duration / ctl.params.dt))):
+        frame = plant.step(cmd)
+        cmd = ctl._step_python(frame, traj) if python_controller else ctl.step(frame)
+        statuses.append(int(cmd.status))
+        regions.append(ctl.scheduler.region_index)
+        sim.truth_row(row)
+        contact_steps += row[28] > 0.5  # the contact flag of the truth row
+    return np.array(statuses), np.array(regions), contact_steps
+
+
+@pytest.mark.parametrize(("estimator", "mode", "blend", "failed"), CASES)
+def test_compiled_controller_step_equals_the_python_step(estimator, mode, blend, failed):
+    runs = []
+    for python_controller in (False, True):
+        sim, ctl, traj = _setup(estimator, mode, blend, failed)
+        statuses, regions, contact_steps = _fly(sim, ctl, traj, 3.4, python_controller)
+        a, e = ctl.allocator, ctl.estimator
+        counters = (a.n_fallbacks, a.n_nonfinite, int(a.status), a.saturated, e.rejected_inputs, e.degraded)
+        log = ctl.log.data[: ctl.log.n].copy()
+        runs.append((log, statuses, regions, counters, sim.data.qpos.copy(), contact_steps))
+    (log_c, st_c, reg_c, cnt_c, q_c, contact_c), (log_p, st_p, reg_p, cnt_p, q_p, _) = runs
+    np.testing.assert_array_equal(log_c, log_p)
+    np.testing.assert_array_equal(st_c, st_p)
+    np.testing.assert_array_equal(reg_c, reg_p)
+    np.testing.assert_array_equal(q_c, q_p)
+    assert cnt_c == cnt_p
+    # The run did what it is meant to cover: contact with the pipe, and the map switch in piecewise mode.
+    assert contact_c > 500
+    if mode == "piecewise":
+        assert {PARTITION.names.index("R1"), PARTITION.names.index("R3")} <= set(reg_c.tolist())
+    if failed is not None:
+        assert np.all(st_c & int(_sk._BIT_EXCLUDED))
+
+
+def test_compiled_controller_step_equals_the_python_step_on_corrupted_frames():
+    faults = [
+        SensorCorruption(signal="imu_gyro", kind="nan", t_start_s=0.5, duration_s=0.004),
+        SensorCorruption(signal="mocap", kind="nan", t_start_s=0.8, duration_s=0.03),
+        SensorCorruption(signal="rotor_hz", kind="inf", t_start_s=1.1, duration_s=0.003),
+        MocapDropout(t_start_s=1.5, duration_s=0.3),
+    ]
+    runs = []
+    for python_controller in (False, True):
+        sim, ctl, traj = _setup("ukf", "piecewise")
+        plant = FaultInjector(sim, faults)
+        statuses, _, _ = _fly(sim, ctl, traj, 2.5, python_controller, plant=plant)
+        runs.append((ctl.log.data[: ctl.log.n].copy(), statuses, ctl.estimator.rejected_inputs))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    assert runs[0][2] == runs[1][2] > 0
+    flags = int(_sk._BIT_NONFINITE) | int(_sk._BIT_DEGRADED)
+    assert np.count_nonzero(runs[0][1] & flags) > 10  # the corruptions and the dropout were seen
+
+
+@pytest.mark.parametrize(("estimator", "mode", "blend", "failed"), CASES)
+def test_compiled_closed_loop_equals_the_python_loop(estimator, mode, blend, failed):
+    runs = []
+    for compiled in (True, False):
+        sim, ctl, traj = _setup(estimator, mode, blend, failed)
+        ticks: list[float] = []
+        # A no-op on_step makes run_closed_loop take its Python loop.
+        hook = None if compiled else (lambda s, t: None)
+        clog, tlog = run_closed_loop(sim, ctl, traj, 3.4, progress=ticks.append, on_step=hook)
+        runs.append((clog, tlog, sim, ctl, ticks))
+    (c1, t1, s1, k1, ticks1), (c2, t2, s2, k2, _) = runs
+    assert c1.n == c2.n == t1.n == t2.n == 3400
+    np.testing.assert_array_equal(c1.data[: c1.n], c2.data[: c2.n])
+    timing = t1.n_signals - 1  # the controller's wall-clock time differs, of course
+    np.testing.assert_array_equal(t1.data[: t1.n, :timing], t2.data[: t2.n, :timing])
+    np.testing.assert_array_equal(s1.data.qpos, s2.data.qpos)
+    assert s1.t == s2.t and s1.step_index == 3400
+    assert k1.scheduler.region_index == k2.scheduler.region_index
+    assert k1.scheduler.region_name == k2.scheduler.region_name
+    assert np.all(t1.data[: t1.n, timing] > 0.0)  # every compiled step was timed
+    assert ticks1[-1] == 1.0 and len(ticks1) >= 50 and ticks1 == sorted(ticks1)
+    assert np.any(t1.group("in_contact") > 0.5)
+
+
+def test_compiled_fallback_is_the_allocators_pseudo_inverse():
+    rng = np.random.default_rng(1)
+    alloc = Allocator(V)
+    for failed in (None, 4):
+        mask = np.zeros(V.n_rotors, dtype=bool)
+        if failed is not None:
+            mask[failed] = True
+        alloc.set_failed_rotors(mask)
+        alloc.solve(rng.normal(0.0, 3.0, 6) + [0, 0, 14, 0, 0, 0], np.eye(3), V.A_nom)
+        before = alloc.n_fallbacks
+        counters = alloc.kernel_counters.copy()
+        expect = alloc._fallback()
+        got = _sk.allocation_fallback(alloc.kernel_As, alloc.kernel_failed, alloc._w_B, counters)
+        np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12 * np.abs(expect).max())
+        assert counters[_sk.AC_N_FALLBACKS] == before + 1 == alloc.n_fallbacks
+        assert counters[_sk.AC_STATUS] == _sk.ALLOC_FALLBACK
+        if failed is not None:
+            assert abs(got[failed]) <= 1e-12 * np.abs(got).max()  # zero up to rounding; the bounds pin it

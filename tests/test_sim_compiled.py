@@ -1,0 +1,120 @@
+"""The simulator's compiled step (``sim._kernels.sim_step``, MuJoCo called from compiled code) and its parts.
+
+* the whole compiled step gives bit for bit the frames and truth rows of the same step run from Python
+  (``mj_Euler`` / ``mj_forward`` through the bindings, the rotor and truth models' own methods);
+* the truth row's contact wrench, from MuJoCo's contact sensors, equals the sum over the contacts by
+  ``mj_contactForce`` (the :class:`GroundTruth` record) with several EE contacts on both EE geoms at once;
+* the packed frame round-trips through :class:`SensorFrame`;
+* the compiled clock agrees with ``time.perf_counter_ns``.
+"""
+
+import time
+
+import mujoco
+import numpy as np
+
+from omnirotor._jit import monotonic_ns
+from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate, frame_size
+from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim.model import EE_ROD_GEOM, EE_TIP_GEOM, ROD_RADIUS
+from omnirotor.so3 import exp_so3
+from omnirotor.vehicle import load_vehicle
+
+V = load_vehicle("omnirotor")
+
+
+def _rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A rotation matrix R with R a = b (unit vectors, not opposite)."""
+    axis = np.cross(a, b)
+    angle = np.arctan2(np.linalg.norm(axis), a @ b)
+    return exp_so3(axis / np.linalg.norm(axis) * angle)
+
+
+def _pressed_on_wall(sim: Simulator) -> None:
+    """Reset with the EE rod parallel to the wall, tip and rod sunk into it, and a force pushing it in."""
+    n_W = sim.scene.normal_W
+    d_B = V.p_E_B_array / np.linalg.norm(V.p_E_B_array)
+    tangent = np.cross(n_W, [0.0, 0.0, 1.0])
+    R = _rotation_taking(d_B, tangent / np.linalg.norm(tangent))
+    p_E = sim.scene.surface_point_W + (ROD_RADIUS - 0.001) * n_W  # the rod's axis 1 mm closer than its radius
+    sim.reset(p_E - R @ V.p_E_B_array, R)
+    sim.set_external_wrench(-4.0 * n_W, at="com")
+
+
+def test_compiled_step_equals_the_step_run_from_python():
+    fused = Simulator(V, "wall", seed=4)
+    plain = Simulator(V, "wall", seed=4)
+    plain._fused_aero = None  # no kernel for this truth model as far as step() knows: the Python path
+    assert fused.kernel_args is not None and plain.kernel_args is None
+    for sim in (fused, plain):
+        _pressed_on_wall(sim)
+    rng = np.random.default_rng(0)
+    rows = np.zeros((2, 40))
+    contact_steps = 0
+    for k in range(400):
+        cmd = RotorCommand(k * 1e-3, fused.hover_speeds_hz() * (1.0 + 0.05 * rng.standard_normal(8)))
+        frames = [fused.step(cmd), plain.step(cmd)]
+        fused.truth_row(rows[0])
+        plain.truth_row(rows[1])
+        packed = [np.zeros(frame_size(8)), np.zeros(frame_size(8))]
+        frames[0].pack_into(packed[0])
+        frames[1].pack_into(packed[1])
+        np.testing.assert_array_equal(packed[0], packed[1])
+        np.testing.assert_array_equal(rows[0], rows[1])
+        contact_steps += rows[0, 28] > 0.5
+    np.testing.assert_array_equal(fused.data.qpos, plain.data.qpos)
+    assert contact_steps > 100  # the comparison covered contact
+
+
+def test_contact_sensors_give_the_summed_contact_wrench_with_several_contacts():
+    sim = Simulator(V, "wall", SimParams(), seed=2)
+    _pressed_on_wall(sim)
+    m, d = sim.model, sim.data
+    ee = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (EE_TIP_GEOM, EE_ROD_GEOM)}
+    row = np.zeros(40)
+    cmd = RotorCommand(0.0, sim.hover_speeds_hz())
+    most, both = 0, False
+    for _ in range(60):
+        sim.step(cmd)
+        sim.truth_row(row)
+        tr = sim.truth  # summed contact by contact with mj_contactForce
+        geoms = [g for c in range(d.ncon) for g in (d.contact.geom1[c], d.contact.geom2[c]) if g in ee]
+        most = max(most, len(geoms))
+        both |= len(set(geoms)) == 2
+        np.testing.assert_allclose(row[22:25], tr.contact_force_W, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(row[25:28], tr.contact_moment_W, rtol=1e-12, atol=1e-12)
+        assert (row[28] == 1.0) == tr.in_contact
+    assert most >= 2 and both  # several EE contacts at once, on the tip and on the rod
+    assert np.linalg.norm(tr.contact_force_W) > 1.0
+
+
+def test_packed_frame_round_trips_through_the_message():
+    sim = Simulator(V, "free", seed=1)
+    frame = sim.reset()
+    assert frame.mocap_new and frame.state is not None
+    buf = np.zeros(frame_size(V.n_rotors))
+    frame.pack_into(buf)
+    np.testing.assert_array_equal(buf, sim.packed_frame)
+    back = SensorFrame.from_packed(buf)
+    for name in ("imu_acc_B", "imu_gyro_B", "rotor_hz", "mocap_p_W", "mocap_q_WB"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(frame, name))
+    np.testing.assert_array_equal(back.state.R_WB, frame.state.R_WB)
+    assert back.t == frame.t and back.mocap_t == frame.mocap_t
+    buf[3] = 99.0
+    assert back.imu_acc_B[2] != 99.0  # the message owns a copy
+    bare = SensorFrame(0.5, np.ones(3), np.zeros(3), np.full(8, 140.0))
+    bare.pack_into(buf)
+    again = SensorFrame.from_packed(buf)
+    assert not again.mocap_new and again.mocap_p_W is None and again.state is None and again.t == 0.5
+    s = StateEstimate(0.5, np.ones(3), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3))
+    SensorFrame(0.5, np.ones(3), np.zeros(3), np.full(8, 140.0), state=s).pack_into(buf)
+    np.testing.assert_array_equal(SensorFrame.from_packed(buf).state.p_W, np.ones(3))
+
+
+def test_compiled_clock_is_the_monotonic_clock():
+    ts = np.zeros(2, dtype=np.int64)
+    monotonic_ns(ts)
+    before = time.perf_counter_ns()
+    mid = monotonic_ns(ts)
+    after = time.perf_counter_ns()
+    assert before <= mid <= after
