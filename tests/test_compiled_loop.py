@@ -190,3 +190,18 @@ def test_compiled_fallback_is_the_allocators_pseudo_inverse():
         assert counters[_sk.AC_STATUS] == _sk.ALLOC_FALLBACK
         if failed is not None:
             assert abs(got[failed]) <= 1e-12 * np.abs(got).max()  # zero up to rounding; the bounds pin it
+
+
+def test_address_table_gives_views_of_the_same_memory_and_refuses_strided_arrays():
+    from omnirotor._jit import address_table, f64_view, f64_view2, i64_view
+
+    a, b, c = np.arange(5.0), np.arange(6.0).reshape(2, 3), np.arange(4, dtype=np.int64)
+    table = address_table([a, b, c])
+    f64_view(table, 0)[1] = -1.0  # writes go to the arrays themselves
+    np.testing.assert_array_equal(f64_view2(table, 1), b)
+    np.testing.assert_array_equal(i64_view(table, 2), c)
+    assert a[1] == -1.0
+    with pytest.raises(ValueError):
+        address_table([np.arange(10.0)[::2]])
+    with pytest.raises(ValueError):
+        address_table([np.zeros(3, dtype=np.float32)])

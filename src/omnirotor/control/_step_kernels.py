@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import f64_view, f64_view2, i64_view, jit
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _kernels as _k
 from omnirotor.control import _map_kernels as _mk
@@ -49,7 +49,7 @@ from omnirotor.messages import (
     FRAME_T,
 )
 
-__all__ = ["controller_step", "bypass_step", "allocation_fallback"]
+__all__ = ["controller_step", "controller_step_by_address", "kernel_arrays", "bypass_step", "allocation_fallback"]
 
 # -- the int parameters (ints) --------------------------------------------------------------------------------------
 CI_EST_KIND = 0  # EST_UKF or EST_BYPASS
@@ -260,3 +260,31 @@ def controller_step(args, frame, row) -> int:
         if mode == _k.FINISH_QP:
             actr[AC_STATUS] = ALLOC_OK
     return out
+
+
+def kernel_arrays(args: tuple) -> list[np.ndarray]:
+    """The arrays of a ``kernel_args`` tuple, flattened in the order :func:`controller_step_by_address` reads."""
+    arena, ints, floats, est, sched, alloc, traj, eo = args
+    return [arena, ints, floats, *est, *sched, *alloc, traj, eo]
+
+
+@jit
+def controller_step_by_address(table, frame, row) -> int:
+    """:func:`controller_step` with its arrays given by address (``_jit.address_table(kernel_arrays(args))``).
+
+    The same step; from Python it costs one table instead of some twenty array arguments to unbox.
+    """
+    args = (
+        f64_view(table, 0),
+        i64_view(table, 1),
+        f64_view(table, 2),
+        (f64_view(table, 3), i64_view(table, 4), f64_view(table, 5), i64_view(table, 6)),
+        (f64_view(table, 7), f64_view2(table, 8), f64_view(table, 9), f64_view(table, 10), f64_view(table, 11)),
+        (
+            f64_view2(table, 12), f64_view(table, 13), f64_view(table, 14), f64_view(table, 15), i64_view(table, 16),
+            f64_view(table, 17), f64_view2(table, 18), f64_view(table, 19), i64_view(table, 20),
+        ),
+        f64_view(table, 21),
+        f64_view(table, 22),
+    )  # fmt: skip
+    return controller_step(args, frame, row)

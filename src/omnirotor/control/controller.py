@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from omnirotor._jit import address_table
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _kernels as _k
 from omnirotor.control import _step_kernels as _sk
@@ -351,6 +352,8 @@ class InteractionController:
             self._arena, ints, floats, est_arrays, sched_arrays, alloc_arrays, self._trajectory.kernel_data,
             self._est_out,
         )  # fmt: skip
+        # The same arrays by address, for step(): the arrays stay alive and in place in _kernel_args.
+        self._kernel_table = address_table(_sk.kernel_arrays(self._kernel_args))
         self._kernel_estimator = est
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
@@ -420,7 +423,7 @@ class InteractionController:
                 except ValueError as exc:
                     raise InputError(f"sensor frame of the wrong shape: {exc}") from None
             row = self.log.next_row()
-            bits = _sk.controller_step(args, packed, self._no_row if row is None else row)
+            bits = _sk.controller_step_by_address(self._kernel_table, packed, self._no_row if row is None else row)
             if bits == _sk.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
                 raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
             if self._piecewise:
