@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit, mujoco_function
+from omnirotor._jit import R9_from_quat_into, f64_view, f64_view2, i64_view, jit, mujoco_function
 from omnirotor.messages import (
     FRAME_ACC_B,
     FRAME_HAS_STATE,
@@ -66,6 +66,8 @@ __all__ = [
     "contact_into_row",
     "observe",
     "sim_step",
+    "sim_step_by_address",
+    "kernel_arrays",
 ]
 
 mj_Euler = mujoco_function("mj_Euler")
@@ -656,3 +658,35 @@ def sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k: int, dt: fl
             actuate(omega_hz, u_hz2, cmd_hz, rotor_par, si[SI_AERO_KIND], aero_model, qpos, qp, w_B, ext, xfrc)
         mj_forward(m, d)
     observe(mjv, si, omega_hz, imu_par, noise, moc, sens_adr, k + 1, dt, frame, row)
+
+
+def kernel_arrays(args: tuple) -> list[np.ndarray]:
+    """The arrays of ``Simulator.kernel_args``, flattened in the order :func:`sim_step_by_address` reads."""
+    mjv, si, act, imu_par, noise, moc, sens_adr = args
+    return [*mjv, si, *act, imu_par, *noise, *moc, sens_adr]
+
+
+@jit
+def sim_step_by_address(table, cmd_hz, k: int, dt: float, frame, row) -> None:
+    """:func:`sim_step` with its arrays given by address (``_jit.address_table(kernel_arrays(args))``).
+
+    The same step; from Python it costs one table instead of some thirty array arguments to unbox.
+    """
+    mjv = (
+        f64_view(table, 0), f64_view(table, 1), f64_view(table, 2), f64_view2(table, 3), f64_view2(table, 4),
+        f64_view(table, 5), f64_view(table, 6),
+    )  # fmt: skip
+    act = (
+        f64_view(table, 8), f64_view(table, 9), f64_view(table, 10), f64_view2(table, 11), f64_view(table, 12),
+        f64_view(table, 13),
+    )  # fmt: skip
+    noise = (
+        f64_view2(table, 15), i64_view(table, 16), f64_view2(table, 17), i64_view(table, 18), f64_view2(table, 19),
+        i64_view(table, 20), f64_view2(table, 21), i64_view(table, 22),
+    )  # fmt: skip
+    moc = (
+        i64_view(table, 23), f64_view(table, 24), f64_view(table, 25), i64_view(table, 26), f64_view2(table, 27),
+        f64_view2(table, 28),
+    )  # fmt: skip
+    si, imu_par, sens_adr = i64_view(table, 7), f64_view(table, 14), i64_view(table, 29)
+    sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k, dt, frame, row)

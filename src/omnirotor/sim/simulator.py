@@ -29,6 +29,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
+from omnirotor._jit import address_table
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import _kernels as _k
@@ -200,7 +201,8 @@ class Simulator:
         self._no_noise_pos = np.zeros(1, dtype=np.int64)
         self._noise: tuple = ()
         self._streams: tuple[NoiseStream, ...] = ()
-        self._act: tuple = ()
+        self._kargs: tuple | None = None
+        self._ktable = np.zeros(0, dtype=np.int64)
         self._qpos = d.qpos
         self._last_substep = self.substeps - 1
         # The aero model and rotor bank the fused actuation kernel was set up for (see step()).
@@ -283,6 +285,7 @@ class Simulator:
             self.mocap.noise.buf, self.mocap.noise.pos,
         )  # fmt: skip
         self._moc = self.mocap.kernel_state
+        self._kargs = None  # rebuilt by kernel_args (the noise streams are new)
         self._apply_wrench(recompute_rotors=True)
         mujoco.mj_forward(m, d)
         self._refill_noise()
@@ -299,7 +302,7 @@ class Simulator:
                 stream.refill()
 
     @property
-    def kernel_args(self) -> tuple:
+    def kernel_args(self) -> tuple | None:
         """The arguments of :func:`omnirotor.sim._kernels.sim_step` but the command, step index and outputs.
 
         ``(mjv, si, act, imu_par, noise, moc, sens_adr)``, for a compiled loop (valid until the next
@@ -307,10 +310,14 @@ class Simulator:
         """
         if not (self.aero is self._fused_aero and self.rotors is self._fused_rotors):
             return None
-        r = self.rotors
-        self._si[_k.SI_AERO_KIND] = self.aero.kernel_kind
-        act = (r.omega_hz, r.u_hz2, r.kernel_params, self.aero.kernel_model, self._w_B, self._ext)
-        return self._mjv, self._si, act, self.imu.kernel_params, self._noise, self._moc, self._sens_adr
+        if self._kargs is None or self._kargs[2][3] is not self.aero.kernel_model:
+            r = self.rotors
+            self._si[_k.SI_AERO_KIND] = self.aero.kernel_kind
+            act = (r.omega_hz, r.u_hz2, r.kernel_params, self.aero.kernel_model, self._w_B, self._ext)
+            self._kargs = (self._mjv, self._si, act, self.imu.kernel_params, self._noise, self._moc, self._sens_adr)
+            # The same arrays by address, for step(); they stay alive and in place in _kargs.
+            self._ktable = address_table(_k.kernel_arrays(self._kargs))
+        return self._kargs
 
     @property
     def noise_streams(self) -> tuple[NoiseStream, ...]:
@@ -378,12 +385,8 @@ class Simulator:
         if omega_cmd.shape != self._n_shape:
             raise InputError(f"step: omega_hz must have shape {self._n_shape}, got {omega_cmd.shape}")
         self._refill_noise()
-        args = self.kernel_args
-        if args is not None:  # the project's own rotor and truth models: the whole step in one compiled call
-            mjv, si, act, imu_par, noise, moc, sens_adr = args
-            _k.sim_step(
-                mjv, si, act, omega_cmd, imu_par, noise, moc, sens_adr, self._k, self.dt, self._frame_buf, self._row
-            )
+        if self.kernel_args is not None:  # the project's own rotor and truth models: one compiled call
+            _k.sim_step_by_address(self._ktable, omega_cmd, self._k, self.dt, self._frame_buf, self._row)
         else:
             m, d = self.model, self.data
             for i in range(self.substeps):
