@@ -1,4 +1,4 @@
-"""omnirotor benchmarks: per-block timings, closed-loop real-time factors, the RotorPy comparison, scaling, profile.
+"""omnirotor benchmarks: per-block timings, closed-loop real-time factors, the RotorPy comparison, scaling, breakdown.
 
 Run ``python benchmarks/run.py [--quick] [--json] [--out FILE] [--markdown BENCHMARKS.md]`` (``make bench``).
 Progress goes to stderr; the table to stdout, or to stderr with ``--json`` (stdout is then one JSON object).
@@ -15,14 +15,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import cProfile
 import dataclasses
 import datetime
 import json
 import os
 import platform
-import pstats
-import re
 import statistics
 import subprocess
 import sys
@@ -46,6 +43,8 @@ import workloads  # noqa: E402
 from bench_allocation import bench_allocation  # noqa: E402
 from bench_controller import bench_controller_step  # noqa: E402
 from bench_sim import bench_sim_step  # noqa: E402
+from omnirotor._jit import jit, monotonic_ns  # noqa: E402
+from omnirotor.sim._kernels import mj_Euler, mj_forward  # noqa: E402
 from omnirotor.vehicle import load_vehicle  # noqa: E402
 
 SCHEMA = "omnirotor-bench/1"
@@ -85,8 +84,7 @@ class Config:
         campaign_sizes: numbers of tasks per campaign.
         campaign_task_s: simulated seconds of each campaign task.
         campaign_workers: worker process counts.
-        profile_s: simulated seconds of the profiled sliding run.
-        profile_top: rows of the profile table.
+        breakdown_mujoco_steps: periods of the timing of MuJoCo's step functions alone.
     """
 
     name: str
@@ -106,8 +104,7 @@ class Config:
     campaign_sizes: tuple[int, ...]
     campaign_task_s: float
     campaign_workers: tuple[int, ...]
-    profile_s: float
-    profile_top: int = 15
+    breakdown_mujoco_steps: int
 
 
 CONFIGS = {
@@ -129,7 +126,7 @@ CONFIGS = {
         campaign_sizes=(4, 8),
         campaign_task_s=1.0,
         campaign_workers=(1, 2),
-        profile_s=5.0,
+        breakdown_mujoco_steps=2000,
     ),
     "quick": Config(
         name="quick",
@@ -149,7 +146,7 @@ CONFIGS = {
         campaign_sizes=(4,),
         campaign_task_s=0.5,
         campaign_workers=(1, 2),
-        profile_s=2.0,
+        breakdown_mujoco_steps=1000,
     ),
     "tiny": Config(
         name="tiny",
@@ -169,8 +166,7 @@ CONFIGS = {
         campaign_sizes=(2,),
         campaign_task_s=0.05,
         campaign_workers=(1, 2),
-        profile_s=0.05,
-        profile_top=5,
+        breakdown_mujoco_steps=20,
     ),
 }
 
@@ -293,6 +289,8 @@ def measure_sliding(cfg: Config) -> dict:
             "controller_step_us_in_loop": _median([x["controller_step_us_median"] for x in rs]),
             "controller_step_us_in_loop_mean": _median([x["controller_step_us_mean"] for x in rs]),
             "controller_step_us_in_loop_p99": _median([x["controller_step_us_p99"] for x in rs]),
+            "plant_step_us_in_loop": _median([x["plant_step_us_median"] for x in rs]),
+            "plant_step_us_in_loop_mean": _median([x["plant_step_us_mean"] for x in rs]),
             "steps_flagged": rs[0]["steps_flagged"],
             "contact_fraction": rs[0]["contact_fraction"],
         }
@@ -390,84 +388,50 @@ def measure_scaling(cfg: Config) -> dict:
     }
 
 
-def _func_label(key: tuple[str, int, str]) -> str:
-    path, line, func = key
-    if path == "~":
-        return func
-    p = Path(path)
-    parts = p.parts
-    if "omnirotor" in parts:
-        rel = "/".join(parts[parts.index("omnirotor") :])
-    elif "site-packages" in parts:
-        rel = "/".join(parts[parts.index("site-packages") + 1 :])
-    else:
-        rel = p.name
-    return f"{rel}:{line}({func})"
+@jit
+def _mujoco_loop(m: int, d: int, n: int, ts) -> float:
+    """Mean µs of ``n`` x (``mj_Euler``, ``mj_forward``) on the MjModel/MjData at addresses ``m``, ``d``."""
+    t0 = monotonic_ns(ts)
+    for _ in range(n):
+        mj_Euler(m, d)
+        mj_forward(m, d)
+    return (monotonic_ns(ts) - t0) / n / 1e3
 
 
-def _area(key: tuple[str, int, str]) -> str:
-    path, _, func = key
-    if path == "~":
-        m = re.search(r"(mujoco|numpy|daqp|proxsuite|math)", func)
-        return f"{m.group(1)} (C)" if m else "other built-ins (C)"
-    parts = Path(path).parts
-    if "omnirotor" in parts:
-        return "/".join(parts[parts.index("omnirotor") :])
-    if "site-packages" in parts:
-        return parts[parts.index("site-packages") + 1] + " (Python)"
-    return Path(path).name
+def _mujoco_step_us(steps: int) -> float:
+    """Mean µs of MuJoCo's ``mj_Euler`` + ``mj_forward`` called from compiled code, on the sliding model in contact.
 
-
-def measure_profile(cfg: Config) -> dict:
-    """cProfile of one sliding run (UKF): top functions by own time, and own time by file."""
+    The state is the sliding run's just after the tip touched the pipe; the rotor wrench is held, so the state
+    drifts little over ``steps`` periods.
+    """
     from omnirotor.experiments.closed_loop import run_closed_loop
 
-    sim, ctl, traj, _ = workloads.sliding_setup("ukf", cfg.sliding_quick_scenario)
-    prof = cProfile.Profile()
-    prof.enable()
-    run_closed_loop(sim, ctl, traj, cfg.profile_s)
-    prof.disable()
-    stats = pstats.Stats(prof).stats
-    total = sum(v[2] for v in stats.values())
-    steps = int(round(cfg.profile_s / sim.dt))
-    top = sorted(stats.items(), key=lambda kv: -kv[1][2])[: cfg.profile_top]
-    areas: dict[str, float] = {}
-    for key, v in stats.items():
-        areas[_area(key)] = areas.get(_area(key), 0.0) + v[2]
-    own_code = [kv for kv in stats.items() if "omnirotor" in Path(kv[0][0]).parts and kv[0][2] != "run_closed_loop"]
-    inclusive = sorted(own_code, key=lambda kv: -kv[1][3])[: cfg.profile_top]
-    return {
-        "task": "sliding",
-        "estimator": "ukf",
-        "duration_s": cfg.profile_s,
-        "total_s": total,
-        "top_inclusive": [
-            {
-                "function": _func_label(k),
-                "ncalls": int(v[1]),
-                "cumtime_s": v[3],
-                "cumtime_pct": 100.0 * v[3] / total,
-                "us_per_step": 1e6 * v[3] / steps,
-            }
-            for k, v in inclusive
-        ],
-        "top": [
-            {
-                "function": _func_label(k),
-                "ncalls": int(v[1]),
-                "tottime_s": v[2],
-                "cumtime_s": v[3],
-                "tottime_pct": 100.0 * v[2] / total,
-                "us_per_step": 1e6 * v[2] / steps,
-            }
-            for k, v in top
-        ],
-        "by_area": [
-            {"area": a, "tottime_s": t, "pct": 100.0 * t / total}
-            for a, t in sorted(areas.items(), key=lambda kv: -kv[1])
-            if t / total >= 0.005
-        ],
-    }
+    sim, ctl, traj, scenario = workloads.sliding_setup("bypass", quick_scenario=True)
+    run_closed_loop(sim, ctl, traj, scenario.contact_phase[0] + 1.0)
+    ts = np.zeros(2, dtype=np.int64)
+    _mujoco_loop(sim.model._address, sim.data._address, 10, ts)  # compile
+    return float(_mujoco_loop(sim.model._address, sim.data._address, steps, ts))
+
+
+def measure_breakdown(cfg: Config, sliding: dict) -> dict:
+    """Where a closed-loop step's wall time goes: simulator step (MuJoCo in it), controller step, the rest.
+
+    From the sliding runs (their per-step timings, measured inside the compiled loop) and a separate timing of
+    MuJoCo's step functions alone.
+    """
+    out: dict = {"task": "sliding", "duration_s": sliding["duration_s"]}
+    for kind in ("ukf", "bypass"):
+        d = sliding[kind]
+        wall = 1e6 * workloads.DT_S / d["rtf_median"]
+        plant, ctl = d["plant_step_us_in_loop_mean"], d["controller_step_us_in_loop_mean"]
+        out[kind] = {
+            "wall_per_step_us": wall,
+            "plant_step_us_mean": plant,
+            "controller_step_us_mean": ctl,
+            "rest_us": wall - plant - ctl,
+        }
+    out["mujoco_step_us"] = _mujoco_step_us(cfg.breakdown_mujoco_steps)
+    return out
 
 
 def evaluate_goals(result: dict) -> dict:
@@ -548,8 +512,8 @@ def collect(
     note("scaling: hover duration and campaign workers")
     out["scaling"] = measure_scaling(cfg)
 
-    note(f"profile of a {cfg.profile_s:g} s sliding run (cProfile)")
-    out["profile"] = measure_profile(cfg)
+    note("where a closed-loop step's time goes")
+    out["breakdown"] = measure_breakdown(cfg, sliding)
 
     out["goals"] = evaluate_goals(out)
     out["machine"]["load_avg_1min_end"] = _load1()
@@ -794,31 +758,28 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
         )
     )
 
-    p = r["profile"]
-    prow = [
-        [f"`{t['function']}`", str(t["ncalls"]), f"{t['tottime_pct']:.1f} %", _f(t["us_per_step"])] for t in p["top"]
-    ]
+    b = r["breakdown"]
+    brows = []
+    for kind, label in (("ukf", "UKF"), ("bypass", "bypass")):
+        d = b[kind]
+        brows.append(
+            [
+                label,
+                _f(d["wall_per_step_us"]),
+                _f(d["plant_step_us_mean"]),
+                _f(b["mujoco_step_us"]),
+                _f(d["controller_step_us_mean"]),
+                _f(d["rest_us"]),
+            ]
+        )
     tables.append(
         (
-            f"Profile: sliding task, UKF, {p['duration_s']:g} s under cProfile ({p['total_s']:.2f} s profiled; "
-            "cProfile inflates Python call costs); top functions by own time",
-            prow,
-            ["function", "calls", "own time", "µs per step"],
+            f"Where a closed-loop step goes: sliding task, {b['duration_s']:g} s, means per step [µs] "
+            "(timed inside the compiled loop)",
+            brows,
+            ["estimator", "wall per step", "simulator step", "of which MuJoCo (alone)", "controller step", "rest"],
         )
     )
-    irows = [
-        [f"`{t['function']}`", str(t["ncalls"]), f"{t['cumtime_pct']:.1f} %", _f(t["us_per_step"])]
-        for t in p.get("top_inclusive", [])
-    ]
-    tables.append(
-        (
-            "Profile: the same run, omnirotor functions by inclusive time (callees included)",
-            irows,
-            ["function", "calls", "inclusive time", "µs per step"],
-        )
-    )
-    arows = [[f"`{a['area']}`", f"{a['pct']:.1f} %"] for a in p["by_area"]]
-    tables.append(("Profile: own time by file (≥ 0.5 %)", arows, ["file / library", "own time"]))
     return tables
 
 

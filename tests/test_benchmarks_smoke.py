@@ -45,7 +45,7 @@ TOP_KEYS = (
     "python",
     "numpy",
     "scaling",
-    "profile",
+    "breakdown",
     "goals",
 )
 

@@ -192,8 +192,8 @@ def test_truth_row_is_the_ground_truth_in_the_truth_log_layout():
             wrench = slice(22, 28)
             np.testing.assert_allclose(row[wrench], expect[wrench], rtol=1e-12, atol=1e-12)
             row[wrench] = expect[wrench]
-            np.testing.assert_array_equal(row[:-1], expect)
-            assert row[-1] == -7.0  # the timing column is the caller's
+            np.testing.assert_array_equal(row[:-2], expect)
+            assert row[-1] == row[-2] == -7.0  # the two timing columns are the caller's
             seen_contact |= tr.in_contact
     assert seen_contact and np.linalg.norm(sim.truth.contact_force_W) > 1.0
 

@@ -39,7 +39,8 @@ def run_steps(sim_args, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int,
         stop: step to stop before.
         k_sim0: the simulator's step index at k = 0.
         dt: control period [s].
-        truth: (rows, TRUTH_ROW_SIZE + n + 1) truth log data; the last column gets the controller step [µs].
+        truth: (rows, TRUTH_ROW_SIZE + n + 2) truth log data; the last two columns get the simulator's and the
+            controller's step times [µs].
         log: the controller log's data (one row per step).
         ts: (2,) int64 scratch of the clock.
 
@@ -54,10 +55,12 @@ def run_steps(sim_args, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int,
         if imu_pos[0] >= BLOCK or rot_pos[0] >= BLOCK or mc_pos[0] >= BLOCK or (noisy and st_pos[0] >= BLOCK):
             break
         row = truth[k]
+        tic0 = monotonic_ns(ts)
         _sk.sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k_sim0 + k, dt, frame, row)
         tic = monotonic_ns(ts)
         controller_step(ctl_args, frame, log[k])
         toc = monotonic_ns(ts)
+        row[timing - 1] = (tic - tic0) / _NS_PER_US
         row[timing] = (toc - tic) / _NS_PER_US
         k += 1
     return k

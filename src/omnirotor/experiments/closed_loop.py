@@ -69,7 +69,8 @@ ESTIMATORS = ("ukf", "bypass")
 def TRUTH_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noqa: N802 (a table, by name)
     """Column groups of the ground-truth log: the true state, EE tip, contact wrench and loop timing.
 
-    ``controller_step_us`` is the wall-clock time of ``controller.step`` at that row [µs].
+    ``plant_step_us`` and ``controller_step_us`` are the wall-clock times of the simulator's step that produced
+    the row's frame and of the controller's step on it [µs].
     """
     return [
         ("t", 1),
@@ -82,6 +83,7 @@ def TRUTH_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # n
         ("contact_moment_W", _XYZ),
         ("in_contact", 1),
         ("rotor_hz", tuple(str(i + 1) for i in range(n_rotors))),
+        ("plant_step_us", 1),
         ("controller_step_us", 1),
     ]
 
@@ -149,16 +151,19 @@ def run_closed_loop(
     for k in range(n_steps):
         if on_step is not None:
             on_step(sim, sim.t)
+        tic0 = clock()
         frame = sim.step(cmd)
+        tic = clock()
         if video is not None:
             video.capture(sim)
-        tic = clock()
+            tic = clock()
         cmd = controller.step(frame)
-        step_us = (clock() - tic) * 1e6
-        row = truth_log.next_row()  # the TRUTH_GROUPS in order: the simulator's truth row, then the timing
+        toc = clock()
+        row = truth_log.next_row()  # the TRUTH_GROUPS in order: the simulator's truth row, then the timings
         if row is not None:
             sim.truth_row(row)
-            row[-1] = step_us
+            row[-2] = (tic - tic0) * 1e6
+            row[-1] = (toc - tic) * 1e6
         if progress is not None and (k + 1) % every == 0:
             progress((k + 1) / n_steps)
     if progress is not None:
@@ -182,7 +187,7 @@ def _run_compiled(
     log = controller.log
     cmd = controller.kernel_command  # the command array the compiled step writes and the simulator reads
     frame = sim.packed_frame
-    ts = np.zeros(2, dtype=np.int64)
+    ts = np.zeros(2, dtype=np.int64)  # the compiled clock's scratch
     k0_sim = sim.step_index
     k = 0
     try:
