@@ -43,8 +43,6 @@ import workloads  # noqa: E402
 from bench_allocation import bench_allocation  # noqa: E402
 from bench_controller import bench_controller_step  # noqa: E402
 from bench_sim import bench_sim_step  # noqa: E402
-from omnirotor._jit import jit, monotonic_ns  # noqa: E402
-from omnirotor.sim._kernels import mj_Euler, mj_forward  # noqa: E402
 from omnirotor.vehicle import load_vehicle  # noqa: E402
 
 SCHEMA = "omnirotor-bench/1"
@@ -388,16 +386,6 @@ def measure_scaling(cfg: Config) -> dict:
     }
 
 
-@jit
-def _mujoco_loop(m: int, d: int, n: int, ts) -> float:
-    """Mean µs of ``n`` x (``mj_Euler``, ``mj_forward``) on the MjModel/MjData at addresses ``m``, ``d``."""
-    t0 = monotonic_ns(ts)
-    for _ in range(n):
-        mj_Euler(m, d)
-        mj_forward(m, d)
-    return (monotonic_ns(ts) - t0) / n / 1e3
-
-
 def _mujoco_step_us(steps: int) -> float:
     """Mean µs of MuJoCo's ``mj_Euler`` + ``mj_forward`` called from compiled code, on the sliding model in contact.
 
@@ -409,8 +397,8 @@ def _mujoco_step_us(steps: int) -> float:
     sim, ctl, traj, scenario = workloads.sliding_setup("bypass", quick_scenario=True)
     run_closed_loop(sim, ctl, traj, scenario.contact_phase[0] + 1.0)
     ts = np.zeros(2, dtype=np.int64)
-    _mujoco_loop(sim.model._address, sim.data._address, 10, ts)  # compile
-    return float(_mujoco_loop(sim.model._address, sim.data._address, steps, ts))
+    workloads.mujoco_loop(sim.model._address, sim.data._address, 10, ts)  # compile
+    return float(workloads.mujoco_loop(sim.model._address, sim.data._address, steps, ts))
 
 
 def measure_breakdown(cfg: Config, sliding: dict) -> dict:

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from omnirotor._jit import jit, monotonic_ns
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
@@ -18,6 +19,7 @@ from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
 from omnirotor.experiments.scenarios import sliding
 from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim._kernels import mj_Euler, mj_forward
 from omnirotor.vehicle import load_vehicle
 
 SLIDING_SEED = 0
@@ -83,3 +85,16 @@ def hover_task_wall(duration_s: float, seed: int = 0) -> float:
     tic = time.perf_counter()
     run_task("hover", TaskOptions(duration_s=duration_s, seed=seed))
     return time.perf_counter() - tic
+
+
+@jit
+def mujoco_loop(m: int, d: int, n: int, ts) -> float:
+    """Mean µs of ``n`` x (``mj_Euler``, ``mj_forward``) on the MjModel/MjData at addresses ``m``, ``d``.
+
+    ``ts`` is the (2,) int64 scratch of the compiled clock.
+    """
+    t0 = monotonic_ns(ts)
+    for _ in range(n):
+        mj_Euler(m, d)
+        mj_forward(m, d)
+    return (monotonic_ns(ts) - t0) / n / 1e3
