@@ -255,13 +255,15 @@ def observer_step(obs, A, u, a_W, R, omega_B, dt: float) -> None:
         dt: period [s].
     """
     n = u.shape[0]
-    w = np.empty(6)  # A u, body frame
-    for r in range(6):
-        acc = 0.0
-        for j in range(n):
-            acc += A[r, j] * u[j]
-        w[r] = acc
-    f1, f2, f3, t1, t2, t3 = w[0], w[1], w[2], w[3], w[4], w[5]
+    f1 = f2 = f3 = t1 = t2 = t3 = 0.0  # A u, body frame (each row summed over the rotors in order)
+    for j in range(n):
+        uj = u[j]
+        f1 += A[0, j] * uj
+        f2 += A[1, j] * uj
+        f3 += A[2, j] * uj
+        t1 += A[3, j] * uj
+        t2 += A[4, j] * uj
+        t3 += A[5, j] * uj
     m, g = obs[OBS_MASS], obs[OBS_GRAVITY]
     ax, ay, az = a_W[0], a_W[1], a_W[2]
     r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
@@ -474,25 +476,29 @@ def trajectory_sample(pk, t: float, out) -> None:
     tau = (t - t0) / T
     tau2 = tau * tau
     tau3 = tau2 * tau
-    k = np.empty(NB)
-    k[0] = 1.0
-    k[1] = s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
-    k[2] = sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
-    k[3] = sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
+    # The basis values k0 ... k7 (scalars: no array per call).
+    k1 = s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
+    k2 = sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
+    k3 = sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
     if cubic:
         s = tau2 * (3.0 - 2.0 * tau)
         sd = 6.0 * tau * (1.0 - tau) / T
         sdd = (6.0 - 12.0 * tau) / (T * T)
     angle = thetas[i] * s
-    k[4] = math.sin(angle)
-    k[5] = 1.0 - math.cos(angle)
-    k[6] = sd
-    k[7] = sdd
+    k4 = math.sin(angle)
+    k5 = 1.0 - math.cos(angle)
     o = o_hold + 2 * B + i * B
     for r in range(REF_SIZE):
+        b = o + r * NB
         acc = 0.0
-        for j in range(NB):
-            acc += pk[o + r * NB + j] * k[j]
+        acc += pk[b] * 1.0
+        acc += pk[b + 1] * k1
+        acc += pk[b + 2] * k2
+        acc += pk[b + 3] * k3
+        acc += pk[b + 4] * k4
+        acc += pk[b + 5] * k5
+        acc += pk[b + 6] * sd
+        acc += pk[b + 7] * sdd
         out[r] = acc
 
 
@@ -784,20 +790,21 @@ def controller_post(arena, x, mode: int, saturated_before: bool, bits: int, regi
     o_ucmd = CTL_U_OBS + n
     o_cmd, o_safe = o_ucmd + n, o_ucmd + 2 * n
     lo, hi = ws[CTL_OMEGA_LO], ws[CTL_OMEGA_HI]
-    omegas = np.empty(n)
     finite = True
-    for i in range(n):
+    for i in range(n):  # a first pass checks the clipped speeds, the second writes them (no array per call)
         u = al[o_u + i]
         om = math.copysign(math.sqrt(abs(u)), u)
         om = lo if om < lo else (hi if om > hi else om)
-        omegas[i] = om
         if not math.isfinite(om):
             finite = False
     if finite:
         for i in range(n):
-            ws[o_ucmd + i] = al[o_u + i]
-            ws[o_cmd + i] = omegas[i]
-            ws[o_safe + i] = omegas[i]
+            u = al[o_u + i]
+            om = math.copysign(math.sqrt(abs(u)), u)
+            om = lo if om < lo else (hi if om > hi else om)
+            ws[o_ucmd + i] = u
+            ws[o_cmd + i] = om
+            ws[o_safe + i] = om
     else:
         bits |= _BIT_NONFINITE
         for i in range(n):
