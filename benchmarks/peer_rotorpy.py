@@ -19,19 +19,18 @@ scene's start position (0, 0, 1.5) m:
 
 The interaction controller is for fully actuated vehicles: on the coplanar quadrotor its allocation returns
 the best least-squares wrench, which holds a hover from rest (no lateral force is ever needed) but cannot
-correct a lateral offset. Its regulariser is scaled to the quadrotor (:func:`quad_reg_lambda`).
+correct a lateral offset. Its regulariser is the default one, scaled to the quadrotor's thrust coefficient
+(:func:`quad_reg_lambda`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 
 import numpy as np
 
 from omnirotor.control.admittance import AdmittanceParams
-from omnirotor.control.allocation import AllocationParams
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
@@ -44,7 +43,6 @@ from omnirotor.vehicle import VehicleParams, load_vehicle
 DT_S = 1e-3
 """Simulation and control period of the shared task [s]."""
 QUAD_PRESET = "quadrotor"
-REFERENCE_PRESET = "omnirotor"
 ROTORPY_TAU_M_S = 0.072
 """The Crazyflie's motor time constant in RotorPy's ``crazyflie_params`` (used when RotorPy is absent)."""
 
@@ -65,15 +63,16 @@ def _crazyflie() -> dict:
     return quad_params
 
 
-def quad_reg_lambda(quad: VehicleParams, reference: VehicleParams) -> float:
-    """The allocation regulariser for ``quad``, with the same weight relative to c_f² as on the reference.
+def quad_reg_lambda(quad: VehicleParams) -> float:
+    """The allocation regulariser the quadrotor gets by default [N²/Hz⁴] (reported with the figures).
 
-    SPEC §4.2 gives lambda = 1e-12 [N²/Hz⁴] for the Omnirotor (c_f = 1.5e-4 N/Hz²). The Crazyflie's c_f is
-    165 times smaller, so the same absolute lambda would weigh ||u||² against the wrench error 27 000 times
-    more: its thrust falls 23 % short at hover and the vehicle sags ~9 cm. Scaling by (c_f / c_f,ref)² keeps
-    the regulariser's effect what it is on the Omnirotor.
+    SPEC §4.2 gives lambda = 1e-12 [N²/Hz⁴] for the Omnirotor (c_f = 1.5e-4 N/Hz²); ``AllocationParams``
+    scales it by (c_f / 1.5e-4)², so the Crazyflie, whose c_f is 165 times smaller, gets 3.7e-17 and the
+    regulariser weighs as much against the wrench error as on the Omnirotor.
     """
-    return AllocationParams().reg_lambda * (quad.c_f / reference.c_f) ** 2
+    from omnirotor.control.allocation import Allocator
+
+    return Allocator(quad).reg_lambda_used
 
 
 def tau_m_s() -> float:
@@ -150,9 +149,6 @@ def ours_hover(duration_s: float, estimator: str = "bypass", seed: int = 0) -> d
         dt=DT_S,
         admittance=AdmittanceParams.preset("free"),
         estimator=EstimatorParams(kind=estimator),
-        allocation=dataclasses.replace(
-            AllocationParams(), reg_lambda=quad_reg_lambda(quad, load_vehicle(REFERENCE_PRESET))
-        ),
     )
     ctl = InteractionController(quad, cparams)
     tic, cpu0 = time.perf_counter(), time.process_time()

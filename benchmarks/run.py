@@ -300,8 +300,8 @@ def measure_peer(cfg: Config, with_rotorpy: bool) -> dict:
     out: dict = {"dt_s": peer.DT_S, "duration_s": cfg.quad_s, "repeats": cfg.quad_repeats}
     out["rotorpy_version"] = peer.rotorpy_version() if with_rotorpy else None
     out["motor_tau_m_s"] = peer.tau_m_s()
-    quad, ref = load_vehicle(peer.QUAD_PRESET), load_vehicle(peer.REFERENCE_PRESET)
-    out["ours_reg_lambda"] = peer.quad_reg_lambda(quad, ref)
+    quad = load_vehicle(peer.QUAD_PRESET)
+    out["ours_reg_lambda"] = peer.quad_reg_lambda(quad)
     use_rp = with_rotorpy and out["rotorpy_version"] is not None
     x0 = peer.start_position()
     ours, theirs, ours_ukf = [], [], []

@@ -262,3 +262,25 @@ def test_backends_agree_step_by_step():
         u0, *others = (a.solve(w_ref, R, VEHICLE.A_nom).copy() for a in allocs)
         for u1 in others:
             np.testing.assert_allclose(u0, u1, atol=1e-5 * VEHICLE.u_max)
+
+
+def test_regulariser_scales_with_the_thrust_coefficient():
+    """SPEC §4.2's lambda is the Omnirotor's; on a small vehicle it is scaled by c_f² (else the hover sags)."""
+    import dataclasses
+
+    from omnirotor.control.allocation import REG_REFERENCE_C_F
+
+    assert VEHICLE.c_f == REG_REFERENCE_C_F  # the Omnirotor's factor is exactly 1
+    assert Allocator(VEHICLE).reg_lambda_used == AllocationParams().reg_lambda
+    quad = load_vehicle("quadrotor")
+    weight = quad.mass * quad.gravity
+    w_ref = np.array([0.0, 0.0, weight, 0.0, 0.0, 0.0])
+    scaled = Allocator(quad)
+    assert scaled.reg_lambda_used == pytest.approx(1e-12 * (quad.c_f / REG_REFERENCE_C_F) ** 2, rel=1e-12)
+    thrust = (quad.A_nom @ scaled.solve(w_ref, np.eye(3), quad.A_nom))[2]
+    assert abs(thrust - weight) < 1e-3 * weight
+    absolute = Allocator(quad, dataclasses.replace(AllocationParams(), reg_scale_with_c_f=False))
+    short = (quad.A_nom @ absolute.solve(w_ref, np.eye(3), quad.A_nom))[2]
+    assert short < 0.9 * weight  # the unscaled regulariser eats a tenth or more of the hover thrust
+    with pytest.raises(InputError):
+        AllocationParams(reg_scale_with_c_f="yes")

@@ -60,10 +60,13 @@ from omnirotor.control import _step_kernels as _sk
 from omnirotor.errors import InputError
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["AllocationParams", "AllocationStatus", "Allocator", "SOLVERS"]
+__all__ = ["AllocationParams", "AllocationStatus", "Allocator", "SOLVERS", "REG_REFERENCE_C_F"]
 
 SOLVERS = ("active-set", "daqp", "proxsuite")
 """Names of the QP backends :class:`Allocator` can use."""
+
+REG_REFERENCE_C_F = 1.5e-4
+"""Thrust coefficient [N/Hz²] of the Omnirotor (SPEC §1.1), the vehicle SPEC §4.2's regulariser is stated for."""
 
 _DAQP_SIMPLE_BOUND = 0  # daqp ``sense`` value of an inactive inequality (warm start picks the rest)
 
@@ -75,7 +78,13 @@ class AllocationParams:
     Attributes:
         solver: QP backend, "active-set" (default, compiled), "daqp" or "proxsuite" (the paper's solver).
         reg_lambda: weight lambda of ``lambda ||u||²`` with u in Hz² [N²/Hz⁴]; SPEC §4.2: 1e-12 (2e-4 N
-            wrench error at hover, and a unique solution since AᵀA has rank 6 < n).
+            wrench error at hover, and a unique solution since AᵀA has rank 6 < n), stated for the Omnirotor's
+            thrust coefficient :data:`REG_REFERENCE_C_F`.
+        reg_scale_with_c_f: use ``reg_lambda (c_f / REG_REFERENCE_C_F)²`` on a vehicle of thrust coefficient
+            ``c_f``, so that the regulariser weighs as much against the wrench error as on the Omnirotor (the
+            cost's wrench term scales with c_f²). Without it a vehicle with a much smaller c_f (a Crazyflie's is
+            165 times smaller) gets a regulariser 27 000 times heavier: its hover thrust falls 23 % short. The
+            Omnirotor's factor is exactly 1. False: ``reg_lambda`` is used as it is.
         max_iter: iteration cap of the backend (a solve that hits it counts as a failure).
         eps_abs: ProxSuite absolute KKT tolerance, in the scaled problem (x = u / u_scale, wrench in N and
             N·m); the active-set solvers (ours and daqp) solve to machine precision regardless.
@@ -84,6 +93,7 @@ class AllocationParams:
 
     solver: str = "active-set"
     reg_lambda: float = 1e-12
+    reg_scale_with_c_f: bool = True
     max_iter: int = 200
     eps_abs: float = 1e-9
     saturation_tol: float = 1e-6
@@ -92,6 +102,8 @@ class AllocationParams:
         if self.solver not in SOLVERS:
             raise InputError(f"allocation solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
         check_positive("allocation reg_lambda", self.reg_lambda)
+        if not isinstance(self.reg_scale_with_c_f, bool):
+            raise InputError(f"allocation reg_scale_with_c_f must be true or false, got {self.reg_scale_with_c_f!r}")
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, int) or self.max_iter < 1:
             raise InputError(f"allocation max_iter must be an integer >= 1, got {self.max_iter!r}")
         check_positive("allocation eps_abs", self.eps_abs)
@@ -270,7 +282,7 @@ class Allocator:
         n = vehicle.n_rotors
         self.n = n
         self._u_scale = max(abs(vehicle.u_min), abs(vehicle.u_max))
-        self._lam_scaled = self.params.reg_lambda * self._u_scale**2
+        self._lam_scaled = self.reg_lambda_used * self._u_scale**2
         # The per-step data in one array, the layout of control._kernels (ALLOC_*, alloc_offsets): the
         # body-frame reference, the linear term f, the map the QP was built for, G = -(A u_scale)ᵀ, the scaled
         # bounds in force (failed rotors pinned to 0) and their saturation thresholds, u and the last safe u.
@@ -360,6 +372,14 @@ class Allocator:
     def kernel_As(self) -> np.ndarray:  # noqa: N802 (a matrix)
         """(6, n) the map in use times u_scale, the compiled fallback's and ``alloc_set_map``'s array."""
         return self._As
+
+    @property
+    def reg_lambda_used(self) -> float:
+        """The regulariser this vehicle gets [N²/Hz⁴] (``reg_lambda``, scaled by c_f² unless told not to)."""
+        lam = self.params.reg_lambda
+        if self.params.reg_scale_with_c_f:
+            lam *= (self.vehicle.c_f / REG_REFERENCE_C_F) ** 2
+        return lam
 
     @property
     def kernel_lam_scaled(self) -> float:
