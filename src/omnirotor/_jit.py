@@ -46,24 +46,40 @@ jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
 @functools.cache
 def _load_mujoco_library() -> None:
     """Make the symbols of the ``libmujoco`` of the installed ``mujoco`` package visible to compiled code."""
+    # The same file the bindings loaded, so the process has one MuJoCo (one set of globals and callbacks).
+    llvmlite.binding.load_library_permanently(_mujoco_library_path())
+
+
+_PURE_PYTHON = bool(numba.config.DISABLE_JIT)
+"""``NUMBA_DISABLE_JIT=1``: kernels run as Python, and the C calls below go through ctypes instead."""
+
+
+def _mujoco_library_path() -> str:
     import mujoco
 
     folder = os.path.dirname(mujoco.__file__)
     names = sorted(f for f in os.listdir(folder) if f.startswith("libmujoco.so") or f.startswith("libmujoco."))
     if not names:
         raise ImportError(f"no libmujoco shared library in {folder}")
-    # The same file the bindings loaded, so the process has one MuJoCo (one set of globals and callbacks).
-    llvmlite.binding.load_library_permanently(os.path.join(folder, names[0]))
+    return os.path.join(folder, names[0])
 
 
-def mujoco_function(name: str) -> types.ExternalFunction:
+def mujoco_function(name: str):
     """MuJoCo's ``void name(const mjModel* m, mjData* d)``, callable from kernels with the two addresses.
 
     The addresses are ``MjModel._address`` and ``MjData._address`` of the Python bindings, passed as integers.
     MuJoCo's warnings land in ``MjData.warning`` as usual; a MuJoCo *error* inside such a call cannot be turned
     into a Python exception (the bindings' handler would unwind through compiled code), so only functions that
-    raise none for a valid model are bound (the step functions).
+    raise none for a valid model are bound (the step functions). With ``NUMBA_DISABLE_JIT=1`` the same C
+    function is called through ctypes.
     """
+    if _PURE_PYTHON:
+        import ctypes
+
+        fn = getattr(ctypes.CDLL(_mujoco_library_path()), name)
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        fn.restype = None
+        return lambda m, d: fn(int(m), int(d))
     _load_mujoco_library()
     return types.ExternalFunction(name, types.void(types.uintp, types.uintp))
 
@@ -170,3 +186,31 @@ def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
     return numba.carray(_i64_pointer(table[o]), (table[o + 1],))
+
+
+if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock exist only compiled)
+    import ctypes
+    import time
+
+    def monotonic_ns(ts) -> int:  # noqa: F811 (the Python twin of the compiled one)
+        """Monotonic clock [ns] (``time.perf_counter_ns``: CLOCK_MONOTONIC on Linux)."""
+        return time.perf_counter_ns()
+
+    def _view(table, i: int, ctype, two_d: bool) -> np.ndarray:
+        o = _TABLE_STRIDE * i
+        rows, cols = int(table[o + 1]), int(table[o + 2])
+        count = rows * cols if two_d else rows
+        arr = np.ctypeslib.as_array((ctype * count).from_address(int(table[o])))
+        return arr.reshape(rows, cols) if two_d else arr
+
+    def f64_view(table, i: int):  # noqa: F811
+        """The 1-D float64 array of entry ``i`` of an :func:`address_table`."""
+        return _view(table, i, ctypes.c_double, False)
+
+    def f64_view2(table, i: int):  # noqa: F811
+        """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
+        return _view(table, i, ctypes.c_double, True)
+
+    def i64_view(table, i: int):  # noqa: F811
+        """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
+        return _view(table, i, ctypes.c_int64, False)
