@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -483,3 +484,74 @@ def test_compiled_step_is_bit_identical_to_the_kernel_orchestration(params):
         and c["advance"] > 0
     )
     assert any(degraded) and not degraded[-1]
+
+
+# -- the kernels' workspace ------------------------------------------------------------------------------------
+
+_NAIVE_LEVER_ARM = EstimatorParams(
+    compensate_latency=False, mocap_reinit_after=3, imu_offset_B=(0.01, -0.02, 0.04), gyro_cutoff_hz=20.0
+)
+
+
+def _workspace_offset(est):
+    """Offset of the workspace in the estimator's memory; the kernels' views agree with the layout."""
+    mem = est.kernel_mem
+    o_wk = _ek.memory_layout(int(mem[_ek.UKF_CAP]))[5]
+    assert mem.size == o_wk + _ek.WK_SIZE  # the workspace ends the memory
+    *parts, wk = _ek.views(mem)
+    assert wk.ctypes.data == mem[o_wk:].ctypes.data and wk.size == _ek.WK_SIZE
+    assert not any(np.shares_memory(part, wk) for part in parts)
+    return o_wk
+
+
+@pytest.mark.parametrize("params", [EstimatorParams(), _NAIVE_LEVER_ARM], ids=["default", "naive-lever-arm"])
+def test_workspace_holds_no_state(params):
+    """NaN in the workspace before every step changes nothing: it overlaps no state and is written before read."""
+    frames, _, _ = _faulty_frames()
+    est, ref = UKFEstimator(VEHICLE, params), UKFEstimator(VEHICLE, params)
+    o_wk = _workspace_offset(est)
+    # Before these frames P loses positive definiteness, so that the next prediction takes the Cholesky
+    # fall-backs (P symmetrised with jitter; P reset to P0) and their work arrays.
+    broken = {600: -1e-13, 1000: -1.0}
+    used = 0
+    for k, f in enumerate(frames):
+        if k in broken:
+            for e in (est, ref):
+                e.P[3, 3] = broken[k]
+                e.P[3, 4] += 1e-9
+        est.kernel_mem[o_wk:] = np.nan
+        a, b = est.step(f), ref.step(f)
+        used += not np.isnan(est.kernel_mem[o_wk:]).all()
+        assert a.t == b.t and a.valid == b.valid, k
+        for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
+        assert est.kernel_mem[:o_wk].tobytes() == ref.kernel_mem[:o_wk].tobytes(), k  # states, buffers, P
+        assert est.kernel_counters.tobytes() == ref.kernel_counters.tobytes(), k
+    # The steps did use the workspace (every fusion does), and the sequence re-initialised once.
+    assert est.n_mocap_fused > 0 and est.n_reinit == 1 and used >= est.n_mocap_fused
+    assert np.isfinite(est.kernel_mem[:o_wk]).all()
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT=1: kernels run as Python, no numba allocator")
+def test_compiled_step_allocates_nothing():
+    """A step that fuses motion capture allocates no more than one that does not (the arguments' unboxing)."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    fl = flight(T=0.3)
+    est = UKFEstimator(VEHICLE, EstimatorParams())
+    frames = fl.frames
+    for f in frames[:100]:  # initialised, compiled, fused
+        est.step(f)
+    was_enabled = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        counts = {True: set(), False: set()}
+        for f in frames[100:200]:
+            before = rtsys.get_allocation_stats()
+            est.step(f)
+            after = rtsys.get_allocation_stats()
+            counts[bool(f.mocap_new)].add((after.alloc - before.alloc, after.mi_alloc - before.mi_alloc))
+    finally:
+        if not was_enabled:
+            _nrt_python.memsys_disable_stats()
+    assert len(counts[True]) == 1 and counts[True] == counts[False], counts

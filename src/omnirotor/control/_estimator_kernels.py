@@ -4,8 +4,10 @@ The estimator keeps its state in a few arrays: ``x`` (the nominal states, times,
 layout ``UKF_*`` below), the ring buffers ``buf`` (cap, 8: t, dt, gyro_B, acc_B of each IMU sample) and
 ``sbuf`` (cap, 16: the output state after each sample), the covariance ``P`` (15, 15), the unscented weights
 ``W`` (2, 31: mean, covariance) and the constant matrices ``M`` (5, 15, 15: the process-noise terms Q1, Q2,
-Q3, the initial covariance P0 and, in its top-left 6 x 6 corner, the measurement noise Rn). The model and the
-filter are described in the estimator's module docstring; these kernels implement them:
+Q3, the initial covariance P0 and, in its top-left 6 x 6 corner, the measurement noise Rn), followed by a
+workspace ``wk`` (``WK_SIZE``: the work arrays of :func:`ukf_predict` and :func:`ukf_fuse`, layouts ``WP_*``
+and ``WF_*``), all in one float64 array (:func:`memory_layout`), so that a step allocates nothing. The model
+and the filter are described in the estimator's module docstring; these kernels implement them:
 
 * :func:`ukf_imu_step`: one IMU sample (validation, lever arm, buffering, noise-free mean propagation) and,
   when no motion-capture sample is to be fused, the end of the step (:func:`ukf_finish`: the outputs);
@@ -18,6 +20,9 @@ filter are described in the estimator's module docstring; these kernels implemen
 
 A kernel calling another compiles the callee again inside itself, so :func:`ukf_step` (which holds all of
 them, :func:`ukf_predict` the slowest) takes the longest to compile; the compiled code is cached on disk.
+Numba checks only the caller's own source file against its cache: after a change here, the cached kernels of
+other modules that call these (the controller's compiled step, the compiled closed loop) are stale and must be
+deleted (a stale copy loaded next to the new one can even call the wrong version of a helper and crash).
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -26,8 +31,6 @@ product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results 
 from __future__ import annotations
 
 import math
-
-import numpy as np
 
 from omnirotor._jit import R9_from_quat_into, jit
 
@@ -106,8 +109,47 @@ FUSE_REINIT = 4  # outside the gate once too often: the pose was re-initialised 
 _RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] above which P is reset-transported
 
 
-def memory_layout(cap: int) -> tuple[int, int, int, int, int, int]:
-    """Offsets of buf (cap x 8), sbuf (cap x 16), P (15 x 15), W (2 x 31), M (5 x 15 x 15), and the size.
+# Layout of the workspace wk (WK_SIZE,) at the end of the memory: the work arrays of ukf_predict (WP_*) and of
+# ukf_fuse (WF_*). Its content means nothing between kernel calls: every kernel writes an entry before it reads
+# it. ukf_predict and ukf_fuse never run inside one another, so their arrays share the region.
+_NN = N_ERR * N_ERR
+WP_L = 0  # (15, 15) lower Cholesky factor of P
+WP_PJ = WP_L + _NN  # (15, 15) P symmetrised, with jitter on the diagonal (when P lost positive definiteness)
+WP_D = WP_PJ + _NN  # (31, 15) sigma-point offsets in the error coordinates
+WP_PS = WP_D + N_SIGMA * N_ERR  # (31, 3) sigma points' p_W [m]
+WP_VS = WP_PS + 3 * N_SIGMA  # (31, 3) their v_W [m/s]
+WP_BA = WP_VS + 3 * N_SIGMA  # (31, 3) their b_a [m/s²]
+WP_BG = WP_BA + 3 * N_SIGMA  # (31, 3) their b_g [rad/s]
+WP_RS = WP_BG + 3 * N_SIGMA  # (31, 3, 3) their R_WB (3 x 3 matrices here are row-major, 9 entries)
+WP_ROT = WP_RS + 9 * N_SIGMA  # (3, 3) rotation of a sigma-point offset or of one covariance step
+WP_TMP = WP_ROT + 9  # (3, 3) product of two rotations
+WP_R0T = WP_TMP + 9  # (3, 3) transpose of the first sigma point's R_WB
+WP_M = WP_R0T + 9  # (6,) mean IMU reading of a covariance step: gyro_B [rad/s], acc_B [m/s²]
+WP_A = WP_M + 6  # (3,) a_W of a sigma point [m/s²]
+WP_E = WP_A + 3  # (31, 15) errors of the propagated sigma points
+WP_MEAN = WP_E + N_SIGMA * N_ERR  # (15,) their weighted mean
+WP_SIZE = WP_MEAN + N_ERR
+N_MEAS = 6
+"""Dimension of the motion-capture measurement: position and attitude."""
+WF_R = 0  # (6,) innovation: position [m], rotation vector [rad]
+WF_PHT = WF_R + N_MEAS  # (15, 6) P Hᵀ
+WF_S = WF_PHT + N_ERR * N_MEAS  # (6, 6) innovation covariance (inverted in place)
+WF_SINV = WF_S + N_MEAS * N_MEAS  # (6, 6) its inverse
+WF_K = WF_SINV + N_MEAS * N_MEAS  # (15, 6) Kalman gain
+WF_DX = WF_K + N_ERR * N_MEAS  # (15,) error-state correction
+WF_PN = WF_DX + N_ERR  # (15, 15) updated covariance (I - K H) P
+WF_GT = WF_PN + _NN  # (3, 3) reset Jacobian's attitude block
+WF_ROWS = WF_GT + 9  # (3, 15) its product with the attitude rows of Pn
+WF_COLS = WF_ROWS + 3 * N_ERR  # (15, 3) and with the attitude columns
+WF_SIZE = WF_COLS + 3 * N_ERR
+WK_SIZE = max(WP_SIZE, WF_SIZE)
+
+_H_ROWS = (0, 1, 2, 6, 7, 8)
+"""The error coordinates the motion-capture pose measures (dp, dtheta): rows of H, in measurement order."""
+
+
+def memory_layout(cap: int) -> tuple[int, int, int, int, int, int, int]:
+    """Offsets of buf (cap x 8), sbuf (cap x 16), P (15 x 15), W (2 x 31), M (5 x 15 x 15), wk (WK_SIZE), the size.
 
     Args:
         cap: ring-buffer length [samples].
@@ -117,26 +159,35 @@ def memory_layout(cap: int) -> tuple[int, int, int, int, int, int]:
     o_P = o_sbuf + 16 * cap
     o_W = o_P + N_ERR * N_ERR
     o_M = o_W + 2 * N_SIGMA
-    return o_buf, o_sbuf, o_P, o_W, o_M, o_M + 5 * N_ERR * N_ERR
+    o_wk = o_M + 5 * N_ERR * N_ERR
+    return o_buf, o_sbuf, o_P, o_W, o_M, o_wk, o_wk + WK_SIZE
 
 
 @jit
 def views(mem):
-    """``(x, buf, sbuf, P, W, M)``: the parts of the estimator's memory (module docstring)."""
+    """``(x, buf, sbuf, P, W, M, wk)``: the parts of the estimator's memory (module docstring)."""
     cap = int(mem[UKF_CAP])
     o_buf = UKF_SIZE
     o_sbuf = o_buf + 8 * cap
     o_P = o_sbuf + 16 * cap
     o_W = o_P + N_ERR * N_ERR
     o_M = o_W + 2 * N_SIGMA
+    o_wk = o_M + 5 * N_ERR * N_ERR
     return (
         mem[0:UKF_SIZE],
         mem[o_buf:o_sbuf].reshape(cap, 8),
         mem[o_sbuf:o_P].reshape(cap, 16),
         mem[o_P:o_W].reshape(N_ERR, N_ERR),
         mem[o_W:o_M].reshape(2, N_SIGMA),
-        mem[o_M : o_M + 5 * N_ERR * N_ERR].reshape(5, N_ERR, N_ERR),
+        mem[o_M:o_wk].reshape(5, N_ERR, N_ERR),
+        mem[o_wk : o_wk + WK_SIZE],
     )
+
+
+@jit
+def _work2(wk, o: int, rows: int, cols: int):
+    """The (rows, cols) work array at ``wk[o:]`` (a view)."""
+    return wk[o : o + rows * cols].reshape(rows, cols)
 
 
 @jit
@@ -188,17 +239,25 @@ def _correct_lever_arm(x, dt: float) -> None:
     """Remove ``omega x (omega x r) + omega_dot x r`` from the accelerometer sample ``x[UKF_IMU_C+3:+6]``."""
     r0, r1, r2 = x[UKF_R_IMU], x[UKF_R_IMU + 1], x[UKF_R_IMU + 2]
     lam = lpf_gain(dt, x[UKF_LEVER_CUT])
-    C, L, S = UKF_IMU_C, UKF_GLP, UKF_S
-    wd = np.empty(3)
-    for i in range(3):
-        new = x[L + i] + lam * (x[C + i] - x[L + i])
-        wd[i] = (new - x[L + i]) / dt
-        x[L + i] = new
+    C, S = UKF_IMU_C, UKF_S
+    wd0 = _lowpass_rate(x, 0, lam, dt)  # omega_dot_B [rad/s²]
+    wd1 = _lowpass_rate(x, 1, lam, dt)
+    wd2 = _lowpass_rate(x, 2, lam, dt)
     wx, wy, wz = x[C] - x[S + 13], x[C + 1] - x[S + 14], x[C + 2] - x[S + 15]
     cx, cy, cz = wy * r2 - wz * r1, wz * r0 - wx * r2, wx * r1 - wy * r0  # omega x r
-    x[C + 3] -= wy * cz - wz * cy + wd[1] * r2 - wd[2] * r1
-    x[C + 4] -= wz * cx - wx * cz + wd[2] * r0 - wd[0] * r2
-    x[C + 5] -= wx * cy - wy * cx + wd[0] * r1 - wd[1] * r0
+    x[C + 3] -= wy * cz - wz * cy + wd1 * r2 - wd2 * r1
+    x[C + 4] -= wz * cx - wx * cz + wd2 * r0 - wd0 * r2
+    x[C + 5] -= wx * cy - wy * cx + wd0 * r1 - wd1 * r0
+
+
+@jit
+def _lowpass_rate(x, i: int, lam: float, dt: float) -> float:
+    """Low-pass axis ``i`` of the gyro sample into ``x[UKF_GLP + i]``; return the filtered rate's derivative."""
+    L = UKF_GLP + i
+    new = x[L] + lam * (x[UKF_IMU_C + i] - x[L])
+    wd = (new - x[L]) / dt
+    x[L] = new
+    return wd
 
 
 @jit
@@ -230,7 +289,16 @@ def ukf_imu_step(mem, gyro, acc, t_frame: float, finish: bool, out) -> tuple:
         ``(code, t)``: ``STEP_REJECTED`` when the period or the sample was rejected, plus ``STEP_DEGRADED``
         from :func:`ukf_finish` with ``finish``; the time of the estimate [s].
     """
-    x, buf, sbuf, P, W, M = views(mem)
+    x, buf, sbuf, P, W, M, wk = views(mem)
+    code, t = _imu_step(x, buf, sbuf, gyro, acc, t_frame)
+    if finish:
+        code |= _finish(x, out)
+    return code, t
+
+
+@jit
+def _imu_step(x, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
+    """:func:`ukf_imu_step` without ``finish``, on the parts of the memory (:func:`views`)."""
     rejected = False
     dt = t_frame - x[UKF_T]
     if not (dt > 0.0 and math.isfinite(dt)):
@@ -259,10 +327,7 @@ def ukf_imu_step(mem, gyro, acc, t_frame: float, finish: bool, out) -> tuple:
     for i in range(16):
         sbuf[row, i] = x[UKF_S + i]
     x[UKF_K] = k + 1
-    code = STEP_REJECTED if rejected else 0
-    if finish:
-        code |= ukf_finish(mem, out)
-    return code, t
+    return STEP_REJECTED if rejected else 0, t
 
 
 @jit
@@ -278,7 +343,12 @@ def ukf_finish(mem, out) -> int:
         ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, plus
         ``STEP_ADVANCE`` when the delayed state lags by more than the latency plus one chunk.
     """
-    x = mem[0:UKF_SIZE]
+    return _finish(mem[0:UKF_SIZE], out)
+
+
+@jit
+def _finish(x, out) -> int:
+    """:func:`ukf_finish` on the scalar part ``x`` of the memory."""
     code = 0
     if int(x[UKF_K]) - int(x[UKF_KF]) > int(x[UKF_LAG_N]) + int(x[UKF_CHUNK_N]):
         code = STEP_ADVANCE
@@ -346,9 +416,17 @@ def cholesky_lower(A, L) -> int:
 
 @jit
 def invert(A, out) -> bool:
-    """Inverse of a small square matrix by Gauss-Jordan elimination with partial pivoting; False if singular."""
-    n = A.shape[0]
-    a = A.copy()
+    """Inverse of a small square matrix by Gauss-Jordan elimination with partial pivoting; False if singular.
+
+    Allocates a copy of A; :func:`invert_in_place` does not.
+    """
+    return invert_in_place(A.copy(), out)
+
+
+@jit
+def invert_in_place(a, out) -> bool:
+    """:func:`invert` that overwrites ``a`` (same arithmetic); the inverse into ``out``; False if singular."""
+    n = a.shape[0]
     for i in range(n):
         for j in range(n):
             out[i, j] = 1.0 if i == j else 0.0
@@ -381,9 +459,16 @@ def invert(A, out) -> bool:
 
 @jit
 def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
-    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into R (3, 3) (Rodrigues, series near 0).
+    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into C-contiguous R (3, 3); :func:`exp_so3_at`."""
+    exp_so3_at(p0, p1, p2, R.reshape(9), 0)
 
-    ``R = I + a K + b K²`` with ``K = [phi]x``, ``a = sin(th)/th``, ``b = (1 - cos th)/th²``.
+
+@jit
+def exp_so3_at(p0: float, p1: float, p2: float, out, o: int) -> None:
+    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into ``out[o:o+9]``, row-major.
+
+    Rodrigues, with series near 0: ``R = I + a K + b K²``, ``K = [phi]x``, ``a = sin(th)/th``,
+    ``b = (1 - cos th)/th²``.
     """
     th2 = p0 * p0 + p1 * p1 + p2 * p2
     th = math.sqrt(th2)
@@ -395,25 +480,31 @@ def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
         b = 0.5 - th2 / 24.0
     # K = [[0, -p2, p1], [p2, 0, -p0], [-p1, p0, 0]]; R = (K K) b + K a + I, entry by entry.
     k01, k02, k10, k12, k20, k21 = -p2, p1, p2, -p0, -p1, p0
-    R[0, 0] = (0.0 * 0.0 + k01 * k10 + k02 * k20) * b + 0.0 * a + 1.0
-    R[0, 1] = (0.0 * k01 + k01 * 0.0 + k02 * k21) * b + k01 * a
-    R[0, 2] = (0.0 * k02 + k01 * k12 + k02 * 0.0) * b + k02 * a
-    R[1, 0] = (k10 * 0.0 + 0.0 * k10 + k12 * k20) * b + k10 * a
-    R[1, 1] = (k10 * k01 + 0.0 * 0.0 + k12 * k21) * b + 0.0 * a + 1.0
-    R[1, 2] = (k10 * k02 + 0.0 * k12 + k12 * 0.0) * b + k12 * a
-    R[2, 0] = (k20 * 0.0 + k21 * k10 + 0.0 * k20) * b + k20 * a
-    R[2, 1] = (k20 * k01 + k21 * 0.0 + 0.0 * k21) * b + k21 * a
-    R[2, 2] = (k20 * k02 + k21 * k12 + 0.0 * 0.0) * b + 0.0 * a + 1.0
+    out[o] = (0.0 * 0.0 + k01 * k10 + k02 * k20) * b + 0.0 * a + 1.0
+    out[o + 1] = (0.0 * k01 + k01 * 0.0 + k02 * k21) * b + k01 * a
+    out[o + 2] = (0.0 * k02 + k01 * k12 + k02 * 0.0) * b + k02 * a
+    out[o + 3] = (k10 * 0.0 + 0.0 * k10 + k12 * k20) * b + k10 * a
+    out[o + 4] = (k10 * k01 + 0.0 * 0.0 + k12 * k21) * b + 0.0 * a + 1.0
+    out[o + 5] = (k10 * k02 + 0.0 * k12 + k12 * 0.0) * b + k12 * a
+    out[o + 6] = (k20 * 0.0 + k21 * k10 + 0.0 * k20) * b + k20 * a
+    out[o + 7] = (k20 * k01 + k21 * 0.0 + 0.0 * k21) * b + k21 * a
+    out[o + 8] = (k20 * k02 + k21 * k12 + 0.0 * 0.0) * b + 0.0 * a + 1.0
 
 
 @jit
 def log_so3_into(R, out, o: int) -> None:
-    """Rotation vector [rad] of a rotation R (3, 3) with angle below pi into ``out[o:o+3]``."""
-    w0 = (R[2, 1] - R[1, 2]) * 0.5  # sin(th) * axis
-    w1 = (R[0, 2] - R[2, 0]) * 0.5
-    w2 = (R[1, 0] - R[0, 1]) * 0.5
+    """Rotation vector [rad] of a rotation R (3, 3), C-contiguous, into ``out[o:o+3]`` (:func:`log_so3_at`)."""
+    log_so3_at(R.reshape(9), 0, out, o)
+
+
+@jit
+def log_so3_at(R, oR: int, out, o: int) -> None:
+    """Rotation vector [rad] of the rotation ``R[oR:oR+9]`` (row-major) with angle below pi into ``out[o:o+3]``."""
+    w0 = (R[oR + 7] - R[oR + 5]) * 0.5  # sin(th) * axis
+    w1 = (R[oR + 2] - R[oR + 6]) * 0.5
+    w2 = (R[oR + 3] - R[oR + 1]) * 0.5
     sn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-    th = math.atan2(sn, 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0))
+    th = math.atan2(sn, 0.5 * (R[oR] + R[oR + 4] + R[oR + 8] - 1.0))
     k = th / sn if sn > 1e-12 else 1.0
     out[o], out[o + 1], out[o + 2] = w0 * k, w1 * k, w2 * k
 
@@ -427,10 +518,12 @@ def _copy2(src, dst) -> None:
 
 
 @jit
-def _matmul33(A, B, out) -> None:
+def _mul33_at(A, oA: int, B, oB: int, out, o: int) -> None:
+    """``out[o:o+9] = A[oA:oA+9] B[oB:oB+9]``: 3 x 3 matrices, row-major (out must not overlap A or B)."""
     for i in range(3):
+        a0, a1, a2 = A[oA + 3 * i], A[oA + 3 * i + 1], A[oA + 3 * i + 2]
         for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+            out[o + 3 * i + j] = a0 * B[oB + j] + a1 * B[oB + 3 + j] + a2 * B[oB + 6 + j]
 
 
 # -- unscented prediction --------------------------------------------------------------------------------------
@@ -442,9 +535,16 @@ def ukf_predict(mem, k_end: int) -> None:
 
     The mean is the output state already propagated to sample ``k_end - 1`` (UKF-M); the covariance is the
     unscented transform of P through the motion model in steps of at most ``cov_n`` samples with the step's
-    mean IMU reading, plus the additive process noise (see the estimator's module docstring).
+    mean IMU reading, plus the additive process noise (see the estimator's module docstring). Its work arrays
+    are in the workspace (``WP_*``).
     """
-    x, buf, sbuf, P, W, M = views(mem)
+    x, buf, sbuf, P, W, M, wk = views(mem)
+    _predict(x, buf, sbuf, P, W, M, wk, k_end)
+
+
+@jit
+def _predict(x, buf, sbuf, P, W, M, wk, k_end: int) -> None:
+    """:func:`ukf_predict` on the parts of the memory (:func:`views`)."""
     kf = int(x[UKF_KF])
     if k_end <= kf:
         return
@@ -452,10 +552,11 @@ def ukf_predict(mem, k_end: int) -> None:
     cap = buf.shape[0]
     cov_n = int(x[UKF_COV_N])
     g = x[UKF_G]
-    L = np.zeros((n, n))
+    # cholesky_lower writes all of L when it succeeds, and the last attempt (P0, positive diagonal) does.
+    L = _work2(wk, WP_L, n, n)
     info = cholesky_lower(P, L)
     if info != 0:  # lost positive definiteness to rounding: symmetrise and add a little jitter
-        Pj = np.empty((n, n))
+        Pj = _work2(wk, WP_PJ, n, n)
         for i in range(n):
             for j in range(n):
                 Pj[i, j] = 0.5 * (P[i, j] + P[j, i]) + (1e-12 if i == j else 0.0)
@@ -465,35 +566,31 @@ def ukf_predict(mem, k_end: int) -> None:
             cholesky_lower(P, L)
     # Sigma-point offsets D (S, n): 0, +columns of L, -columns of L, scaled.
     scale = x[UKF_UT_SCALE]
-    D = np.zeros((S, n))
+    D = _work2(wk, WP_D, S, n)
+    for i in range(n):
+        D[0, i] = 0.0
     for j in range(n):
         for i in range(n):
             D[1 + j, i] = L[i, j] * scale
             D[1 + n + j, i] = -(L[i, j] * scale)
     F = UKF_F
-    Ps = np.empty((S, 3))
-    Vs = np.empty((S, 3))
-    BA = np.empty((S, 3))
-    BG = np.empty((S, 3))
-    Rs = np.empty((S, 3, 3))
-    Rf = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            Rf[i, j] = x[UKF_RF + 3 * i + j]
-    rot = np.empty((3, 3))
+    Ps = _work2(wk, WP_PS, S, 3)
+    Vs = _work2(wk, WP_VS, S, 3)
+    BA = _work2(wk, WP_BA, S, 3)
+    BG = _work2(wk, WP_BG, S, 3)
+    # The 3 x 3 matrices are row-major in wk (no per-point views): R_WB of sigma point s at WP_RS + 9 s.
     for s in range(S):
         for i in range(3):
             Ps[s, i] = x[F + i] + D[s, i]
             Vs[s, i] = x[F + 3 + i] + D[s, 3 + i]
             BA[s, i] = x[F + 10 + i] + D[s, 9 + i]
             BG[s, i] = x[F + 13 + i] + D[s, 12 + i]
-        exp_so3_into(D[s, 6], D[s, 7], D[s, 8], rot)
-        _matmul33(Rf, rot, Rs[s])
+        exp_so3_at(D[s, 6], D[s, 7], D[s, 8], wk, WP_ROT)
+        _mul33_at(x, UKF_RF, wk, WP_ROT, wk, WP_RS + 9 * s)  # R_f exp(dtheta_s)
     # Covariance steps: duration and mean IMU reading [gyro (3), acc (3)] of each.
     T_total = 0.0
-    m = np.empty(6)
-    a = np.empty(3)
-    tmp = np.empty((3, 3))
+    m = wk[WP_M : WP_M + 6]
+    a = wk[WP_A : WP_A + 3]
     k = kf
     while k < k_end:
         k1 = min(k_end, k + cov_n)
@@ -509,34 +606,37 @@ def ukf_predict(mem, k_end: int) -> None:
             m[i] = m[i] / T
         half_T2 = 0.5 * T * T
         for s in range(S):
+            r = WP_RS + 9 * s
             b0, b1, b2 = m[3] - BA[s, 0], m[4] - BA[s, 1], m[5] - BA[s, 2]
             for i in range(3):
-                a[i] = Rs[s, i, 0] * b0 + Rs[s, i, 1] * b1 + Rs[s, i, 2] * b2
+                a[i] = wk[r + 3 * i] * b0 + wk[r + 3 * i + 1] * b1 + wk[r + 3 * i + 2] * b2
             a[2] -= g
             for i in range(3):
                 Ps[s, i] += Vs[s, i] * T + a[i] * half_T2
                 Vs[s, i] += a[i] * T
-            exp_so3_into((m[0] - BG[s, 0]) * T, (m[1] - BG[s, 1]) * T, (m[2] - BG[s, 2]) * T, rot)
-            _matmul33(Rs[s], rot, tmp)
-            _copy2(tmp, Rs[s])
+            exp_so3_at((m[0] - BG[s, 0]) * T, (m[1] - BG[s, 1]) * T, (m[2] - BG[s, 2]) * T, wk, WP_ROT)
+            _mul33_at(wk, r, wk, WP_ROT, wk, WP_TMP)
+            for i in range(9):
+                wk[r + i] = wk[WP_TMP + i]
         T_total += T
         k = k1
     # Errors of the propagated sigma points relative to the first (the mean's) point.
-    E = np.empty((S, n))
-    R0T = np.empty((3, 3))
+    E = _work2(wk, WP_E, S, n)  # row s at wk[WP_E + n s]
     for i in range(3):
         for j in range(3):
-            R0T[i, j] = Rs[0, j, i]
+            wk[WP_R0T + 3 * i + j] = wk[WP_RS + 3 * j + i]  # R_0ᵀ
     for s in range(S):
         for i in range(3):
             E[s, i] = Ps[s, i] - Ps[0, i]
             E[s, 3 + i] = Vs[s, i] - Vs[0, i]
-        _matmul33(R0T, Rs[s], tmp)
-        log_so3_into(tmp, E[s], 6)
+        _mul33_at(wk, WP_R0T, wk, WP_RS + 9 * s, wk, WP_TMP)
+        log_so3_at(wk, WP_TMP, wk, WP_E + n * s + 6)
         for i in range(9, 15):
             E[s, i] = D[s, i]
     wm, wc = W[0], W[1]
-    mean = np.zeros(n)
+    mean = wk[WP_MEAN : WP_MEAN + n]
+    for i in range(n):
+        mean[i] = 0.0
     for s in range(S):
         for i in range(n):
             mean[i] += wm[s] * E[s, i]
@@ -592,11 +692,12 @@ def _repropagate(x, buf, sbuf) -> None:
         x[UKF_S + i] = x[UKF_F + i]
     for i in range(9):
         x[UKF_RS + i] = x[UKF_RF + i]
-    cap = buf.shape[0]
+    cap, width = buf.shape
+    samples = buf.reshape(cap * width)  # flat: one view, not one per sample
     g = x[UKF_G]
     for k in range(int(x[UKF_KF]), int(x[UKF_K])):
         row = k % cap
-        propagate(x, UKF_S, x, UKF_RS, buf[row, 1], g, buf[row], 2)
+        propagate(x, UKF_S, x, UKF_RS, buf[row, 1], g, samples, width * row + 2)
         for i in range(16):
             sbuf[row, i] = x[UKF_S + i]
 
@@ -609,7 +710,13 @@ def ukf_fuse_at(mem, t_m: float) -> int:
     start-up pose is fused at start-up. The caller then predicts the delayed state there
     (:func:`ukf_predict`) and updates it (:func:`ukf_fuse`).
     """
-    x, buf, sbuf, P, W, M = views(mem)
+    x, buf, sbuf, P, W, M, wk = views(mem)
+    return _fuse_at(x, buf, t_m)
+
+
+@jit
+def _fuse_at(x, buf, t_m: float) -> int:
+    """:func:`ukf_fuse_at` on the parts of the memory (:func:`views`)."""
     t_now = x[UKF_T]
     half = 0.5 * x[UKF_DT_NOM]
     if t_m < x[UKF_T_F] - half and x[UKF_JUST_RESET] != 0.0:
@@ -629,6 +736,8 @@ def ukf_fuse_at(mem, t_m: float) -> int:
 def ukf_fuse(mem, p_m, q_m) -> int:
     """Update the delayed state (already predicted to the sample's time) with a pose, re-propagate to now.
 
+    Its work arrays are in the workspace (``WF_*``).
+
     Args:
         mem: the estimator's memory.
         p_m: (3,) measured position [m].
@@ -637,13 +746,19 @@ def ukf_fuse(mem, p_m, q_m) -> int:
     Returns:
         ``FUSE_OK``, or why the sample was rejected (``FUSE_*``).
     """
-    x, buf, sbuf, P, W, M = views(mem)
+    x, buf, sbuf, P, W, M, wk = views(mem)
+    return _fuse(x, buf, sbuf, P, M, wk, p_m, q_m)
+
+
+@jit
+def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
+    """:func:`ukf_fuse` on the parts of the memory (:func:`views`)."""
     t_now = x[UKF_T]
     F = UKF_F
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
     mw, mx, my, mz = q_m[0] / qn, q_m[1] / qn, q_m[2] / qn, q_m[3] / qn
     # Innovation in the error coordinates: (p_m - p, log(R_fᵀ R_m)).
-    r = np.empty(6)
+    r = wk[WF_R : WF_R + N_MEAS]
     for i in range(3):
         r[i] = p_m[i] - x[F + i]
     ew, ex, ey, ez = _q_mul(x[F + 6], -x[F + 7], -x[F + 8], -x[F + 9], mw, mx, my, mz)
@@ -652,18 +767,17 @@ def ukf_fuse(mem, p_m, q_m) -> int:
     nv = math.sqrt(ex * ex + ey * ey + ez * ez)
     kq = 2.0 * math.atan2(nv, ew) / nv if nv > 1e-12 else 2.0
     r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
-    sel = np.array([0, 1, 2, 6, 7, 8])
     n = N_ERR
-    PHt = np.empty((n, 6))
+    PHt = _work2(wk, WF_PHT, n, N_MEAS)
     for i in range(n):
         for j in range(6):
-            PHt[i, j] = P[i, sel[j]]
-    S_mat = np.empty((6, 6))
+            PHt[i, j] = P[i, _H_ROWS[j]]
+    S_mat = _work2(wk, WF_S, N_MEAS, N_MEAS)
     for i in range(6):
         for j in range(6):
-            S_mat[i, j] = PHt[sel[i], j] + M[M_RN, i, j]
-    S_inv = np.empty((6, 6))
-    if not invert(S_mat, S_inv):
+            S_mat[i, j] = PHt[_H_ROWS[i], j] + M[M_RN, i, j]
+    S_inv = _work2(wk, WF_SINV, N_MEAS, N_MEAS)
+    if not invert_in_place(S_mat, S_inv):
         return FUSE_SINGULAR
     d2 = 0.0
     for j in range(6):
@@ -686,20 +800,20 @@ def ukf_fuse(mem, p_m, q_m) -> int:
             return FUSE_REINIT
         return FUSE_GATE
     x[UKF_GATE_FAILS] = 0.0
-    K = np.empty((n, 6))
+    K = _work2(wk, WF_K, n, N_MEAS)
     for i in range(n):
         for j in range(6):
             acc = 0.0
             for l in range(6):
                 acc += PHt[i, l] * S_inv[l, j]
             K[i, j] = acc
-    dx = np.empty(n)
+    dx = wk[WF_DX : WF_DX + n]
     for i in range(n):
         acc = 0.0
         for j in range(6):
             acc += K[i, j] * r[j]
         dx[i] = acc
-    Pn = np.empty((n, n))  # (I - K H) P
+    Pn = _work2(wk, WF_PN, n, n)  # (I - K H) P
     for i in range(n):
         for j in range(n):
             acc = 0.0
@@ -723,15 +837,18 @@ def ukf_fuse(mem, p_m, q_m) -> int:
     # It changes P by a relative |dtheta|/2, so it is skipped for the usual sub-milliradian corrections.
     hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
     if hx * hx + hy * hy + hz * hz > _RESET_MIN_RAD2:
-        Gt = np.array([[1.0, hz, -hy], [-hz, 1.0, hx], [hy, -hx, 1.0]])
-        rows = np.empty((3, n))
+        Gt = _work2(wk, WF_GT, 3, 3)
+        Gt[0, 0], Gt[0, 1], Gt[0, 2] = 1.0, hz, -hy
+        Gt[1, 0], Gt[1, 1], Gt[1, 2] = -hz, 1.0, hx
+        Gt[2, 0], Gt[2, 1], Gt[2, 2] = hy, -hx, 1.0
+        rows = _work2(wk, WF_ROWS, 3, n)
         for i in range(3):
             for j in range(n):
                 rows[i, j] = Gt[i, 0] * Pn[6, j] + Gt[i, 1] * Pn[7, j] + Gt[i, 2] * Pn[8, j]
         for i in range(3):
             for j in range(n):
                 Pn[6 + i, j] = rows[i, j]
-        cols = np.empty((n, 3))
+        cols = _work2(wk, WF_COLS, n, 3)
         for i in range(n):
             for j in range(3):
                 cols[i, j] = Pn[i, 6] * Gt[j, 0] + Pn[i, 7] * Gt[j, 1] + Pn[i, 8] * Gt[j, 2]
@@ -781,17 +898,20 @@ def ukf_step(
         while degraded (the estimate is then not valid); the time of the estimate [s] (``t_frame``, or the
         previous time plus the nominal period when the frame's period was rejected).
     """
-    code, t = ukf_imu_step(mem, gyro, acc, t_frame, not mocap_new, out)
+    x, buf, sbuf, P, W, M, wk = views(mem)  # once: the kernels below take the parts
+    code, t = _imu_step(x, buf, sbuf, gyro, acc, t_frame)
+    if not mocap_new:
+        code |= _finish(x, out)
     rejected = (code & STEP_REJECTED) != 0
     if mocap_new:
         if math.isfinite(mocap_t) and mocap_sample_valid(p_m, q_m, QUAT_NORM_TOL):
             t_m = mocap_t if compensate_latency else t
-            k_m = ukf_fuse_at(mem, t_m)
+            k_m = _fuse_at(x, buf, t_m)
             if k_m < 0:
                 fused = FUSE_STALE
             else:
-                ukf_predict(mem, k_m)
-                fused = ukf_fuse(mem, p_m, q_m)
+                _predict(x, buf, sbuf, P, W, M, wk, k_m)
+                fused = _fuse(x, buf, sbuf, P, M, wk, p_m, q_m)
             if fused == FUSE_OK:
                 counters[CNT_MOCAP_FUSED] += 1
             else:
@@ -802,9 +922,9 @@ def ukf_step(
         else:
             counters[CNT_REJECTED_MOCAP] += 1
             rejected = True
-        code = ukf_finish(mem, out)
+        code = _finish(x, out)
     if code & STEP_ADVANCE:
-        ukf_predict(mem, int(mem[UKF_K]) - int(mem[UKF_LAG_N]))
+        _predict(x, buf, sbuf, P, W, M, wk, int(x[UKF_K]) - int(x[UKF_LAG_N]))
     result = code & STEP_DEGRADED
     if rejected:
         counters[CNT_REJECTED_INPUTS] += 1

@@ -255,7 +255,8 @@ class UKFEstimator:
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
         P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
-        kernel_mem: the filter's memory (float64 array) that ``ukf_step`` takes.
+        kernel_mem: the filter's memory (float64 array) that ``ukf_step`` takes: states, buffers, P and
+            constants, then the kernels' workspace (layout ``memory_layout`` of the kernels' module).
         kernel_counters: (``CNT_SIZE``,) int64 counters and flags (``CNT_*``) that ``ukf_step`` updates; the
             properties above read it.
         kernel_compensate_latency: ``params.compensate_latency``, the flag ``ukf_step`` takes.
@@ -277,7 +278,8 @@ class UKFEstimator:
         self._chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
         self._cap = self._lag_n + self._chunk_n + 8
         self._cov_n = max(1, int(round(_COV_STEP_S * p.imu_rate_hz)))
-        o_buf, o_sbuf, o_P, o_W, o_M, size = _ek.memory_layout(self._cap)
+        # The memory ends with the kernels' workspace (o_wk:size), so that a step allocates nothing.
+        o_buf, o_sbuf, o_P, o_W, o_M, o_wk, size = _ek.memory_layout(self._cap)
         self._mem = mem = np.zeros(size)
         self.kernel_mem = mem
         self.kernel_counters = np.zeros(_ek.CNT_SIZE, dtype=np.int64)
@@ -296,7 +298,7 @@ class UKFEstimator:
         W[0, 0] = lam / (n + lam)
         W[1, 0] = lam / (n + lam) + 1.0 - p.ut_alpha**2 + p.ut_beta
         # Process noise terms, initial covariance, measurement noise (position, attitude).
-        M = mem[o_M:size].reshape(5, n, n)
+        M = mem[o_M:o_wk].reshape(5, n, n)
         M[_ek.M_Q1], M[_ek.M_Q2], M[_ek.M_Q3] = self._process_noise_terms()
         M[_ek.M_P0] = self._P0 = np.diag(
             [p.init_pos_std**2] * 3 + [p.init_vel_std**2] * 3 + [math.radians(p.init_att_std_deg) ** 2] * 3
