@@ -292,25 +292,31 @@ def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> N
 
     regions = sorted(set(result.regions))
     reg = np.asarray(result.regions)
-    fig, axes = plt.subplots(1, len(regions), figsize=(4.2 * len(regions), 3.8), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(2, len(regions), figsize=(4.2 * len(regions), 6.4), squeeze=False, sharey="row")
     colours = ("tab:blue", "tab:orange", "tab:green")
     wake = result.forces["rotor-wake model (calibrated)"]
     spec = result.forces["SPEC §7 model"]
     meas = result.forces["measured"]
-    for ax, r in zip(axes[0], regions, strict=True):
+    for col, r in enumerate(regions):
         idx = np.flatnonzero(reg == r)
         x = np.arange(idx.size)
-        for c, (label, col) in enumerate(zip(("f_x", "f_y", "f_z"), colours, strict=True)):
-            ax.plot(x, meas[idx, c], "o", color=col, ms=5, label=f"{label} measured")
-            ax.plot(x, wake[idx, c], "x", color=col, ms=7, mew=1.6, label=f"{label} rotor-wake")
-            ax.plot(x, spec[idx, c], "_", color=col, ms=8, mew=1.2, label=f"{label} SPEC §7")
+        top, bottom = axes[0][col], axes[1][col]
+        for c, (label, colour) in enumerate(zip(("f_x", "f_y", "f_z"), colours, strict=True)):
+            top.plot(x, meas[idx, c], "o", color=colour, ms=5, label=f"{label} measured")
+            top.plot(x, wake[idx, c], "x", color=colour, ms=7, mew=1.6, label=f"{label} rotor-wake")
+            bottom.plot(x, meas[idx, c] - wake[idx, c], "x-", color=colour, ms=6, lw=0.8, label=f"{label} rotor-wake")
+            bottom.plot(x, meas[idx, c] - spec[idx, c], "_:", color=colour, ms=9, lw=0.8, label=f"{label} SPEC §7")
         rms_w = result.table["rotor-wake model (calibrated)"][r]
         rms_s = result.table["SPEC §7 model"][r]
-        ax.set_title(f"{r}: RMS rotor-wake {rms_w:.2f} N, SPEC §7 {rms_s:.2f} N", fontsize=9)
-        ax.set_xlabel("hover point")
-        ax.grid(alpha=0.3)
+        top.set_title(f"{r}: RMS rotor-wake {rms_w:.2f} N, SPEC §7 {rms_s:.2f} N", fontsize=9)
+        bottom.axhline(0.0, color="k", lw=0.6)
+        bottom.set_xlabel("hover point")
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("body force [N]")
-    axes[0][-1].legend(fontsize=6, ncol=3, loc="center right")
+    axes[1][0].set_ylabel("measured - predicted [N]")
+    axes[0][-1].legend(fontsize=6, ncol=2, loc="center right")
+    axes[1][-1].legend(fontsize=6, ncol=2, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
