@@ -24,6 +24,9 @@ def calibrate_truth_cmd(
     vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
     partition: Annotated[str, typer.Option(help="Region partition (groups of the cross-validation).")] = "paper",
     loo: Annotated[bool, typer.Option("--loo/--no-loo", help="Also run leave-one-point-out refits.")] = True,
+    stand_prior: Annotated[
+        bool, typer.Option("--stand-prior/--no-stand-prior", help="Fit with the force-stand ratios of SPEC §3.5.")
+    ] = True,
 ) -> None:
     """Fit the rotor-wake truth model; print the comparison table and the leave-one-region-out cross-validation."""
     if out.exists() and out.is_dir():
@@ -37,7 +40,7 @@ def calibrate_truth_cmd(
     hover = load_hover_data(data, veh)
     if not hover.w_B[:, :3].any():
         raise InputError("the hover data hold no measured forces")
-    result = calibrate(veh, hover, part, leave_one_point=loo)
+    result = calibrate(veh, hover, part, leave_one_point=loo, stand_prior=stand_prior)
     text = report_markdown(result)
     if report is not None:
         report.mkdir(parents=True, exist_ok=True)

@@ -77,6 +77,55 @@ _INGEST_STARTS = (0.0, 0.5)
 """Starting ingestion gains of every fit [-]."""
 
 
+STAND_RATIOS = {"R1": (1.14, 1.14), "R6": (1.17, 1.17), "mixed": (1.22, 1.27)}
+"""|measured force| / |A_nom u| on the authors' force stand (SPEC §3.5): R1 upright, R6 upside down (every rotor
+reversed), the mixed-direction regions R2-R5 and R7-R10. A stand blocks part of the flow, so only the ratios
+*relative to R1* are used, as a soft prior of the fit (:func:`stand_prior_residual`)."""
+STAND_PRIOR_WEIGHT_N = 20.0
+"""Weight of the stand prior [N per unit of relative ratio]: a 1 % miss costs like a 0.2 N force residual [A]."""
+_REGION_CENTRES_DEG = {
+    "R1": (0.0, 90.0),
+    "R6": (0.0, -90.0),
+    "R2": (0.0, 30.0),
+    "R3": (-90.0, 30.0),
+    "R4": (90.0, 30.0),
+    "R5": (180.0, 30.0),
+    "R7": (0.0, -30.0),
+    "R8": (-90.0, -30.0),
+    "R9": (90.0, -30.0),
+    "R10": (180.0, -30.0),
+}
+"""(azimuth, elevation) [deg] of each region's centre, the up direction R^T e3 in the body frame (SPEC §3.3)."""
+
+
+def stand_ratios(vehicle: VehicleParams, params: AeroParams) -> dict[str, float]:
+    """Model |f| / |A_nom u| at each region's centre, with the nominal allocation of the weight [A: the stand's u]."""
+    aero = make_aero(vehicle, params)
+    pinv = np.linalg.pinv(vehicle.A_nom)
+    out = {}
+    for name, (az, el) in _REGION_CENTRES_DEG.items():
+        a, e = math.radians(az), math.radians(el)
+        w = np.zeros(6)
+        w[:3] = vehicle.weight * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+        u = pinv @ w
+        out[name] = float(np.linalg.norm(aero.wrench_B(u)[:3]) / np.linalg.norm(vehicle.A_nom[:3] @ u))
+    return out
+
+
+def stand_prior_residual(vehicle: VehicleParams, params: AeroParams) -> np.ndarray:
+    """Weighted misses [N] of the model's stand ratios relative to R1 (zero inside the mixed regions' range)."""
+    r = stand_ratios(vehicle, params)
+    ref = STAND_RATIOS["R1"][0]
+    res = []
+    for name, value in r.items():
+        if name == "R1":
+            continue
+        lo, hi = STAND_RATIOS.get(name, STAND_RATIOS["mixed"])
+        rel = value / r["R1"]
+        res.append(min(rel - lo / ref, 0.0) + max(rel - hi / ref, 0.0))
+    return STAND_PRIOR_WEIGHT_N * np.array(res)
+
+
 def model_forces(vehicle: VehicleParams, params: AeroParams, u_hz2: np.ndarray) -> np.ndarray:
     """(N, 3) body force [N] of the truth model ``params.model`` at each row of ``u_hz2`` [Hz²]."""
     aero = make_aero(vehicle, params)
@@ -103,6 +152,7 @@ def fit_wake(
     start: AeroParams | None = None,
     names: Sequence[str] = FIT_PARAMETERS,
     from_start: bool = False,
+    stand_prior: bool = True,
 ) -> AeroParams:
     """Fit the rotor-wake parameters ``names`` to hover data (bounded least squares on the force residual).
 
@@ -113,6 +163,7 @@ def fit_wake(
             :data:`NEUTRAL_START` unless ``from_start`` is True.
         names: which parameters to fit (a subset of :data:`FIT_PARAMETERS`).
         from_start: start the fitted parameters at their values in ``start``.
+        stand_prior: add the force-stand prior (:func:`stand_prior_residual`) to the force residuals.
 
     Returns:
         The fitted parameters (``model = "wake"``).
@@ -133,7 +184,9 @@ def fit_wake(
     f_meas = data.w_B[:, :3]
 
     def residual(x: np.ndarray) -> np.ndarray:
-        return (model_forces(vehicle, _with(p0, x, names), data.u_hz2) - f_meas).ravel()
+        p = _with(p0, x, names)
+        r = (model_forces(vehicle, p, data.u_hz2) - f_meas).ravel()
+        return np.concatenate([r, stand_prior_residual(vehicle, p)]) if stand_prior else r
 
     # The cost is multimodal (yaw, and the trade between the thrust gain and the ingestion): start also from
     # a fixed grid of yaws and ingestion gains, keep the best optimum.
@@ -163,6 +216,7 @@ class CalibrationResult:
         cv_region_params: region -> the parameters fitted without it.
         cv_point_rms: force RMS [N] of each point predicted by the model fitted without that point, over all.
         forces: model name -> (N, 3) predicted body forces [N] ("measured" holds the data).
+        stand: region -> the calibrated model's stand ratio scaled to the stand's R1 (:func:`stand_ratios`).
     """
 
     params: AeroParams
@@ -173,6 +227,7 @@ class CalibrationResult:
     cv_region_params: dict[str, AeroParams]
     cv_point_rms: float
     forces: dict[str, np.ndarray]
+    stand: dict[str, float]
 
 
 def _by_region(residual: np.ndarray, regions: Sequence[str]) -> dict[str, float]:
@@ -189,6 +244,7 @@ def cross_validate(
     regions: Sequence[str],
     start: AeroParams | None = None,
     leave_one_point: bool = True,
+    stand_prior: bool = True,
 ) -> tuple[dict[str, float], dict[str, AeroParams], float]:
     """Leave-one-region-out and leave-one-point-out force RMS of the rotor-wake fit.
 
@@ -198,6 +254,7 @@ def cross_validate(
         regions: region of each point (groups of the leave-one-region-out split).
         start: starting parameters of every refit.
         leave_one_point: also run the leave-one-point-out refits (one per point).
+        stand_prior: fit with the force-stand prior.
 
     Returns:
         ``(rms per held-out region [N], parameters fitted without each region, leave-one-point-out RMS [N]
@@ -210,7 +267,7 @@ def cross_validate(
         held = reg == r
         if held.all():
             continue
-        p = fit_wake(vehicle, data.subset(~held), start)
+        p = fit_wake(vehicle, data.subset(~held), start, stand_prior=stand_prior)
         cv_params[r] = p
         cv[r] = _rms(model_forces(vehicle, p, data.u_hz2[held]) - f_meas[held])
     loo = float("nan")
@@ -219,7 +276,7 @@ def cross_validate(
         for j in range(data.n_points):
             keep = np.ones(data.n_points, dtype=bool)
             keep[j] = False
-            p = fit_wake(vehicle, data.subset(keep), start)
+            p = fit_wake(vehicle, data.subset(keep), start, stand_prior=stand_prior)
             e = model_forces(vehicle, p, data.u_hz2[j : j + 1])[0] - f_meas[j]
             sq.append(float(e @ e))
         loo = float(math.sqrt(np.mean(sq)))
@@ -232,6 +289,7 @@ def calibrate(
     partition: Partition | None = None,
     start: AeroParams | None = None,
     leave_one_point: bool = True,
+    stand_prior: bool = True,
 ) -> CalibrationResult:
     """Fit the rotor-wake model and compute the report's table and cross-validation.
 
@@ -241,6 +299,7 @@ def calibrate(
         partition: the regions (for grouping and the per-region maps); default the paper's.
         start: starting parameters; default the project's defaults.
         leave_one_point: run the leave-one-point-out refits too.
+        stand_prior: fit with the force-stand prior (:data:`STAND_RATIOS`).
 
     Returns:
         The :class:`CalibrationResult`.
@@ -248,7 +307,7 @@ def calibrate(
     part = partition or load_partition("paper")
     regions = tuple(assign_regions(data, part))
     f_meas = data.w_B[:, :3]
-    params = fit_wake(vehicle, data, start)
+    params = fit_wake(vehicle, data, start, stand_prior=stand_prior)
     f_nom = data.u_hz2 @ vehicle.A_nom[:3].T
     k = float(np.sum(f_nom * f_meas) / np.sum(f_nom * f_nom))
     forces = {
@@ -268,8 +327,10 @@ def calibrate(
     if not np.isnan(per_region).any():
         forces["identified per-region maps"] = per_region
     table = {name: _by_region(f - f_meas, regions) for name, f in forces.items() if name != "measured"}
-    cv, cv_params, loo = cross_validate(vehicle, data, regions, start, leave_one_point)
-    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces)
+    cv, cv_params, loo = cross_validate(vehicle, data, regions, start, leave_one_point, stand_prior)
+    ratios = stand_ratios(vehicle, params)
+    stand = {r: STAND_RATIOS["R1"][0] * v / ratios["R1"] for r, v in ratios.items()}
+    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces, stand)
 
 
 def write_truth_toml(path: str | Path, params: AeroParams) -> None:
@@ -352,5 +413,14 @@ def report_markdown(result: CalibrationResult) -> str:
         + ") |\n|---|---|---|---|\n"
         + cv_rows
         + f"\n\nLeave-one-point-out RMS over all points: {loo}.\n\n"
+        "Force-stand ratio |f| / |A_nom u| at each region's centre (model scaled to the stand's R1; stand: SPEC §3.5, "
+        "R1 1.14, R6 1.17, mixed-direction regions 1.22-1.27):\n\n"
+        "| "
+        + " | ".join(result.stand)
+        + " |\n|"
+        + "---|" * len(result.stand)
+        + "\n| "
+        + " | ".join(f"{v:.3f}" for v in result.stand.values())
+        + " |\n\n"
         "![measured vs predicted](measured-vs-predicted.png)\n"
     )

@@ -76,7 +76,8 @@ class AeroParams:
     """Truth aerodynamics: the rotor-wake model (default), SPEC §7's slipstream interference, or the nominal map.
 
     The rotor-wake defaults were fitted by ``omnirotor calibrate-truth`` to the authors' 39 real flight hover
-    points (``docs/fidelity.md``: figures, sources, cross-validation); see :mod:`omnirotor.sim.aero`.
+    points with the force-stand ratios of SPEC §3.5 as a prior (``docs/fidelity.md``: figures, sources,
+    cross-validation); see :mod:`omnirotor.sim.aero`.
 
     Attributes:
         model: "wake" (calibrated rotor-wake model), "spec7" or "interference" (SPEC §7), or "nominal"
@@ -107,12 +108,12 @@ class AeroParams:
     """
 
     model: str = "wake"
-    thrust_gain: float = 1.18731
-    reverse_gain: float = -0.0796588
-    ingest_gain: float = 0.448373
-    counter_gain: float = -0.300481
-    aim_exponent: float = 0.857281
-    frame_yaw_deg: float = -3.74237
+    thrust_gain: float = 1.23956
+    reverse_gain: float = 0.00774719
+    ingest_gain: float = 0.356999
+    counter_gain: float = -0.166377
+    aim_exponent: float = 0.63276
+    frame_yaw_deg: float = -3.09879
     kappa0: float = 1.18
     gamma: float = 4.0
     rho: float = 1.225
