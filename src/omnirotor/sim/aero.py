@@ -120,7 +120,47 @@ class NominalAero:
         return out
 
 
-class WakeAero:
+class _CompiledAero:
+    """What the interaction models share: the body wrench and the efficiencies from their compiled kernels."""
+
+    n_rotors: int
+    kernel_model: np.ndarray
+
+    def __init__(self, wrench_kernel, efficiency_kernel) -> None:
+        self._wrench_kernel = wrench_kernel
+        self._efficiency_kernel = efficiency_kernel
+
+    def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Per-rotor efficiencies: the thrust of each rotor over its isolated thrust (see the model's docs).
+
+        Args:
+            u_hz2: (n,) rotor inputs [Hz²].
+            out: optional (n,) output buffer.
+
+        Returns:
+            (n,) the efficiencies (a fresh array unless ``out`` is given).
+        """
+        eta = np.empty(self.n_rotors) if out is None else out
+        self._efficiency_kernel(np.asarray(u_hz2, dtype=np.float64), self.kernel_model, eta)
+        return eta
+
+    def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """True body wrench at the CoM.
+
+        Args:
+            u_hz2: (n,) rotor inputs [Hz²].
+            out: optional (6,) output buffer.
+
+        Returns:
+            (6,) ``[f_B [N]; m_B [N·m]]``.
+        """
+        if out is None:
+            out = np.empty(6)
+        self._wrench_kernel(np.asarray(u_hz2, dtype=np.float64), self.kernel_model, out)
+        return out
+
+
+class WakeAero(_CompiledAero):
     """The rotor-wake truth model (module docstring), optionally with per-rotor manufacturing errors.
 
     Args:
@@ -130,6 +170,7 @@ class WakeAero:
     """
 
     def __init__(self, vehicle: VehicleParams, params: AeroParams | None = None) -> None:
+        super().__init__(wake_wrench, wake_efficiency)
         p = params or AeroParams()
         n = vehicle.n_rotors
         self.params = p
@@ -153,37 +194,8 @@ class WakeAero:
         """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
         self.kernel_model = self._model
 
-    def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Per-rotor thrust factor over ``thrust_gain``: ``eta_i (1 + reverse_gain [u_i < 0])``.
 
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (n,) output buffer.
-
-        Returns:
-            (n,) the factors (a fresh array unless ``out`` is given).
-        """
-        eta = np.empty(self.n_rotors) if out is None else out
-        wake_efficiency(np.asarray(u_hz2, dtype=np.float64), self._model, eta)
-        return eta
-
-    def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """True body wrench at the CoM.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (6,) output buffer.
-
-        Returns:
-            (6,) ``[f_B [N]; m_B [N·m]]``.
-        """
-        if out is None:
-            out = np.empty(6)
-        wake_wrench(np.asarray(u_hz2, dtype=np.float64), self._model, out)
-        return out
-
-
-class InterferenceAero:
+class InterferenceAero(_CompiledAero):
     """SPEC §7 slipstream-interference truth model, optionally with per-rotor manufacturing errors.
 
     Args:
@@ -192,6 +204,7 @@ class InterferenceAero:
     """
 
     def __init__(self, vehicle: VehicleParams, params: AeroParams | None = None) -> None:
+        super().__init__(interference_wrench, interference_efficiency)
         p = params or AeroParams()
         n = vehicle.n_rotors
         self.params = p
@@ -235,38 +248,6 @@ class InterferenceAero:
         self.kernel_kind = AERO_INTERFERENCE
         """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
         self.kernel_model = self._model
-
-    def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Per-rotor efficiencies eta_i of SPEC §7.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (n,) output buffer.
-
-        Returns:
-            (n,) eta (a fresh array unless ``out`` is given).
-        """
-        eta = np.empty(self.n_rotors)
-        interference_efficiency(np.asarray(u_hz2, dtype=np.float64), self._model, eta)
-        if out is None:
-            return eta
-        out[:] = eta
-        return out
-
-    def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """True body wrench at the CoM.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (6,) output buffer.
-
-        Returns:
-            (6,) ``[f_B [N]; m_B [N·m]]``.
-        """
-        if out is None:
-            out = np.empty(6)
-        interference_wrench(np.asarray(u_hz2, dtype=np.float64), self._model, out)
-        return out
 
 
 TruthAero = WakeAero | InterferenceAero | NominalAero
