@@ -101,15 +101,7 @@ class NominalAero:
         self.kernel_model = np.ascontiguousarray(self.A_nom, dtype=np.float64)
 
     def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Body wrench at the CoM.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (6,) output buffer.
-
-        Returns:
-            (6,) ``[f_B [N]; m_B [N·m]]``.
-        """
+        """Body wrench ``A_nom u`` at the CoM, ``[f_B [N]; m_B [N·m]]`` (6,), for inputs ``u_hz2`` (n,) [Hz²]."""
         return np.matmul(self.A_nom, u_hz2, out=out)
 
     def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
