@@ -8,6 +8,13 @@ it never raises inside the loop). Kernels are compiled lazily, on their first ca
 
 Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, coverage).
 
+No stale machine code: numba's own cache checks a kernel only against its own file (time stamp and size), so
+after an edit of a helper in *another* module a cached dependent kernel would still run the old helper (whose
+code is compiled into it). The cache of every kernel here (:class:`DependencyCache`) therefore also keys its
+entries on a hash of the sources the kernel's module depends on: its file and, transitively, every module of
+the package it imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile
+again on its next use; an edit elsewhere (the CLI, the experiments) keeps the cache.
+
 The few SO(3) helpers both kernel modules need live here, as the simulator and the controller must not
 import each other. They follow the conventions of :mod:`omnirotor.so3` (quaternions wxyz, Hamilton).
 
@@ -20,16 +27,23 @@ library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (t
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+import re
+from pathlib import Path
 
 import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
+from numba.core.caching import FunctionCache
+from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic
 
 __all__ = [
     "jit",
+    "DependencyCache",
+    "source_closure",
     "R9_from_quat_into",
     "mujoco_function",
     "monotonic_ns",
@@ -39,8 +53,75 @@ __all__ = [
     "i64_view",
 ]
 
-jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
-"""The decorator of every kernel (see the module docstring)."""
+_PACKAGE_DIR = Path(__file__).resolve().parent
+_PACKAGE = __name__.split(".")[0]
+_IMPORT_RE = re.compile(
+    rf"^[ \t]*(?:from[ \t]+({_PACKAGE}(?:\.\w+)*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]*)"
+    rf"|import[ \t]+({_PACKAGE}(?:\.\w+)*))",
+    re.M,
+)
+
+
+def _module_file(module: str) -> Path | None:
+    """The source file of a module of this package (``None`` if it is not one)."""
+    parts = module.split(".")
+    if parts[0] != _PACKAGE:
+        return None
+    base = _PACKAGE_DIR.joinpath(*parts[1:])
+    for f in (base.with_suffix(".py"), base / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+@functools.cache
+def source_closure(path: str) -> tuple[Path, ...]:
+    """The package's source files a module depends on: ``path`` and every package module it imports, transitively.
+
+    Imports are read from the text (``import omnirotor.x``, ``from omnirotor.x import a, b``, where ``a`` may
+    be a module too), at any indentation, so imports inside functions count as well.
+    """
+    todo, seen = [Path(path).resolve()], set()
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.add(f)
+        for m in _IMPORT_RE.finditer(f.read_text()):
+            module = m.group(1) or m.group(3)
+            names = [n.split(" as ")[0].strip() for n in (m.group(2) or "").strip("()").split(",")]
+            for cand in [module] + [f"{module}.{n}" for n in names if n.isidentifier()]:
+                dep = _module_file(cand)
+                if dep is not None and dep not in seen:
+                    todo.append(dep)
+    return tuple(sorted(seen))
+
+
+@functools.cache
+def _closure_hash(path: str) -> str:
+    h = hashlib.sha256()
+    for f in source_closure(path):
+        h.update(str(f.relative_to(_PACKAGE_DIR)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+class DependencyCache(FunctionCache):
+    """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key."""
+
+    def _index_key(self, sig, codegen):
+        sig_key, magic, hashes = super()._index_key(sig, codegen)
+        return sig_key, magic, (*hashes, _closure_hash(self._py_func.__code__.co_filename))
+
+
+_njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+
+def jit(fn):
+    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
+    d = _njit(fn)
+    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d._cache = DependencyCache(d.py_func)
+    return d
 
 
 @functools.cache
