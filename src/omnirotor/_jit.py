@@ -50,6 +50,8 @@ __all__ = [
     "address_table",
     "f64_view",
     "f64_view2",
+    "f64_at",
+    "f64_at2",
     "i64_view",
 ]
 
@@ -185,7 +187,7 @@ def monotonic_ns(ts) -> int:
 def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
     """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
 
-    Same arithmetic as :func:`omnirotor.sim.sensors.R9_from_quat`.
+    The entries of :func:`omnirotor.so3.R_from_quat_wxyz`, as scalars.
     """
     xx, yy, zz = qx * qx, qy * qy, qz * qz
     xy, xz, yz = qx * qy, qx * qz, qy * qz
@@ -263,6 +265,18 @@ def f64_view2(table, i: int):
 
 
 @jit
+def f64_at(address: int, n: int):
+    """The 1-D float64 array of ``n`` entries at ``address`` (the caller keeps the memory alive)."""
+    return numba.carray(_f64_pointer(address), (n,))
+
+
+@jit
+def f64_at2(address: int, rows: int, cols: int):
+    """The C-ordered ``(rows, cols)`` float64 array at ``address`` (the caller keeps the memory alive)."""
+    return numba.carray(_f64_pointer(address), (rows, cols))
+
+
+@jit
 def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
@@ -291,6 +305,14 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_view2(table, i: int):  # noqa: F811
         """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
         return _view(table, i, ctypes.c_double, True)
+
+    def f64_at(address: int, n: int):  # noqa: F811
+        """The 1-D float64 array of ``n`` entries at ``address``."""
+        return np.ctypeslib.as_array((ctypes.c_double * int(n)).from_address(int(address)))
+
+    def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
+        """The C-ordered ``(rows, cols)`` float64 array at ``address``."""
+        return f64_at(address, int(rows) * int(cols)).reshape(int(rows), int(cols))
 
     def i64_view(table, i: int):  # noqa: F811
         """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
