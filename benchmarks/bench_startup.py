@@ -7,7 +7,7 @@ waits for, interpreter start-up included.
 * ``cli_help_s``: median wall time of ``omnirotor --help`` and of ``omnirotor identify --help``.
 * ``first_run_compile_s``: wall time of a short hover run with an empty numba cache (``NUMBA_CACHE_DIR`` set to
   a fresh temporary folder) minus the same run again with the cache it left behind: the compilation a fresh
-  machine pays once.
+  machine pays once (``first_run_compile_cpu_s``: the same in CPU time, steadier on a loaded machine).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -35,15 +36,22 @@ def _env(**extra: str) -> dict[str, str]:
     return env
 
 
-def _cli(args: tuple[str, ...], env: dict[str, str]) -> float:
-    """Wall time [s] of one ``omnirotor ARGS`` in a new interpreter (raises if it fails)."""
+def _cli_times(args: tuple[str, ...], env: dict[str, str]) -> tuple[float, float]:
+    """Wall and CPU time [s] of one ``omnirotor ARGS`` in a new interpreter (raises if it fails)."""
     cmd = [sys.executable, "-c", "import sys; from omnirotor.cli import main; sys.exit(main())", *args]
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise RuntimeError(f"omnirotor {' '.join(args)} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
-    return wall
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def _cli(args: tuple[str, ...], env: dict[str, str]) -> float:
+    """Wall time [s] of one ``omnirotor ARGS`` in a new interpreter (raises if it fails)."""
+    return _cli_times(args, env)[0]
 
 
 def measure_cli_help(repeats: int) -> dict:
@@ -63,11 +71,12 @@ def measure_first_run_compile() -> dict:
     """Cold-cache and warm-cache wall times [s] of the first-run workload, and their difference."""
     with tempfile.TemporaryDirectory(prefix="omnirotor-numba-cache-") as cache:
         env = _env(NUMBA_CACHE_DIR=cache)
-        cold = _cli(FIRST_RUN_ARGS, env)
-        warm = _cli(FIRST_RUN_ARGS, env)
+        cold, cold_cpu = _cli_times(FIRST_RUN_ARGS, env)
+        warm, warm_cpu = _cli_times(FIRST_RUN_ARGS, env)
         files = sum(1 for _ in Path(cache).rglob("*.nbc"))
     return {
         "first_run_compile_s": cold - warm,
+        "first_run_compile_cpu_s": cold_cpu - warm_cpu,
         "cold_wall_s": cold,
         "warm_wall_s": warm,
         "compiled_specialisations": files,

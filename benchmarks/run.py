@@ -801,7 +801,8 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
                 [
                     "first run, compilation (cold − warm)",
                     _f(st["first_run_compile_s"]),
-                    f"`{st['workload']}`: cold {_f(st['cold_wall_s'])} s, warm {_f(st['warm_wall_s'])} s, "
+                    f"`{st['workload']}`: cold {_f(st['cold_wall_s'])} s, warm {_f(st['warm_wall_s'])} s; "
+                    f"CPU time {_f(st.get('first_run_compile_cpu_s'))} s; "
                     f"{st['compiled_specialisations']} cached specialisations",
                 ]
             )
