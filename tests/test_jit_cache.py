@@ -83,3 +83,14 @@ def test_source_closure_follows_package_imports_only() -> None:
     files = {p.relative_to(SRC).as_posix() for p in source_closure(str(SRC / "sim" / "simulator.py"))}
     assert {"sim/simulator.py", "_jit.py"} <= files
     assert not any(f.startswith("cli/") for f in files)
+
+
+def test_kernels_outside_the_package_are_keyed_on_their_own_file(tmp_path: Path) -> None:
+    from omnirotor._jit import _closure_hash, source_closure
+
+    f = tmp_path / "bench_kernel.py"
+    f.write_text("from omnirotor._jit import jit\nimport omnirotor.so3\n")
+    files = source_closure(str(f))
+    assert f.resolve() in files and SRC / "so3.py" in files
+    h = _closure_hash(str(f))
+    assert source_closure("<string>") == () and len(h) == 64

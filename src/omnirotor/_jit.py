@@ -83,7 +83,10 @@ def source_closure(path: str) -> tuple[Path, ...]:
     Imports are read from the text (``import omnirotor.x``, ``from omnirotor.x import a, b``, where ``a`` may
     be a module too), at any indentation, so imports inside functions count as well.
     """
-    todo, seen = [Path(path).resolve()], set()
+    start = Path(path).resolve()
+    if not start.is_file():  # a kernel defined in a string or at a prompt: numba's own key (its bytecode) only
+        return ()
+    todo, seen = [start], set()
     while todo:
         f = todo.pop()
         if f in seen:
@@ -103,7 +106,8 @@ def source_closure(path: str) -> tuple[Path, ...]:
 def _closure_hash(path: str) -> str:
     h = hashlib.sha256()
     for f in source_closure(path):
-        h.update(str(f.relative_to(_PACKAGE_DIR)).encode() + b"\0" + f.read_bytes() + b"\0")
+        name = f.relative_to(_PACKAGE_DIR) if f.is_relative_to(_PACKAGE_DIR) else f  # e.g. a benchmark's kernel
+        h.update(str(name).encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()
 
 
