@@ -43,6 +43,7 @@ import workloads  # noqa: E402
 from bench_allocation import bench_allocation  # noqa: E402
 from bench_controller import bench_controller_step  # noqa: E402
 from bench_sim import bench_sim_step  # noqa: E402
+from bench_startup import measure_cli_help, measure_first_run_compile  # noqa: E402
 from omnirotor.vehicle import load_vehicle  # noqa: E402
 
 SCHEMA = "omnirotor-bench/1"
@@ -57,6 +58,8 @@ GOALS = {
     "closed_loop_rtf_ukf": ("closed loop, sliding task, UKF", 20.0, "min", "× real time"),
     "closed_loop_rtf_fast": ("closed loop, sliding task, bypass estimator", 40.0, "min", "× real time"),
     "rtf_ratio_vs_rotorpy": ("quadrotor hover, RTF ours / RotorPy", 30.0, "min", "×"),
+    "cli_help_s": ("`omnirotor --help` and `omnirotor identify --help` (median, slower of the two)", 0.3, "max", "s"),
+    "first_run_compile_s": ("first run on a fresh machine: compilation (cold numba cache)", 60.0, "max", "s"),
 }
 
 
@@ -83,6 +86,8 @@ class Config:
         campaign_task_s: simulated seconds of each campaign task.
         campaign_workers: worker process counts.
         breakdown_mujoco_steps: periods of the timing of MuJoCo's step functions alone.
+        startup_repeats: runs of each CLI help command (``bench_startup.py``).
+        first_run_compile: measure the first run with a cold numba cache (compiles everything once).
     """
 
     name: str
@@ -103,6 +108,8 @@ class Config:
     campaign_task_s: float
     campaign_workers: tuple[int, ...]
     breakdown_mujoco_steps: int
+    startup_repeats: int
+    first_run_compile: bool
 
 
 CONFIGS = {
@@ -125,6 +132,8 @@ CONFIGS = {
         campaign_task_s=1.0,
         campaign_workers=(1, 2),
         breakdown_mujoco_steps=2000,
+        startup_repeats=9,
+        first_run_compile=True,
     ),
     "quick": Config(
         name="quick",
@@ -145,6 +154,8 @@ CONFIGS = {
         campaign_task_s=0.5,
         campaign_workers=(1, 2),
         breakdown_mujoco_steps=1000,
+        startup_repeats=5,
+        first_run_compile=True,
     ),
     "tiny": Config(
         name="tiny",
@@ -165,6 +176,8 @@ CONFIGS = {
         campaign_task_s=0.05,
         campaign_workers=(1, 2),
         breakdown_mujoco_steps=20,
+        startup_repeats=1,
+        first_run_compile=False,
     ),
 }
 
@@ -503,6 +516,15 @@ def collect(
     note("where a closed-loop step's time goes")
     out["breakdown"] = measure_breakdown(cfg, sliding)
 
+    note(f"start-up: CLI help ({cfg.startup_repeats} runs each)")
+    startup = measure_cli_help(cfg.startup_repeats)
+    if cfg.first_run_compile:
+        note("start-up: first run with a cold numba cache (compiles every kernel)")
+        startup.update(measure_first_run_compile())
+    out["cli_help_s"] = startup["cli_help_s"]
+    out["first_run_compile_s"] = startup.get("first_run_compile_s")
+    out["startup_detail"] = startup
+
     out["goals"] = evaluate_goals(out)
     out["machine"]["load_avg_1min_end"] = _load1()
     out["wall_s"] = time.perf_counter() - t_start
@@ -559,7 +581,7 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
     goals = [
         [
             g["label"],
-            f"{_f(g['value'])} {g['unit']}",
+            f"{_f(g['value'], 2 if g['value'] is not None and g['value'] < 10 else 1)} {g['unit']}",
             f"{'≤' if g.get('kind', 'max') == 'max' else '≥'} {g['target']:g} {g['unit']}",
             _goal_status(g),
         ]
@@ -768,6 +790,23 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
             ["estimator", "wall per step", "simulator step", "of which MuJoCo (alone)", "controller step", "rest"],
         )
     )
+    st = r.get("startup_detail")
+    if st:
+        srows = [
+            ["`omnirotor --help`", _f(st["help_s_median"], 3), f"median of {len(st['help_s'])} runs"],
+            ["`omnirotor identify --help`", _f(st["identify_help_s_median"], 3), f"median of {len(st['help_s'])} runs"],
+        ]
+        if st.get("first_run_compile_s") is not None:
+            srows.append(
+                [
+                    "first run, compilation (cold − warm)",
+                    _f(st["first_run_compile_s"]),
+                    f"`{st['workload']}`: cold {_f(st['cold_wall_s'])} s, warm {_f(st['warm_wall_s'])} s; "
+                    f"CPU time {_f(st.get('first_run_compile_cpu_s'))} s; "
+                    f"{st['compiled_specialisations']} cached specialisations",
+                ]
+            )
+        tables.append(("Start-up (new interpreter per run, this checkout's sources)", srows, ["", "wall [s]", ""]))
     return tables
 
 

@@ -19,7 +19,7 @@ from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
 from omnirotor.experiments.scenarios import sliding
 from omnirotor.sim import SimParams, Simulator
-from omnirotor.sim._kernels import mj_Euler, mj_forward
+from omnirotor.sim.step import mj_Euler, mj_forward
 from omnirotor.vehicle import load_vehicle
 
 SLIDING_SEED = 0

@@ -8,7 +8,7 @@ import pytest
 
 from omnirotor.cli import main
 from omnirotor.identification import HoverData, load_hover_data
-from omnirotor.sim import _kernels as sk
+from omnirotor.sim import step
 from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAero, make_aero
 from omnirotor.sim.aero_calibration import FIT_PARAMETERS, calibrate, fit_wake, model_forces
 from omnirotor.sim.params import AeroParams, load_sim_params
@@ -83,20 +83,20 @@ def test_default_truth_is_the_calibrated_wake_model_and_spec7_stays_by_name():
     assert isinstance(make_aero(V, AeroParams(model="interference")), InterferenceAero)
 
 
-def test_compiled_actuation_evaluates_the_wake_model():
+def test_compiled_step_evaluates_the_wake_model():
+    """The simulator's compiled aero dispatch (sim.step.aero_wrench, as the step wires it) gives the model's wrench."""
     aero = make_aero(V)
     rng = np.random.default_rng(3)
-    omega = np.zeros(8)
-    u = np.zeros(8)
-    cmd = np.sign(random_inputs(rng, 1)[0]) * rng.uniform(40, 200, 8)
-    qpos = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-    w_B, xfrc, ext = np.zeros(6), np.zeros(6), np.zeros(sk.EXT_SIZE)
-    rotor_par = np.array([-220.0, 220.0, 1.0, 0.0])  # alpha = 1: the speed reaches the command at once
+    u = random_inputs(rng, 1)[0]
     assert aero.kernel_kind == AERO_WAKE
-    sk.actuate(omega, u, cmd, rotor_par, aero.kernel_kind, aero.kernel_model, qpos, 0, w_B, ext, xfrc)
-    np.testing.assert_allclose(u, np.abs(cmd) * cmd)
+    model = np.ascontiguousarray(aero.kernel_model)
+    rec = np.zeros(1, step.AERO_DTYPE)
+    rec["kind"], rec["model"] = aero.kernel_kind, model.ctypes.data
+    rec["rows"], rec["cols"] = model.shape
+    w_B = np.zeros(6)
+    step.aero_wrench(rec[0], u, w_B)
     np.testing.assert_allclose(w_B, aero.wrench_B(u), rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(xfrc, w_B, rtol=1e-12, atol=1e-12)  # identity attitude
+    assert not np.allclose(w_B, V.A_nom @ u)  # not the nominal branch
 
 
 def test_stopped_rotors_make_no_force_and_reversal_changes_thrust():

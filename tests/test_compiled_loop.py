@@ -24,7 +24,7 @@ from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.experiments.closed_loop import run_closed_loop
-from omnirotor.experiments.faults import FaultInjector, MocapDropout, SensorCorruption
+from omnirotor.experiments.faults import MocapDropout, SensorCorruption, install_faults
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.so3 import rot_x
@@ -138,8 +138,8 @@ def test_compiled_controller_step_equals_the_python_step_on_corrupted_frames():
     runs = []
     for python_controller in (False, True):
         sim, ctl, traj = _setup("ukf", "piecewise")
-        plant = FaultInjector(sim, faults)
-        statuses, _, _ = _fly(sim, ctl, traj, 2.5, python_controller, plant=plant)
+        install_faults(sim, faults)
+        statuses, _, _ = _fly(sim, ctl, traj, 2.5, python_controller)
         runs.append((ctl.log.data[: ctl.log.n].copy(), statuses, ctl.estimator.rejected_inputs))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     np.testing.assert_array_equal(runs[0][1], runs[1][1])

@@ -1,4 +1,8 @@
-"""Faults between simulator and controller: each one is survived, flagged, and never reaches the motors."""
+"""Faults between simulator and controller: each one is survived, flagged, and never reaches the motors.
+
+The simulator's step applies the fault schedule, so runs with faults fly the compiled loop; one test checks
+that it gives bit for bit the run of the Python loop.
+"""
 
 import numpy as np
 import pytest
@@ -9,12 +13,12 @@ from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
 from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
 from omnirotor.experiments.faults import (
-    FaultInjector,
     MocapDropout,
     PlantPerturbation,
     RotorFailure,
     SensorCorruption,
     WindGust,
+    install_faults,
     plant_simulator,
     safety_stats,
     unreachable_reference,
@@ -33,11 +37,12 @@ EXCLUDED = int(ControlStatus.ROTOR_EXCLUDED)
 
 
 def fly(faults=(), estimator="bypass", duration=3.0, trajectory=None, tell=True, plant=None, seed=1):
-    """Hover (or fly ``trajectory``) in the free scene through a FaultInjector; returns the run's arrays."""
+    """Hover (or fly ``trajectory``) in the free scene with a fault schedule; returns the run's arrays."""
     params = TaskOptions(estimator=estimator).controller_params(AdmittanceParams.preset("free"))
     ctl = InteractionController(V, params)
     sim = plant_simulator(V, "free", SimParams(), seed, plant, ctl if tell else None)
-    sim = sim if isinstance(sim, FaultInjector) else FaultInjector(sim, faults, ctl if tell else None)
+    if plant is None:
+        install_faults(sim, faults, ctl if tell else None)
     p0, R0 = sim.default_start()
     traj = trajectory or PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)])
     clog, tlog = run_closed_loop(sim, ctl, traj, duration)
@@ -61,7 +66,7 @@ def assert_safe(run):
     w = run["omega"]
     assert np.all(np.isfinite(w))
     assert w.min() >= V.omega_min_hz and w.max() <= V.omega_max_hz
-    inj = run["sim"]
+    inj = run["sim"].faults
     assert inj.commands_nonfinite == 0 and inj.commands_out_of_limits == 0
     assert inj.commands_checked == w.shape[0]  # the hold command of the first period, then all but the last
     s = safety_stats(w, run["status"], V)
@@ -85,8 +90,7 @@ def test_injector_without_faults_flies_exactly_like_the_simulator(baseline):
     clog, tlog = run_closed_loop(sim, ctl, PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)]), 3.0)
     np.testing.assert_array_equal(tlog.group("p_W"), baseline["bypass"]["p_W"])
     np.testing.assert_array_equal(clog.group("omega_cmd_hz"), baseline["bypass"]["omega"])
-    inj = baseline["bypass"]["sim"]
-    assert inj.scene is inj.sim.scene and inj.model is inj.sim.model and inj.events == []  # forwarded
+    assert baseline["bypass"]["sim"].faults.events == []
     assert_safe(baseline["bypass"])
 
 
@@ -102,7 +106,7 @@ def test_mocap_dropout_flies_on_the_imu_flags_degraded_and_recovers(baseline):
     # the IMU alone carried it through: the hover stays where the undisturbed one is
     drift = np.abs(hover_error(run) - hover_error(baseline["ukf"]))
     assert drift.max() < 0.01
-    assert [e for _, e in run["sim"].events] == ["motion-capture dropout starts", "motion-capture dropout ends"]
+    assert [e for _, e in run["sim"].faults.events] == ["motion-capture dropout starts", "motion-capture dropout ends"]
     assert_safe(run)
 
 
@@ -130,7 +134,7 @@ def test_rotor_failure_told_to_the_controller_keeps_the_hover(baseline):
     base = hover_error(baseline["bypass"])
     n = min(base.size, t.size)
     assert np.max(np.abs(hover_error(run)[:n] - base[:n])[after[:n]]) < 0.010
-    assert "controller told rotor 3 failed" in [e for _, e in run["sim"].events]
+    assert "controller told rotor 3 failed" in [e for _, e in run["sim"].faults.events]
     assert_safe(run)
 
 
@@ -212,7 +216,7 @@ def test_wind_gust_is_estimated_and_rejected(baseline):
     dx = run["p_W"][:, 0] - run["p0"][0]
     assert dx[during].max() > 0.01
     assert abs(dx[-1] - (baseline["bypass"]["p_W"][-1, 0] - run["p0"][0])) < 0.005
-    assert [e for _, e in run["sim"].events] == ["wind gust starts", "wind gust ends"]
+    assert [e for _, e in run["sim"].faults.events] == ["wind gust starts", "wind gust ends"]
 
 
 def test_heavier_plant_than_believed_shows_as_an_external_force(baseline):
@@ -254,7 +258,7 @@ def test_faults_through_experiment_options_reach_a_task_run():
         (lambda: WindGust(1.0, 1.0, (1.0, 0.0)), "3 components"),
         (lambda: PlantPerturbation(mass_scale=0.0), "mass_scale"),
         (lambda: PlantPerturbation(faults=("boom",)), "not a fault"),
-        (lambda: FaultInjector(Simulator(V), [RotorFailure(9, 1.0)]), "the vehicle has 8 rotors"),
+        (lambda: install_faults(Simulator(V), [RotorFailure(9, 1.0)]), "the vehicle has 8 rotors"),
         (lambda: PlantPerturbation(inertia_scale=(1.0, 1.0, 5.0)).vehicle(V), "triangle inequality"),
         (lambda: unreachable_reference(np.zeros(3), np.eye(3), "teleport"), "jump' or 'flip"),
     ],
@@ -263,3 +267,39 @@ def test_bad_fault_definitions_are_input_errors(make, needle):
     with pytest.raises(InputError, match=None) as exc:
         make()
     assert needle in str(exc.value)
+
+
+def test_faults_fly_the_compiled_loop_and_equal_the_python_loop(monkeypatch):
+    import omnirotor.experiments._loop as loop
+
+    calls = []
+    compiled = loop.run_steps
+    monkeypatch.setattr(loop, "run_steps", lambda *a: calls.append(1) or compiled(*a))
+    faults = [
+        SensorCorruption("imu_gyro", 0.5, 0.004),
+        SensorCorruption("mocap", 0.7, 0.05, "spike", 0.05, component=1),
+        SensorCorruption("rotor_hz", 1.1, 0.003, "inf", component=2),
+        SensorCorruption("state", 1.2, 0.01, "spike", 0.02),
+        MocapDropout(1.5, 0.3, drop_state=True),
+        RotorFailure(3, 1.0, detect_delay_s=0.05),
+        WindGust(2.0, 0.5, (3.0, 0.0, -1.0), (0.0, 0.1, 0.0)),
+    ]
+    runs = []
+    for hook in (None, lambda sim, t: None):  # a no-op hook makes run_closed_loop take its Python loop
+        n_calls = len(calls)
+        params = TaskOptions(estimator="bypass").controller_params(AdmittanceParams.preset("free"))
+        ctl = InteractionController(V, params)
+        sim = install_faults(Simulator(V, "free", seed=1), faults, ctl)
+        p0, R0 = sim.default_start()
+        traj = PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)])
+        clog, tlog = run_closed_loop(sim, ctl, traj, 2.6, on_step=hook)
+        runs.append((clog.data[: clog.n].copy(), tlog.data[: tlog.n, :-2].copy(), sim.faults.events))
+        assert (len(calls) > n_calls) == (hook is None)
+        f = sim.faults
+        assert f.commands_checked == clog.n and f.commands_nonfinite == f.commands_out_of_limits == 0
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    assert runs[0][2] == runs[1][2]
+    text = [e for _, e in runs[0][2]]
+    assert "rotor 3 fails" in text and "controller told rotor 3 failed" in text
+    assert text.count("wind gust starts") == 1 and "motion-capture dropout ends" in text

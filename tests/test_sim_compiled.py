@@ -1,9 +1,10 @@
-"""The simulator's compiled step (``sim._kernels.sim_step``, MuJoCo called from compiled code) and its parts.
+"""The simulator's compiled step (``sim.step.sim_step``, MuJoCo called from compiled code) and its parts.
 
 * the whole compiled step gives bit for bit the frames and truth rows of the same step run from Python
   (``mj_Euler`` / ``mj_forward`` through the bindings, the rotor and truth models' own methods);
 * the truth row's contact wrench, from MuJoCo's contact sensors, equals the sum over the contacts by
-  ``mj_contactForce`` (the :class:`GroundTruth` record) with several EE contacts on both EE geoms at once;
+  ``mj_contactForce`` (an oracle written here) with several EE contacts on both EE geoms at once, and the
+  :class:`GroundTruth` record gives the same;
 * the packed frame round-trips through :class:`SensorFrame`;
 * the compiled clock agrees with ``time.perf_counter_ns``.
 """
@@ -45,7 +46,7 @@ def test_compiled_step_equals_the_step_run_from_python():
     fused = Simulator(V, "wall", seed=4)
     plain = Simulator(V, "wall", seed=4)
     plain._fused_aero = None  # no kernel for this truth model as far as step() knows: the Python path
-    assert fused.kernel_args is not None and plain.kernel_args is None
+    assert fused.kernel_state is not None and plain.kernel_state is None
     for sim in (fused, plain):
         _pressed_on_wall(sim)
     rng = np.random.default_rng(0)
@@ -66,6 +67,28 @@ def test_compiled_step_equals_the_step_run_from_python():
     assert contact_steps > 100  # the comparison covered contact
 
 
+def _contact_wrench_by_contact_force(sim: Simulator, p_E_W: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Oracle: the environment's force on the EE geoms and its moment about ``p_E_W``, contact by contact."""
+    m, d = sim.model, sim.data
+    body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "vehicle")
+    ee = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (EE_TIP_GEOM, EE_ROD_GEOM)}
+    force, moment, touching = np.zeros(3), np.zeros(3), False
+    f6 = np.zeros(6)
+    for c in range(d.ncon):
+        g1, g2 = d.contact.geom1[c], d.contact.geom2[c]
+        r1, r2 = m.geom_bodyid[g1] == body, m.geom_bodyid[g2] == body
+        if r1 == r2 or (g1 if r1 else g2) not in ee:
+            continue
+        touching = True
+        mujoco.mj_contactForce(m, d, c, f6)  # on geom2, in the contact frame (rows of the frame)
+        F = d.contact.frame[c].reshape(3, 3)
+        sign = -1.0 if r1 else 1.0
+        f_W = sign * (F.T @ f6[:3])
+        force += f_W
+        moment += sign * (F.T @ f6[3:]) + np.cross(d.contact.pos[c] - p_E_W, f_W)
+    return force, moment, touching
+
+
 def test_contact_sensors_give_the_summed_contact_wrench_with_several_contacts():
     sim = Simulator(V, "wall", SimParams(), seed=2)
     _pressed_on_wall(sim)
@@ -77,13 +100,16 @@ def test_contact_sensors_give_the_summed_contact_wrench_with_several_contacts():
     for _ in range(60):
         sim.step(cmd)
         sim.truth_row(row)
-        tr = sim.truth  # summed contact by contact with mj_contactForce
+        tr = sim.truth
+        f, mo, touching = _contact_wrench_by_contact_force(sim, tr.p_E_W)
         geoms = [g for c in range(d.ncon) for g in (d.contact.geom1[c], d.contact.geom2[c]) if g in ee]
         most = max(most, len(geoms))
         both |= len(set(geoms)) == 2
-        np.testing.assert_allclose(row[22:25], tr.contact_force_W, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(row[25:28], tr.contact_moment_W, rtol=1e-12, atol=1e-12)
-        assert (row[28] == 1.0) == tr.in_contact
+        np.testing.assert_allclose(row[22:25], f, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(row[25:28], mo, rtol=1e-12, atol=1e-12)
+        assert (row[28] == 1.0) == touching == tr.in_contact
+        np.testing.assert_array_equal(tr.contact_force_W, row[22:25])
+        np.testing.assert_array_equal(tr.contact_moment_W, row[25:28])
     assert most >= 2 and both  # several EE contacts at once, on the tip and on the rod
     assert np.linalg.norm(tr.contact_force_W) > 1.0
 

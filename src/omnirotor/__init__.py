@@ -7,8 +7,21 @@ controller (:mod:`omnirotor.control`), a MuJoCo simulator standing in for the ro
 and the paper's experiments.
 """
 
+from typing import TYPE_CHECKING
+
 from omnirotor.errors import InputError, OmnirotorError
-from omnirotor.vehicle import VehicleParams, load_vehicle
+
+if TYPE_CHECKING:
+    from omnirotor.vehicle import VehicleParams, load_vehicle
 
 __all__ = ["InputError", "OmnirotorError", "VehicleParams", "load_vehicle", "__version__"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """Import :mod:`omnirotor.vehicle` (NumPy, SciPy) on first use, so ``omnirotor --help`` starts fast."""
+    if name in ("VehicleParams", "load_vehicle"):
+        from omnirotor import vehicle
+
+        return getattr(vehicle, name)
+    raise AttributeError(f"module 'omnirotor' has no attribute {name!r}")

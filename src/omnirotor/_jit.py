@@ -8,6 +8,13 @@ it never raises inside the loop). Kernels are compiled lazily, on their first ca
 
 Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, coverage).
 
+No stale machine code: numba's own cache checks a kernel only against its own file (time stamp and size), so
+after an edit of a helper in *another* module a cached dependent kernel would still run the old helper (whose
+code is compiled into it). The cache of every kernel here (:class:`DependencyCache`) therefore also keys its
+entries on a hash of the sources the kernel's module depends on: its file and, transitively, every module of
+the package it imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile
+again on its next use; an edit elsewhere (the CLI, the experiments) keeps the cache.
+
 The few SO(3) helpers both kernel modules need live here, as the simulator and the controller must not
 import each other. They follow the conventions of :mod:`omnirotor.so3` (quaternions wxyz, Hamilton).
 
@@ -20,27 +27,107 @@ library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (t
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+import re
+from pathlib import Path
 
 import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
+from numba.core.caching import FunctionCache
+from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic
 
 __all__ = [
     "jit",
+    "DependencyCache",
+    "source_closure",
     "R9_from_quat_into",
     "mujoco_function",
     "monotonic_ns",
     "address_table",
     "f64_view",
     "f64_view2",
+    "f64_at",
+    "f64_at2",
     "i64_view",
 ]
 
-jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
-"""The decorator of every kernel (see the module docstring)."""
+_PACKAGE_DIR = Path(__file__).resolve().parent
+_PACKAGE = __name__.split(".")[0]
+_IMPORT_RE = re.compile(
+    rf"^[ \t]*(?:from[ \t]+({_PACKAGE}(?:\.\w+)*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]*)"
+    rf"|import[ \t]+({_PACKAGE}(?:\.\w+)*))",
+    re.M,
+)
+
+
+def _module_file(module: str) -> Path | None:
+    """The source file of a module of this package (``None`` if it is not one)."""
+    parts = module.split(".")
+    if parts[0] != _PACKAGE:
+        return None
+    base = _PACKAGE_DIR.joinpath(*parts[1:])
+    for f in (base.with_suffix(".py"), base / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+@functools.cache
+def source_closure(path: str) -> tuple[Path, ...]:
+    """The package's source files a module depends on: ``path`` and every package module it imports, transitively.
+
+    Imports are read from the text (``import omnirotor.x``, ``from omnirotor.x import a, b``, where ``a`` may
+    be a module too), at any indentation, so imports inside functions count as well.
+    """
+    start = Path(path).resolve()
+    if not start.is_file():  # a kernel defined in a string or at a prompt: numba's own key (its bytecode) only
+        return ()
+    todo, seen = [start], set()
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.add(f)
+        for m in _IMPORT_RE.finditer(f.read_text()):
+            module = m.group(1) or m.group(3)
+            names = [n.split(" as ")[0].strip() for n in (m.group(2) or "").strip("()").split(",")]
+            for cand in [module] + [f"{module}.{n}" for n in names if n.isidentifier()]:
+                dep = _module_file(cand)
+                if dep is not None and dep not in seen:
+                    todo.append(dep)
+    return tuple(sorted(seen))
+
+
+@functools.cache
+def _closure_hash(path: str) -> str:
+    h = hashlib.sha256()
+    for f in source_closure(path):
+        name = f.relative_to(_PACKAGE_DIR) if f.is_relative_to(_PACKAGE_DIR) else f  # e.g. a benchmark's kernel
+        h.update(str(name).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+class DependencyCache(FunctionCache):
+    """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key."""
+
+    def _index_key(self, sig, codegen):
+        sig_key, magic, hashes = super()._index_key(sig, codegen)
+        return sig_key, magic, (*hashes, _closure_hash(self._py_func.__code__.co_filename))
+
+
+_njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+
+def jit(fn):
+    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
+    d = _njit(fn)
+    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d._cache = DependencyCache(d.py_func)
+    return d
 
 
 @functools.cache
@@ -104,7 +191,7 @@ def monotonic_ns(ts) -> int:
 def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
     """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
 
-    Same arithmetic as :func:`omnirotor.sim.sensors.R9_from_quat`.
+    The entries of :func:`omnirotor.so3.R_from_quat_wxyz`, as scalars.
     """
     xx, yy, zz = qx * qx, qy * qy, qz * qz
     xy, xz, yz = qx * qy, qx * qz, qy * qz
@@ -182,6 +269,18 @@ def f64_view2(table, i: int):
 
 
 @jit
+def f64_at(address: int, n: int):
+    """The 1-D float64 array of ``n`` entries at ``address`` (the caller keeps the memory alive)."""
+    return numba.carray(_f64_pointer(address), (n,))
+
+
+@jit
+def f64_at2(address: int, rows: int, cols: int):
+    """The C-ordered ``(rows, cols)`` float64 array at ``address`` (the caller keeps the memory alive)."""
+    return numba.carray(_f64_pointer(address), (rows, cols))
+
+
+@jit
 def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
@@ -210,6 +309,14 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_view2(table, i: int):  # noqa: F811
         """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
         return _view(table, i, ctypes.c_double, True)
+
+    def f64_at(address: int, n: int):  # noqa: F811
+        """The 1-D float64 array of ``n`` entries at ``address``."""
+        return np.ctypeslib.as_array((ctypes.c_double * int(n)).from_address(int(address)))
+
+    def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
+        """The C-ordered ``(rows, cols)`` float64 array at ``address``."""
+        return f64_at(address, int(rows) * int(cols)).reshape(int(rows), int(cols))
 
     def i64_view(table, i: int):  # noqa: F811
         """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""

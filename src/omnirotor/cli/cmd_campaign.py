@@ -12,9 +12,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
@@ -43,6 +40,16 @@ def campaign(
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON object.")] = False,
 ) -> None:
     """Run N randomised, seeded runs of a task; save each result as it arrives; summarise and plot."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
     from omnirotor.experiments.campaign import BACKENDS, load_campaign, run_campaign
 
     if runs is not None and runs < 1:
@@ -100,6 +107,9 @@ def campaign(
 
 
 def _print_summary(s: dict, out: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
     con = Console()
     rate = s["success_rate"]
     ci = s["success_rate_ci95"]

@@ -5,21 +5,20 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.table import Table
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
-from omnirotor.identification import DEFAULT_WEIGHTS, IdentificationParams, identify, load_hover_data
-from omnirotor.regions import load_partition
-from omnirotor.vehicle import load_vehicle
-from omnirotor.wrench_maps import WrenchMapSet
+
+if TYPE_CHECKING:
+    from omnirotor.wrench_maps import WrenchMapSet
 
 
 def _weights(text: str | None) -> tuple[float, ...]:
+    from omnirotor.identification import DEFAULT_WEIGHTS
+
     if text is None:
         return DEFAULT_WEIGHTS
     try:
@@ -68,6 +67,13 @@ def identify_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Identify per-region and global wrench maps from hover data (box-constrained weighted QP)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from omnirotor.identification import IdentificationParams, identify, load_hover_data
+    from omnirotor.regions import load_partition
+    from omnirotor.vehicle import load_vehicle
+
     try:
         delta_value = float(delta)
     except ValueError:

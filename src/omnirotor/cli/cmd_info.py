@@ -5,17 +5,17 @@ from __future__ import annotations
 import json
 from typing import Annotated
 
-import numpy as np
 import typer
-from rich.console import Console
-from rich.table import Table
 
 from omnirotor.cli import app
-from omnirotor.vehicle import force_envelope, load_vehicle
 
 
 def vehicle_report(spec: str, n_directions: int = 400) -> dict:
     """Properties of a vehicle's nominal wrench map, as plain data (the JSON of ``omnirotor info``)."""
+    import numpy as np
+
+    from omnirotor.vehicle import force_envelope, load_vehicle
+
     v = load_vehicle(spec)
     A = v.A_nom
     sv = np.linalg.svd(A, compute_uv=False)
@@ -48,6 +48,9 @@ def info(
     directions: Annotated[int, typer.Option(min=20, max=20000, help="Directions sampled for the envelope.")] = 400,
 ) -> None:
     """Show the wrench map of a vehicle: rank, condition number, hover speeds, force envelope."""
+    from rich.console import Console
+    from rich.table import Table
+
     rep = vehicle_report(vehicle, directions)
     if as_json:
         print(json.dumps(rep, indent=1))

@@ -5,13 +5,15 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def write_png_atomic(path: str | Path, image: np.ndarray) -> Path:

@@ -6,8 +6,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
@@ -24,6 +22,9 @@ def reproduce(
     workers: Annotated[int | None, typer.Option(min=1, max=64, help="Processes for the independent runs.")] = None,
 ) -> None:
     """Identification flights, identification, hover validation, point contact, sliding, peg-in-hole; report."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     from omnirotor.experiments.reproduce import claims
     from omnirotor.experiments.reproduce import reproduce as run_all
 

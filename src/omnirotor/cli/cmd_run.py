@@ -12,9 +12,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
@@ -53,6 +50,9 @@ def run(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fly TASK in the simulator with the interaction controller; print its metrics."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
     from omnirotor.experiments.closed_loop import TASKS, discover_tasks, run_task
     from omnirotor.experiments.tasks import ExperimentOptions
 
@@ -113,6 +113,9 @@ def run(
 
 
 def _print_table(task: str, rep: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
     con = Console()
     table = Table(title=f"{task}: {rep['duration_s']:.1f} s simulated, {rep.get('map', 'nominal')} map")
     table.add_column("EE error")

@@ -2,7 +2,7 @@
 
 :func:`run_steps` is the fast path of :func:`omnirotor.experiments.closed_loop.run_closed_loop`. Each step is
 exactly what the Python loop does, through the same kernels: the simulator's step
-(:func:`omnirotor.sim._kernels.sim_step`, which calls MuJoCo's C step functions) writes the packed sensor frame
+(:func:`omnirotor.sim.step.sim_step`, which calls MuJoCo's C step functions) writes the packed sensor frame
 (:mod:`omnirotor.messages`) and the truth row; the controller's step
 (:func:`omnirotor.control._step_kernels.controller_step`) reads that frame and writes its command, which the
 next simulator step reads. The two sides meet only through the packed frame and the command array, as their
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from omnirotor._jit import jit, monotonic_ns
 from omnirotor.control._step_kernels import controller_step
-from omnirotor.sim import _kernels as _sk
-from omnirotor.sim.sensors import BLOCK
+from omnirotor.sim.sensors import needs_refill
+from omnirotor.sim.step import sim_step
 
 __all__ = ["run_steps"]
 
@@ -27,11 +27,11 @@ _NS_PER_US = 1e3
 
 
 @jit
-def run_steps(sim_args, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
+def run_steps(sim, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
     """Steps ``k, k+1, ...`` of a closed-loop run, up to ``stop`` or the end of a noise block.
 
     Args:
-        sim_args: :attr:`omnirotor.sim.simulator.Simulator.kernel_args`.
+        sim: :attr:`omnirotor.sim.simulator.Simulator.kernel_state` (the simulator's record).
         ctl_args: :attr:`omnirotor.control.controller.InteractionController.kernel_args`.
         cmd_hz: (n,) the controller's command array [Hz] (the simulator's input; the controller writes it).
         frame: the simulator's packed frame.
@@ -47,16 +47,14 @@ def run_steps(sim_args, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int,
     Returns:
         The next step to run (== ``stop`` when done).
     """
-    imu_pos, rot_pos, st_pos, mc_pos = sim_args[4][1], sim_args[4][3], sim_args[4][5], sim_args[4][7]
-    noisy = sim_args[1][_sk.SI_STATE_MODE] == _sk.STATE_NOISY
-    mjv, si, act, imu_par, noise, moc, sens_adr = sim_args
+    sensors = sim[0]["sensors"]
     timing = truth.shape[1] - 1
     while k < stop:
-        if imu_pos[0] >= BLOCK or rot_pos[0] >= BLOCK or mc_pos[0] >= BLOCK or (noisy and st_pos[0] >= BLOCK):
+        if needs_refill(sensors):
             break
         row = truth[k]
         tic0 = monotonic_ns(ts)
-        _sk.sim_step(mjv, si, act, cmd_hz, imu_par, noise, moc, sens_adr, k_sim0 + k, dt, frame, row)
+        sim_step(sim, cmd_hz, k_sim0 + k, dt, frame, row)
         tic = monotonic_ns(ts)
         controller_step(ctl_args, frame, log[k])
         toc = monotonic_ns(ts)

@@ -142,7 +142,7 @@ def run_closed_loop(
     truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
     every = max(1, n_steps // _PROGRESS_UPDATES)
     if video is None and on_step is None and isinstance(sim, Simulator):
-        sim_args, ctl_args = sim.kernel_args, controller.kernel_args
+        sim_args, ctl_args = sim.kernel_state, controller.kernel_args
         if sim_args is not None and ctl_args is not None:
             _run_compiled(sim, controller, sim_args, ctl_args, truth_log, n_steps, every, progress)
             return controller.log, truth_log
@@ -174,7 +174,7 @@ def run_closed_loop(
 def _run_compiled(
     sim: Simulator,
     controller: InteractionController,
-    sim_args: tuple,
+    sim_args: np.ndarray,
     ctl_args: tuple,
     truth_log: Recorder,
     n_steps: int,
@@ -190,12 +190,15 @@ def _run_compiled(
     ts = np.zeros(2, dtype=np.int64)  # the compiled clock's scratch
     k0_sim = sim.step_index
     k = 0
+    notices = [j - k0_sim for j in sim.faults.notice_steps(sim.dt) if j >= k0_sim]  # the controller is told there
     try:
         while k < n_steps:
             for stream in sim.noise_streams:
                 if stream.exhausted:
                     stream.refill()
+            sim.faults.tell_due(k0_sim + k, sim.dt)
             stop = n_steps if progress is None else min(n_steps, (k // every + 1) * every)
+            stop = min([stop] + [j for j in notices if j > k])
             k = run_steps(sim_args, ctl_args, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, log.data, ts)
             if progress is not None and k % every == 0:
                 progress(k / n_steps)

@@ -6,11 +6,10 @@ Two things make a simulated run differ from what the controller and the referenc
   inertia differ from the controller's (``mass_scale``, ``inertia_scale``), in a scene moved by
   ``scene_offset_W`` from where the reference trajectory was planned, with simulator overrides (truth
   aerodynamics, sensors, friction, ...) that only the plant sees, and a schedule of faults.
-* Faults, timed events applied by a :class:`FaultInjector`, a wrapper that sits between the simulator and the
-  controller and edits the :class:`~omnirotor.messages.SensorFrame` and
-  :class:`~omnirotor.messages.RotorCommand` they exchange. It looks like a :class:`~omnirotor.sim.Simulator`
-  to :func:`~omnirotor.experiments.closed_loop.run_closed_loop` (same ``reset``, ``step``, ``truth``,
-  ``dt``, ``t``; everything else is forwarded to the wrapped simulator).
+* Faults, timed events the simulator's step applies at the plant boundary (:mod:`omnirotor.sim.faults`, its
+  fault schedule, filled by :func:`install_faults`): they edit the command the rotors get, the external
+  wrench, and the frame the controller reads, inside the compiled step, so a run with faults takes the same
+  compiled loop as one without.
 
 Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s)``):
 
@@ -30,10 +29,10 @@ Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s
 * :class:`SensorCorruption`: NaN, inf, or an added spike in one signal of the frame (accelerometer,
   gyroscope, rotor speeds, motion capture, bypass state) over a window.
 * :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"
-  profile, applied through :meth:`~omnirotor.sim.Simulator.set_external_wrench` (the gust owns the external
-  wrench while it blows and clears it after).
+  profile, applied as the simulator's external wrench (the gust owns the external wrench while it blows and
+  clears it after).
 
-The injector also checks every command the controller sends (``commands_nonfinite``,
+The schedule also checks every command the controller sends (``sim.faults.commands_nonfinite``,
 ``commands_out_of_limits``): the project's rule is that nothing non-finite, nor beyond the rotor limits,
 reaches the motors. :func:`safety_stats` gives the same verdict, and the count of each status flag, from
 a controller log.
@@ -53,8 +52,9 @@ import numpy as np
 from omnirotor.config import apply_overrides, check_finite, check_positive
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame
+from omnirotor.messages import ControlStatus
 from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim.faults import CORRUPTIONS, PROFILES, SIGNALS
 from omnirotor.so3 import rot_x
 from omnirotor.vehicle import VehicleParams
 
@@ -65,7 +65,7 @@ __all__ = [
     "WindGust",
     "Fault",
     "PlantPerturbation",
-    "FaultInjector",
+    "install_faults",
     "plant_simulator",
     "safety_stats",
     "unreachable_reference",
@@ -74,10 +74,10 @@ __all__ = [
     "GUST_PROFILES",
 ]
 
-CORRUPTIBLE_SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state")
+CORRUPTIBLE_SIGNALS = SIGNALS
 """Signals of a :class:`~omnirotor.messages.SensorFrame` a :class:`SensorCorruption` can hit."""
-CORRUPTION_KINDS = ("nan", "inf", "spike")
-GUST_PROFILES = ("1-cos", "step")
+CORRUPTION_KINDS = CORRUPTIONS
+GUST_PROFILES = PROFILES
 _SCENE_POINTS = ("wall_point", "tilted_wall_point", "pipe_centre", "hole_entrance", "free_start")
 """The scene anchors moved by :attr:`PlantPerturbation.scene_offset_W`."""
 
@@ -194,13 +194,6 @@ class WindGust:
         if self.profile not in GUST_PROFILES:
             raise InputError(f"wind_gust.profile must be one of {', '.join(GUST_PROFILES)}")
 
-    def scale(self, t: float) -> float:
-        """Fraction of the peak at time ``t`` [s] (0 outside the window)."""
-        tau = (t - self.t_start_s) / self.duration_s
-        if not 0.0 <= tau < 1.0:
-            return 0.0
-        return 1.0 if self.profile == "step" else 0.5 * (1.0 - math.cos(2.0 * math.pi * tau))
-
 
 Fault = MocapDropout | RotorFailure | SensorCorruption | WindGust
 _FAULT_TYPES = (MocapDropout, RotorFailure, SensorCorruption, WindGust)
@@ -264,207 +257,44 @@ class PlantPerturbation:
         return apply_overrides(params, list(self.sim_overrides))
 
 
-class FaultInjector:
-    """A :class:`~omnirotor.sim.Simulator` with a fault schedule between it and the controller.
+def install_faults(sim: Simulator, faults: Sequence[Fault] = (), controller=None) -> Simulator:
+    """Load a fault schedule into ``sim`` (its step applies it; module docstring); returns ``sim``.
 
     Args:
-        sim: the simulator (the plant).
+        sim: the simulator (the plant); its schedule (``sim.faults``) must be empty.
         faults: the schedule.
         controller: the controller to tell about rotor failures (anything with ``set_failed_rotors``);
             None: nobody is told.
 
-    Attributes:
-        sim: the wrapped simulator.
-        faults: the schedule.
-        events: ``(t [s], description)`` of each fault's onset and end, in order (for reports).
-        commands_checked: commands received since the last reset.
-        commands_nonfinite: of those, commands with a non-finite speed.
-        commands_out_of_limits: of those, commands with a speed beyond the vehicle's limits.
-
     Raises:
-        InputError: a fault names a rotor the vehicle does not have, or a controller is needed but has
-            no ``set_failed_rotors``.
+        InputError: not a fault, a fault naming a rotor the vehicle does not have, a controller needed but
+            without ``set_failed_rotors``, or a simulator with a schedule already.
     """
-
-    def __init__(self, sim: Simulator, faults: Sequence[Fault] = (), controller=None) -> None:
-        self.sim = sim
-        self.faults = tuple(faults)
-        self.controller = controller
-        n = sim.vehicle.n_rotors
-        for f in self.faults:
-            if not isinstance(f, _FAULT_TYPES):
-                raise InputError(f"not a fault: {f!r}")
-            if isinstance(f, RotorFailure):
-                if f.rotor > n:
-                    raise InputError(f"rotor_failure.rotor {f.rotor}: the vehicle has {n} rotors")
-                if f.tell_controller and controller is not None and not hasattr(controller, "set_failed_rotors"):
-                    raise InputError("rotor_failure.tell_controller needs a controller with set_failed_rotors")
-        self._failures = [f for f in self.faults if isinstance(f, RotorFailure)]
-        self._dropouts = [f for f in self.faults if isinstance(f, MocapDropout)]
-        self._corruptions = [f for f in self.faults if isinstance(f, SensorCorruption)]
-        self._gusts = [f for f in self.faults if isinstance(f, WindGust)]
-        self._frame_faults = bool(self._dropouts or self._corruptions)
-        self._lo = float(sim.vehicle.omega_min_hz)
-        self._hi = float(sim.vehicle.omega_max_hz)
-        self._failed = np.zeros(n, dtype=bool)
-        self._omega = np.zeros(n)
-        self._failed_on: list[bool] = []
-        self._told: list[bool] = []
-        self._gust_on = False
-        self._drop_on = [False] * len(self._dropouts)
-        self._corr_on = [False] * len(self._corruptions)
-        self.events: list[tuple[float, str]] = []
-        self.commands_checked = 0
-        self.commands_nonfinite = 0
-        self.commands_out_of_limits = 0
-
-    # -- the Simulator interface ---------------------------------------------------------------------------
-
-    def __getattr__(self, name: str):
-        # Only called for attributes not found on the injector: vehicle, params, scene, model, data, ...
-        if name == "sim":
-            raise AttributeError(name)
-        return getattr(self.sim, name)
-
-    @property
-    def dt(self) -> float:
-        """Control period [s]."""
-        return self.sim.dt
-
-    @property
-    def t(self) -> float:
-        """Simulation time [s]."""
-        return self.sim.t
-
-    @property
-    def truth(self):
-        """The wrapped simulator's ground truth (unaffected by the faults, except through the physics)."""
-        return self.sim.truth
-
-    def reset(self, *args, **kwargs) -> SensorFrame:
-        """Reset the simulator (same arguments as :meth:`Simulator.reset`) and the schedule."""
-        frame = self.sim.reset(*args, **kwargs)
-        self._failed[:] = False
-        self._failed_on = [False] * len(self._failures)
-        self._told = [False] * len(self._failures)
-        self._gust_on = False
-        self._drop_on = [False] * len(self._dropouts)
-        self._corr_on = [False] * len(self._corruptions)
-        self.events = []
-        self.commands_checked = self.commands_nonfinite = self.commands_out_of_limits = 0
-        if self.controller is not None and any(f.tell_controller for f in self._failures):
-            self.controller.set_failed_rotors(None)
-        return self._edit_frame(frame) if self._frame_faults else frame
-
-    def step(self, cmd: RotorCommand) -> SensorFrame:
-        """Check ``cmd``, apply the faults due at the current time, step the plant, edit its frame."""
-        t = self.sim.t
-        omega = cmd.omega_hz
-        self.commands_checked += 1
-        lo, hi = omega.min(), omega.max()
-        if not (lo >= self._lo and hi <= self._hi):  # also catches NaN
-            if not np.all(np.isfinite(omega)):
-                self.commands_nonfinite += 1
-            else:
-                self.commands_out_of_limits += 1
-        if self._failures:
-            cmd = self._apply_failures(t, cmd)
-        if self._gusts:
-            self._apply_gusts(t)
-        frame = self.sim.step(cmd)
-        return self._edit_frame(frame) if self._frame_faults else frame
-
-    # -- faults --------------------------------------------------------------------------------------------
-
-    def _apply_failures(self, t: float, cmd: RotorCommand) -> RotorCommand:
-        for i, f in enumerate(self._failures):
-            if t + 1e-12 < f.t_start_s:
-                continue
-            if not self._failed_on[i]:
-                self._failed_on[i] = True
-                self._failed[f.rotor - 1] = True
-                self.events.append((t, f"rotor {f.rotor} fails"))
-            if f.tell_controller and not self._told[i] and t + 1e-12 >= f.t_start_s + f.detect_delay_s:
-                self._told[i] = True
-                if self.controller is not None:
-                    self.controller.set_failed_rotors(self._failed.copy())
-                    self.events.append((t, f"controller told rotor {f.rotor} failed"))
-        if not self._failed.any():
-            return cmd
-        np.copyto(self._omega, cmd.omega_hz)
-        self._omega[self._failed] = 0.0
-        return RotorCommand(cmd.t, self._omega.copy(), cmd.status)
-
-    def _apply_gusts(self, t: float) -> None:
-        f = [0.0, 0.0, 0.0]
-        m = [0.0, 0.0, 0.0]
-        on = False
-        for g in self._gusts:
-            s = g.scale(t)
-            if s > 0.0:
-                on = True
-                for k in range(3):
-                    f[k] += s * g.force_W[k]
-                    m[k] += s * g.moment_W[k]
-        if on or self._gust_on:
-            self.sim.set_external_wrench(np.array(f), np.array(m), at="com")
-        if on != self._gust_on:
-            self.events.append((t, "wind gust starts" if on else "wind gust ends"))
-        self._gust_on = on
-
-    def _edit_frame(self, frame: SensorFrame) -> SensorFrame:
-        t = frame.t
-        changes: dict = {}
-        for i, d in enumerate(self._dropouts):
-            t1 = d.t_start_s + d.duration_s
-            active = d.t_start_s <= t < t1
-            if active != self._drop_on[i]:
-                self._drop_on[i] = active
-                self.events.append((t, "motion-capture dropout " + ("starts" if active else "ends")))
-            taken_in = frame.mocap_new and d.t_start_s <= frame.mocap_t < t1
-            if active or taken_in:
-                changes.update(mocap_new=False, mocap_t=0.0, mocap_p_W=None, mocap_q_WB=None)
-                if d.drop_state and active:
-                    changes["state"] = None
-        for i, c in enumerate(self._corruptions):
-            active = c.t_start_s <= t < c.t_start_s + c.duration_s
-            if active != self._corr_on[i]:
-                self._corr_on[i] = active
-                self.events.append((t, f"{c.kind} on {c.signal} " + ("starts" if active else "ends")))
-            if active:
-                self._corrupt(frame, c, changes)
-        return dataclasses.replace(frame, **changes) if changes else frame
-
-    @staticmethod
-    def _bad(values: np.ndarray, c: SensorCorruption) -> np.ndarray:
-        out = np.array(values, dtype=float)
-        idx = slice(None) if c.component is None else c.component
-        if c.component is not None and c.component >= out.size:
-            return out
-        if c.kind == "nan":
-            out[idx] = math.nan
-        elif c.kind == "inf":
-            out[idx] = math.inf
+    schedule = sim.faults
+    if schedule.state[0]["n_faults"]:
+        raise InputError("install_faults: the simulator has a fault schedule already")
+    n = sim.vehicle.n_rotors
+    for f in faults:
+        if not isinstance(f, _FAULT_TYPES):
+            raise InputError(f"not a fault: {f!r}")
+        if isinstance(f, RotorFailure):
+            if f.rotor > n:
+                raise InputError(f"rotor_failure.rotor {f.rotor}: the vehicle has {n} rotors")
+            if f.tell_controller and controller is not None and not hasattr(controller, "set_failed_rotors"):
+                raise InputError("rotor_failure.tell_controller needs a controller with set_failed_rotors")
+    for f in faults:
+        if isinstance(f, RotorFailure):
+            tell = f.detect_delay_s if f.tell_controller and controller is not None else None
+            schedule.add_rotor_failure(f.rotor - 1, f.t_start_s, tell)
+        elif isinstance(f, MocapDropout):
+            schedule.add_mocap_dropout(f.t_start_s, f.duration_s, f.drop_state)
+        elif isinstance(f, SensorCorruption):
+            schedule.add_corruption(f.signal, f.kind, f.t_start_s, f.duration_s, f.magnitude, f.component)
         else:
-            out[idx] += c.magnitude
-        return out
-
-    def _corrupt(self, frame: SensorFrame, c: SensorCorruption, changes: dict) -> None:
-        if c.signal == "imu_acc":
-            changes["imu_acc_B"] = self._bad(changes.get("imu_acc_B", frame.imu_acc_B), c)
-        elif c.signal == "imu_gyro":
-            changes["imu_gyro_B"] = self._bad(changes.get("imu_gyro_B", frame.imu_gyro_B), c)
-        elif c.signal == "rotor_hz":
-            changes["rotor_hz"] = self._bad(changes.get("rotor_hz", frame.rotor_hz), c)
-        elif c.signal == "mocap":
-            if changes.get("mocap_new", frame.mocap_new) and frame.mocap_p_W is not None:
-                changes["mocap_p_W"] = self._bad(changes.get("mocap_p_W", frame.mocap_p_W), c)
-                if c.kind != "spike":
-                    changes["mocap_q_WB"] = self._bad(changes.get("mocap_q_WB", frame.mocap_q_WB), c)
-        else:  # state
-            state = changes.get("state", frame.state)
-            if state is not None:
-                changes["state"] = dataclasses.replace(state, p_W=self._bad(state.p_W, c))
+            schedule.add_gust(f.t_start_s, f.duration_s, f.force_W, f.moment_W, f.profile)
+    if controller is not None and any(isinstance(f, RotorFailure) and f.tell_controller for f in faults):
+        schedule.notify = controller.set_failed_rotors
+    return sim
 
 
 def plant_simulator(
@@ -474,8 +304,8 @@ def plant_simulator(
     seed: int,
     plant: PlantPerturbation | None,
     controller=None,
-) -> Simulator | FaultInjector:
-    """The simulator of the true plant: the believed one perturbed by ``plant``, faults injected.
+) -> Simulator:
+    """The simulator of the true plant: the believed one perturbed by ``plant``, its faults scheduled.
 
     Args:
         believed_vehicle: the vehicle the controller flies with.
@@ -486,12 +316,12 @@ def plant_simulator(
         controller: told about rotor failures.
 
     Returns:
-        A :class:`~omnirotor.sim.Simulator`, wrapped in a :class:`FaultInjector` when faults are scheduled.
+        A :class:`~omnirotor.sim.Simulator` (with the fault schedule of ``plant``, :func:`install_faults`).
     """
     if plant is None:
         return Simulator(believed_vehicle, scene=scene, params=believed_params, seed=seed)
     sim = Simulator(plant.vehicle(believed_vehicle), scene=scene, params=plant.sim_params(believed_params), seed=seed)
-    return FaultInjector(sim, plant.faults, controller) if plant.faults else sim
+    return install_faults(sim, plant.faults, controller) if plant.faults else sim
 
 
 def safety_stats(omega_cmd_hz: np.ndarray, status: np.ndarray, vehicle: VehicleParams) -> dict:

@@ -41,7 +41,7 @@ the sign, the disk-averaged profile ``<U_j / v_j>_disk_i`` takes one of two prec
 (:func:`interference_wrench`).
 
 The compiled kernels of both models are here; the simulator's step calls them through
-:func:`omnirotor.sim._kernels.actuate`, which dispatches on ``kernel_kind``.
+:func:`omnirotor.sim.step.aero_wrench`, which dispatches on ``kernel_kind``.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ __all__ = [
 ]
 
 AERO_NOMINAL, AERO_INTERFERENCE, AERO_WAKE = 0, 1, 2
-"""Kinds of truth model :func:`omnirotor.sim._kernels.actuate` evaluates: ``A_nom u``,
+"""Kinds of truth model :func:`omnirotor.sim.step.aero_wrench` evaluates: ``A_nom u``,
 :func:`interference_wrench` or :func:`wake_wrench`."""
 
 _DISK_RING_FRACTION = 0.7
@@ -97,7 +97,7 @@ class NominalAero:
         self.A_nom = vehicle.A_nom.copy()
         self.A_true = self.A_nom
         self.kernel_kind = AERO_NOMINAL
-        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim.step.aero_wrench`)."""
         self.kernel_model = np.ascontiguousarray(self.A_nom, dtype=np.float64)
 
     def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -183,7 +183,7 @@ class WakeAero(_CompiledAero):
         """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` for the sign blocks (u_i < 0, u_j < 0) = (b // 2, b % 2)."""
         self._model = pack_wake(self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max)
         self.kernel_kind = AERO_WAKE
-        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim.step.aero_wrench`)."""
         self.kernel_model = self._model
 
 
@@ -238,7 +238,7 @@ class InterferenceAero(_CompiledAero):
             self._K2, self._v_coef, self._A_kappa, self._neg_eta_gain, self._eta_lo, self._eta_hi, _N_FLOOR
         )
         self.kernel_kind = AERO_INTERFERENCE
-        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim.step.aero_wrench`)."""
         self.kernel_model = self._model
 
 

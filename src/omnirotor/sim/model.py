@@ -128,7 +128,7 @@ def ee_contact_sensor(geom: str) -> str:
 def _ee_sensors(body_xml: str) -> str:
     """One contact sensor per EE geom: net force, torque and centroid of its contacts (the truth's contact wrench).
 
-    Read by :func:`omnirotor.sim._kernels.contact_into_row`.
+    Read by :func:`omnirotor.sim.contact.contact_wrench`.
     """
     out = []
     for geom in (EE_TIP_GEOM, EE_ROD_GEOM):

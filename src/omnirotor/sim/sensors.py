@@ -11,6 +11,12 @@
 
 Noise comes from generators the simulator seeds; each sensor draws its standard normals in blocks, so a
 step costs a slice, not a call into the generator.
+
+The block (:class:`Sensors`, registered as ``("sensors", "imu-mocap")``) owns one record
+(:data:`STATE_DTYPE`: the IMU's parameters and drawn biases, the motion capture's queue, the four noise
+blocks) and the compiled step (:func:`sense`) that writes a packed frame (:mod:`omnirotor.messages`) from
+the vehicle's true state; :class:`Imu`, :class:`Mocap` and :class:`NoiseStream` are its parts' Python set-up
+(views of that record).
 """
 
 from __future__ import annotations
@@ -19,36 +25,126 @@ import math
 
 import numpy as np
 
-from omnirotor.sim import _kernels as _k
+from omnirotor._jit import R9_from_quat_into, jit
+from omnirotor.blocks import register
+from omnirotor.errors import InputError
+from omnirotor.messages import (
+    FRAME_ACC_B,
+    FRAME_GYRO_B,
+    FRAME_HAS_STATE,
+    FRAME_MOCAP_NEW,
+    FRAME_MOCAP_P_W,
+    FRAME_MOCAP_Q_WB,
+    FRAME_MOCAP_T,
+    FRAME_ROTOR_HZ,
+    FRAME_STATE,
+    FRAME_STATE_SIZE,
+    FRAME_T,
+)
 from omnirotor.sim.params import SensorParams
+from omnirotor.sim.rotors import MAX_ROTORS
 
-__all__ = ["NoiseStream", "Imu", "Mocap", "MocapSample", "quat_perturb", "R9_from_quat", "BLOCK"]
+__all__ = [
+    "NoiseStream",
+    "Imu",
+    "Mocap",
+    "MocapSample",
+    "Sensors",
+    "sense",
+    "needs_refill",
+    "BLOCK",
+    "STATE_DTYPE",
+    "STATE_NONE",
+    "STATE_EXACT",
+    "STATE_NOISY",
+]
 
 BLOCK = 1024
 """Rows of standard normals drawn at once per stream."""
+MOCAP_QUEUE_MAX = 64
+"""Motion-capture samples the queue has room for (samples taken, not yet delivered)."""
+MOCAP_CLOCK_TOL_S = 1e-9
+"""Tolerance [s] of the sample clock against the step grid (times are multiples of dt up to rounding)."""
+STATE_NONE, STATE_EXACT, STATE_NOISY = 0, 1, 2
+"""What :func:`sense` writes into the frame's bypass state: nothing, the truth, or the truth plus noise."""
+_STATE_DIM = 15  # bypass-state noise: p, v, a, small body rotation, omega
+
+
+def _noise_dtype(dim: int) -> np.dtype:
+    return np.dtype([("buf", np.float64, (BLOCK, dim)), ("pos", np.int64)])
+
+
+IMU_DTYPE = np.dtype(
+    [
+        ("gravity", np.float64),
+        ("acc_bias_B", np.float64, (3,)),
+        ("gyro_bias_B", np.float64, (3,)),
+        ("offset_B", np.float64, (3,)),
+        ("has_offset", np.bool_),
+    ]
+)
+"""The IMU's parameters and the biases drawn for the run."""
+
+MOCAP_DTYPE = np.dtype(
+    [
+        ("head", np.int64),  # queue: index of the oldest sample
+        ("count", np.int64),  # queue length
+        ("cap", np.int64),  # queue capacity used (<= MOCAP_QUEUE_MAX)
+        ("latency_steps", np.int64),
+        ("next_t", np.float64),  # time of the next sample [s]
+        ("period", np.float64),  # sample period [s]
+        ("t", np.float64, (MOCAP_QUEUE_MAX,)),  # time each queued sample was taken [s]
+        ("due", np.int64, (MOCAP_QUEUE_MAX,)),  # step of each queued sample's delivery
+        ("p_W", np.float64, (MOCAP_QUEUE_MAX, 3)),
+        ("q_WB", np.float64, (MOCAP_QUEUE_MAX, 4)),
+        ("sample", np.float64, (8,)),  # the last delivery: t, p_W (3), q_WB (4)
+    ]
+)
+"""The motion capture's queue of samples taken but not yet delivered."""
+
+STATE_DTYPE = np.dtype(
+    [
+        ("n_rotors", np.int64),
+        ("state_mode", np.int64),  # STATE_NONE, STATE_EXACT or STATE_NOISY
+        ("imu", IMU_DTYPE),
+        ("mocap", MOCAP_DTYPE),
+        ("noise_imu", _noise_dtype(6)),
+        ("noise_rotor", _noise_dtype(MAX_ROTORS)),
+        ("noise_state", _noise_dtype(_STATE_DIM)),
+        ("noise_mocap", _noise_dtype(6)),
+    ]
+)
+"""Everything the sensors' compiled step reads and updates."""
 
 
 class NoiseStream:
     """Scaled standard normal vectors of a fixed size, drawn from ``rng`` in blocks.
 
-    The block and the read position are arrays (:attr:`buf`, :attr:`pos`) that compiled code reads directly:
-    a compiled consumer takes row ``buf[pos[0]]`` and advances ``pos[0]``, and hands back to Python, which calls
-    :meth:`refill`, when ``pos[0]`` reaches the block's end. Each stream has its own generator, so when a block
-    is drawn does not change the numbers.
+    The block and the read position are views of a noise field of the sensors' record (:attr:`buf`,
+    :attr:`pos`) that compiled code reads directly: a compiled consumer takes row ``buf[pos[0]]`` and advances
+    ``pos[0]``, and hands back to Python, which calls :meth:`refill`, when ``pos[0]`` reaches the block's
+    end. Each stream has its own generator, so when a block is drawn does not change the numbers.
 
     Args:
         rng: the generator (owned by this stream from now on).
         scale: standard deviation of each component (scalar or (dim,)).
         dim: size of each vector.
+        rec: (1,) record of a ``noise_*`` field to draw into (default: a record of its own).
     """
 
-    def __init__(self, rng: np.random.Generator, scale: float | np.ndarray, dim: int) -> None:
+    def __init__(
+        self, rng: np.random.Generator, scale: float | np.ndarray, dim: int, rec: np.ndarray | None = None
+    ) -> None:
         self._rng = rng
         self._scale = np.broadcast_to(np.asarray(scale, dtype=float), (dim,)).copy()
-        self.buf = np.empty((BLOCK, dim))
+        if rec is None:
+            rec = np.zeros(1, _noise_dtype(dim))
+        self._draw = np.empty((BLOCK, dim))
+        self.buf = rec["buf"][0][:, :dim]
         """(BLOCK, dim) the current block of scaled normals."""
-        self.pos = np.full(1, BLOCK, dtype=np.int64)
+        self.pos = rec["pos"]
         """(1,) index of the next unread row of :attr:`buf` (``BLOCK``: exhausted, refill first)."""
+        self.pos[0] = BLOCK
 
     @property
     def exhausted(self) -> bool:
@@ -57,8 +153,8 @@ class NoiseStream:
 
     def refill(self) -> None:
         """Draw the next block (the generator's next ``BLOCK x dim`` normals) and rewind."""
-        self._rng.standard_normal(out=self.buf)
-        self.buf *= self._scale
+        self._rng.standard_normal(out=self._draw)
+        np.multiply(self._draw, self._scale, out=self.buf)
         self.pos[0] = 0
 
     def next(self) -> np.ndarray:
@@ -71,27 +167,210 @@ class NoiseStream:
         return self.buf[i]
 
 
-def quat_perturb(q_wxyz, dtheta, out):
-    """``q ⊗ [1, dtheta/2]`` normalised: q rotated by the small body rotation ``dtheta`` [rad].
+# -- compiled parts ---------------------------------------------------------------------------------------------
+
+
+@jit
+def imu_measure_into(imu, R9, a_W, omega_B, omega_dot_B, noise, acc_B, gyro_B) -> None:
+    """One IMU sample: ``acc_B (3) [m/s²]`` and ``gyro_B (3) [rad/s]`` written into the two outputs.
+
+    ``acc_B = R^T (a_W + g e3) + b_a + n_a`` plus ``omega_dot x r + omega x (omega x r)`` when the IMU sits at
+    ``r != 0``; ``gyro_B = omega_B + b_g + n_g``.
 
     Args:
-        q_wxyz: (4,) unit quaternion (array or sequence).
-        dtheta: (3,) small rotation vector in the body frame [rad].
-        out: (4,) output: a numpy array or a list.
+        imu: an :data:`IMU_DTYPE` record.
+        R9: (9,) ``R_WB`` row-major.
+        a_W: (3,) CoM acceleration without gravity [m/s²].
+        omega_B: (3,) angular velocity [rad/s].
+        omega_dot_B: (3,) angular acceleration [rad/s²].
+        noise: (6,) white noise ``n_a, n_g``.
+        acc_B: (3,) output.
+        gyro_B: (3,) output.
+    """
+    ba, bg = imu["acc_bias_B"], imu["gyro_bias_B"]
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R9[0], R9[1], R9[2], R9[3], R9[4], R9[5], R9[6], R9[7], R9[8]
+    sx, sy, sz = a_W[0], a_W[1], a_W[2] + imu["gravity"]
+    ax = r00 * sx + r10 * sy + r20 * sz + ba[0] + noise[0]
+    ay = r01 * sx + r11 * sy + r21 * sz + ba[1] + noise[1]
+    az = r02 * sx + r12 * sy + r22 * sz + ba[2] + noise[2]
+    wx, wy, wz = omega_B[0], omega_B[1], omega_B[2]
+    if imu["has_offset"]:
+        r = imu["offset_B"]
+        rx, ry, rz = r[0], r[1], r[2]
+        dx, dy, dz = omega_dot_B[0], omega_dot_B[1], omega_dot_B[2]
+        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
+        ax += dy * rz - dz * ry + wy * cz - wz * cy
+        ay += dz * rx - dx * rz + wz * cx - wx * cz
+        az += dx * ry - dy * rx + wx * cy - wy * cx
+    acc_B[0] = ax
+    acc_B[1] = ay
+    acc_B[2] = az
+    gyro_B[0] = wx + bg[0] + noise[3]
+    gyro_B[1] = wy + bg[1] + noise[4]
+    gyro_B[2] = wz + bg[2] + noise[5]
+
+
+@jit
+def quat_perturb_into(q, dtheta, out) -> None:
+    """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``."""
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    a, b, c = 0.5 * dtheta[0], 0.5 * dtheta[1], 0.5 * dtheta[2]
+    rw = qw - qx * a - qy * b - qz * c
+    rx = qx + qw * a + qy * c - qz * b
+    ry = qy + qw * b + qz * a - qx * c
+    rz = qz + qw * c + qx * b - qy * a
+    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    out[0] = rw * s
+    out[1] = rx * s
+    out[2] = ry * s
+    out[3] = rz * s
+
+
+@jit
+def mocap_push(moc, noise, t: float, due: int, p, q) -> None:
+    """Queue a sample taken at ``t`` of the pose ``(p, q)``, with its noise, for delivery at step ``due``.
+
+    Takes the next row of the noise record ``noise`` (the caller makes sure one is left). A full queue (only
+    with a sample rate above the step rate) drops its oldest sample.
+    """
+    cap = moc["cap"]
+    if moc["count"] == cap:
+        moc["head"] = (moc["head"] + 1) % cap
+        moc["count"] -= 1
+    i = (moc["head"] + moc["count"]) % cap
+    r = noise["pos"]
+    noise["pos"] = r + 1
+    e = noise["buf"][r]
+    moc["t"][i] = t
+    moc["due"][i] = due
+    mp = moc["p_W"][i]
+    for j in range(3):
+        mp[j] = e[j] + p[j]
+    quat_perturb_into(q, e[3:6], moc["q_WB"][i])
+    moc["count"] += 1
+
+
+@jit
+def mocap_step(moc, noise, k: int, t: float, p, q) -> bool:
+    """One step of the motion capture: sample ``(p, q)`` if due at step ``k`` (time ``t`` [s]), deliver.
+
+    The newest queued sample that has arrived, if any, goes to ``moc.sample`` (t, p, q).
 
     Returns:
-        ``out``.
+        True when a sample was delivered.
     """
-    w, x, y, z = q_wxyz
-    a, b, c = dtheta
-    a, b, c = 0.5 * a, 0.5 * b, 0.5 * c
-    rw = w - x * a - y * b - z * c
-    rx = x + w * a + y * c - z * b
-    ry = y + w * b + z * a - x * c
-    rz = z + w * c + x * b - y * a
-    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
-    out[0], out[1], out[2], out[3] = rw * s, rx * s, ry * s, rz * s
-    return out
+    if t >= moc["next_t"] - MOCAP_CLOCK_TOL_S:
+        mocap_push(moc, noise, t, k + moc["latency_steps"], p, q)
+        moc["next_t"] += moc["period"]
+        while moc["next_t"] <= t + MOCAP_CLOCK_TOL_S:  # a rate above the step rate: one sample per step
+            moc["next_t"] += moc["period"]
+    if moc["count"] == 0 or moc["due"][moc["head"]] > k:
+        return False
+    cap = moc["cap"]
+    i = moc["head"]
+    while True:  # the newest arrived sample wins
+        moc["head"] = (moc["head"] + 1) % cap
+        moc["count"] -= 1
+        if moc["count"] == 0 or moc["due"][moc["head"]] > k:
+            break
+        i = moc["head"]
+    out = moc["sample"]
+    out[0] = moc["t"][i]
+    for j in range(3):
+        out[1 + j] = moc["p_W"][i, j]
+    for j in range(4):
+        out[4 + j] = moc["q_WB"][i, j]
+    return True
+
+
+@jit
+def needs_refill(sens) -> bool:
+    """True when a noise block the next :func:`sense` may read is used up (Python refills it)."""
+    return (
+        sens["noise_imu"]["pos"] >= BLOCK
+        or sens["noise_rotor"]["pos"] >= BLOCK
+        or sens["noise_mocap"]["pos"] >= BLOCK
+        or (sens["state_mode"] == STATE_NOISY and sens["noise_state"]["pos"] >= BLOCK)
+    )
+
+
+@jit
+def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
+    """The sensors at step ``k`` (time ``t``): the whole packed frame (:mod:`omnirotor.messages`).
+
+    IMU, measured rotor speeds, the bypass state (none, the truth, or the truth plus noise, the attitude
+    perturbed as :func:`quat_perturb_into`) and the motion capture's delivery. Reads one row of each noise
+    block it uses (the caller checks :func:`needs_refill` first).
+
+    Args:
+        sens: the :data:`STATE_DTYPE` record, updated.
+        pose: (7,) the vehicle's ``p_W, q_WB`` (MuJoCo's free joint in ``qpos``).
+        vel: (6,) ``v_W, omega_B`` (``qvel``).
+        acc: (6,) ``p_ddot_W, omega_dot_B`` (``qacc``).
+        R9: (9,) ``R_WB`` row-major (MuJoCo's ``xmat`` row of the body).
+        omega_hz: (n,) true rotor speeds [Hz].
+        k: step index.
+        t: its time [s].
+        frame: the packed frame (written whole).
+    """
+    frame[FRAME_T] = t
+    ni, nr = sens["noise_imu"], sens["noise_rotor"]
+    i_imu = ni["pos"]
+    ni["pos"] = i_imu + 1
+    i_rot = nr["pos"]
+    nr["pos"] = i_rot + 1
+    mode = sens["state_mode"]
+    imu_measure_into(
+        sens["imu"], R9, acc[0:3], vel[3:6], acc[3:6], ni["buf"][i_imu],
+        frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_GYRO_B : FRAME_GYRO_B + 3],
+    )  # fmt: skip
+    rot_noise = nr["buf"][i_rot]
+    for i in range(sens["n_rotors"]):
+        frame[FRAME_ROTOR_HZ + i] = omega_hz[i] + rot_noise[i]
+    o = FRAME_STATE
+    if mode == STATE_NONE:
+        frame[FRAME_HAS_STATE] = 0.0
+        for i in range(FRAME_STATE_SIZE):
+            frame[o + i] = 0.0
+    else:
+        frame[FRAME_HAS_STATE] = 1.0
+        if mode == STATE_EXACT:
+            for i in range(3):
+                frame[o + i] = pose[i]
+                frame[o + 3 + i] = vel[i]
+                frame[o + 6 + i] = acc[i]
+                frame[o + 18 + i] = vel[3 + i]
+            for i in range(9):
+                frame[o + 9 + i] = R9[i]
+        else:
+            ns = sens["noise_state"]
+            i_st = ns["pos"]
+            ns["pos"] = i_st + 1
+            e = ns["buf"][i_st]
+            for i in range(3):
+                frame[o + i] = pose[i] + e[i]
+                frame[o + 3 + i] = vel[i] + e[3 + i]
+                frame[o + 6 + i] = acc[i] + e[6 + i]
+                frame[o + 18 + i] = vel[3 + i] + e[12 + i]
+            # The perturbed quaternion goes through the frame's R slots (overwritten by its matrix right after).
+            quat_perturb_into(pose[3:7], e[9:12], frame[o + 9 : o + 13])
+            R9_from_quat_into(frame[o + 9], frame[o + 10], frame[o + 11], frame[o + 12], frame, o + 9)
+    moc = sens["mocap"]
+    if mocap_step(moc, sens["noise_mocap"], k, t, pose[0:3], pose[3:7]):
+        frame[FRAME_MOCAP_NEW] = 1.0
+        s = moc["sample"]
+        frame[FRAME_MOCAP_T] = s[0]
+        for j in range(3):
+            frame[FRAME_MOCAP_P_W + j] = s[1 + j]
+        for j in range(4):
+            frame[FRAME_MOCAP_Q_WB + j] = s[4 + j]
+    else:
+        frame[FRAME_MOCAP_NEW] = 0.0
+        for j in range(8):
+            frame[FRAME_MOCAP_T + j] = 0.0
+
+
+# -- Python set-up ---------------------------------------------------------------------------------------------
 
 
 class Imu:
@@ -100,38 +379,42 @@ class Imu:
     Args:
         params: sensor parameters.
         gravity: [m/s²].
+        rec: (1,) :data:`IMU_DTYPE` record to live in (default: its own).
+        noise_rec: (1,) record of its noise block (default: its own).
     """
 
-    def __init__(self, params: SensorParams, gravity: float) -> None:
+    def __init__(
+        self, params: SensorParams, gravity: float, rec: np.ndarray | None = None, noise_rec: np.ndarray | None = None
+    ) -> None:
         self.params = params
         self.gravity = gravity
+        self.rec = np.zeros(1, IMU_DTYPE) if rec is None else rec
+        """(1,) the :data:`IMU_DTYPE` record (gravity, biases, offset)."""
+        self._noise_rec = noise_rec
+        r = self.rec[0]
+        r["gravity"] = gravity
+        r["offset_B"] = params.imu_offset_B
+        r["has_offset"] = any(float(x) != 0.0 for x in params.imu_offset_B)
         self.offset_B = np.asarray(params.imu_offset_B, dtype=float)
-        self.acc_bias_B = np.zeros(3)
-        self.gyro_bias_B = np.zeros(3)
-        self.kernel_params = np.zeros(_k.IMU_PAR_SIZE)
-        """Gravity, biases and offset packed for :func:`omnirotor.sim._kernels.imu_measure_into`."""
+        self.acc_bias_B = self.rec["acc_bias_B"][0]
+        """(3,) the accelerometer bias drawn for the run [m/s²] (a view of the record)."""
+        self.gyro_bias_B = self.rec["gyro_bias_B"][0]
+        """(3,) the gyroscope bias drawn for the run [rad/s] (a view of the record)."""
         self.noise: NoiseStream | None = None
         """The white-noise stream (6: accelerometer, gyroscope), set by :meth:`reset`."""
-        self._pack()
-
-    def _pack(self) -> None:
-        r = [float(x) for x in self.params.imu_offset_B]
-        has_offset = 1.0 if any(x != 0.0 for x in r) else 0.0
-        self.kernel_params[:] = [self.gravity, *self.acc_bias_B, *self.gyro_bias_B, *r, has_offset]
 
     def reset(self, bias_rng: np.random.Generator, noise_rng: np.random.Generator) -> None:
         """Draw the constant biases and take over the white-noise generator."""
         p = self.params
         self.acc_bias_B[:] = p.acc_bias_std * bias_rng.standard_normal(3)
         self.gyro_bias_B[:] = p.gyro_bias_std * bias_rng.standard_normal(3)
-        self._pack()
         scale = np.array([p.acc_noise_std] * 3 + [p.gyro_noise_std] * 3)
-        self.noise = NoiseStream(noise_rng, scale, 6)
+        self.noise = NoiseStream(noise_rng, scale, 6, self._noise_rec)
 
     def measure(
         self, R9: list[float], a_W: list[float], omega_B: list[float], omega_dot_B: list[float]
     ) -> tuple[np.ndarray, np.ndarray]:
-        """One IMU sample (:func:`omnirotor.sim._kernels.imu_measure_into`).
+        """One IMU sample (:func:`imu_measure_into`).
 
         Args:
             R9: the 9 entries of ``R_WB``, row-major.
@@ -142,19 +425,19 @@ class Imu:
         Returns:
             ``(acc_B [m/s²], gyro_B [rad/s])``, fresh (3,) arrays.
         """
-        out = np.empty(6)
+        acc, gyro = np.empty(3), np.empty(3)
         f64 = np.float64
-        _k.imu_measure_into(
+        imu_measure_into(
+            self.rec[0],
             np.asarray(R9, dtype=f64).reshape(9),
             np.asarray(a_W, dtype=f64),
             np.asarray(omega_B, dtype=f64),
             np.asarray(omega_dot_B, dtype=f64),
-            self.kernel_params,
             self.noise.next(),
-            out,
-            0,
+            acc,
+            gyro,
         )
-        return out[0:3], out[3:6]
+        return acc, gyro
 
 
 class MocapSample:
@@ -177,36 +460,39 @@ class MocapSample:
 class Mocap:
     """Motion capture with a fixed rate and latency.
 
-    The queue of samples taken but not yet delivered lives in arrays (:attr:`kernel_state`) that the compiled
-    :func:`omnirotor.sim._kernels.mocap_step` updates, from :meth:`step` or from the simulator's compiled step.
+    The queue of samples taken but not yet delivered lives in a :data:`MOCAP_DTYPE` record (:attr:`rec`) that
+    the compiled :func:`mocap_step` updates, from :meth:`step` or from the simulator's compiled step.
 
     Args:
         params: sensor parameters.
         dt: control period [s].
+        rec: (1,) record to live in (default: its own).
+        noise_rec: (1,) record of its noise block (default: its own).
+
+    Raises:
+        InputError: a rate and latency that need more than :data:`MOCAP_QUEUE_MAX` queued samples.
     """
 
-    def __init__(self, params: SensorParams, dt: float) -> None:
+    def __init__(
+        self, params: SensorParams, dt: float, rec: np.ndarray | None = None, noise_rec: np.ndarray | None = None
+    ) -> None:
         self.params = params
         self.dt = dt
         self.period = 1.0 / params.mocap_rate_hz
         self.latency_steps = int(round(params.mocap_latency_s / dt))
         cap = int(math.ceil((self.latency_steps + 1) * dt / self.period)) + 2
-        self._ints = np.zeros(_k.MOCAP_INT_SIZE, dtype=np.int64)  # head, count, latency [steps]
-        self._ints[_k.MOCAP_LATENCY] = self.latency_steps
-        self._floats = np.zeros(_k.MOCAP_FLOAT_SIZE)  # next sample time, period [s]
-        self._floats[_k.MOCAP_PERIOD] = self.period
-        self._t = np.zeros(cap)  # time each queued sample was taken [s]
-        self._due = np.zeros(cap, dtype=np.int64)  # step of each queued sample's delivery
-        self._p = np.zeros((cap, 3))
-        self._q = np.zeros((cap, 4))
-        self._sample = np.zeros(_k.MOCAP_SAMPLE_SIZE)  # t, p (3), q (4) of the last delivery
+        if cap > MOCAP_QUEUE_MAX:
+            raise InputError(
+                f"sensors: motion capture at {params.mocap_rate_hz:g} Hz with {params.mocap_latency_s:g} s latency "
+                f"queues {cap} samples; the simulator has room for {MOCAP_QUEUE_MAX}"
+            )
+        self.rec = np.zeros(1, MOCAP_DTYPE) if rec is None else rec
+        """(1,) the :data:`MOCAP_DTYPE` record."""
+        self._noise_rec = noise_rec
+        r = self.rec[0]
+        r["cap"], r["latency_steps"], r["period"] = cap, self.latency_steps, self.period
         self.noise: NoiseStream | None = None
         """The measurement-noise stream (6: position, small rotation), set by :meth:`reset`."""
-
-    @property
-    def kernel_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The arrays of :func:`omnirotor.sim._kernels.mocap_step`: ints, floats, t, due, p, q."""
-        return self._ints, self._floats, self._t, self._due, self._p, self._q
 
     @property
     def latency_s(self) -> float:
@@ -216,8 +502,8 @@ class Mocap:
     def _push(self, t: float, due_step: int, p_W: np.ndarray, q_WB: np.ndarray) -> None:
         if self.noise.exhausted:
             self.noise.refill()
-        _k.mocap_push(
-            *self.kernel_state, self.noise.buf, self.noise.pos, t, due_step, np.asarray(p_W, dtype=np.float64),
+        mocap_push(
+            self.rec[0], self._noise_rec[0], t, due_step, np.asarray(p_W, dtype=np.float64),
             np.asarray(q_WB, dtype=np.float64),
         )  # fmt: skip
 
@@ -229,9 +515,11 @@ class Mocap:
         """
         p = self.params
         scale = np.array([p.mocap_pos_noise_std] * 3 + [p.mocap_att_noise_std] * 3)
-        self.noise = NoiseStream(rng, scale, 6)
-        self._ints[_k.MOCAP_HEAD] = 0
-        self._ints[_k.MOCAP_COUNT] = 0
+        if self._noise_rec is None:
+            self._noise_rec = np.zeros(1, _noise_dtype(6))
+        self.noise = NoiseStream(rng, scale, 6, self._noise_rec)
+        r = self.rec[0]
+        r["head"], r["count"] = 0, 0
         # Samples taken before t = 0 on the step grid, newest first, back to the last one already delivered.
         earlier: list[tuple[int, int]] = []
         j = 1
@@ -244,7 +532,7 @@ class Mocap:
             j += 1
         for k, due in reversed(earlier):
             self._push(k * self.dt, max(due, 0), p_W, q_WB)
-        self._floats[_k.MOCAP_NEXT_T] = 0.0
+        r["next_t"] = 0.0
 
     def step(self, k: int, t: float, p_W: np.ndarray, q_WB: np.ndarray) -> MocapSample | None:
         """Take a sample if one is due at step ``k`` (time ``t``) and deliver the newest one that has arrived.
@@ -261,28 +549,106 @@ class Mocap:
         if self.noise.exhausted:
             self.noise.refill()
         f64 = np.float64
-        got = _k.mocap_step(
-            *self.kernel_state, self.noise.buf, self.noise.pos, k, t, np.asarray(p_W, dtype=f64),
-            np.asarray(q_WB, dtype=f64), self._sample, 0,
-        )  # fmt: skip
+        got = mocap_step(self.rec[0], self._noise_rec[0], k, t, np.asarray(p_W, dtype=f64), np.asarray(q_WB, dtype=f64))
         if not got:
             return None
-        s = self._sample
+        s = self.rec["sample"][0]
         return MocapSample(float(s[0]), s[1:4].copy(), s[4:8].copy())
 
 
-def R9_from_quat(q) -> list[float]:
-    """The 9 entries (row-major) of the rotation matrix of a unit quaternion (wxyz), float arithmetic."""
-    w, x, y, z = q
-    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
-    return [
-        1.0 - 2.0 * (yy + zz),
-        2.0 * (xy - wz),
-        2.0 * (xz + wy),
-        2.0 * (xy + wz),
-        1.0 - 2.0 * (xx + zz),
-        2.0 * (yz - wx),
-        2.0 * (xz - wy),
-        2.0 * (yz + wx),
-        1.0 - 2.0 * (xx + yy),
-    ]
+_N_STREAMS = 5
+_CONSTANTS = (
+    ("n_rotors", None),
+    ("state_mode", None),
+    ("imu", "gravity"),
+    ("imu", "offset_B"),
+    ("imu", "has_offset"),
+    ("mocap", "cap"),
+    ("mocap", "latency_steps"),
+    ("mocap", "period"),
+)
+"""The fields of the record that are parameters (kept by a reset)."""
+"""Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state."""
+
+
+@register("sensors", "imu-mocap")
+class Sensors:
+    """IMU, motion capture, measured rotor speeds and the bypass state, in one record (module docstring).
+
+    Args:
+        params: sensor parameters.
+        gravity: [m/s²].
+        dt: control period [s].
+        n_rotors: rotors whose speeds are measured (at most :data:`~omnirotor.sim.rotors.MAX_ROTORS`).
+        state_mode: :data:`STATE_NONE`, :data:`STATE_EXACT` or :data:`STATE_NOISY`.
+        seed: seed of every noise source (same seed, same run).
+        state: (1,) :data:`STATE_DTYPE` record to live in, e.g. a field of the simulator's (default: its own).
+    """
+
+    state_dtype = STATE_DTYPE
+    log_fields = ("imu",)
+
+    def __init__(
+        self,
+        params: SensorParams,
+        gravity: float,
+        dt: float,
+        n_rotors: int,
+        state_mode: int,
+        seed: int = 0,
+        state: np.ndarray | None = None,
+    ) -> None:
+        self.params = params
+        self.n_rotors = n_rotors
+        self.seed = int(seed)
+        self.state = np.zeros(1, STATE_DTYPE) if state is None else state
+        """(1,) the :data:`STATE_DTYPE` record."""
+        s = self.state
+        s["n_rotors"], s["state_mode"] = n_rotors, state_mode
+        self.state_mode = state_mode
+        self.imu = Imu(params, gravity, s["imu"], s["noise_imu"])
+        self.mocap = Mocap(params, dt, s["mocap"], s["noise_mocap"])
+        self.rotor_noise: NoiseStream | None = None
+        self.state_noise: NoiseStream | None = None
+        self._pose0 = (np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+
+    def reset(self, p_W: np.ndarray | None = None, q_WB: np.ndarray | None = None) -> None:
+        """Restart every noise stream from the seed, draw the biases, restart the motion capture at rest.
+
+        Args:
+            p_W: (3,) position the vehicle rests at before t = 0 [m] (default: that of the last reset).
+            q_WB: (4,) its attitude, wxyz.
+        """
+        if p_W is not None:
+            self._pose0 = (np.array(p_W, dtype=float), np.array(q_WB, dtype=float))
+        streams = [np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(_N_STREAMS)]
+        p = self.params
+        s = self.state
+        kept = [(s[a][b] if b else s[a]).copy() for a, b in _CONSTANTS]
+        s[...] = 0  # nothing of the last run is left, not even unread noise or delivered samples
+        for (a, b), v in zip(_CONSTANTS, kept, strict=True):
+            if b:
+                s[a][b] = v
+            else:
+                s[a] = v
+        self.imu.reset(streams[0], streams[1])
+        self.mocap.reset(streams[2], *self._pose0)
+        self.rotor_noise = NoiseStream(streams[3], p.rotor_speed_noise_std_hz, self.n_rotors, s["noise_rotor"])
+        state_scale = np.repeat(
+            [p.state_pos_noise_std, p.state_vel_noise_std, p.state_acc_noise_std, p.state_att_noise_std,
+             p.state_omega_noise_std],
+            3,
+        )  # fmt: skip
+        self.state_noise = NoiseStream(streams[4], state_scale, _STATE_DIM, s["noise_state"])
+
+    @property
+    def noise_streams(self) -> tuple[NoiseStream, ...]:
+        """The streams :func:`sense` reads (refill the exhausted ones before a compiled call)."""
+        st = (self.state_noise,) if self.state_mode == STATE_NOISY else ()
+        return (self.imu.noise, self.rotor_noise, *st, self.mocap.noise)
+
+    def refill(self) -> None:
+        """Draw the next block of every exhausted stream."""
+        for stream in self.noise_streams:
+            if stream.exhausted:
+                stream.refill()

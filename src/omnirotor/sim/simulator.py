@@ -29,26 +29,24 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from omnirotor._jit import address_table
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, frame_size
-from omnirotor.sim import _kernels as _k
+from omnirotor.sim import step as _step
 from omnirotor.sim.aero import make_aero
-from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf, ee_contact_sensor
+from omnirotor.sim.contact import EeContact, other_contact
+from omnirotor.sim.faults import FaultSchedule
+from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
 from omnirotor.sim.params import SimParams
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.scenes import SCENES, SceneAnchors, default_start_pose, scene_anchors
-from omnirotor.sim.sensors import Imu, Mocap, NoiseStream
+from omnirotor.sim.sensors import STATE_EXACT, STATE_NOISY, STATE_NONE, NoiseStream, Sensors
 from omnirotor.so3 import quat_wxyz_from_R
 from omnirotor.vehicle import VehicleParams
 
 __all__ = ["Simulator", "GroundTruth", "TRUTH_ROW_SIZE"]
 
-TRUTH_ROW_SIZE = _k.TRUTH_ROW_SIZE
+TRUTH_ROW_SIZE = _step.TRUTH_ROW_SIZE
 """Entries of :meth:`Simulator.truth_row` before the rotor speeds: t, p, v, R (9), omega, p_E, contact f, m, flag."""
-
-_N_STREAMS = 5
-"""Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,8 +97,13 @@ class Simulator:
         data: the ``mujoco.MjData``.
         aero: the truth aerodynamics; ``aero.wrench_B(u_hz2)`` gives the (6,) body wrench.
         rotors: the rotor speed states (:class:`~omnirotor.sim.rotors.RotorBank`).
-        imu: the IMU model (its drawn biases: ``imu.acc_bias_B``, ``imu.gyro_bias_B``).
-        mocap: the motion-capture model.
+        sensors: the sensors (:class:`~omnirotor.sim.sensors.Sensors`): ``imu`` (its drawn biases:
+            ``imu.acc_bias_B``, ``imu.gyro_bias_B``), ``mocap``, the noise streams.
+        imu: ``sensors.imu``.
+        mocap: ``sensors.mocap``.
+        contact: the EE contact wrench (:class:`~omnirotor.sim.contact.EeContact`).
+        faults: the fault schedule the step applies (:class:`~omnirotor.sim.faults.FaultSchedule`; empty
+            unless filled, e.g. by :func:`omnirotor.experiments.faults.plant_simulator`).
         dt: control period [s].
 
     Args:
@@ -146,66 +149,56 @@ class Simulator:
         self._qp = int(m.jnt_qposadr[jnt])
         self._qv = int(m.jnt_dofadr[jnt])
 
-        self.aero = make_aero(vehicle, p.aero)
-        self.rotors = RotorBank(vehicle, p.rotors, p.dt)
-        self.imu = Imu(p.sensors, vehicle.gravity)
-        self.mocap = Mocap(p.sensors, p.dt)
-        self._p_E_B = vehicle.p_E_B_array.copy()
-        n = vehicle.n_rotors
-        self._n_shape = (n,)
-        # Preallocated buffers of the step; views of MuJoCo's arrays resolved once (MjData never reallocates).
-        self._w_B = np.zeros(6)
-        self._ext = np.zeros(_k.EXT_SIZE)  # external wrench: f_W, m_W, p_E_B, active, at the EE tip
-        self._ext[6:9] = self._p_E_B
-        self._ext_f = [0.0, 0.0, 0.0]
-        self._ext_m = [0.0, 0.0, 0.0]
-        self._ext_at_ee = False
-        self._provide_state = p.provide_state
-        self._has_ext = False
-        self._cf6 = np.zeros(6)
-        self._k = 0
-        self._truth: GroundTruth | None = None
-        self._rotor_noise: NoiseStream | None = None
-        self._state_noise: NoiseStream | None = None
         s = p.sensors
-        self._state_exact = (
+        state_exact = (
             s.state_pos_noise_std == 0.0
             and s.state_vel_noise_std == 0.0
             and s.state_acc_noise_std == 0.0
             and s.state_att_noise_std == 0.0
             and s.state_omega_noise_std == 0.0
         )
-        if not self._provide_state:
-            self._state_mode = _k.STATE_NONE
+        if not p.provide_state:
+            state_mode = STATE_NONE
         else:
-            self._state_mode = _k.STATE_EXACT if self._state_exact else _k.STATE_NOISY
+            state_mode = STATE_EXACT if state_exact else STATE_NOISY
+        # The compiled step's record: the blocks live in its fields (views), the wiring beside them.
+        self._rec = np.zeros(1, _step.SIM_DTYPE)
+        rec = self._rec
+        self.aero = make_aero(vehicle, p.aero)
+        self.rotors = RotorBank(vehicle, p.rotors, p.dt)
+        self.rotors.adopt(rec["rotor_par"], rec["rotors"])
+        self.sensors = Sensors(
+            p.sensors, vehicle.gravity, p.dt, vehicle.n_rotors, state_mode, self.seed, rec["sensors"]
+        )
+        self.imu = self.sensors.imu
+        self.mocap = self.sensors.mocap
+        self.contact = EeContact(m, par=rec["contact_par"])
+        self.faults = FaultSchedule(
+            vehicle.n_rotors, float(vehicle.omega_min_hz), float(vehicle.omega_max_hz), rec["faults"]
+        )
+        self._p_E_B = vehicle.p_E_B_array.copy()
+        n = vehicle.n_rotors
+        self._n_shape = (n,)
         d = self.data
+        # Views of MuJoCo's arrays resolved once (MjData never reallocates them).
+        qp, qv = self._qp, self._qv
+        self._pose = d.qpos[qp : qp + 7]
         self._xfrc = d.xfrc_applied[self._body]
-        # The compiled step's arguments (sim._kernels.observe / sim_step); MjData never reallocates these arrays.
-        self._mjv = (d.qpos, d.qvel, d.qacc, d.xmat, d.site_xpos, d.sensordata, self._xfrc)
-        adr = []
-        for geom in (EE_TIP_GEOM, EE_ROD_GEOM):
-            sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, ee_contact_sensor(geom))
-            adr.append(int(m.sensor_adr[sid]) if sid >= 0 else -1)
-        self._sens_adr = np.array(adr, dtype=np.int64)
-        si = np.zeros(_k.SI_SIZE, dtype=np.int64)
-        si[_k.SI_QP], si[_k.SI_QV], si[_k.SI_BODY], si[_k.SI_SITE] = self._qp, self._qv, self._body, self._ee_site
-        si[_k.SI_STATE_MODE] = self._state_mode
-        si[_k.SI_SUBSTEPS] = self.substeps
-        si[_k.SI_MODEL] = m._address
-        si[_k.SI_DATA] = d._address
-        self._si = si
+        mj = rec["mj"]
+        mj["model"], mj["data"], mj["substeps"] = m._address, d._address, self.substeps
+        mj["pose"], mj["vel"], mj["acc"] = self._pose.ctypes.data, d.qvel[qv:].ctypes.data, d.qacc[qv:].ctypes.data
+        mj["R_WB"], mj["p_E_W"] = d.xmat[self._body].ctypes.data, d.site_xpos[self._ee_site].ctypes.data
+        mj["sensordata"], mj["n_sensordata"] = d.sensordata.ctypes.data, d.sensordata.shape[0]
+        mj["xfrc"] = self._xfrc.ctypes.data
+        self._ext = rec["ext"]
+        self._ext["p_E_B"] = self._p_E_B
+        self._w_B = rec["w_B"][0]
+        self._k = 0
+        self._truth: GroundTruth | None = None
         self._frame_buf = np.zeros(frame_size(n))  # the packed frame (omnirotor.messages) of the last step
-        self._row = np.zeros(_k.TRUTH_ROW_SIZE + n)  # the truth row of the last step
-        self._no_noise = np.zeros((1, 15))  # stands for the state noise stream when none is drawn
-        self._no_noise_pos = np.zeros(1, dtype=np.int64)
-        self._noise: tuple = ()
-        self._streams: tuple[NoiseStream, ...] = ()
-        self._kargs: tuple | None = None
-        self._ktable = np.zeros(0, dtype=np.int64)
-        self._qpos = d.qpos
+        self._row = np.zeros(_step.TRUTH_ROW_SIZE + n)  # the truth row of the last step
         self._last_substep = self.substeps - 1
-        # The aero model and rotor bank the fused actuation kernel was set up for (see step()).
+        # The aero model and rotor bank the compiled step was set up for (see step()).
         self._fused_aero = self.aero if hasattr(self.aero, "kernel_model") else None
         self._fused_rotors = self.rotors
         self.reset()
@@ -250,10 +243,8 @@ class Simulator:
         d.qpos[self._qp + 3 : self._qp + 7] = quat_wxyz_from_R(R)
         self._k = 0
         self._truth = None
-        self._ext_f = [0.0, 0.0, 0.0]
-        self._ext_m = [0.0, 0.0, 0.0]
-        self._has_ext = False
-        self._pack_ext()
+        self._ext[0] = 0
+        self._ext["p_E_B"] = self._p_E_B
         if omega_hz is None:
             self.rotors.reset(self.hover_speeds_hz(R))
         else:
@@ -261,68 +252,35 @@ class Simulator:
             if w.shape != self._n_shape or not np.all(np.isfinite(w)):
                 raise InputError(f"reset: omega_hz must be a finite vector of shape {self._n_shape}")
             self.rotors.reset(w)
-        streams = [np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(_N_STREAMS)]
-        s = self.params.sensors
-        self.imu.reset(streams[0], streams[1])
-        self.mocap.reset(streams[2], d.qpos[self._qp : self._qp + 3].copy(), d.qpos[self._qp + 3 : self._qp + 7].copy())
-        self._rotor_noise = NoiseStream(streams[3], s.rotor_speed_noise_std_hz, self.vehicle.n_rotors)
-        state_scale = np.repeat(
-            [
-                s.state_pos_noise_std,
-                s.state_vel_noise_std,
-                s.state_acc_noise_std,
-                s.state_att_noise_std,
-                s.state_omega_noise_std,
-            ],
-            3,
-        )
-        self._state_noise = NoiseStream(streams[4], state_scale, 15)
-        st = self._state_noise if self._state_mode == _k.STATE_NOISY else None
-        self._streams = tuple(x for x in (self.imu.noise, self._rotor_noise, st, self.mocap.noise) if x is not None)
-        self._noise = (
-            self.imu.noise.buf, self.imu.noise.pos, self._rotor_noise.buf, self._rotor_noise.pos,
-            st.buf if st is not None else self._no_noise, st.pos if st is not None else self._no_noise_pos,
-            self.mocap.noise.buf, self.mocap.noise.pos,
-        )  # fmt: skip
-        self._moc = self.mocap.kernel_state
-        self._kargs = None  # rebuilt by kernel_args (the noise streams are new)
+        self.sensors.reset(self._pose[0:3].copy(), self._pose[3:7].copy())
+        self.faults.reset()
         self._apply_wrench(recompute_rotors=True)
         mujoco.mj_forward(m, d)
-        self._refill_noise()
-        _k.observe(
-            self._mjv, self._si, self.rotors.omega_hz, self.imu.kernel_params, self._noise, self._moc,
-            self._sens_adr, 0, self.dt, self._frame_buf, self._row,
-        )  # fmt: skip
+        self.sensors.refill()
+        _step.observe(self._rec, 0, self.dt, self._frame_buf, self._row)
         return SensorFrame.from_packed(self._frame_buf)
 
-    def _refill_noise(self) -> None:
-        """Draw the next block of every exhausted noise stream (the compiled step reads one row of each)."""
-        for stream in self._streams:
-            if stream.exhausted:
-                stream.refill()
-
     @property
-    def kernel_args(self) -> tuple | None:
-        """The arguments of :func:`omnirotor.sim._kernels.sim_step` but the command, step index and outputs.
+    def kernel_state(self) -> np.ndarray | None:
+        """The (1,) :data:`~omnirotor.sim.step.SIM_DTYPE` record of :func:`omnirotor.sim.step.sim_step`.
 
-        ``(mjv, si, act, imu_par, noise, moc, sens_adr)``, for a compiled loop (valid until the next
-        :meth:`reset`); None when the rotor or truth model was replaced by one without a kernel.
+        For a compiled loop (valid until the simulator is dropped); None when the rotor or truth model was
+        replaced by one without a kernel.
         """
         if not (self.aero is self._fused_aero and self.rotors is self._fused_rotors):
             return None
-        if self._kargs is None or self._kargs[2][3] is not self.aero.kernel_model:
-            r = self.rotors
-            self._si[_k.SI_AERO_KIND] = self.aero.kernel_kind
-            act = (r.omega_hz, r.u_hz2, r.kernel_params, self.aero.kernel_model, self._w_B, self._ext)
-            self._kargs = (self._mjv, self._si, act, self.imu.kernel_params, self._noise, self._moc, self._sens_adr)
-            # The same arrays by address, for step(); they stay alive and in place in _kargs.
-            self._ktable = address_table(_k.kernel_arrays(self._kargs))
-        return self._kargs
+        aero = self._rec["aero"]
+        model = self.aero.kernel_model
+        if aero["model"][0] != model.ctypes.data:  # the model array the record points to is the aero's
+            aero["kind"] = self.aero.kernel_kind
+            aero["model"], aero["rows"], aero["cols"] = model.ctypes.data, model.shape[0], model.shape[1]
+            self._aero_model = model  # kept alive with the record
+        return self._rec
 
     @property
     def noise_streams(self) -> tuple[NoiseStream, ...]:
         """The noise streams a compiled step reads (refill the exhausted ones between compiled calls)."""
-        return self._streams
+        return self.sensors.noise_streams
 
     @property
     def packed_frame(self) -> np.ndarray:
@@ -357,18 +315,10 @@ class Simulator:
         mo = np.zeros(3) if m_W is None else np.asarray(m_W, dtype=float)
         if f.shape != (3,) or mo.shape != (3,) or not (np.all(np.isfinite(f)) and np.all(np.isfinite(mo))):
             raise InputError("set_external_wrench: f_W and m_W must be finite (3,) vectors")
-        self._ext_f = f.tolist()
-        self._ext_m = mo.tolist()
-        self._ext_at_ee = at == "ee"
-        self._has_ext = bool(np.any(f != 0.0) or np.any(mo != 0.0))
-        self._pack_ext()
-
-    def _pack_ext(self) -> None:
         e = self._ext
-        e[0:3] = self._ext_f
-        e[3:6] = self._ext_m
-        e[9] = 1.0 if self._has_ext else 0.0
-        e[10] = 1.0 if self._ext_at_ee else 0.0
+        e["f_W"], e["m_W"] = f, mo
+        e["at_ee"] = at == "ee"
+        e["active"] = bool(np.any(f != 0.0) or np.any(mo != 0.0))
 
     # ------------------------------------------------------------------------------------------------
     def step(self, cmd: RotorCommand) -> SensorFrame:
@@ -384,21 +334,21 @@ class Simulator:
         omega_cmd = np.asarray(cmd.omega_hz, dtype=np.float64)
         if omega_cmd.shape != self._n_shape:
             raise InputError(f"step: omega_hz must have shape {self._n_shape}, got {omega_cmd.shape}")
-        self._refill_noise()
-        if self.kernel_args is not None:  # the project's own rotor and truth models: one compiled call
-            _k.sim_step_by_address(self._ktable, omega_cmd, self._k, self.dt, self._frame_buf, self._row)
+        self.sensors.refill()
+        self.faults.tell_due(self._k, self.dt)
+        rec = self.kernel_state
+        if rec is not None:  # the project's own rotor and truth models: one compiled call
+            _step.sim_step(rec, omega_cmd, self._k, self.dt, self._frame_buf, self._row)
         else:
             m, d = self.model, self.data
+            rotor_cmd = _step.pre_step(self._rec, omega_cmd, self._k, self.dt)
             for i in range(self.substeps):
                 mujoco.mj_Euler(m, d)
                 if i == self._last_substep:
-                    self.rotors.step(omega_cmd)
+                    self.rotors.step(rotor_cmd)
                 self._apply_wrench(recompute_rotors=i == self._last_substep)
                 mujoco.mj_forward(m, d)
-            _k.observe(
-                self._mjv, self._si, self.rotors.omega_hz, self.imu.kernel_params, self._noise, self._moc,
-                self._sens_adr, self._k + 1, self.dt, self._frame_buf, self._row,
-            )  # fmt: skip
+            _step.observe(self._rec, self._k + 1, self.dt, self._frame_buf, self._row)
         self._k += 1
         self._truth = None
         return SensorFrame.from_packed(self._frame_buf)
@@ -407,7 +357,7 @@ class Simulator:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
         if recompute_rotors:
             self.aero.wrench_B(self.rotors.u_hz2, out=self._w_B)
-        _k.apply_wrench(self._qpos, self._qp, self._w_B, self._ext, self._xfrc)
+        _step.apply_wrench(self._pose, self._w_B, self._ext[0], self._xfrc)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -423,63 +373,34 @@ class Simulator:
         Layout of ``out[0 : TRUTH_ROW_SIZE + n]`` (n rotors; later entries are left alone): ``t`` [s],
         ``p_W`` (3), ``v_W`` (3), ``R_WB`` (9, row-major), ``omega_B`` (3), ``p_E_W`` (3),
         ``contact_force_W`` (3), ``contact_moment_W`` (3), ``in_contact`` (1.0 or 0.0), ``rotor_hz`` (n): the
-        same values as :attr:`truth` (the contact wrench from the EE contact sensors, up to rounding).
+        same values as :attr:`truth`.
 
         Args:
             out: a 1-D float64 array of at least ``TRUTH_ROW_SIZE + n`` entries.
         """
         out[: self._row.shape[0]] = self._row
 
-    def _contact_wrench(self, p_E_W: np.ndarray, force: np.ndarray, moment: np.ndarray) -> tuple:
-        """Add the environment's contact force on the end-effector and its moment about ``p_E_W`` (world frame).
-
-        Returns:
-            ``(force, moment, in_contact, other_contact)``: the two arrays given, updated in place, and whether
-            the end-effector, or another part of the vehicle, touches the environment.
-        """
-        m, d = self.model, self.data
-        in_contact = False
-        other = False
-        f6 = self._cf6
-        ncon = d.ncon
-        if ncon:
-            g1 = d.contact.geom1
-            g2 = d.contact.geom2
-            frames = d.contact.frame
-            pos = d.contact.pos
-            for c in range(ncon):
-                r1, r2 = self._robot_geom[g1[c]], self._robot_geom[g2[c]]
-                if r1 == r2:
-                    continue
-                geom = g1[c] if r1 else g2[c]
-                if not self._ee_geom[geom]:
-                    other = True
-                    continue
-                in_contact = True
-                mujoco.mj_contactForce(m, d, c, f6)
-                F = frames[c].reshape(3, 3)
-                # mj_contactForce gives the force on geom2, in the contact frame (rows of F).
-                sign = -1.0 if r1 else 1.0
-                f_W = sign * (F.T @ f6[:3])
-                force += f_W
-                moment += sign * (F.T @ f6[3:]) + np.cross(pos[c] - p_E_W, f_W)
-        return force, moment, in_contact, other
-
     def _ground_truth(self) -> GroundTruth:
-        n = self.vehicle.n_rotors
-        # Every array of the record is a view into one fresh buffer (_kernels.truth_into gives the layout).
-        g = np.empty(_k.TRUTH_SIZE + n)
-        qpos, qvel, qacc, xmat, site_xpos, _, _ = self._mjv
-        _k.truth_into(
-            qpos, qvel, qacc, xmat, site_xpos, self._qp, self._qv, self._body, self._ee_site, self.rotors.omega_hz,
-            self._w_B, g,
-        )  # fmt: skip
-        p_E_W = g[27:30]
-        force, moment, in_contact, other = self._contact_wrench(p_E_W, g[30:33], g[33:36])
+        d = self.data
+        qv, body = self._qv, self._body
+        p_E_W = d.site_xpos[self._ee_site].copy()
+        self.contact.step(d.sensordata, p_E_W)
+        c = self.contact.state[0]
         return GroundTruth(
-            self.t, g[0:3], g[3:6], g[6:9], g[9:18].reshape(3, 3), g[18:21], g[36 : 36 + n], g[21:27], force,
-            moment, in_contact, p_E_W, other,
-        )  # fmt: skip
+            t=self.t,
+            p_W=self._pose[0:3].copy(),
+            v_W=d.qvel[qv : qv + 3].copy(),
+            a_W=d.qacc[qv : qv + 3].copy(),
+            R_WB=d.xmat[body].reshape(3, 3).copy(),
+            omega_B=d.qvel[qv + 3 : qv + 6].copy(),
+            rotor_hz=self.rotors.omega_hz.copy(),
+            rotor_wrench_B=self._w_B.copy(),
+            contact_force_W=c["f_W"].copy(),
+            contact_moment_W=c["m_W"].copy(),
+            in_contact=bool(c["in_contact"]),
+            p_E_W=p_E_W,
+            other_contact=other_contact(d, self._robot_geom, self._ee_geom),
+        )
 
     def hover_speeds_hz(self, R_WB: np.ndarray | None = None) -> np.ndarray:
         """(n,) speeds [Hz] that hover at ``R_WB`` under the nominal map (clipped to the limits)."""

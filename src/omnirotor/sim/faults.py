@@ -1,0 +1,426 @@
+"""Fault injection inside the simulator's step: a schedule of rotor failures, gusts, dropouts and corruptions.
+
+The faults themselves (what they mean, their parameters, their validation) are described in
+:mod:`omnirotor.experiments.faults`; this block applies them at the plant boundary, in the compiled step,
+so a run with faults takes the same compiled loop as one without. Per control period from ``t = k dt``:
+
+1. :func:`faults_command`: the command is checked (non-finite, beyond the rotor limits: counted), and the
+   command of every failed rotor (``t + 1e-12 >= t_start``) is forced to 0 Hz;
+2. :func:`faults_wrench`: the gusts blowing at ``t`` set the external wrench at the CoM (``0.5 (1 - cos(2 pi
+   tau))`` or a step of the peak), and clear it when they stop;
+3. after the step, :func:`faults_frame` edits the new frame (its time ``t'``): a motion-capture dropout
+   ``[t_start, t_end)`` removes the sample delivered in it and any sample taken in it (and the bypass state
+   with ``drop_state``); a corruption puts NaN, inf or an added spike into one signal (all components, or
+   one), in the order of the schedule.
+
+Telling the controller that a rotor failed is not the plant's business: the schedule gives the steps at
+which it is due (:meth:`FaultSchedule.notice_steps`) and calls :attr:`FaultSchedule.notify` at them from the
+simulator's :meth:`~omnirotor.sim.simulator.Simulator.step`; a compiled loop stops there and calls it too.
+Every onset and end is logged (:meth:`FaultSchedule.events`).
+
+The block (:class:`FaultSchedule`, registered as ``("faults", "schedule")``) owns its record
+(:data:`STATE_DTYPE`: the schedule, the failed rotors, the counters, the event log).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from omnirotor._jit import jit
+from omnirotor.blocks import register
+from omnirotor.errors import InputError
+from omnirotor.messages import (
+    FRAME_ACC_B,
+    FRAME_GYRO_B,
+    FRAME_HAS_STATE,
+    FRAME_MOCAP_NEW,
+    FRAME_MOCAP_P_W,
+    FRAME_MOCAP_Q_WB,
+    FRAME_MOCAP_T,
+    FRAME_ROTOR_HZ,
+    FRAME_STATE,
+    FRAME_STATE_SIZE,
+    FRAME_T,
+)
+from omnirotor.sim.rotors import MAX_ROTORS
+
+__all__ = [
+    "FaultSchedule",
+    "faults_command",
+    "faults_wrench",
+    "faults_frame",
+    "STATE_DTYPE",
+    "MAX_FAULTS",
+    "SIGNALS",
+    "CORRUPTIONS",
+    "PROFILES",
+]
+
+MAX_FAULTS = 32
+"""Faults a schedule has room for."""
+MAX_EVENTS = 4 * MAX_FAULTS + 64
+"""Onsets and ends the event log has room for (gusts may start and stop several times)."""
+ROTOR_FAILURE, MOCAP_DROPOUT, CORRUPTION, GUST = 1, 2, 3, 4
+SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state")
+"""Signals of the frame a corruption can hit (their codes are their indices)."""
+CORRUPTIONS = ("nan", "inf", "spike")
+PROFILES = ("1-cos", "step")
+_SIG_ACC, _SIG_GYRO, _SIG_ROTOR, _SIG_MOCAP, _SIG_STATE = range(5)
+_NAN, _INF, _SPIKE = range(3)
+_STEP_PROFILE = 1
+_TIME_TOL_S = 1e-12
+"""A fault due at ``t_start`` starts at the first period whose time is within this of it."""
+# Event codes of the log.
+EV_FAIL, EV_TOLD, EV_DROP_ON, EV_DROP_OFF, EV_CORR_ON, EV_CORR_OFF, EV_GUST_ON, EV_GUST_OFF = range(8)
+
+FAULT_DTYPE = np.dtype(
+    [
+        ("kind", np.int64),  # ROTOR_FAILURE, MOCAP_DROPOUT, CORRUPTION, GUST
+        ("t_start_s", np.float64),
+        ("t_end_s", np.float64),  # end of the window (a failure lasts)
+        ("duration_s", np.float64),
+        ("rotor", np.int64),  # failure: 0-based rotor
+        ("drop_state", np.bool_),  # dropout: also remove the bypass state
+        ("signal", np.int64),  # corruption: index in SIGNALS
+        ("corruption", np.int64),  # index in CORRUPTIONS
+        ("magnitude", np.float64),  # spike
+        ("component", np.int64),  # -1: all components
+        ("force_W", np.float64, (3,)),  # gust peak [N]
+        ("moment_W", np.float64, (3,)),  # gust peak [N·m]
+        ("profile", np.int64),  # index in PROFILES
+        ("on", np.bool_),  # state: active at the last check
+    ]
+)
+"""One scheduled fault (fields of the kinds that do not use them stay 0)."""
+
+STATE_DTYPE = np.dtype(
+    [
+        ("n_faults", np.int64),
+        ("faults", FAULT_DTYPE, (MAX_FAULTS,)),
+        ("n_rotors", np.int64),
+        ("omega_min_hz", np.float64),
+        ("omega_max_hz", np.float64),
+        ("failed", np.int8, (MAX_ROTORS,)),  # 1: failed (numba has no nested bool arrays)
+        ("any_failed", np.bool_),
+        ("gust_on", np.bool_),
+        ("has_gusts", np.bool_),
+        ("has_frame_faults", np.bool_),
+        ("cmd_hz", np.float64, (MAX_ROTORS,)),  # the command the rotors get
+        ("commands_checked", np.int64),
+        ("commands_nonfinite", np.int64),
+        ("commands_out_of_limits", np.int64),
+        ("n_events", np.int64),
+        ("event_t", np.float64, (MAX_EVENTS,)),
+        ("event_code", np.int64, (MAX_EVENTS,)),
+        ("event_fault", np.int64, (MAX_EVENTS,)),
+    ]
+)
+"""The schedule and what it has done."""
+
+
+@jit
+def _log(st, t: float, code: int, i: int) -> None:
+    j = st["n_events"]
+    if j < st["event_t"].shape[0]:
+        st["event_t"][j] = t
+        st["event_code"][j] = code
+        st["event_fault"][j] = i
+        st["n_events"] = j + 1
+
+
+@jit
+def faults_command(st, t: float, cmd_hz):
+    """Check the command and force failed rotors to 0 Hz (module docstring); returns the rotors' command.
+
+    Args:
+        st: the :data:`STATE_DTYPE` record, updated.
+        t: time of the period's start [s].
+        cmd_hz: (n,) the controller's command [Hz] (not modified).
+
+    Returns:
+        (n,) the command for the rotors (a view of ``st.cmd_hz``).
+    """
+    n = st["n_rotors"]
+    out = st["cmd_hz"][:n]
+    st["commands_checked"] += 1
+    finite, within = True, True
+    for i in range(n):
+        c = cmd_hz[i]
+        out[i] = c
+        if not math.isfinite(c):
+            finite = False
+        elif not (st["omega_min_hz"] <= c <= st["omega_max_hz"]):
+            within = False
+    if not finite:
+        st["commands_nonfinite"] += 1
+    elif not within:
+        st["commands_out_of_limits"] += 1
+    for i in range(st["n_faults"]):
+        f = st["faults"][i]
+        if f["kind"] == ROTOR_FAILURE and not f["on"] and t + _TIME_TOL_S >= f["t_start_s"]:
+            f["on"] = True
+            st["failed"][f["rotor"]] = 1
+            st["any_failed"] = True
+            _log(st, t, EV_FAIL, i)
+    if st["any_failed"]:
+        for i in range(n):
+            if st["failed"][i]:
+                out[i] = 0.0
+    return out
+
+
+@jit
+def faults_wrench(st, t: float, ext) -> None:
+    """The gusts blowing at ``t`` into the external wrench record ``ext`` (at the CoM; cleared after them)."""
+    if not st["has_gusts"]:
+        return
+    fx, fy, fz, mx, my, mz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    on = False
+    for i in range(st["n_faults"]):
+        g = st["faults"][i]
+        if g["kind"] != GUST:
+            continue
+        tau = (t - g["t_start_s"]) / g["duration_s"]
+        if not 0.0 <= tau < 1.0:
+            continue
+        s = 1.0 if g["profile"] == _STEP_PROFILE else 0.5 * (1.0 - math.cos(2.0 * math.pi * tau))
+        if s > 0.0:
+            on = True
+            fx += s * g["force_W"][0]
+            fy += s * g["force_W"][1]
+            fz += s * g["force_W"][2]
+            mx += s * g["moment_W"][0]
+            my += s * g["moment_W"][1]
+            mz += s * g["moment_W"][2]
+    if on or st["gust_on"]:
+        f, m = ext["f_W"], ext["m_W"]
+        f[0], f[1], f[2], m[0], m[1], m[2] = fx, fy, fz, mx, my, mz
+        ext["at_ee"] = False
+        ext["active"] = fx != 0.0 or fy != 0.0 or fz != 0.0 or mx != 0.0 or my != 0.0 or mz != 0.0
+    if on != st["gust_on"]:
+        _log(st, t, EV_GUST_ON if on else EV_GUST_OFF, -1)
+    st["gust_on"] = on
+
+
+@jit
+def _bad(frame, o: int, size: int, f) -> None:
+    """Corrupt ``frame[o : o + size]`` by fault ``f`` (one component or all; an absent component: nothing)."""
+    lo, hi = 0, size
+    if f["component"] >= 0:
+        if f["component"] >= size:
+            return
+        lo, hi = f["component"], f["component"] + 1
+    for j in range(o + lo, o + hi):
+        if f["corruption"] == _NAN:
+            frame[j] = math.nan
+        elif f["corruption"] == _INF:
+            frame[j] = math.inf
+        else:
+            frame[j] += f["magnitude"]
+
+
+@jit
+def faults_frame(st, frame) -> None:
+    """Dropouts and corruptions of the packed frame due at its time (module docstring), in place."""
+    if not st["has_frame_faults"]:
+        return
+    t = frame[FRAME_T]
+    mocap_new = frame[FRAME_MOCAP_NEW] != 0.0
+    mocap_t = frame[FRAME_MOCAP_T]
+    for i in range(st["n_faults"]):
+        d = st["faults"][i]
+        if d["kind"] != MOCAP_DROPOUT:
+            continue
+        active = d["t_start_s"] <= t < d["t_end_s"]
+        if active != d["on"]:
+            d["on"] = active
+            _log(st, t, EV_DROP_ON if active else EV_DROP_OFF, i)
+        if active or (mocap_new and d["t_start_s"] <= mocap_t < d["t_end_s"]):
+            frame[FRAME_MOCAP_NEW] = 0.0
+            for j in range(FRAME_MOCAP_T, FRAME_MOCAP_Q_WB + 4):
+                frame[j] = 0.0
+            if d["drop_state"] and active:
+                frame[FRAME_HAS_STATE] = 0.0
+                for j in range(FRAME_STATE, FRAME_STATE + FRAME_STATE_SIZE):
+                    frame[j] = 0.0
+    for i in range(st["n_faults"]):
+        c = st["faults"][i]
+        if c["kind"] != CORRUPTION:
+            continue
+        active = c["t_start_s"] <= t < c["t_end_s"]
+        if active != c["on"]:
+            c["on"] = active
+            _log(st, t, EV_CORR_ON if active else EV_CORR_OFF, i)
+        if not active:
+            continue
+        sig = c["signal"]
+        if sig == _SIG_ACC:
+            _bad(frame, FRAME_ACC_B, 3, c)
+        elif sig == _SIG_GYRO:
+            _bad(frame, FRAME_GYRO_B, 3, c)
+        elif sig == _SIG_ROTOR:
+            _bad(frame, FRAME_ROTOR_HZ, st["n_rotors"], c)
+        elif sig == _SIG_MOCAP:
+            if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
+                _bad(frame, FRAME_MOCAP_P_W, 3, c)
+                if c["corruption"] != _SPIKE:
+                    _bad(frame, FRAME_MOCAP_Q_WB, 4, c)
+        elif frame[FRAME_HAS_STATE] != 0.0:  # the bypass state's position
+            _bad(frame, FRAME_STATE, 3, c)
+
+
+@register("faults", "schedule")
+class FaultSchedule:
+    """A schedule of faults applied by the simulator's step (module docstring).
+
+    Args:
+        n_rotors: the vehicle's rotors.
+        omega_min_hz: the rotors' lower speed limit [Hz] (for the command check).
+        omega_max_hz: the upper limit [Hz].
+        state: (1,) :data:`STATE_DTYPE` record to live in, e.g. a field of the simulator's (default: its own).
+
+    Attributes:
+        notify: called with the (n,) bool mask of failed rotors when the controller is to be told (and with
+            None at :meth:`reset` when any failure is to be told), or None.
+    """
+
+    state_dtype = STATE_DTYPE
+    log_fields = ("failed", "commands_nonfinite", "commands_out_of_limits")
+
+    def __init__(self, n_rotors: int, omega_min_hz: float, omega_max_hz: float, state: np.ndarray | None = None):
+        self.state = np.zeros(1, STATE_DTYPE) if state is None else state
+        s = self.state[0]
+        s["n_rotors"], s["omega_min_hz"], s["omega_max_hz"] = n_rotors, omega_min_hz, omega_max_hz
+        self.n_rotors = n_rotors
+        self.notify: Callable[[np.ndarray | None], None] | None = None
+        self._notices: list[tuple[float, int]] = []  # (time the controller is told [s], failure index)
+        self._rotor_of: dict[int, int] = {}
+        self._labels: list[str] = []
+        self._told: set[int] = set()
+        self._told_log: list[tuple[float, int]] = []
+
+    # -- building the schedule ----------------------------------------------------------------------------------
+    def _add(self, kind: int, label: str, t_start_s: float, t_end_s: float, **fields) -> np.void:
+        s = self.state[0]
+        i = int(s["n_faults"])
+        if i >= MAX_FAULTS:
+            raise InputError(f"at most {MAX_FAULTS} faults per run")
+        f = s["faults"][i]
+        f["kind"], f["t_start_s"], f["t_end_s"] = kind, t_start_s, t_end_s
+        for k, v in fields.items():
+            f[k] = v
+        s["n_faults"] = i + 1
+        self._labels.append(label)
+        return f
+
+    def add_rotor_failure(self, rotor: int, t_start_s: float, tell_after_s: float | None) -> None:
+        """Rotor ``rotor`` (0-based) stops at ``t_start_s``; the controller is told ``tell_after_s`` later.
+
+        ``tell_after_s`` None: never told.
+        """
+        if not 0 <= rotor < self.n_rotors:
+            raise InputError(f"rotor_failure.rotor {rotor + 1}: the vehicle has {self.n_rotors} rotors")
+        i = int(self.state[0]["n_faults"])
+        self._add(ROTOR_FAILURE, f"rotor {rotor + 1}", t_start_s, math.inf, rotor=rotor)
+        self._rotor_of[i] = rotor
+        if tell_after_s is not None:
+            self._notices.append((t_start_s + tell_after_s, i))
+
+    def add_mocap_dropout(self, t_start_s: float, duration_s: float, drop_state: bool) -> None:
+        """No motion-capture sample delivered, nor taken, in ``[t_start_s, t_start_s + duration_s)``."""
+        self._add(MOCAP_DROPOUT, "motion-capture dropout", t_start_s, t_start_s + duration_s, drop_state=drop_state)
+        self.state[0]["has_frame_faults"] = True
+
+    def add_corruption(
+        self, signal: str, kind: str, t_start_s: float, duration_s: float, magnitude: float, component: int | None
+    ) -> None:
+        """``kind`` (nan, inf, spike of ``magnitude``) in ``signal`` (:data:`SIGNALS`) over the window."""
+        self._add(
+            CORRUPTION, f"{kind} on {signal}", t_start_s, t_start_s + duration_s, signal=SIGNALS.index(signal),
+            corruption=CORRUPTIONS.index(kind), magnitude=magnitude, component=-1 if component is None else component,
+        )  # fmt: skip
+        self.state[0]["has_frame_faults"] = True
+
+    def add_gust(self, t_start_s: float, duration_s: float, force_W, moment_W, profile: str) -> None:
+        """An external wrench at the CoM over the window, ``profile`` "1-cos" or "step" of the peak."""
+        self._add(
+            GUST, "wind gust", t_start_s, t_start_s + duration_s, duration_s=duration_s, force_W=force_W,
+            moment_W=moment_W, profile=PROFILES.index(profile),
+        )  # fmt: skip
+        self.state[0]["has_gusts"] = True
+
+    # -- running ----------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the start of the run: nothing failed, nothing active, counters and log cleared."""
+        s = self.state[0]
+        s["faults"]["on"] = False
+        s["failed"], s["any_failed"], s["gust_on"] = 0, False, False
+        s["commands_checked"] = s["commands_nonfinite"] = s["commands_out_of_limits"] = 0
+        s["n_events"] = 0
+        s["cmd_hz"], s["event_t"], s["event_code"], s["event_fault"] = 0.0, 0.0, 0, 0
+        self._told = set()
+        self._told_log: list[tuple[float, int]] = []
+        if self.notify is not None and self._notices:
+            self.notify(None)
+
+    def notice_steps(self, dt: float) -> list[int]:
+        """Step indices ``k`` at whose start (``t = k dt``) the controller is told about a failure, sorted."""
+        steps = []
+        for t_tell, _ in self._notices:
+            k = max(0, int(math.floor(t_tell / dt)) - 1)
+            while k * dt + _TIME_TOL_S < t_tell:
+                k += 1
+            steps.append(k)
+        return sorted(set(steps))
+
+    def tell_due(self, k: int, dt: float) -> None:
+        """Tell the controller (:attr:`notify`) the failures due at the start of step ``k``."""
+        t = k * dt
+        due = [i for t_tell, i in self._notices if i not in self._told and t + _TIME_TOL_S >= t_tell]
+        if not due:
+            return
+        self._told.update(due)
+        failed = self.state[0]["failed"][: self.n_rotors].astype(bool)
+        for i in due:
+            failed[self._rotor_of[i]] = True  # failed at this step's start at the latest
+        for i in due:
+            self._told_log.append((t, i))
+        if self.notify is not None:
+            self.notify(failed)
+
+    @property
+    def commands_checked(self) -> int:
+        """Commands received since the last reset."""
+        return int(self.state[0]["commands_checked"])
+
+    @property
+    def commands_nonfinite(self) -> int:
+        """Of those, commands with a non-finite speed."""
+        return int(self.state[0]["commands_nonfinite"])
+
+    @property
+    def commands_out_of_limits(self) -> int:
+        """Of those, commands with a speed beyond the vehicle's limits."""
+        return int(self.state[0]["commands_out_of_limits"])
+
+    @property
+    def events(self) -> list[tuple[float, str]]:
+        """``(t [s], description)`` of each fault's onset and end, in order (for reports)."""
+        s = self.state[0]
+        rows = []  # (t, rank, order, description): at one time, frame edits, failures, notices, gusts
+        for j in range(int(s["n_events"])):
+            t, code, i = float(s["event_t"][j]), int(s["event_code"][j]), int(s["event_fault"][j])
+            if code == EV_FAIL:
+                rows.append((t, 1, j, f"{self._labels[i]} fails"))
+            elif code in (EV_DROP_ON, EV_CORR_ON):
+                rows.append((t, 0, j, f"{self._labels[i]} starts"))
+            elif code in (EV_DROP_OFF, EV_CORR_OFF):
+                rows.append((t, 0, j, f"{self._labels[i]} ends"))
+            else:
+                rows.append((t, 3, j, "wind gust starts" if code == EV_GUST_ON else "wind gust ends"))
+        if self.notify is not None:
+            rows += [(t, 2, j, f"controller told {self._labels[i]} failed") for j, (t, i) in enumerate(self._told_log)]
+        return [(t, text) for t, _, _, text in sorted(rows)]

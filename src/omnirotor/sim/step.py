@@ -1,0 +1,230 @@
+"""The simulator's compiled step: the composer that wires its blocks through named signals (SPEC §2, §1.4, §7).
+
+One control period (:func:`sim_step`, the step of :meth:`omnirotor.sim.simulator.Simulator.step`): the
+fault schedule (:mod:`omnirotor.sim.faults`) checks the command, stops failed rotors and sets the gusts; then
+``substeps`` x (``mj_Euler``; on the last one the rotors (:func:`omnirotor.sim.rotors.rotor_step`) and the
+truth aerodynamics (:func:`aero_wrench`) give the new rotor wrench ``w_B``; :func:`apply_wrench` puts it and
+the external wrench into ``xfrc_applied``; ``mj_forward``), then :func:`observe` at the new time: the sensors
+(:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts, corruptions), the
+truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`) adds the EE contact
+wrench to it.
+
+Everything the step reads and updates is one record of :data:`SIM_DTYPE`, whose fields are the blocks' own
+records (``rotor_par``, ``rotors``, ``sensors``, ``contact_par``, ``faults``) and the composer's wiring: the addresses
+of MuJoCo's arrays for the vehicle (``mj``), the truth model (``aero``), the external wrench (``ext``) and
+the rotor wrench ``w_B``. MuJoCo's C step functions are called directly (:func:`omnirotor._jit.mujoco_function`).
+
+The truth row (:data:`TRUTH_ROW_SIZE` + n entries; the simulator owns its layout): ``t, p_W (3), v_W (3),
+R_WB (9), omega_B (3), p_E_W (3), contact_force_W (3), contact_moment_W (3), in_contact, rotor_hz (n)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, jit, mujoco_function
+from omnirotor.sim import aero as _aero
+from omnirotor.sim import contact, faults, rotors, sensors
+
+__all__ = [
+    "SIM_DTYPE",
+    "MJ_DTYPE",
+    "AERO_DTYPE",
+    "EXT_DTYPE",
+    "TRUTH_ROW_SIZE",
+    "sim_step",
+    "observe",
+    "apply_wrench",
+    "aero_wrench",
+    "pre_step",
+]
+
+mj_Euler = mujoco_function("mj_Euler")
+"""MuJoCo's ``void mj_Euler(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
+mj_forward = mujoco_function("mj_forward")
+"""MuJoCo's ``void mj_forward(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
+
+MJ_DTYPE = np.dtype(
+    [
+        ("model", np.int64),  # MjModel._address
+        ("data", np.int64),  # MjData._address
+        ("substeps", np.int64),  # physics steps per control period
+        ("pose", np.int64),  # address of the vehicle's qpos: p_W (3), q_WB (4, wxyz)
+        ("vel", np.int64),  # address of its qvel: v_W (3), omega_B (3)
+        ("acc", np.int64),  # address of its qacc: p_ddot_W (3), omega_dot_B (3)
+        ("R_WB", np.int64),  # address of its xmat row (9, row-major)
+        ("p_E_W", np.int64),  # address of the EE tip's site_xpos row (3)
+        ("sensordata", np.int64),  # address of sensordata
+        ("n_sensordata", np.int64),
+        ("xfrc", np.int64),  # address of its xfrc_applied row (6: force, torque, world frame)
+    ]
+)
+"""Where the step finds the vehicle in MuJoCo's arrays (MjData never reallocates them)."""
+
+AERO_DTYPE = np.dtype([("kind", np.int64), ("model", np.int64), ("rows", np.int64), ("cols", np.int64)])
+"""The truth model: its kind (``AERO_NOMINAL``, ``AERO_WAKE``, ``AERO_INTERFERENCE``), its array's address and shape."""
+
+EXT_DTYPE = np.dtype(
+    [
+        ("f_W", np.float64, (3,)),
+        ("m_W", np.float64, (3,)),
+        ("p_E_B", np.float64, (3,)),
+        ("active", np.bool_),
+        ("at_ee", np.bool_),  # the force acts at the EE tip (adds its moment about the CoM), else at the CoM
+    ]
+)
+"""A constant external wrench, world frame."""
+
+SIM_DTYPE = np.dtype(
+    [
+        ("rotor_par", rotors.PARAMS_DTYPE),
+        ("rotors", rotors.STATE_DTYPE),
+        ("sensors", sensors.STATE_DTYPE),
+        ("contact_par", contact.PARAMS_DTYPE),
+        ("faults", faults.STATE_DTYPE),
+        ("mj", MJ_DTYPE),
+        ("aero", AERO_DTYPE),
+        ("ext", EXT_DTYPE),
+        ("w_B", np.float64, (6,)),  # the rotor wrench at the CoM, body frame [N, N·m]
+    ]
+)
+"""The record of :func:`sim_step`: the blocks' records and the composer's wiring."""
+
+TRUTH_ROW_SIZE = 29
+"""Entries of the truth row before the rotor speeds."""
+_ROW_T, _ROW_P, _ROW_V, _ROW_R, _ROW_OMEGA, _ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG = 0, 1, 4, 7, 16, 19, 22, 25, 28
+
+
+@jit
+def apply_wrench(pose, w_B, ext, xfrc) -> None:
+    """Rotor wrench ``w_B`` (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
+
+    ``R_WB`` is that of the quaternion ``pose[3:7]``; an active external force applied at the EE tip adds its
+    moment ``(R p_E_B) x f_W``.
+    """
+    R = np.empty(9)
+    R9_from_quat_into(pose[3], pose[4], pose[5], pose[6], R, 0)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R[0], R[1], R[2], R[3], R[4], R[5], R[6], R[7], R[8]
+    fx, fy, fz, mx, my, mz = w_B[0], w_B[1], w_B[2], w_B[3], w_B[4], w_B[5]
+    Fx = r00 * fx + r01 * fy + r02 * fz
+    Fy = r10 * fx + r11 * fy + r12 * fz
+    Fz = r20 * fx + r21 * fy + r22 * fz
+    Mx = r00 * mx + r01 * my + r02 * mz
+    My = r10 * mx + r11 * my + r12 * mz
+    Mz = r20 * mx + r21 * my + r22 * mz
+    if ext["active"]:
+        ef, em = ext["f_W"], ext["m_W"]
+        ex, ey, ez = ef[0], ef[1], ef[2]
+        Fx, Fy, Fz = Fx + ex, Fy + ey, Fz + ez
+        Mx, My, Mz = Mx + em[0], My + em[1], Mz + em[2]
+        if ext["at_ee"]:
+            pe = ext["p_E_B"]
+            px, py, pz = pe[0], pe[1], pe[2]
+            rx = r00 * px + r01 * py + r02 * pz
+            ry = r10 * px + r11 * py + r12 * pz
+            rz = r20 * px + r21 * py + r22 * pz
+            Mx += ry * ez - rz * ey
+            My += rz * ex - rx * ez
+            Mz += rx * ey - ry * ex
+    xfrc[0] = Fx
+    xfrc[1] = Fy
+    xfrc[2] = Fz
+    xfrc[3] = Mx
+    xfrc[4] = My
+    xfrc[5] = Mz
+
+
+@jit
+def aero_wrench(aero, u_hz2, w_B) -> None:
+    """The truth model's rotor wrench at the CoM, body frame, for inputs ``u_hz2`` [Hz²], into ``w_B`` (6,)."""
+    model = f64_at2(aero["model"], aero["rows"], aero["cols"])
+    if aero["kind"] == _aero.AERO_WAKE:
+        _aero.wake_wrench(u_hz2, model, w_B)
+    elif aero["kind"] == _aero.AERO_INTERFERENCE:
+        _aero.interference_wrench(u_hz2, model, w_B)
+    else:  # the nominal map A_nom (6, n)
+        n = u_hz2.shape[0]
+        for r in range(6):
+            acc = 0.0
+            for j in range(n):
+                acc += model[r, j] * u_hz2[j]
+            w_B[r] = acc
+
+
+@jit
+def observe(sim, k: int, dt: float, frame, row) -> None:
+    """The frame and the truth row at step ``k`` (time ``k dt``) from MuJoCo's current state.
+
+    Args:
+        sim: (1,) the :data:`SIM_DTYPE` record.
+        k: step index.
+        dt: control period [s].
+        frame: the packed frame (written whole).
+        row: the truth row, at least ``TRUTH_ROW_SIZE + n`` entries.
+    """
+    s = sim[0]
+    mj = s["mj"]
+    pose, vel, acc = f64_at(mj["pose"], 7), f64_at(mj["vel"], 6), f64_at(mj["acc"], 6)
+    R9, p_E_W = f64_at(mj["R_WB"], 9), f64_at(mj["p_E_W"], 3)
+    omega_hz = s["rotors"]["omega_hz"]
+    t = k * dt
+    sensors.sense(s["sensors"], pose, vel, acc, R9, omega_hz, k, t, frame)
+    faults.faults_frame(s["faults"], frame)
+    row[_ROW_T] = t
+    for i in range(3):
+        row[_ROW_P + i] = pose[i]
+        row[_ROW_V + i] = vel[i]
+        row[_ROW_OMEGA + i] = vel[3 + i]
+        row[_ROW_P_E + i] = p_E_W[i]
+        row[_ROW_F + i] = 0.0
+        row[_ROW_M + i] = 0.0
+    for i in range(9):
+        row[_ROW_R + i] = R9[i]
+    for i in range(s["rotor_par"]["n_rotors"]):
+        row[TRUTH_ROW_SIZE + i] = omega_hz[i]
+    touching = contact.contact_wrench(
+        s["contact_par"], f64_at(mj["sensordata"], mj["n_sensordata"]), row[_ROW_P_E : _ROW_P_E + 3],
+        row[_ROW_F : _ROW_F + 3], row[_ROW_M : _ROW_M + 3],
+    )  # fmt: skip
+    row[_ROW_FLAG] = 1.0 if touching else 0.0
+
+
+@jit
+def pre_step(sim, cmd_hz, k: int, dt: float):
+    """The fault schedule's part before a period from step ``k`` (the Python step's); returns the rotors' command."""
+    s = sim[0]
+    t = k * dt
+    cmd = faults.faults_command(s["faults"], t, cmd_hz)
+    faults.faults_wrench(s["faults"], t, s["ext"])
+    return cmd
+
+
+@jit
+def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
+    """A whole control period of :meth:`omnirotor.sim.simulator.Simulator.step` (module docstring).
+
+    Args:
+        sim: (1,) the :data:`SIM_DTYPE` record.
+        cmd_hz: (n,) commanded rotor speeds [Hz] (clipped by the rotor model; NaN holds a rotor's speed).
+        k: the step index before the period.
+        dt: control period [s].
+        frame: the packed frame (output).
+        row: the truth row (output).
+    """
+    s = sim[0]
+    mj = s["mj"]
+    pose, xfrc = f64_at(mj["pose"], 7), f64_at(mj["xfrc"], 6)
+    w_B, ext = s["w_B"], s["ext"]
+    m, d = mj["model"], mj["data"]
+    t = k * dt
+    cmd = faults.faults_command(s["faults"], t, cmd_hz)
+    faults.faults_wrench(s["faults"], t, ext)
+    substeps = mj["substeps"]
+    for i in range(substeps):
+        mj_Euler(m, d)
+        if i == substeps - 1:
+            rotors.rotor_step(s["rotor_par"], s["rotors"], cmd)
+            aero_wrench(s["aero"], s["rotors"]["u_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
+        apply_wrench(pose, w_B, ext, xfrc)
+        mj_forward(m, d)
+    observe(sim, k + 1, dt, frame, row)

@@ -1,0 +1,96 @@
+"""No stale compiled code: a cached kernel compiles again when a helper it calls changes in another module.
+
+The package is copied to a temporary folder with two extra modules (a helper and a kernel calling it, in
+different files); each step runs in a new interpreter, as a user's next run would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parent.parent / "src" / "omnirotor"
+
+HELPER = """
+from omnirotor._jit import jit
+from omnirotor.{consts} import OFFSET
+
+
+@jit
+def helper(x):
+    return x + {inc} + OFFSET
+"""
+CONSTS = "OFFSET = {offset}\n"
+KERNEL = """
+from omnirotor._jit import jit
+from omnirotor.{helper} import helper
+
+
+@jit
+def kernel(x):
+    return 2.0 * helper(x)
+"""
+PROBE = """
+import json
+from omnirotor.{kernel} import kernel
+value = kernel(1.0)
+print(json.dumps({{"value": value, "hits": sum(kernel.stats.cache_hits.values()),
+                   "misses": sum(kernel.stats.cache_misses.values())}}))
+"""
+
+
+def _run(root: Path, names: dict) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(root))
+    env.pop("NUMBA_CACHE_DIR", None)  # the cache beside the copied sources
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE.format(**names)], env=env, capture_output=True, text=True, check=True
+    )
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_editing_a_helper_in_another_module_recompiles_the_dependent_kernel(tmp_path: Path) -> None:
+    pkg = tmp_path / "omnirotor"
+    shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    names = {"kernel": "_probe_kernel", "helper": "_probe_helper", "consts": "_probe_consts"}
+    (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=0.0))
+    (pkg / "_probe_helper.py").write_text(HELPER.format(consts=names["consts"], inc=1.0))
+    (pkg / "_probe_kernel.py").write_text(KERNEL.format(helper=names["helper"]))
+    kernel_stat = (pkg / "_probe_kernel.py").stat()
+
+    first = _run(tmp_path, names)
+    assert first == {"value": 4.0, "hits": 0, "misses": 1}
+    again = _run(tmp_path, names)
+    assert again == {"value": 4.0, "hits": 1, "misses": 0}  # unchanged sources: the cache is used
+
+    (pkg / "_probe_helper.py").write_text(HELPER.format(consts=names["consts"], inc=5.0))
+    assert (pkg / "_probe_kernel.py").stat().st_mtime_ns == kernel_stat.st_mtime_ns  # the kernel's file untouched
+    assert _run(tmp_path, names)["value"] == 12.0
+
+    (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=10.0))  # a constant the helper reads, a third file
+    assert _run(tmp_path, names)["value"] == 32.0
+
+
+def test_source_closure_follows_package_imports_only() -> None:
+    from omnirotor._jit import source_closure
+
+    files = {p.relative_to(SRC).as_posix() for p in source_closure(str(SRC / "sim" / "simulator.py"))}
+    assert {"sim/simulator.py", "_jit.py"} <= files
+    assert not any(f.startswith("cli/") for f in files)
+
+
+def test_kernels_outside_the_package_are_keyed_on_their_own_file(tmp_path: Path) -> None:
+    from omnirotor._jit import _closure_hash, source_closure
+
+    f = tmp_path / "bench_kernel.py"
+    f.write_text("from omnirotor._jit import jit\nimport omnirotor.so3\n")
+    files = source_closure(str(f))
+    assert f.resolve() in files and SRC / "so3.py" in files
+    h = _closure_hash(str(f))
+    assert source_closure("<string>") == () and len(h) == 64
