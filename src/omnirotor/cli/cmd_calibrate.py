@@ -10,10 +10,6 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
-from omnirotor.identification import load_hover_data
-from omnirotor.regions import load_partition
-from omnirotor.sim.aero_calibration import calibrate, plot_measured_vs_predicted, report_markdown, write_truth_toml
-from omnirotor.vehicle import load_vehicle
 
 
 @app.command("calibrate-truth")
@@ -35,6 +31,11 @@ def calibrate_truth_cmd(
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
     if report is not None and report.exists() and not report.is_dir():
         raise InputError(f"--report {report}: is a file, not a folder")
+    from omnirotor.identification import load_hover_data
+    from omnirotor.regions import load_partition
+    from omnirotor.sim.aero_calibration import calibrate, plot_measured_vs_predicted, report_markdown, write_truth_toml
+    from omnirotor.vehicle import load_vehicle
+
     veh = load_vehicle(vehicle)
     part = load_partition(partition)
     hover = load_hover_data(data, veh)
