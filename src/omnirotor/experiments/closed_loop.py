@@ -403,9 +403,12 @@ HOVER_SETTLE_S = 1.0
 """Hover metrics start after this time [s] (the estimator and observer transients)."""
 
 
-@register_task("hover")
 def hover_task(options: TaskOptions, progress: Callable[[float], None] | None = None) -> TaskResult:
-    """Start at rest, hovering upright at the free scene's start pose, and hold it (free-flight admittance)."""
+    """Start at rest, hovering upright at the free scene's start pose, and hold it (free-flight admittance).
+
+    The ``hover`` task of ``omnirotor run`` and of campaigns is :func:`omnirotor.experiments.tasks.hover`,
+    which flies the same on the plant its options describe (perturbed in campaigns).
+    """
     vehicle = load_vehicle(options.vehicle)
     duration = options.duration_s if options.duration_s is not None else HOVER_DURATION_S
     sim = Simulator(vehicle, scene="free", params=options.sim_params(), seed=options.seed)
