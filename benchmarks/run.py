@@ -87,6 +87,7 @@ class Config:
         rotorpy_sweep_repeats: runs of RotorPy's ``Environment`` per start of the sweep (0: skip the sweep).
         crazyflow_s: simulated seconds of each crazyflow run (its subprocess times several per call).
         crazyflow_calls: crazyflow subprocess calls, alternating with our hover runs of the same length (0: skip).
+        crazyflow_batched_s: simulated seconds of each batched crazyflow run.
         crazyflow_worlds: world counts of crazyflow's batched runs.
         campaign_runs: runs of the ``omnirotor campaign hover --workers 2 --quick`` throughput measurement.
         campaign_duration_s: simulated seconds of each of its runs (None: the hover task's default).
@@ -113,6 +114,7 @@ class Config:
     rotorpy_sweep_repeats: int = 0
     crazyflow_s: float = 0.0
     crazyflow_calls: int = 0
+    crazyflow_batched_s: float = 0.0
     crazyflow_worlds: tuple[int, ...] = ()
     campaign_runs: int = 0
     campaign_duration_s: float | None = None
@@ -141,6 +143,7 @@ CONFIGS = {
         rotorpy_sweep_repeats=3,
         crazyflow_s=20.0,
         crazyflow_calls=2,
+        crazyflow_batched_s=2.0,
         crazyflow_worlds=(1000, 10000),
         campaign_runs=200,
     ),
@@ -166,6 +169,7 @@ CONFIGS = {
         rotorpy_sweep_repeats=1,
         crazyflow_s=5.0,
         crazyflow_calls=1,
+        crazyflow_batched_s=1.0,
         crazyflow_worlds=(1000,),
         campaign_runs=20,
     ),
@@ -191,6 +195,7 @@ CONFIGS = {
         rotorpy_sweep_repeats=1,
         crazyflow_s=0.05,
         crazyflow_calls=0,
+        crazyflow_batched_s=0.05,
         crazyflow_worlds=(2,),
         campaign_runs=2,
         campaign_duration_s=0.05,
@@ -486,9 +491,9 @@ def crazyflow_python() -> str | None:
     return str(exe) if exe.exists() else None
 
 
-def _crazyflow_call(python: str, duration_s: float, worlds: tuple[int, ...], repeats: int) -> dict:
-    cmd = [python, str(HERE / "peer_crazyflow.py"), "--duration", f"{duration_s:g}", "--repeats", str(repeats)]
-    cmd += ["--worlds", *map(str, worlds)]
+def _crazyflow_call(python: str, cfg: Config, repeats: int = 3) -> dict:
+    cmd = [python, str(HERE / "peer_crazyflow.py"), "--duration", f"{cfg.crazyflow_s:g}", "--repeats", str(repeats)]
+    cmd += ["--batched-duration", f"{cfg.crazyflow_batched_s:g}", "--worlds", *map(str, cfg.crazyflow_worlds)]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=3600)
     if proc.returncode != 0:
         tail = proc.stderr.strip().splitlines()[-1:] or ["no output"]
@@ -508,7 +513,7 @@ def measure_crazyflow(cfg: Config) -> dict | None:
         return None
     calls, ours = [], []
     for _ in range(cfg.crazyflow_calls):
-        calls.append(_crazyflow_call(python, cfg.crazyflow_s, cfg.crazyflow_worlds, 3))
+        calls.append(_crazyflow_call(python, cfg))
         ours.append(peer.ours_hover(cfg.crazyflow_s, "bypass"))
     first = calls[0]
     ours_rtf = _median([x["rtf"] for x in ours])
@@ -541,6 +546,7 @@ def measure_crazyflow(cfg: Config) -> dict | None:
         "float": "float64" if first["x64"] else "float32",
         "python": python,
         "duration_s": cfg.crazyflow_s,
+        "batched_duration_s": cfg.crazyflow_batched_s,
         "calls": cfg.crazyflow_calls,
         "import_s": _median([c["import_s"] for c in calls]),
         "ours_rtf": ours_rtf,
@@ -551,13 +557,37 @@ def measure_crazyflow(cfg: Config) -> dict | None:
     }
 
 
-def measure_campaign_throughput(cfg: Config, marginal_rtf: float) -> dict | None:
+TIMED_FAULTS = ("gust_force_N", "gust_duration_s", "mocap_dropout_s", "failed_rotor", "rotor_failure_told")
+"""Campaign parameters that schedule faults: a run with one flies ``FaultInjector``, which the compiled loop does
+not take (``run_closed_loop`` then steps in Python)."""
+
+
+def _campaign_file(duration_s: float | None, drop: tuple[str, ...]) -> str:
+    """The default campaign preset for the hover task, less the parameters ``drop``, as TOML text."""
+    import tomllib
+    from importlib import resources
+
+    data = tomllib.loads((resources.files("omnirotor") / "presets" / "campaigns" / "default.toml").read_text())
+    lines = ['task = "hover"', f"runs = {data.get('runs', 20)}", f"seed = {data.get('seed', 0)}", "[options]"]
+    options = dict(data.get("options", {}))
+    if duration_s is not None:
+        options["duration_s"] = duration_s
+    lines += [f"{k} = {json.dumps(v)}" for k, v in options.items()]
+    for name, table in data.get("vary", {}).items():
+        if name not in drop:
+            lines.append(f"[vary.{name}]")
+            lines += [f"{k} = {json.dumps(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+def measure_campaign_throughput(cfg: Config, marginal_rtf: float, without_faults: bool = False) -> dict | None:
     """``omnirotor campaign hover --runs N --workers 2 --quick`` in a fresh process, start-up included.
 
     ``sim_s_per_s`` is the simulated seconds of the runs over the wall time of the whole command (interpreter
     start, imports, the pool's workers and their kernel loading, every run, the summary and its plots);
-    ``line`` is the command's own ``throughput:`` line (timed inside ``run_campaign``). Compared with the
-    marginal real-time factor of one hover run on one core (``scaling.fit``).
+    ``line`` is the command's own ``throughput:`` line (timed inside the command). Compared with the marginal
+    real-time factor of one hover run on one core (``scaling.fit``). ``without_faults``: the default campaign
+    less its timed faults (:data:`TIMED_FAULTS`), whose runs take the compiled loop.
     """
     if cfg.campaign_runs == 0:
         return None
@@ -567,13 +597,12 @@ def measure_campaign_throughput(cfg: Config, marginal_rtf: float) -> dict | None
         cli = [sys.executable, "-c", "import sys; from omnirotor.cli import main; sys.exit(main())"]
         cmd = [*cli, "campaign", "hover", "--runs", str(cfg.campaign_runs)]
         cmd += ["--workers", "2", "--quick", "--out", str(Path(tmp) / "c")]
-        if cfg.campaign_duration_s is not None:  # the tiny smoke run: a campaign file with short runs
-            f = Path(tmp) / "short.toml"
-            f.write_text(f'task = "hover"\n[options]\nduration_s = {cfg.campaign_duration_s!r}\n')
+        if without_faults or cfg.campaign_duration_s is not None:
+            f = Path(tmp) / "campaign.toml"
+            f.write_text(_campaign_file(cfg.campaign_duration_s, TIMED_FAULTS if without_faults else ()))
             cmd += ["--campaign", str(f)]
-        env = _env_with_src()
         tic = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False, timeout=7200)
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env_with_src(), check=False, timeout=7200)
         wall = time.perf_counter() - tic
         if proc.returncode != 0:
             raise RuntimeError(f"campaign failed ({proc.returncode}): {proc.stderr.strip()[-300:]}")
@@ -585,6 +614,7 @@ def measure_campaign_throughput(cfg: Config, marginal_rtf: float) -> dict | None
     run_walls = [r["elapsed_s"] for r in records]
     return {
         "command": " ".join(["omnirotor", *cmd[len(cli) :]]).replace(tmp, "TMP"),
+        "campaign": "default preset less timed faults" if without_faults else "default preset",
         "runs": cfg.campaign_runs,
         "workers": 2,
         "sim_s": sim_s,
@@ -592,6 +622,7 @@ def measure_campaign_throughput(cfg: Config, marginal_rtf: float) -> dict | None
         "sim_s_per_s": sim_s / wall,
         "line": {"sim_s": sim_s, "wall_s": float(m.group(2)), "sim_s_per_s": float(m.group(3))},
         "runs_ok": sum(r["status"] == "ok" for r in records),
+        "runs_with_timed_faults": sum(any(r["params"].get(k) for k in TIMED_FAULTS) for r in records),
         "run_wall_sum_s": float(sum(run_walls)),
         "run_wall_median_s": _median(run_walls),
         "marginal_rtf_one_core": marginal_rtf,
@@ -728,6 +759,8 @@ def collect(
     note(f"campaign throughput: omnirotor campaign hover --runs {cfg.campaign_runs} --workers 2 --quick")
     camp = measure_campaign_throughput(cfg, marginal)
     out["campaign_throughput"] = camp
+    note("campaign throughput without timed faults (compiled loop)")
+    out["campaign_throughput_no_faults"] = measure_campaign_throughput(cfg, marginal, without_faults=True)
     out["campaign_throughput_sim_s_per_s"] = camp["sim_s_per_s"] if camp else None
     note("start-up of a campaign worker: imports, kernel loading, set-up")
     out["startup"] = measure_startup()
@@ -1022,23 +1055,35 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
     ct = r.get("campaign_throughput")
     if ct:
         su = r.get("startup") or {}
+        nf = r.get("campaign_throughput_no_faults") or {}
+
+        def both(fn) -> list[str]:
+            return [fn(ct), fn(nf) if nf else "—"]
+
         trow = [
-            ["command", f"`{ct['command']}`"],
-            ["simulated / wall (whole command, start-up included)", f"{_f(ct['sim_s'])} s / {_f(ct['wall_s'], 2)} s"],
-            ["**throughput** [simulated s per wall s]", f"**{_f(ct['sim_s_per_s'])}**"],
-            ["the command's own throughput line (inside run_campaign)", _f(ct["line"]["sim_s_per_s"])],
-            ["marginal RTF of one hover run on one core (scaling fit)", _f(ct["marginal_rtf_one_core"])],
-            ["throughput / marginal RTF (goal of issue 16: ≥ 1.8)", f"{ct['ratio_to_marginal_rtf']:.2f}"],
-            ["runs ok; median wall per run (set-up + stepping) [s]", f"{ct['runs_ok']}; {ct['run_wall_median_s']:.2f}"],
-        ]
+            ["command", *both(lambda c: f"`{c['command']}`")],
+            ["runs ok; runs with a timed fault (Python loop)", *both(lambda c: f"{c['runs_ok']}; {c['runs_with_timed_faults']}")],
+            ["simulated / wall, whole command [s]", *both(lambda c: f"{_f(c['sim_s'])} / {_f(c['wall_s'], 2)}")],
+            ["**throughput**, start-up included [simulated s per wall s]", *both(lambda c: f"**{_f(c['sim_s_per_s'])}**")],
+            ["the command's own throughput line", *both(lambda c: _f(c["line"]["sim_s_per_s"]))],
+            ["throughput / marginal RTF of one run on one core (goal: ≥ 1.8)", *both(lambda c: f"{c['ratio_to_marginal_rtf']:.2f}")],
+            ["median wall per run in a worker (set-up, stepping, summary) [s]", *both(lambda c: f"{c['run_wall_median_s']:.2f}")],
+            ["marginal RTF of one hover run on one core (scaling fit)", _f(ct["marginal_rtf_one_core"]), ""],
+        ]  # fmt: skip
         if su:
             trow += [
-                ["fresh process: imports (numpy, MuJoCo, numba, omnirotor) [s]", _f(su["imports_s"], 2)],
-                ["fresh process: kernel loading (first run less second) [s]", _f(su["kernel_loading_s"], 2)],
-                ["one run's set-up (simulator, controller, logs) [s]", _f(su["setup_s"], 3)],
-                ["stepping, wall per simulated second [s]", _f(su["stepping_s_per_sim_s"], 4)],
+                ["fresh process: imports (numpy, MuJoCo, numba, omnirotor) [s]", _f(su["imports_s"], 2), ""],
+                ["fresh process: kernel loading (first run less second) [s]", _f(su["kernel_loading_s"], 2), ""],
+                ["one run's set-up (simulator, controller, logs) [s]", _f(su["setup_s"], 3), ""],
+                ["stepping, wall per simulated second [s]", _f(su["stepping_s_per_sim_s"], 4), ""],
             ]
-        tables.append(("Campaign throughput and where a worker's time goes", trow, ["", ""]))
+        tables.append(
+            (
+                "Campaign throughput (2 workers) and where a worker's time goes",
+                trow,
+                ["", "default campaign (the issue's command)", "less its timed faults"],
+            )
+        )
 
     sc = r["scaling"]
     fit = sc["fit"]
