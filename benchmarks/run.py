@@ -989,7 +989,8 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
     tables.append(
         (
             f"Quadrotor hover, omnirotor vs RotorPy {q['rotorpy_version'] or '(not installed)'}: "
-            f"{q['duration_s']:g} s simulated; interleaved runs per side: {q['repeats']}",
+            f"{q['duration_s']:g} s simulated; interleaved runs per side: {q['repeats']} (step loop), "
+            f"{len((q.get('rotorpy_sweep') or [{}])[0].get('rtf_runs', []))} per start (sweep)",
             peer_rows,
             ["", "omnirotor", "RotorPy", "ratio"],
         )
