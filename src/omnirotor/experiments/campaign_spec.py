@@ -65,7 +65,7 @@ DISTRIBUTIONS = {
 }
 """Required and optional keys of each distribution."""
 HOVER_EVENT_WINDOW_S = (2.0, 8.0)
-"""Timed events of the hover tasks start in this window [s]."""
+"""Timed events of the hover tasks start in this window [s] (clipped to end by 75 % of a shorter ``hover`` run)."""
 ROTOR_DETECT_DELAY_S = 0.02
 """Time from a rotor failure to the controller being told in campaigns [s] (ESC telemetry, [A])."""
 _SEED_MAX = 2**31 - 1
