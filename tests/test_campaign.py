@@ -34,7 +34,7 @@ bins = 2
 [options]
 quick = true
 estimator = "bypass"
-duration_s = 0.6
+duration_s = 0.3
 
 [vary.gamma]
 dist = "uniform"
