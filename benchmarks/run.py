@@ -494,7 +494,10 @@ def crazyflow_python() -> str | None:
 def _crazyflow_call(python: str, cfg: Config, repeats: int = 3) -> dict:
     cmd = [python, str(HERE / "peer_crazyflow.py"), "--duration", f"{cfg.crazyflow_s:g}", "--repeats", str(repeats)]
     cmd += ["--batched-duration", f"{cfg.crazyflow_batched_s:g}", "--worlds", *map(str, cfg.crazyflow_worlds)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=3600)
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="omnirotor-bench-crazyflow-") as tmp:  # MuJoCo writes its log in cwd
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=3600, cwd=tmp)
     if proc.returncode != 0:
         tail = proc.stderr.strip().splitlines()[-1:] or ["no output"]
         raise RuntimeError(f"crazyflow run failed ({proc.returncode}): {tail[0]}")
