@@ -25,7 +25,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
-# The benchmarks also need the `bench` extra (RotorPy, the peer of the quadrotor comparison).
+# The benchmarks also need the `bench` extra (RotorPy, the peer of the quadrotor comparison) and crazyflow.
 # `make bench BENCH_ARGS=--quick` for the one-minute version; the JSON lands in out/bench.json.
 BENCH_STAMP := $(VENV)/.installed-bench
 BENCH_ARGS ?=
@@ -33,7 +33,15 @@ $(BENCH_STAMP): $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[dev,bench]'
 	touch $(BENCH_STAMP)
 
-bench: $(BENCH_STAMP)
+# crazyflow (JAX) runs in its own venv, in a subprocess of run.py (benchmarks/peer-crazyflow.txt says why).
+CRAZYFLOW_VENV  := out/peer-venvs/crazyflow
+CRAZYFLOW_STAMP := $(CRAZYFLOW_VENV)/.installed
+$(CRAZYFLOW_STAMP): benchmarks/peer-crazyflow.txt
+	test -x $(CRAZYFLOW_VENV)/bin/python || $(PYTHON) -m venv $(CRAZYFLOW_VENV)
+	$(CRAZYFLOW_VENV)/bin/python -m pip install --quiet -r benchmarks/peer-crazyflow.txt
+	touch $(CRAZYFLOW_STAMP)
+
+bench: $(BENCH_STAMP) $(CRAZYFLOW_STAMP)
 	$(BIN)/python benchmarks/run.py --out out/bench.json $(BENCH_ARGS)
 
 lint: $(STAMP)

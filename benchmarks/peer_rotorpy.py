@@ -25,6 +25,7 @@ correct a lateral offset. Its regulariser is the default one, scaled to the quad
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -181,23 +182,106 @@ def ours_sim_only(duration_s: float, seed: int = 0) -> dict:
 # -- RotorPy side ---------------------------------------------------------------------------------------
 
 
-def _rotorpy_setup(x0: np.ndarray):
+def hover_speed_rad_s() -> float:
+    """RotorPy's Crazyflie hover rotor speed sqrt(m g / (4 k_eta)) [rad/s] (g = 9.81, as RotorPy)."""
+    qp = _crazyflie()
+    return math.sqrt(qp["mass"] * 9.81 / (qp["num_rotors"] * qp["k_eta"]))
+
+
+EXAMPLE_ROTOR_SPEED_RAD_S = 1788.53
+"""The initial rotor speed of RotorPy's own examples [rad/s] (hover is 1788.5505: a 1e-5 relative offset)."""
+CIRCLE_RADIUS_M = 1.0
+CIRCLE_FREQ_HZ = 0.2
+"""The tracked circle: radius and lap frequency of ``ThreeDCircularTraj`` in the horizontal plane."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RotorPyStart:
+    """One start of the RotorPy sweep.
+
+    Attributes:
+        name: label in the tables.
+        rotor_speed_rad_s: initial speed of every rotor [rad/s] (None: exactly the hover speed).
+        offset_m: initial position minus the hover target [m].
+        trajectory: "hover" (``HoverTraj`` at the target) or "circle" (``ThreeDCircularTraj`` centred so that
+            the circle starts at the target).
+    """
+
+    name: str
+    rotor_speed_rad_s: float | None = EXAMPLE_ROTOR_SPEED_RAD_S
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    trajectory: str = "hover"
+
+
+def rotorpy_starts() -> list[RotorPyStart]:
+    """The sweep of starts: rotor speeds around hover, an offset position, the circle, and exact hover."""
+    w = hover_speed_rad_s() if rotorpy_version() else EXAMPLE_ROTOR_SPEED_RAD_S
+    return [
+        RotorPyStart("examples' 1788.53 rad/s"),
+        RotorPyStart("hover -0.1 %", w * (1.0 - 1e-3)),
+        RotorPyStart("hover +0.1 %", w * (1.0 + 1e-3)),
+        RotorPyStart("hover -1 %", w * (1.0 - 1e-2)),
+        RotorPyStart("hover +1 %", w * (1.0 + 1e-2)),
+        RotorPyStart("offset (0.1, -0.1, -0.2) m", offset_m=(0.1, -0.1, -0.2)),
+        RotorPyStart("circle r 1 m, 0.2 Hz", trajectory="circle"),
+        RotorPyStart("exactly hover (slow RK45 case)", rotor_speed_rad_s=None),
+    ]
+
+
+def _rotorpy_setup(x0: np.ndarray, start: RotorPyStart | None = None):
+    """Vehicle, SE3Control, trajectory, initial state and hover speed of a RotorPy run.
+
+    ``start`` None: the hover target ``x0`` started exactly at the hover rotor speed (the first version of
+    this benchmark, RotorPy's slowest case).
+    """
     from rotorpy.controllers.quadrotor_control import SE3Control
+    from rotorpy.trajectories.circular_traj import ThreeDCircularTraj
     from rotorpy.trajectories.hover_traj import HoverTraj
     from rotorpy.vehicles.multirotor import Multirotor
 
     qp = _crazyflie()
-    w_hover = math.sqrt(qp["mass"] * 9.81 / (qp["num_rotors"] * qp["k_eta"]))  # rad/s
+    w_hover = hover_speed_rad_s()
+    start = start or RotorPyStart("exactly hover", rotor_speed_rad_s=None)
+    w0 = w_hover if start.rotor_speed_rad_s is None else start.rotor_speed_rad_s
     state = {
-        "x": x0.copy(),
+        "x": x0 + np.asarray(start.offset_m),
         "v": np.zeros(3),
         "q": np.array([0.0, 0.0, 0.0, 1.0]),  # xyzw
         "w": np.zeros(3),
         "wind": np.zeros(3),
-        "rotor_speeds": np.full(qp["num_rotors"], w_hover),
+        "rotor_speeds": np.full(qp["num_rotors"], w0),
     }
+    if start.trajectory == "circle":  # starts at the target: x(0) = centre + (r, 0, 0)
+        r = CIRCLE_RADIUS_M
+        trajectory = ThreeDCircularTraj(
+            center=x0 - np.array([r, 0.0, 0.0]),
+            radius=np.array([r, r, 0.0]),
+            freq=np.array([CIRCLE_FREQ_HZ, CIRCLE_FREQ_HZ, 0.0]),
+        )
+    else:
+        trajectory = HoverTraj(x0=x0.copy())
     vehicle = Multirotor(qp, initial_state=state)  # defaults: cmd_motor_speeds, aero=True, RK45
-    return vehicle, SE3Control(qp), HoverTraj(x0=x0.copy()), state, w_hover
+    return vehicle, SE3Control(qp), trajectory, state, w_hover
+
+
+def rotorpy_environment(duration_s: float, x0: np.ndarray, start: RotorPyStart, sim_rate_hz: float = 1.0 / DT_S):
+    """RotorPy's documented usage: ``Environment(vehicle, controller, trajectory, sim_rate).run(t_final)``.
+
+    ``run`` calls ``simulate()`` (its default IMU, motion capture and null estimator, no wind) and builds its
+    result and ``Plotter`` without plotting. Timed: the ``run`` call.
+
+    Returns:
+        ``wall_s``, ``rtf``, ``rtf_cpu``, ``final_pos_err_mm`` (against the trajectory's final point).
+    """
+    from rotorpy.environments import Environment
+
+    vehicle, controller, trajectory, _, _ = _rotorpy_setup(x0, start)
+    env = Environment(vehicle=vehicle, controller=controller, trajectory=trajectory, sim_rate=sim_rate_hz)
+    tic, cpu0 = time.perf_counter(), time.process_time()
+    result = env.run(t_final=duration_s, plot=False, animate_bool=False, verbose=False)
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu0
+    err = np.linalg.norm(result["state"]["x"][-1] - result["flat"]["x"][-1]) * 1e3
+    return {"wall_s": wall, "rtf": duration_s / wall, "rtf_cpu": duration_s / cpu, "final_pos_err_mm": float(err)}
 
 
 def start_position() -> np.ndarray:

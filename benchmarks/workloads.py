@@ -9,18 +9,23 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
+_T_START = time.perf_counter()  # before the imports below: start-up profile (--startup)
 
-from omnirotor._jit import jit, monotonic_ns
-from omnirotor.control.admittance import AdmittanceParams
-from omnirotor.control.controller import ControllerParams, InteractionController
-from omnirotor.control.estimator import EstimatorParams
-from omnirotor.control.trajectory import PoseTrajectory
-from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
-from omnirotor.experiments.scenarios import sliding
-from omnirotor.sim import SimParams, Simulator
-from omnirotor.sim.step import mj_Euler, mj_forward
-from omnirotor.vehicle import load_vehicle
+import json  # noqa: E402
+import sys  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from omnirotor._jit import jit, monotonic_ns  # noqa: E402
+from omnirotor.control.admittance import AdmittanceParams  # noqa: E402
+from omnirotor.control.controller import ControllerParams, InteractionController  # noqa: E402
+from omnirotor.control.estimator import EstimatorParams  # noqa: E402
+from omnirotor.control.trajectory import PoseTrajectory  # noqa: E402
+from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task  # noqa: E402
+from omnirotor.experiments.scenarios import sliding  # noqa: E402
+from omnirotor.sim import SimParams, Simulator  # noqa: E402
+from omnirotor.sim.step import mj_Euler, mj_forward  # noqa: E402
+from omnirotor.vehicle import load_vehicle  # noqa: E402
 
 SLIDING_SEED = 0
 DT_S = SimParams().dt
@@ -98,3 +103,48 @@ def mujoco_loop(m: int, d: int, n: int, ts) -> float:
         mj_Euler(m, d)
         mj_forward(m, d)
     return (monotonic_ns(ts) - t0) / n / 1e3
+
+
+STARTUP_SHORT_S = 0.1
+STARTUP_LONG_S = 2.1
+
+
+def startup_profile() -> dict:
+    """Where a fresh process's first hover runs spend their time (run by ``run.py`` in a subprocess).
+
+    ``imports_s``: from this module's first line to the end of the imports (numpy, MuJoCo, numba, the
+    package) plus the experiment modules a campaign worker imports; ``first_run_s``, ``second_run_s``: two
+    ``run_task("hover")`` of ``STARTUP_SHORT_S``; ``long_run_s``: one of ``STARTUP_LONG_S``. Derived:
+    ``kernel_loading_s`` (first minus second run: the compiled kernels loaded from numba's cache),
+    ``stepping_s_per_sim_s`` ((long - second) / (long - short simulated)), ``setup_s`` (a run's set-up: the
+    second run less its stepping).
+    """
+    from omnirotor.experiments import campaign  # noqa: F401  (what a campaign worker imports)
+    from omnirotor.experiments.closed_loop import discover_tasks
+
+    discover_tasks()
+    imports = time.perf_counter() - _T_START
+    walls = []
+    for d in (STARTUP_SHORT_S, STARTUP_SHORT_S, STARTUP_LONG_S):
+        tic = time.perf_counter()
+        run_task("hover", TaskOptions(duration_s=d, seed=0))
+        walls.append(time.perf_counter() - tic)
+    first, second, long = walls
+    per_sim_s = (long - second) / (STARTUP_LONG_S - STARTUP_SHORT_S)
+    return {
+        "task": "hover (omnirotor, UKF)",
+        "imports_s": imports,
+        "first_run_s": first,
+        "second_run_s": second,
+        "long_run_s": long,
+        "short_s": STARTUP_SHORT_S,
+        "long_s": STARTUP_LONG_S,
+        "kernel_loading_s": first - second,
+        "stepping_s_per_sim_s": per_sim_s,
+        "setup_s": second - STARTUP_SHORT_S * per_sim_s,
+    }
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] == ["--startup"]:
+        print(json.dumps(startup_profile()))

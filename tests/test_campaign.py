@@ -3,6 +3,7 @@
 import dataclasses
 import importlib.util
 import json
+import re
 
 import numpy as np
 import pytest
@@ -251,7 +252,7 @@ BYPASS = '[options]\nestimator = "bypass"\n'
         (HEAD + "bogus = 1\n", "unknown key(s) bogus"),
         (HEAD + "seed = -1\n", "seed must be an integer >= 0"),
         (HEAD + 'maps = "nowhere.json"\n', "no such file"),
-        ('task = "hover"\n', "campaigns run the tasks"),
+        ('task = "hover-dance"\n', "campaigns run the tasks"),
         ("runs = 3\n", "no task"),
         (HEAD + '[vary.gravity_well]\ndist = "uniform"\nlow = 0\nhigh = 1\n', "unknown parameter 'gravity_well'"),
         (HEAD + '[vary.gamma]\ndist = "uniform"\nlow = 1\nhigh = 2\nstd = 3\n', "takes no std"),
@@ -380,3 +381,37 @@ def test_wilson_interval_holds_the_rate_and_matches_the_textbook():
             a, b = wilson_interval(k, n)
             assert 0.0 <= a <= k / n <= b <= 1.0
             assert (a, b) == pytest.approx(tuple(1 - x for x in wilson_interval(n - k, n)[::-1]))
+
+
+HOVER = """
+task = "hover"
+runs = 2
+[options]
+estimator = "bypass"
+duration_s = 0.6
+[vary.mass_error]
+dist = "constant"
+value = 0.4
+"""
+
+
+def test_hover_campaign_flies_the_perturbed_plant_and_ends_with_its_throughput(tmp_path, capsys):
+    from omnirotor.experiments.closed_loop import run_task
+
+    camp = tmp_path / "hover.toml"
+    camp.write_text(HOVER)
+    job = run_options(load_campaign(camp), 0)
+    assert job.task == "hover" and job.options.plant.mass_scale == pytest.approx(1.4)
+    heavy = execute_run(job)["metrics"]
+    believed = run_task("hover", dataclasses.replace(job.options, plant=None)).summary()
+    # 40 % more mass than the controller believes: it sags until the wrench observer has learnt the weight
+    # (same seed and noise: a task that ignored the plant would give identical numbers)
+    assert heavy["ee_rms_error"]["z_cm"] > 1.2 * believed["ee_rms_error"]["z_cm"]
+    assert heavy["task"] == "hover" and isinstance(heavy["success"], bool)
+    out = tmp_path / "c"
+    assert main(["campaign", "--campaign", str(camp), "--workers", "1", "--out", str(out)]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    m = re.fullmatch(r"throughput: ([0-9.]+) simulated s in ([0-9.]+) s wall \(([0-9.]+) per s\)", last)
+    assert m, last
+    assert float(m.group(1)) == pytest.approx(1.2)  # 2 runs of 0.6 s
+    assert float(m.group(3)) == pytest.approx(float(m.group(1)) / float(m.group(2)), rel=0.02, abs=0.05)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -74,6 +75,7 @@ def campaign(
         raise InputError(f"--out {out}: exists and is not a folder")
     err = Console(stderr=True)
     state = {"ok": 0, "fail": 0, "error": 0}
+    simulated = [0.0]  # simulated seconds of the runs finished by this call
     with Progress(
         TextColumn(f"[bold]{spec.task}[/bold] ({spec.options.map} map)"),
         BarColumn(),
@@ -85,9 +87,11 @@ def campaign(
         transient=True,
     ) as bar:
         bar_id = bar.add_task("", total=runs or spec.runs)
+        tic = time.perf_counter()
 
         def progress(done: int, total: int, rec: dict | None) -> None:
             if rec is not None:
+                simulated[0] += float((rec.get("metrics") or {}).get("duration_s") or 0.0)
                 key = "error" if rec.get("status") != "ok" else ("fail" if rec.get("success") is False else "ok")
                 state[key] += 1
             bar.update(
@@ -100,10 +104,13 @@ def campaign(
         summary = run_campaign(
             spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart, progress=progress
         )
+    wall = time.perf_counter() - tic
     if as_json:
         print(json.dumps(summary, indent=1))
-        return
-    _print_summary(summary, out)
+    else:
+        _print_summary(summary, out)
+    line = f"throughput: {simulated[0]:.1f} simulated s in {wall:.2f} s wall ({simulated[0] / wall:.1f} per s)"
+    (err if as_json else Console()).print(line, highlight=False, soft_wrap=True)
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -22,6 +22,7 @@ import numpy as np
 
 from omnirotor.config import apply_overrides, from_mapping, load_toml
 from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import HOVER_DURATION_S
 from omnirotor.experiments.faults import MocapDropout, PlantPerturbation, RotorFailure, WindGust
 from omnirotor.experiments.scenarios import ScenarioParams
 from omnirotor.experiments.tasks import CONTACT_TASKS, HOVER_TASKS, MAP_MODES, ExperimentOptions
@@ -43,7 +44,7 @@ __all__ = [
     "run_options",
 ]
 
-CAMPAIGN_TASKS = CONTACT_TASKS + HOVER_TASKS
+CAMPAIGN_TASKS = CONTACT_TASKS + HOVER_TASKS + ("hover",)
 """Tasks a campaign can run: the experiment tasks, which fly the perturbed plant."""
 KEY_METRICS = {
     "sliding": "contact.fraction",
@@ -52,6 +53,7 @@ KEY_METRICS = {
     "point-contact-tilted": "normal_force.true_mean_N",
     "identify-flights": "ee_rms_error.z_cm",
     "hover-validation": "ee_rms_error.z_cm",
+    "hover": "ee_rms_error.z_cm",
 }
 """Default metric of the scatter plots, per task (dotted path into the run's summary)."""
 DISTRIBUTIONS = {
@@ -63,7 +65,7 @@ DISTRIBUTIONS = {
 }
 """Required and optional keys of each distribution."""
 HOVER_EVENT_WINDOW_S = (2.0, 8.0)
-"""Timed events of the hover tasks start in this window [s]."""
+"""Timed events of the hover tasks start in this window [s] (clipped to end by 75 % of a shorter ``hover`` run)."""
 ROTOR_DETECT_DELAY_S = 0.02
 """Time from a rotor failure to the controller being told in campaigns [s] (ESC telemetry, [A])."""
 _SEED_MAX = 2**31 - 1
@@ -587,7 +589,9 @@ def _event_window(spec: CampaignSpec, sp: ScenarioParams) -> tuple[float, float]
     else:
         t0, t1 = HOVER_EVENT_WINDOW_S
     d = spec.options.duration_s
-    if d is not None and spec.task in CONTACT_TASKS and t1 > 0.75 * d:
+    if spec.task == "hover":  # the window must fit its short default length too
+        d = d if d is not None else HOVER_DURATION_S
+    if d is not None and (spec.task in CONTACT_TASKS or spec.task == "hover") and t1 > 0.75 * d:
         t1 = 0.75 * d
         t0 = min(t0, 0.25 * d)
     return float(t0), float(t1)

@@ -34,13 +34,13 @@ import numpy as np
 from omnirotor.config import apply_overrides
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController, load_controller_params
-from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
 from omnirotor.experiments.metrics import RunLog, error_stats
 from omnirotor.recorder import Recorder
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.params import AeroParams
-from omnirotor.vehicle import VehicleParams, load_vehicle
+from omnirotor.vehicle import VehicleParams
 
 __all__ = [
     "run_closed_loop",
@@ -52,7 +52,6 @@ __all__ = [
     "register_task",
     "run_task",
     "discover_tasks",
-    "hover_task",
     "FrameSink",
     "video_sink",
     "TRUTH_MODELS",
@@ -402,28 +401,4 @@ def run_task(
 
 
 HOVER_DURATION_S = 5.0
-"""Default length of the hover task [s]."""
-HOVER_SETTLE_S = 1.0
-"""Hover metrics start after this time [s] (the estimator and observer transients)."""
-
-
-@register_task("hover")
-def hover_task(options: TaskOptions, progress: Callable[[float], None] | None = None) -> TaskResult:
-    """Start at rest, hovering upright at the free scene's start pose, and hold it (free-flight admittance)."""
-    vehicle = load_vehicle(options.vehicle)
-    duration = options.duration_s if options.duration_s is not None else HOVER_DURATION_S
-    sim = Simulator(vehicle, scene="free", params=options.sim_params(), seed=options.seed)
-    p_W, R_WB = sim.default_start()
-    p_E = p_W + R_WB @ vehicle.p_E_B_array
-    trajectory = PoseTrajectory([Waypoint(0.0, p_E, R_WB)])
-    controller = InteractionController(vehicle, options.controller_params(AdmittanceParams.preset("free")))
-    with video_sink(sim, options.video) as video:
-        ctl_log, truth_log = run_closed_loop(sim, controller, trajectory, duration, progress=progress, video=video)
-    return TaskResult(
-        task="hover",
-        options=options,
-        duration_s=duration,
-        controller_log=ctl_log,
-        truth_log=truth_log,
-        metrics_from_s=min(HOVER_SETTLE_S, 0.5 * duration),
-    )
+"""Default length of the ``hover`` task (:func:`omnirotor.experiments.tasks.hover`) [s]."""

@@ -8,7 +8,8 @@ a task-specific verdict (``success``) and, for the hover tasks, per-region stati
 * ``identify-flights``: the hover data-collection protocol; writes ``hover_points.csv`` (the format of
   ``omnirotor identify``);
 * ``hover-validation``: new random attitudes per region, the estimated external wrench in hover (Fig. 3);
-* ``point-contact``, ``point-contact-tilted``, ``sliding``, ``peg-in-hole`` (SPEC §5.2).
+* ``point-contact``, ``point-contact-tilted``, ``sliding``, ``peg-in-hole`` (SPEC §5.2);
+* ``hover``: hold the free scene's start pose (the shortest task; campaigns use it to measure throughput).
 
 The truth model is never changed per experiment: every task runs the same simulator parameters.
 """
@@ -26,9 +27,10 @@ from omnirotor.config import apply_overrides
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
-from omnirotor.control.trajectory import PoseTrajectory
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
 from omnirotor.experiments.closed_loop import (
+    HOVER_DURATION_S,
     TaskOptions,
     TaskResult,
     register_task,
@@ -60,6 +62,8 @@ __all__ = ["ExperimentOptions", "ExperimentResult", "MAP_MODES", "HoverProtocol"
 MAP_MODES = ("nominal", "global", "piecewise")
 CONTACT_TASKS = ("point-contact", "point-contact-tilted", "sliding", "peg-in-hole")
 HOVER_TASKS = ("identify-flights", "hover-validation")
+HOVER_SUCCESS_CM = 5.0
+"""The ``hover`` task succeeds when the end effector stays within this distance per axis after settling [cm]."""
 SETTLE_S = 1.0
 """Metrics start after this time [s]: the estimator and observer transients at start-up."""
 
@@ -442,3 +446,32 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
         log=log,
         force_samples=samples,
     )
+
+
+@register_task("hover")
+def hover(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Start at rest at the free scene's start pose and hold it (free-flight admittance), on the true plant.
+
+    The summary is :meth:`TaskResult.summary`'s with the experiment fields (map, safety) and ``success``: every
+    position error within :data:`HOVER_SUCCESS_CM` after the settling time.
+    """
+    opts = _options(options)
+    vehicle = load_vehicle(opts.vehicle)
+    scene = opts.sim_params().scene
+    p_body, R_WB = default_start_pose(scene_anchors("free", scene), vehicle, scene)
+    duration = opts.duration_s if opts.duration_s is not None else HOVER_DURATION_S
+    trajectory = PoseTrajectory([Waypoint(0.0, p_body + R_WB @ vehicle.p_E_B_array, R_WB)])
+    ctl_log, truth_log, _ = _fly(vehicle, opts, "free", "free", trajectory, duration, progress, zero=False)
+    result = ExperimentResult(
+        task="hover",
+        options=opts,
+        duration_s=duration,
+        controller_log=ctl_log,
+        truth_log=truth_log,
+        metrics_from_s=min(SETTLE_S, 0.5 * duration),
+    )
+    m = TaskResult.summary(result)
+    m.update(_base("hover", opts, run_log(ctl_log, truth_log), duration, truth_log.group("controller_step_us")))
+    m["success"] = bool(max(m["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) <= HOVER_SUCCESS_CM)
+    result.metrics = m
+    return result
