@@ -182,7 +182,10 @@ class Recorder:
         arrays["_columns"] = np.array(self.column_names)
         arrays["_groups"] = np.array(self.group_names)
         arrays["_widths"] = np.array([self.width(g) for g in self.group_names])
-        np.savez_compressed(Path(path), **arrays)
+        from omnirotor.safe_io import atomic_path
+
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a file object: numpy adds no ".npz"
+            np.savez_compressed(fh, **arrays)
 
     @classmethod
     def from_npz(cls, path: str | Path) -> Recorder:

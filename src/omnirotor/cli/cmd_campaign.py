@@ -7,7 +7,6 @@ Everything is checked before the output folder is touched: a bad option leaves n
 from __future__ import annotations
 
 import importlib.util
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -18,6 +17,8 @@ from rich.table import Table
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_SEED, MAX_WORKERS
+from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
 
 
 @app.command()
@@ -45,26 +46,27 @@ def campaign(
     """Run N randomised, seeded runs of a task; save each result as it arrives; summarise and plot."""
     from omnirotor.experiments.campaign import BACKENDS, load_campaign, run_campaign
 
-    if runs is not None and runs < 1:
-        raise InputError(f"--runs must be >= 1, got {runs}")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
+    if runs is not None and not 1 <= runs <= MAX_CAMPAIGN_RUNS:
+        raise InputError(f"--runs must lie in 1..{MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers must lie in 1..{MAX_WORKERS}, got {workers}")
     if backend not in BACKENDS:
         raise InputError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if address is not None and backend != "ray":
         raise InputError("--address needs --backend ray")
     if backend == "ray" and importlib.util.find_spec("ray") is None:
         raise InputError("--backend ray needs the optional dependency ray: pip install 'omnirotor[ray]'")
-    if maps is not None and maps != "identify-truth" and not Path(maps).is_file():
-        raise InputError(f"--maps {maps}: no such file (or use identify-truth)")
-    if seed is not None and seed < 0:
-        raise InputError(f"--seed must be >= 0, got {seed}")
+    if maps is not None and maps != "identify-truth":
+        check_input_file(maps, "--maps (a file, or identify-truth)")
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise InputError("--seed must be an integer in [0, 2^63 - 1]")
+    if out is not None:
+        check_output_dir(out, "--out")
     spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
     if out is None:
         name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
         out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    check_output_dir(out, "--out")
     err = Console(stderr=True)
     state = {"ok": 0, "fail": 0, "error": 0}
     with Progress(
@@ -94,7 +96,7 @@ def campaign(
             spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart, progress=progress
         )
     if as_json:
-        print(json.dumps(summary, indent=1))
+        print(dumps_json(summary))
         return
     _print_summary(summary, out)
 
@@ -155,6 +157,7 @@ def campaign_compare(
         raise InputError(f"--bins must be in 1..50, got {bins}")
     if out.suffix.lower() != ".png":
         raise InputError(f"--out {out}: the output must be a .png file")
-    if out.exists() and out.is_dir():
-        raise InputError(f"--out {out}: is a folder")
+    replacing = check_output_file(out, "--out")
     print(plot_comparison([str(f) for f in folders], param, out, labels=label or None, bins=bins))
+    if replacing:
+        note(f"--out {out}: replaced the existing file")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from typing import Annotated
 
 import numpy as np
@@ -11,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from omnirotor.cli import app
+from omnirotor.safe_io import dumps_json
 from omnirotor.vehicle import force_envelope, load_vehicle
 
 
@@ -50,7 +50,7 @@ def info(
     """Show the wrench map of a vehicle: rank, condition number, hover speeds, force envelope."""
     rep = vehicle_report(vehicle, directions)
     if as_json:
-        print(json.dumps(rep, indent=1))
+        print(dumps_json(rep))  # a non-finite number is written as null
         return
     con = Console()
     t = Table(title=f"vehicle {rep['vehicle']} ({rep['n_rotors']} rotors, {rep['mass_kg']} kg)", show_header=False)

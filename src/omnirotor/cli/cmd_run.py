@@ -7,7 +7,6 @@ Errors are those of SPEC §6 (true EE pose against the compliant EE reference).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -16,8 +15,9 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from omnirotor.cli import app
+from omnirotor.cli import app, number_option
 from omnirotor.errors import InputError
+from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
 
 
 @app.command()
@@ -41,7 +41,9 @@ def run(
         str, typer.Option(help="Allocation QP backend: active-set (compiled, default), daqp or proxsuite.")
     ] = "active-set",
     estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass (truth plus noise).")] = "ukf",
-    duration: Annotated[float | None, typer.Option(help="Simulated time [s]; default: the task's.")] = None,
+    duration: Annotated[
+        float | None, typer.Option(parser=number_option, help="Simulated time [s]; default: the task's.")
+    ] = None,
     truth: Annotated[str, typer.Option(help="Simulator aerodynamics: interference or nominal.")] = "interference",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
@@ -59,12 +61,14 @@ def run(
     discover_tasks()
     if task not in TASKS:
         raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
-    if maps is not None and not maps.is_file():
-        raise InputError(f"--maps {maps}: no such file")
-    if out is not None and out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    if maps is not None:
+        check_input_file(maps, "--maps")
+    if out is not None:
+        check_output_dir(out, "--out")
     if video is not None and not video.lower().endswith(".mp4"):
         raise InputError(f"--video {video}: expected a .mp4 file name")
+    if video is not None and check_output_file(video, "--video"):
+        note(f"--video {video}: the existing file will be replaced")
     if blend not in ("hard", "smooth"):
         raise InputError(f"--blend must be hard or smooth, got {blend!r}")
     options = ExperimentOptions(
@@ -89,6 +93,11 @@ def run(
         from omnirotor.vehicle import load_vehicle
 
         options.load_maps(load_vehicle(vehicle))  # validate the map file before flying
+    from omnirotor.safe_io import make_dir, route_mujoco_log
+
+    if out is not None:
+        make_dir(out, "--out")
+    route_mujoco_log(out)  # MuJoCo's log goes under --out, or nowhere
     err = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{task}[/bold] ({map_mode} map)"),
@@ -103,11 +112,11 @@ def run(
         result = run_task(task, options, progress=lambda frac: bar.update(bar_id, completed=frac))
     rep = result.summary()
     if out is not None:
-        from omnirotor.wrench_maps import write_json_atomic
+        from omnirotor.safe_io import write_json_atomic
 
         write_json_atomic(out / f"{task}-{map_mode}.json", rep)
     if as_json:
-        print(json.dumps(rep, indent=1))
+        print(dumps_json(rep))
         return
     _print_table(task, rep)
 
