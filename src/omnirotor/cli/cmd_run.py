@@ -55,7 +55,7 @@ def run(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fly TASK in the simulator with the interaction controller; print its metrics."""
-    from omnirotor.experiments.closed_loop import TASKS, discover_tasks, run_task
+    from omnirotor.experiments.closed_loop import TASKS, discover_tasks
     from omnirotor.experiments.tasks import ExperimentOptions
 
     discover_tasks()
@@ -88,16 +88,37 @@ def run(
         out_dir=str(out) if out is not None else None,
         zero_observer=zero,
     )
-    options.controller_params()  # validate solver, config and overrides before flying
-    if options.maps is not None:
-        from omnirotor.vehicle import load_vehicle
-
-        options.load_maps(load_vehicle(vehicle))  # validate the map file before flying
     from omnirotor.safe_io import make_dir, route_mujoco_log
+    from omnirotor.vehicle import load_vehicle
 
+    veh = load_vehicle(vehicle)  # validate the vehicle, parameters and map file before flying
+    options.controller_params()
+    if options.maps is not None:
+        options.load_maps(veh)
+    new_folder = out is not None and not out.exists()
     if out is not None:
         make_dir(out, "--out")
     route_mujoco_log(out)  # MuJoCo's log goes under --out, or nowhere
+    try:
+        rep = _fly(task, map_mode, options)
+    except InputError:
+        if new_folder and not any(out.iterdir()):
+            out.rmdir()  # bad input found while setting up the run: leave nothing behind
+        raise
+    if out is not None:
+        from omnirotor.safe_io import write_json_atomic
+
+        write_json_atomic(out / f"{task}-{map_mode}.json", rep)
+    if as_json:
+        print(dumps_json(rep))
+        return
+    _print_table(task, rep)
+
+
+def _fly(task: str, map_mode: str, options) -> dict:
+    """Run the task under a progress bar on stderr; returns its summary."""
+    from omnirotor.experiments.closed_loop import run_task
+
     err = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{task}[/bold] ({map_mode} map)"),
@@ -110,15 +131,7 @@ def run(
     ) as bar:
         bar_id = bar.add_task(task, total=1.0)
         result = run_task(task, options, progress=lambda frac: bar.update(bar_id, completed=frac))
-    rep = result.summary()
-    if out is not None:
-        from omnirotor.safe_io import write_json_atomic
-
-        write_json_atomic(out / f"{task}-{map_mode}.json", rep)
-    if as_json:
-        print(dumps_json(rep))
-        return
-    _print_table(task, rep)
+    return result.summary()
 
 
 def _print_table(task: str, rep: dict) -> None:
