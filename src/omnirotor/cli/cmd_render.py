@@ -50,6 +50,9 @@ def render(
     if target.suffix.lower() != ".png":
         raise InputError(f"{target}: the output must be a .png file")
     replacing = check_output_file(target, "--out")
+    from omnirotor.safe_io import route_mujoco_log
+
+    route_mujoco_log(None)  # MuJoCo's log: nowhere (no MUJOCO_LOG.TXT in the working folder)
     image = render_scene(scene, load_vehicle(vehicle), width=width, height=height)
     print(write_png_atomic(target, image))
     if replacing:

@@ -92,6 +92,7 @@ import tempfile
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -205,15 +206,22 @@ def execute_run(job: RunJob) -> dict:
     """Run one job in this process and return its record (never raises for a failed run).
 
     The record: ``index``, ``status`` ("ok" or "error"), ``params``, ``derived``, ``success`` (the task's
-    verdict, or None), ``metrics`` (the run's summary), ``error`` and ``elapsed_s``.
+    verdict, or None), ``metrics`` (the run's summary), ``error``, ``elapsed_s``, and when they apply
+    ``failure`` (why a finished run failed whatever the task's verdict) and ``warnings`` (the Python warnings
+    the run raised, counted here instead of printed on the terminal by a worker).
     """
     from omnirotor.experiments.closed_loop import run_task
 
     tic = time.perf_counter()
     record: dict[str, Any] = {"index": job.index, "params": job.params, "derived": job.derived}
+    caught: list = []
     try:
         options = job.options
-        with tempfile.TemporaryDirectory(prefix="omnirotor-campaign-") as tmp:
+        with (
+            warnings.catch_warnings(record=True) as caught,
+            tempfile.TemporaryDirectory(prefix="omnirotor-campaign-") as tmp,
+        ):
+            warnings.simplefilter("always")
             if job.identify_truth:
                 maps_path = Path(tmp) / "maps.json"
                 identify_truth_maps(options, seed=job.derived["sim_seed"]).save(maps_path)
@@ -228,6 +236,8 @@ def execute_run(job: RunJob) -> dict:
         kind = "input" if isinstance(exc, InputError) else type(exc).__name__
         where = "" if isinstance(exc, InputError) else " at " + traceback.extract_tb(exc.__traceback__)[-1].name
         record.update(status="error", success=None, metrics=None, error=f"{kind}: {exc}{where}")
+    if caught:
+        record["warnings"] = {"count": len(caught), "first": f"{caught[0].category.__name__}: {caught[0].message}"}
     record["elapsed_s"] = time.perf_counter() - tic
     return jsonable(record)
 
