@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from importlib import resources
 from pathlib import Path
 
@@ -245,7 +246,7 @@ def load_vehicle(spec: str | Path = "omnirotor") -> VehicleParams:
         where = f"preset {text}"
     else:
         p = Path(text)
-        if not p.suffix and not p.exists():
+        if not p.suffix and not os.path.exists(p):
             raise InputError(f"unknown vehicle preset {text!r}; presets: {', '.join(preset_names())}")
         data = load_toml(p)
         where = str(p)

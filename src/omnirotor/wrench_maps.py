@@ -170,8 +170,8 @@ def _entry(value: Any, shape: tuple[int, int], where: str) -> MapEntry:
         return float(v)
 
     points = value.get("points", 0)
-    if isinstance(points, bool) or not isinstance(points, int) or points < 0:
-        raise InputError(f"{where}.points: expected a count, got {points!r}")
+    if isinstance(points, bool) or not isinstance(points, int) or not 0 <= points <= 10**9:
+        raise InputError(f"{where}.points: expected a count of hover points (0 to 10^9)")
     return MapEntry(
         A=_matrix(value["A"], shape, f"{where}.A"),
         points=points,

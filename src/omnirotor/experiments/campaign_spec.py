@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -394,7 +395,7 @@ def load_campaign(spec: str | Path | None = None, task: str | None = None, **ove
         where, base_dir = f"campaign preset {text}", None
     else:
         path = Path(text)
-        if not path.suffix and not path.exists():
+        if not path.suffix and not os.path.lexists(path) and len(os.fsencode(path.name)) <= 255:
             raise InputError(f"unknown campaign {text!r}: no such file; presets: {', '.join(campaign_preset_names())}")
         where, base_dir = str(path), path.resolve().parent
     data = load_toml(path)
