@@ -1,6 +1,7 @@
 """docs/reliability.md is what the bad-input probes of tools/reliability_report.py give today (issue 14)."""
 
 import importlib.util
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -9,6 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _tool():
     spec = importlib.util.spec_from_file_location("reliability_report", ROOT / "tools" / "reliability_report.py")
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up there
     spec.loader.exec_module(mod)
     return mod
 
@@ -26,8 +28,6 @@ def test_every_probe_gets_one_line_and_exit_2_and_the_doc_is_current():
 
 def test_the_classifier_names_every_broken_promise(tmp_path, monkeypatch):
     """A command that succeeds, writes before failing, is noisy or raises is not counted as good."""
-    import sys
-
     import omnirotor.cli
 
     tool = _tool()

@@ -476,11 +476,15 @@ def _captured():
     result: dict[str, str] = {}
     os.dup2(files[0].fileno(), 1)
     os.dup2(files[1].fileno(), 2)
+    py_streams = sys.stdout, sys.stderr  # may be a test runner's own objects, not the descriptors
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
     try:
         yield result
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
+        sys.stdout, sys.stderr = py_streams
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
         for fd in saved:
