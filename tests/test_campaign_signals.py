@@ -18,37 +18,26 @@ import pytest
 from omnirotor.cli import main
 from omnirotor.experiments import campaign as campaign_mod
 from omnirotor.experiments.campaign import execute_run, load_campaign, run_campaign, run_options
+from test_campaign import tiny
 
-LONG = """
-task = "sliding"
-seed = 3
-runs = {runs}
-
-[options]
-quick = true
-estimator = "bypass"
-duration_s = 0.3
-
-[vary.gamma]
-dist = "uniform"
-low = 2.0
-high = 10.0
-"""
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 START_TIMEOUT_S = 300  # the first run may compile the kernels
 EXIT_TIMEOUT_S = 60
 
 
-def campaign_file(tmp_path, runs=200):
-    p = tmp_path / "long.toml"
-    p.write_text(LONG.format(runs=runs))
-    return p
+MANY_RUNS = "200"  # more than finish before the signal
+
+
+def campaign_argv(tmp_path, out, *extra):
+    """The command line of a campaign of the tiny test campaign file in a subprocess, and its environment."""
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    argv = [sys.executable, "-c", "from omnirotor.cli import main; main()", "campaign", "--campaign",
+            str(tiny(tmp_path)), "--runs", MANY_RUNS, "--out", str(out), *extra]  # fmt: skip
+    return argv, env
 
 
 def start(tmp_path, out, workers=2):
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    argv = [sys.executable, "-c", "from omnirotor.cli import main; main()", "campaign", "--campaign",
-            str(campaign_file(tmp_path)), "--workers", str(workers), "--out", str(out)]  # fmt: skip
+    argv, env = campaign_argv(tmp_path, out, "--workers", str(workers))
     return subprocess.Popen(
         argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True
     )
@@ -102,17 +91,25 @@ def cleanup():
             p.communicate(timeout=10)
 
 
-@pytest.mark.slow
-def test_ctrl_c_exits_130_keeps_results_and_a_second_campaign_is_refused(tmp_path, capsys, cleanup):
-    out = tmp_path / "c"
+def running_campaign(tmp_path, out, cleanup):
+    """A campaign with two workers in a subprocess, once its first run is saved; returns it and its workers."""
     proc = start(tmp_path, out)
     cleanup.append(proc)
     assert wait_for(lambda: len(finished_lines(out)) >= 1, START_TIMEOUT_S, proc), proc.poll()
     workers = children(proc.pid)
     assert len(workers) >= 2
+    return proc, workers
+
+
+@pytest.mark.slow
+def test_ctrl_c_exits_130_keeps_results_and_a_second_campaign_is_refused(tmp_path, capsys, cleanup):
+    out = tmp_path / "c"
+    proc, workers = running_campaign(tmp_path, out, cleanup)
     # a second campaign into the same folder is refused while the first runs, and changes nothing
     before = (out / "campaign.json").read_bytes()
-    code = main(["campaign", "--campaign", str(campaign_file(tmp_path)), "--workers", "1", "--out", str(out)])
+    code = main(
+        ["campaign", "--campaign", str(tiny(tmp_path)), "--runs", MANY_RUNS, "--workers", "1", "--out", str(out)]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "another campaign" in err and len(err.strip().splitlines()) == 1
     assert (out / "campaign.json").read_bytes() == before
@@ -129,51 +126,46 @@ def test_ctrl_c_exits_130_keeps_results_and_a_second_campaign_is_refused(tmp_pat
 @pytest.mark.slow
 def test_workers_die_with_a_killed_main_process_and_the_campaign_resumes(tmp_path, cleanup):
     out = tmp_path / "c"
-    proc = start(tmp_path, out)
-    cleanup.append(proc)
-    assert wait_for(lambda: len(finished_lines(out)) >= 1, START_TIMEOUT_S, proc), proc.poll()
-    workers = children(proc.pid)
-    assert len(workers) >= 2
+    proc, workers = running_campaign(tmp_path, out, cleanup)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=EXIT_TIMEOUT_S)
     assert wait_for(lambda: not any(alive(w) for w in workers), 10), "pool workers outlived the main process"
     # the lock died with its holder: the campaign resumes, and each index is run exactly once
     n_before = len({json.loads(x)["index"] for x in finished_lines(out)})
-    spec = load_campaign(campaign_file(tmp_path))
+    spec = load_campaign(tiny(tmp_path))
     s = run_campaign(spec, out, runs=n_before + 1, workers=1, plots=False)
     assert s["runs_done"] == n_before + 1
     idx = [json.loads(x)["index"] for x in finished_lines(out)]
     assert len(idx) == len(set(idx)) and set(range(n_before + 1)) <= set(idx)
 
 
-def test_a_run_with_non_finite_steps_is_a_failure_with_its_cause(tmp_path, monkeypatch):
+def fake_task(monkeypatch, summary):
+    """Replace the closed-loop task by one that returns ``summary`` at once."""
     from omnirotor.experiments import closed_loop
 
-    class Blown:
+    class Result:
         def summary(self):
-            return {"success": True, "ee_rms_error": {"x_cm": float("nan"), "y_cm": 1.0}, "duration_s": 0.3}
+            return dict(summary)
 
-    monkeypatch.setattr(closed_loop, "run_task", lambda task, options, progress=None: Blown())
-    rec = execute_run(run_options(load_campaign(campaign_file(tmp_path, runs=2)), 0))
+    monkeypatch.setattr(closed_loop, "run_task", lambda task, options, progress=None: Result())
+
+
+def test_a_run_with_non_finite_steps_is_a_failure_with_its_cause(tmp_path, monkeypatch):
+    fake_task(monkeypatch, {"success": True, "ee_rms_error": {"x_cm": float("nan"), "y_cm": 1.0}, "duration_s": 0.3})
+    rec = execute_run(run_options(load_campaign(tiny(tmp_path)), 0))
     assert rec["status"] == "ok" and rec["success"] is False
     assert "ee_rms_error.x_cm" in rec["failure"]
     assert rec["metrics"]["ee_rms_error"]["x_cm"] is None  # stored as null, never bare NaN
 
 
 def test_a_plotting_failure_keeps_the_summary(tmp_path, monkeypatch, capsys):
-    from omnirotor.experiments import closed_loop
-
-    class Fine:
-        def summary(self):
-            return {"success": True, "ee_rms_error": {"x_cm": 1.0}, "duration_s": 0.3}
-
     def broken_plots(*args, **kwargs):
         raise RuntimeError("no display")
 
-    monkeypatch.setattr(closed_loop, "run_task", lambda task, options, progress=None: Fine())
+    fake_task(monkeypatch, {"success": True, "ee_rms_error": {"x_cm": 1.0}, "duration_s": 0.3})
     monkeypatch.setattr(campaign_mod, "plot_campaign", broken_plots)
     out = tmp_path / "c"
-    s = run_campaign(load_campaign(campaign_file(tmp_path, runs=2)), out, workers=1)
+    s = run_campaign(load_campaign(tiny(tmp_path)), out, runs=2, workers=1)
     stored = json.loads((out / "summary.json").read_text())
     assert stored["runs_done"] == 2 and stored["successes"] == 2
     assert "no display" in stored["plots_error"] and s["plots_error"] == stored["plots_error"]
