@@ -47,9 +47,9 @@ def campaign(
     from omnirotor.experiments.campaign import BACKENDS, load_campaign, run_campaign
 
     if runs is not None and not 1 <= runs <= MAX_CAMPAIGN_RUNS:
-        raise InputError(f"--runs must lie in 1..{MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
+        raise InputError(f"--runs must be >= 1 and <= {MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
     if workers is not None and not 1 <= workers <= MAX_WORKERS:
-        raise InputError(f"--workers must lie in 1..{MAX_WORKERS}, got {workers}")
+        raise InputError(f"--workers must be >= 1 and <= {MAX_WORKERS}, got {workers}")
     if backend not in BACKENDS:
         raise InputError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if address is not None and backend != "ray":
@@ -59,7 +59,7 @@ def campaign(
     if maps is not None and maps != "identify-truth":
         check_input_file(maps, "--maps (a file, or identify-truth)")
     if seed is not None and not 0 <= seed <= MAX_SEED:
-        raise InputError("--seed must be an integer in [0, 2^63 - 1]")
+        raise InputError("--seed must be >= 0 and < 2^63")
     if out is not None:
         check_output_dir(out, "--out")
     spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)

@@ -443,7 +443,7 @@ def campaign_from_mapping(
         scalars["maps"] = _resolve(scalars["maps"], base_dir)
     seed = scalars["seed"]
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
-        raise InputError(f"{where}: seed must be an integer in [0, 2^63 - 1]")
+        raise InputError(f"{where}: seed must be an integer >= 0 and < 2^63")
     if not 1 <= scalars["runs"] <= MAX_CAMPAIGN_RUNS:
         raise InputError(f"{where}: runs must lie in 1..{MAX_CAMPAIGN_RUNS} (omnirotor.limits)")
     if not 1 <= scalars["bins"] <= 50:

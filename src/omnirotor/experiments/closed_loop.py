@@ -269,7 +269,7 @@ class TaskOptions:
             raise InputError(f"truth must be one of {', '.join(TRUTH_MODELS)}, got {self.truth!r}")
         if self.duration_s is not None and not (MIN_DURATION_S <= self.duration_s <= MAX_DURATION_S):
             raise InputError(
-                f"duration must lie in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}] s (omnirotor.limits), "
+                f"duration must be in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}] s (omnirotor.limits), "
                 f"got {self.duration_s:g}"
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_SEED:
