@@ -19,7 +19,7 @@ from typer._click import exceptions as click_exc
 
 from omnirotor.errors import InputError
 
-__all__ = ["app", "main", "number_option", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED"]
+__all__ = ["app", "main", "number_option", "Interrupted", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED"]
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -37,6 +37,10 @@ app = typer.Typer(
 @app.callback()
 def _root() -> None:
     """Sensorless 6-D physical interaction with omnidirectional multirotors."""
+
+
+class Interrupted(Exception):  # noqa: N818  (not an error: the user stopped the command)
+    """Raised by a command stopped by Ctrl-C that has something to say (what was kept); exit status 130."""
 
 
 def number_option(text: str) -> float:
@@ -84,6 +88,9 @@ def _invoke(argv: list[str] | None) -> int:
     except InputError as exc:
         print(f"omnirotor: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Interrupted as exc:
+        print(f"omnirotor: interrupted; {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except (typer.Abort, KeyboardInterrupt):
         rv = EXIT_INTERRUPTED
     except typer.Exit as exc:
@@ -94,5 +101,5 @@ def _invoke(argv: list[str] | None) -> int:
     # typer turns Ctrl-C into Exit(130) and, outside standalone mode, returns its code
     code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
     if code == EXIT_INTERRUPTED:
-        print("omnirotor: interrupted; results finished so far are kept", file=sys.stderr)
+        print("omnirotor: interrupted", file=sys.stderr)
     return code

@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from omnirotor.cli import app
+from omnirotor.cli import Interrupted, app
 from omnirotor.errors import InputError
 from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_SEED, MAX_WORKERS
 from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
@@ -92,9 +92,15 @@ def campaign(
                 description=f"ok {state['ok']}  failed {state['fail']}  errors {state['error']}",
             )
 
-        summary = run_campaign(
-            spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart, progress=progress
-        )
+        try:
+            summary = run_campaign(
+                spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
+                progress=progress,
+            )  # fmt: skip
+        except KeyboardInterrupt:
+            raise Interrupted(
+                f"the finished runs are kept in {out / 'results.jsonl'}; run the same command again to resume"
+            ) from None
     if as_json:
         print(dumps_json(summary))
         return
