@@ -17,8 +17,8 @@ __all__ = [
     "SPEED_MARGIN",
 ]
 
-MIN_DURATION_S = 0.1
-"""Shortest simulated run [s] (100 controller periods): shorter runs have no metrics to report."""
+MIN_DURATION_S = 0.01
+"""Shortest simulated run [s] (10 controller periods): shorter runs have no metrics to report."""
 MAX_DURATION_S = 600.0
 """Longest simulated run [s]: its logs at 1 kHz take about 1 GB of memory."""
 MAX_CAMPAIGN_RUNS = 100_000
