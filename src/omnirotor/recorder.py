@@ -190,7 +190,9 @@ class Recorder:
     @classmethod
     def from_npz(cls, path: str | Path) -> Recorder:
         """Load a recorder saved by :meth:`to_npz` (capacity = rows saved)."""
-        with np.load(Path(path)) as z:
+        from omnirotor.safe_io import check_input_file
+
+        with np.load(check_input_file(path)) as z:  # a regular file: a FIFO is refused, not waited on
             groups = [str(g) for g in z["_groups"]]
             columns = [str(c) for c in z["_columns"]]
             widths = [int(w) for w in z["_widths"]]
