@@ -1,4 +1,5 @@
-# Two commands matter: `make demo` and `make test`. Every target creates .venv on first use.
+# Two commands matter: `make demo` and `make test`. Every target creates .venv on first use, with the
+# `dev` and `ray` extras (the Ray campaign tests run in CI); `make bench` adds the `bench` extra.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -12,7 +13,7 @@ DEMO_OUT ?= out/demo
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip==26.3
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,ray]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -30,7 +31,7 @@ test: $(STAMP)
 BENCH_STAMP := $(VENV)/.installed-bench
 BENCH_ARGS ?=
 $(BENCH_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[dev,bench]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,ray,bench]'
 	touch $(BENCH_STAMP)
 
 # crazyflow (JAX) runs in its own venv, in a subprocess of run.py (benchmarks/peer-crazyflow.txt says why).

@@ -45,6 +45,7 @@ from bench_allocation import bench_allocation  # noqa: E402
 from bench_controller import bench_controller_step  # noqa: E402
 from bench_sim import bench_sim_step  # noqa: E402
 from bench_startup import measure_cli_help, measure_first_run_compile  # noqa: E402
+from omnirotor.safe_io import write_json_atomic, write_text_atomic  # noqa: E402
 from omnirotor.vehicle import load_vehicle  # noqa: E402
 
 SCHEMA = "omnirotor-bench/1"
@@ -1202,7 +1203,7 @@ def write_markdown(path: Path, result: dict) -> None:
         text = head + section + tail
     else:
         text = text.rstrip("\n") + ("\n\n" if text else "") + section + "\n"
-    path.write_text(text)
+    write_text_atomic(path, text)
 
 
 def print_tables(result: dict, console: Console) -> None:
@@ -1245,8 +1246,7 @@ def main(argv: list[str] | None = None) -> int:
         result = collect(cfg, with_rotorpy=not args.no_rotorpy, data_dir=args.data, note=note)
         err.log(f"done in {result['wall_s']:.0f} s")
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=1) + "\n")
+        write_json_atomic(args.out, result)  # omnirotor.safe_io: atomic, never over a link or a device
     if args.markdown:
         write_markdown(args.markdown, result)
     print_tables(result, err if args.json else Console(width=None if sys.stdout.isatty() else 150))

@@ -1,9 +1,12 @@
 """Bad input everywhere: no file and no command-line option makes omnirotor fail with anything but InputError.
 
 Property-based (hypothesis): every loader is fed random bytes, randomly corrupted bytes of a valid file,
-and valid files whose values, keys and structure were mutated; the only exception allowed is
-:class:`~omnirotor.errors.InputError`. Through the CLI, bad files and bad options give one line on stderr,
-exit status 2, and leave the output folder or file absent.
+valid files whose values, keys and structure were mutated (integers too big for a float among the values),
+nesting up to 100 000 deep, FIFOs and devices in place of files, and names too long for the file system;
+the only exception allowed is :class:`~omnirotor.errors.InputError`. Through the CLI, bad files and bad
+options (durations, runs and seeds beyond the documented maxima of :mod:`omnirotor.limits`, numbers written
+with underscores, output names over 255 bytes) give one line on stderr, exit status 2, and leave the output
+folder or file absent.
 """
 
 import contextlib
@@ -236,6 +239,7 @@ def test_corrupted_valid_files_give_input_errors_only(tmp_path, valid_bytes, dat
 WEIRD = st.one_of(
     st.sampled_from(
         [math.nan, math.inf, -math.inf, -1, 0, -0.0, 1e308, 1e-320, 10**30, -(10**30), 2**63, "", "x", True, False]
+        + [10**400, -(10**400), 2**1024]  # integers too big for a float
     ),
     st.lists(st.sampled_from([1, 0.5, "a", math.nan, None, [1, 2]]), max_size=4),
     st.dictionaries(st.sampled_from(["a", "A", "dist", "low"]), st.sampled_from([1, "x", math.inf]), max_size=2),
@@ -482,3 +486,121 @@ def test_cli_out_that_is_a_file_is_refused_and_kept(tmp_path, capsys):
     for argv in (["run", "hover", "--out", f], ["campaign", "sliding", "--out", f], ["reproduce", "--out", f]):
         assert_one_line_exit_2(*cli(argv, capsys))
         assert f.read_text() == "mine"
+
+
+# -- issue 14: huge numbers, deep nesting, special files, long names, documented maxima -----------------------
+
+
+def _nested(kind: str, depth: int) -> str:
+    inner = "[" * depth + "]" * depth
+    if kind == "maps":
+        return '{"schema": "omnirotor/wrench-maps", "version": 1, "n_rotors": 8, "nominal": ' + inner + "}"
+    if kind == "csv":
+        return "qw,qx,qy,qz\n" + inner + "\n"
+    if kind == "mat":
+        return inner
+    return "a = " + inner + "\n"
+
+
+@SETTINGS
+@given(kind=st.sampled_from(sorted(LOADERS)), depth=st.sampled_from([65, 1000, 100_000]))
+def test_deeply_nested_files_give_input_errors_only(tmp_path, kind, depth):
+    p = tmp_path / f"deep{LOADERS[kind][0]}"
+    p.write_text(_nested(kind, depth))
+    only_input_errors(kind, p)
+
+
+@SETTINGS
+@given(digits=st.integers(310, 6000), where=st.sampled_from(["delta", "A", "points", "weights"]))
+def test_huge_numbers_in_map_files_give_input_errors_only(tmp_path, digits, where):
+    d = json.loads(_valid_maps_json())
+    if where == "A":
+        d["global"]["A"][0][0] = "BIG"
+    elif where == "weights":
+        d["weights"][0] = "BIG"
+    elif where == "points":
+        d["global"]["points"] = "BIG"
+    else:
+        d["delta"] = "BIG"
+    text = json.dumps(d).replace('"BIG"', "7" * digits)
+    p = tmp_path / "big.json"
+    p.write_text(text)
+    with pytest.raises(InputError):
+        load_wrench_maps(p, 8)
+
+
+@pytest.mark.parametrize("kind", sorted(LOADERS))
+@pytest.mark.parametrize("special", ["fifo", "device", "folder", "long-name"])
+def test_special_files_are_refused_at_once(tmp_path, kind, special):
+    """A FIFO, a device, a folder or a 300-byte name in place of a file: an InputError, never a wait."""
+    import os
+    import signal
+
+    p = tmp_path / f"x{LOADERS[kind][0]}"
+    if special == "fifo":
+        os.mkfifo(p)
+    elif special == "device":
+        p.symlink_to("/dev/zero")
+    elif special == "folder":
+        p.mkdir()
+    else:
+        p = tmp_path / ("n" * 300 + LOADERS[kind][0])
+
+    def hung(signum, frame):
+        raise AssertionError(f"{kind} loader blocked on a {special}")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(20)
+    try:
+        with pytest.raises(InputError):
+            LOADERS[kind][1](p)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _beyond(low, high):
+    return st.one_of(
+        st.floats(min_value=high, exclude_min=True, allow_infinity=False),
+        st.floats(max_value=low, exclude_max=True, allow_infinity=False),
+        st.sampled_from([1e9, 1e308, 1e-300, -0.0]),
+    )
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_values_beyond_the_documented_maxima_exit_2(tmp_path, capsys, data):
+    from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_DURATION_S, MAX_SEED, MIN_DURATION_S
+
+    folder = Path(tempfile.mkdtemp(dir=tmp_path))
+    out = folder / "out"
+    which = data.draw(st.sampled_from(["duration", "runs", "seed", "workers", "underscore", "set"]))
+    if which == "duration":
+        argv = ["run", "hover", "--duration", repr(data.draw(_beyond(MIN_DURATION_S, MAX_DURATION_S)))]
+    elif which == "runs":
+        argv = ["campaign", "sliding", "--runs", str(data.draw(st.integers(MAX_CAMPAIGN_RUNS + 1, 10**30)))]
+    elif which == "seed":
+        cmd = data.draw(st.sampled_from([["run", "hover"], ["campaign", "sliding"], ["reproduce"]]))
+        argv = [*cmd, "--seed", str(data.draw(st.integers(MAX_SEED + 1, 10**60)))]
+    elif which == "workers":
+        argv = ["campaign", "sliding", "--workers", str(data.draw(st.integers(257, 10**12)))]
+    elif which == "underscore":
+        argv = ["run", "hover", "--duration", data.draw(st.sampled_from(["1_0", "2_5.0", "1_000"]))]
+    else:
+        argv = ["run", "hover", "--set", f"observer.cutoff_hz={data.draw(st.integers(10**309, 10**400))}"]
+    assert_one_line_exit_2(*cli([*argv, "--out", out], capsys))
+    assert not out.exists()
+
+
+@settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(n=st.integers(256, 1000), command=st.sampled_from(["run", "campaign", "reproduce", "render", "identify"]))
+def test_output_names_too_long_exit_2(tmp_path, capsys, n, command):
+    folder = Path(tempfile.mkdtemp(dir=tmp_path))
+    name = "o" * n + (".png" if command == "render" else ".json" if command == "identify" else "")
+    argv = {"run": ["run", "hover"], "campaign": ["campaign", "sliding"], "reproduce": ["reproduce"],
+            "render": ["render", "wall"], "identify": ["identify", "ok.csv"]}[command]  # fmt: skip
+    if command == "identify":
+        _valid_csv(folder)
+        argv = ["identify", folder / "ok.csv"]
+    assert_one_line_exit_2(*cli([*argv, "--out", folder / name], capsys))
+    assert sorted(p.name for p in folder.iterdir()) == (["ok.csv"] if command == "identify" else [])

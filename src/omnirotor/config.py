@@ -19,25 +19,31 @@ from typing import Any, TypeVar
 
 from omnirotor.errors import InputError
 
-__all__ = ["load_toml", "from_mapping", "apply_overrides", "check_finite", "check_positive"]
+__all__ = ["load_toml", "from_mapping", "apply_overrides", "check_finite", "check_positive", "parse_float"]
 
 T = TypeVar("T")
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning every I/O or syntax problem into an :class:`InputError`."""
+    from omnirotor.safe_io import read_text
+
     p = Path(path)
+    text = read_text(p)  # a regular file of bounded size (a FIFO or a device is refused, never read)
     try:
-        with p.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{p}: is a directory, expected a TOML file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{p}: not valid TOML ({exc})") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    except RecursionError:
+        raise InputError(f"{p}: not usable TOML (nested too deeply)") from None
+
+
+def _short(value: Any) -> str:
+    """``repr`` of a value cut to 40 characters (a 5000-digit integer makes no readable message)."""
+    if isinstance(value, int) and value.bit_length() > 100:
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _convert(value: Any, tp: Any, where: str) -> Any:
@@ -50,23 +56,26 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
         return from_mapping(tp, value, where)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{where}: expected a number, got {value!r}")
-        return float(value)
+            raise InputError(f"{where}: expected a number, got {_short(value)}")
+        try:
+            return float(value)
+        except OverflowError:  # an integer too big for a float
+            raise InputError(f"{where}: {_short(value)} is too large for a number") from None
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{where}: expected an integer, got {value!r}")
+            raise InputError(f"{where}: expected an integer, got {_short(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise InputError(f"{where}: expected true or false, got {value!r}")
+            raise InputError(f"{where}: expected true or false, got {_short(value)}")
         return value
     if tp is str:
         if not isinstance(value, str):
-            raise InputError(f"{where}: expected a string, got {value!r}")
+            raise InputError(f"{where}: expected a string, got {_short(value)}")
         return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise InputError(f"{where}: expected an array, got {value!r}")
+            raise InputError(f"{where}: expected an array, got {_short(value)}")
         args = typing.get_args(tp)
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
@@ -111,7 +120,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
 def _parse_scalar(text: str) -> Any:
     try:
         return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError):
         return text
 
 
@@ -139,6 +148,24 @@ def _set_path(obj: Any, path: list[str], value: Any, full: str) -> Any:
         return dataclasses.replace(obj, **{path[0]: _convert(value, tp, full)})
     child = getattr(obj, path[0])
     return dataclasses.replace(obj, **{path[0]: _set_path(child, path[1:], value, full)})
+
+
+def parse_float(text: str, where: str) -> float:
+    """A number written by a user (option, CSV cell): Python's ``float`` without its surprises.
+
+    ``float("1_6_0")`` is 160 and ``float(" 1 ")`` is 1; a user who wrote ``1_6_0`` meant something else, so
+    underscores are refused. Non-finite results (``nan``, ``1e400``) are returned for the caller to judge.
+
+    Raises:
+        InputError: not a number.
+    """
+    t = text.strip()
+    if "_" in t or not t:
+        raise InputError(f"{where}: not a number: {t[:40]!r}")
+    try:
+        return float(t)
+    except ValueError:
+        raise InputError(f"{where}: not a number: {t[:40]!r}") from None
 
 
 def check_finite(name: str, *values: float) -> None:

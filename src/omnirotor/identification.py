@@ -29,9 +29,11 @@ import daqp
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from omnirotor.config import check_positive
+from omnirotor.config import check_positive, parse_float
 from omnirotor.errors import InputError
+from omnirotor.limits import SPEED_MARGIN
 from omnirotor.regions import Partition, load_partition
+from omnirotor.safe_io import atomic_path, check_input_file, read_bytes, read_text
 from omnirotor.so3 import R_from_quat_wxyz, R_from_rpy
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import MapEntry, WrenchMapSet
@@ -138,13 +140,14 @@ def load_mat(path: str | Path, n_rotors: int = 8) -> HoverData:
 
     ``U`` stacks ``U_j = u_jᵀ ⊗ I6`` (6N x 6n), so ``u_j[i] = U[6j, 6i]``; ``Z`` stacks the wrenches ``w_j``.
     """
+    import io
+
     import scipy.io as sio
 
     p = Path(path)
+    blob = read_bytes(p)  # a regular file (never a FIFO or a device)
     try:
-        raw = sio.loadmat(p, squeeze_me=True, struct_as_record=False)
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
+        raw = sio.loadmat(io.BytesIO(blob), squeeze_me=True, struct_as_record=False)
     except Exception as exc:  # scipy raises many kinds for corrupt files
         raise InputError(f"{p}: not a readable MATLAB file ({type(exc).__name__})") from None
     s = raw.get("wMapStruct")
@@ -161,15 +164,14 @@ def load_mat(path: str | Path, n_rotors: int = 8) -> HoverData:
         raise InputError(
             f"{p}: U has shape {U.shape} and Z {Z.shape}; expected (6N, {6 * n_rotors}) and (6N,) for {n_rotors} rotors"
         )
+    if not np.all(np.isfinite(U)):
+        raise InputError(f"{p}: U contains NaN or inf")
     N = U.shape[0] // 6
     u = U[0::6, 0::6].copy()
-    # Check the Kronecker structure, so a file of another layout is refused rather than misread.
-    if not np.allclose(
-        U.reshape(N, 6, n_rotors, 6)[:, np.arange(6), :, np.arange(6)].transpose(1, 2, 0),
-        u[:, :, None],
-        rtol=0,
-        atol=1e-9 * max(1.0, np.abs(u).max()),
-    ):
+    # Check the whole Kronecker structure (diagonal and zeros elsewhere), so a file of another layout is
+    # refused rather than misread.
+    expected = u[:, None, :, None] * np.eye(6)[None, :, None, :]
+    if not np.allclose(U.reshape(N, 6, n_rotors, 6), expected, rtol=0, atol=1e-9 * max(1.0, np.abs(u).max())):
         raise InputError(f"{p}: U is not of the form u_jᵀ ⊗ I6")
     return HoverData(u, Z.reshape(N, 6), ("",) * N, (p.name,) * N)
 
@@ -194,12 +196,12 @@ def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
     p = Path(path)
     n = vehicle.n_rotors
     speed_cols = tuple(f"omega{i + 1}_hz" for i in range(n))
+    import io
+
+    text = read_text(p)  # a regular file (a FIFO named *.csv is refused, never waited on)
     try:
-        with p.open(newline="") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and not r[0].lstrip().startswith("#")]
+    except csv.Error as exc:
         raise InputError(f"{p}: cannot read as CSV ({exc})") from None
     if not rows:
         raise InputError(f"{p}: empty file")
@@ -229,10 +231,7 @@ def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
             raise InputError(f"{p}: line {line_no} has {len(r)} fields, header has {len(header)}")
 
         def num(name: str, r: list[str] = r, line_no: int = line_no) -> float:
-            try:
-                v = float(r[col[name]])
-            except ValueError:
-                raise InputError(f"{p}: line {line_no}, {name}: not a number ({r[col[name]]!r})") from None
+            v = parse_float(r[col[name]], f"{p}: line {line_no}, {name}")
             if not math.isfinite(v):
                 raise InputError(f"{p}: line {line_no}, {name}: not finite")
             return v
@@ -264,16 +263,12 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
     omega_hz = np.atleast_2d(omega_hz)
     n = omega_hz.shape[1]
     header = list(_Q_COLS) + [f"omega{i + 1}_hz" for i in range(n)] + (["region"] if region else [])
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for j, R in enumerate(R_WB):
             row = [f"{v:.12f}" for v in quat_wxyz_from_R(R)] + [f"{v:.8f}" for v in omega_hz[j]]
             w.writerow(row + ([region[j]] if region else []))
-    tmp.replace(p)
 
 
 def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> HoverData:
@@ -281,15 +276,17 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
     files: list[Path] = []
     for item in paths:
         p = Path(item)
-        if p.is_dir():
+        try:
+            is_dir = p.is_dir()
+        except OSError:  # e.g. a name too long: check_input_file says so
+            is_dir = False
+        if is_dir:
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv"))
             if not found:
                 raise InputError(f"{p}: folder holds no .mat or .csv hover data")
-            files.extend(found)
-        elif p.exists():
-            files.append(p)
+            files.extend(check_input_file(q) for q in found)
         else:
-            raise InputError(f"{p}: no such file or folder")
+            files.append(check_input_file(p))
     if not files:
         raise InputError("no hover data given")
     parts = []
@@ -300,7 +297,22 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
             parts.append(load_csv(f, vehicle))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat or .csv)")
+        _check_speeds(parts[-1], vehicle, f)
     return HoverData.concatenate(parts)
+
+
+def _check_speeds(data: HoverData, vehicle: VehicleParams, path: Path) -> None:
+    """Refuse hover points whose rotor speeds exceed the vehicle's limits by more than :data:`SPEED_MARGIN`."""
+    omega = np.sign(data.u_hz2) * np.sqrt(np.abs(data.u_hz2))
+    lo = min(SPEED_MARGIN * vehicle.omega_min_hz, vehicle.omega_min_hz / SPEED_MARGIN)
+    hi = SPEED_MARGIN * vehicle.omega_max_hz
+    bad = np.flatnonzero(np.any((omega < lo) | (omega > hi), axis=1))
+    if bad.size:
+        j = int(bad[0])
+        raise InputError(
+            f"{path}: point {j + 1} has rotor speeds up to {np.abs(omega[j]).max():.0f} Hz, beyond the limits "
+            f"[{vehicle.omega_min_hz:g}, {vehicle.omega_max_hz:g}] Hz of vehicle {vehicle.name!r} (+5 %)"
+        )
 
 
 def _stacked(data: HoverData, weights: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -337,8 +349,10 @@ def solve_map(data: HoverData, A_nom: np.ndarray, params: IdentificationParams) 
     H = 0.5 * (H + H.T)
     A_empty = np.zeros((0, x_nom.size))
     x, _, exitflag, _ = daqp.solve(H, f, A_empty, x_nom + d, x_nom - d)
-    if exitflag < 1 or not np.all(np.isfinite(x)):
+    if exitflag < 1:  # DAQP: 1 optimal, 2 soft optimal; below 1 a failure
         raise InputError(f"identification QP failed (DAQP exit flag {exitflag})")
+    if not np.all(np.isfinite(x)):
+        raise InputError("identification QP gave non-finite values (hover data too large or ill-conditioned)")
     return (np.asarray(x) * params.scale).reshape(A_nom.shape, order="F")
 
 

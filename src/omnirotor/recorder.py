@@ -182,12 +182,17 @@ class Recorder:
         arrays["_columns"] = np.array(self.column_names)
         arrays["_groups"] = np.array(self.group_names)
         arrays["_widths"] = np.array([self.width(g) for g in self.group_names])
-        np.savez_compressed(Path(path), **arrays)
+        from omnirotor.safe_io import atomic_path
+
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a file object: numpy adds no ".npz"
+            np.savez_compressed(fh, **arrays)
 
     @classmethod
     def from_npz(cls, path: str | Path) -> Recorder:
         """Load a recorder saved by :meth:`to_npz` (capacity = rows saved)."""
-        with np.load(Path(path)) as z:
+        from omnirotor.safe_io import check_input_file
+
+        with np.load(check_input_file(path)) as z:  # a regular file: a FIFO is refused, not waited on
             groups = [str(g) for g in z["_groups"]]
             columns = [str(c) for c in z["_columns"]]
             widths = [int(w) for w in z["_widths"]]

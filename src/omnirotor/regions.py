@@ -155,6 +155,6 @@ def load_partition(spec: str | Path = "paper") -> Partition:
     """Load a partition by preset name (``paper``) or TOML path."""
     text = str(spec)
     presets = resources.files("omnirotor") / "presets" / "regions"
-    if (presets / f"{text}.toml").is_file():
+    if "/" not in text and len(text) < 200 and (presets / f"{text}.toml").is_file():
         return partition_from_dict(load_toml(Path(str(presets / f"{text}.toml"))), f"partition {text}")
     return partition_from_dict(load_toml(Path(text)), text)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from importlib import resources
 from pathlib import Path
 
@@ -145,6 +146,12 @@ class VehicleParams:
             raise InputError(f"{where}: needs at least 4 rotors, got {len(self.rotors)}")
         if self.actuated_dof not in (4, 5, 6):
             raise InputError(f"{where}: actuated_dof must be 4, 5 or 6, got {self.actuated_dof}")
+        # Every wrench the rotors can produce must be a finite number (c_f = 1e308 or limits of 1e200 Hz are not).
+        with np.errstate(over="ignore", invalid="ignore"):
+            reach = np.abs(self.A_nom) * max(abs(self.u_min), self.u_max)
+            weight = self.mass * self.gravity
+        if not (np.all(np.isfinite(reach)) and math.isfinite(self.u_min) and math.isfinite(weight)):
+            raise InputError(f"{where}: c_f, c_tau, rotor limits or positions too large: the wrenches overflow")
         rank = int(np.linalg.matrix_rank(self.A_nom, tol=1e-9 * np.abs(self.A_nom).max()))
         if rank < self.actuated_dof:
             raise InputError(
@@ -239,7 +246,7 @@ def load_vehicle(spec: str | Path = "omnirotor") -> VehicleParams:
         where = f"preset {text}"
     else:
         p = Path(text)
-        if not p.suffix and not p.exists():
+        if not p.suffix and not os.path.exists(p):
             raise InputError(f"unknown vehicle preset {text!r}; presets: {', '.join(preset_names())}")
         data = load_toml(p)
         where = str(p)

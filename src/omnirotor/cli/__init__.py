@@ -1,12 +1,16 @@
 """The ``omnirotor`` command line: a thin layer over library functions.
 
 Each command lives in a module of this package and registers itself on :data:`app`. :func:`main` turns
-every :class:`~omnirotor.errors.InputError` and usage error into one line on stderr and exit status 2.
+every :class:`~omnirotor.errors.InputError` and usage error into one line on stderr and exit status 2, and
+Ctrl-C into one line and exit status 130. Python warnings (numpy's overflow or invalid-value warnings, say)
+never reach the terminal one by one: a command that fails says only its error; one that succeeds says in one
+line how many numerical (``RuntimeWarning``) ones there were and the first; others are dropped.
 """
 
 from __future__ import annotations
 
 import sys
+import warnings
 
 import typer
 
@@ -15,9 +19,10 @@ from typer._click import exceptions as click_exc
 
 from omnirotor.errors import InputError
 
-__all__ = ["app", "main", "EXIT_BAD_INPUT"]
+__all__ = ["app", "main", "number_option", "Interrupted", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED"]
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
 
 app = typer.Typer(
     name="omnirotor",
@@ -34,6 +39,20 @@ def _root() -> None:
     """Sensorless 6-D physical interaction with omnidirectional multirotors."""
 
 
+class Interrupted(Exception):  # noqa: N818  (not an error: the user stopped the command)
+    """Raised by a command stopped by Ctrl-C that has something to say (what was kept); exit status 130."""
+
+
+def number_option(text: str) -> float:
+    """Typer parser of a float option: ``1_0`` and other spellings Python's ``float`` accepts are refused."""
+    from omnirotor.config import parse_float
+
+    try:
+        return parse_float(text, "")
+    except InputError as exc:
+        raise typer.BadParameter(str(exc).removeprefix(": ")) from None
+
+
 def _register() -> None:
     import importlib
     import pkgutil
@@ -46,21 +65,41 @@ def _register() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns (and exits with) the process status."""
     _register()
-    try:
-        app(args=argv, standalone_mode=False)
-    except InputError as exc:
-        print(f"omnirotor: error: {exc}", file=sys.stderr)
-        code = EXIT_BAD_INPUT
-    except (typer.Abort, KeyboardInterrupt):
-        print("omnirotor: aborted", file=sys.stderr)
-        code = 130
-    except typer.Exit as exc:
-        code = exc.exit_code
-    except click_exc.ClickException as exc:
-        print(f"omnirotor: error: {exc.format_message()}", file=sys.stderr)
-        code = EXIT_BAD_INPUT
-    else:
-        code = 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = _invoke(argv)
+    numeric = [w for w in caught if issubclass(w.category, RuntimeWarning)]  # others (plot legends) are harmless
+    if code == 0 and numeric:
+        first = numeric[0]
+        print(
+            f"omnirotor: note: {len(numeric)} numerical warning(s) while running, the first: "
+            f"{first.category.__name__}: {str(first.message).splitlines()[0][:160]}",
+            file=sys.stderr,
+        )
     if argv is None:
         sys.exit(code)
+    return code
+
+
+def _invoke(argv: list[str] | None) -> int:
+    """The command's exit status, with every error path reduced to one line on stderr."""
+    try:
+        rv = app(args=argv, standalone_mode=False)
+    except InputError as exc:
+        print(f"omnirotor: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Interrupted as exc:
+        print(f"omnirotor: interrupted; {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (typer.Abort, KeyboardInterrupt):
+        rv = EXIT_INTERRUPTED
+    except typer.Exit as exc:
+        rv = exc.exit_code
+    except click_exc.ClickException as exc:
+        print(f"omnirotor: error: {exc.format_message()}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    # typer turns Ctrl-C into Exit(130) and, outside standalone mode, returns its code
+    code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+    if code == EXIT_INTERRUPTED:
+        print("omnirotor: interrupted", file=sys.stderr)
     return code

@@ -7,15 +7,16 @@ Everything is checked before the output folder is touched: a bad option leaves n
 from __future__ import annotations
 
 import importlib.util
-import json
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from omnirotor.cli import app
+from omnirotor.cli import Interrupted, app
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_SEED, MAX_WORKERS
+from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
 
 
 @app.command()
@@ -53,26 +54,27 @@ def campaign(
 
     from omnirotor.experiments.campaign import BACKENDS, load_campaign, run_campaign
 
-    if runs is not None and runs < 1:
-        raise InputError(f"--runs must be >= 1, got {runs}")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
+    if runs is not None and not 1 <= runs <= MAX_CAMPAIGN_RUNS:
+        raise InputError(f"--runs must be >= 1 and <= {MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers must be >= 1 and <= {MAX_WORKERS}, got {workers}")
     if backend not in BACKENDS:
         raise InputError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if address is not None and backend != "ray":
         raise InputError("--address needs --backend ray")
     if backend == "ray" and importlib.util.find_spec("ray") is None:
         raise InputError("--backend ray needs the optional dependency ray: pip install 'omnirotor[ray]'")
-    if maps is not None and maps != "identify-truth" and not Path(maps).is_file():
-        raise InputError(f"--maps {maps}: no such file (or use identify-truth)")
-    if seed is not None and seed < 0:
-        raise InputError(f"--seed must be >= 0, got {seed}")
+    if maps is not None and maps != "identify-truth":
+        check_input_file(maps, "--maps (a file, or identify-truth)")
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise InputError("--seed must be >= 0 and < 2^63")
+    if out is not None:
+        check_output_dir(out, "--out")
     spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
     if out is None:
         name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
         out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    check_output_dir(out, "--out")
     err = Console(stderr=True)
     state = {"ok": 0, "fail": 0, "error": 0}
     simulated = [0.0]  # simulated seconds of the runs finished by this call
@@ -101,16 +103,25 @@ def campaign(
                 description=f"ok {state['ok']}  failed {state['fail']}  errors {state['error']}",
             )
 
-        summary = run_campaign(
-            spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart, progress=progress
-        )
+        try:
+            summary = run_campaign(
+                spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
+                progress=progress,
+            )  # fmt: skip
+        except KeyboardInterrupt:
+            raise Interrupted(
+                f"the finished runs are kept in {out / 'results.jsonl'}; run the same command again to resume"
+            ) from None
     wall = time.perf_counter() - tic
+    line = (
+        f"throughput: {simulated[0]:.1f} simulated s in {wall:.2f} s wall ({simulated[0] / max(wall, 1e-9):.1f} per s)"
+    )
     if as_json:
-        print(json.dumps(summary, indent=1))
-    else:
-        _print_summary(summary, out)
-    line = f"throughput: {simulated[0]:.1f} simulated s in {wall:.2f} s wall ({simulated[0] / wall:.1f} per s)"
-    (err if as_json else Console()).print(line, highlight=False, soft_wrap=True)
+        print(dumps_json(summary))
+        err.print(line, highlight=False, soft_wrap=True)
+        return
+    _print_summary(summary, out)
+    Console().print(line, highlight=False, soft_wrap=True)
 
 
 def _print_summary(s: dict, out: Path) -> None:
@@ -172,6 +183,7 @@ def campaign_compare(
         raise InputError(f"--bins must be in 1..50, got {bins}")
     if out.suffix.lower() != ".png":
         raise InputError(f"--out {out}: the output must be a .png file")
-    if out.exists() and out.is_dir():
-        raise InputError(f"--out {out}: is a folder")
+    replacing = check_output_file(out, "--out")
     print(plot_comparison([str(f) for f in folders], param, out, labels=label or None, bins=bins))
+    if replacing:
+        note(f"--out {out}: replaced the existing file")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -10,10 +9,13 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.config import parse_float
 from omnirotor.errors import InputError
 
 if TYPE_CHECKING:
     from omnirotor.wrench_maps import WrenchMapSet
+
+from omnirotor.safe_io import check_output_file, dumps_json, note
 
 
 def _weights(text: str | None) -> tuple[float, ...]:
@@ -21,10 +23,7 @@ def _weights(text: str | None) -> tuple[float, ...]:
 
     if text is None:
         return DEFAULT_WEIGHTS
-    try:
-        w = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise InputError(f"--weights: expected 6 comma-separated numbers, got {text!r}") from None
+    w = tuple(parse_float(x, "--weights") for x in text.split(","))
     if len(w) != 6:
         raise InputError(f"--weights: expected 6 numbers (fx,fy,fz,mx,my,mz), got {len(w)}")
     return w
@@ -74,14 +73,10 @@ def identify_cmd(
     from omnirotor.regions import load_partition
     from omnirotor.vehicle import load_vehicle
 
-    try:
-        delta_value = float(delta)
-    except ValueError:
-        raise InputError(f"--delta: not a number: {delta!r}") from None
+    delta_value = parse_float(delta, "--delta")
     if not (math.isfinite(delta_value) and delta_value > 0):
         raise InputError(f"--delta must be a finite number > 0, got {delta}")
-    if out is not None and out.exists() and out.is_dir():
-        raise InputError(f"--out {out}: is a folder")
+    replacing = out is not None and check_output_file(out, "--out")
     veh = load_vehicle(vehicle)
     part = load_partition(partition)
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
@@ -89,9 +84,11 @@ def identify_cmd(
     maps = identify(hover, veh, params, part, region)
     if out is not None:
         maps.save(out)
+        if replacing:
+            note(f"--out {out}: replaced the existing file")
     rep = summary(maps)
     if as_json:
-        print(json.dumps(rep, indent=1))
+        print(dumps_json(rep))
         return
     t = Table(title=f"wrench maps of {veh.name}, Δ = {delta_value:g}: force residual RMS [N]")
     for c in ("map", "points", "nominal", "identified", "reduction"):

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from typing import Annotated
 
 import typer
 
 from omnirotor.cli import app
+from omnirotor.safe_io import dumps_json
 
 
 def vehicle_report(spec: str, n_directions: int = 400) -> dict:
@@ -53,7 +53,7 @@ def info(
 
     rep = vehicle_report(vehicle, directions)
     if as_json:
-        print(json.dumps(rep, indent=1))
+        print(dumps_json(rep))  # a non-finite number is written as null
         return
     con = Console()
     t = Table(title=f"vehicle {rep['vehicle']} ({rep['n_rotors']} rotors, {rep['mass_kg']} kg)", show_header=False)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -11,13 +9,14 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+from omnirotor.safe_io import atomic_path, check_output_file, note
 
 if TYPE_CHECKING:
     import numpy as np
 
 
 def write_png_atomic(path: str | Path, image: np.ndarray) -> Path:
-    """Write an RGB image as PNG through a temporary file and a rename (nothing half-written).
+    """Write an RGB image as PNG atomically (:func:`omnirotor.safe_io.atomic_path`).
 
     Args:
         path: destination file.
@@ -28,23 +27,9 @@ def write_png_atomic(path: str | Path, image: np.ndarray) -> Path:
     """
     import imageio.v3 as iio
 
-    p = Path(path)
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".png")
-    except OSError as exc:
-        raise InputError(f"{p}: cannot write ({exc.strerror})") from None
-    os.close(fd)
-    try:
+    with atomic_path(path, "--out") as tmp:
         iio.imwrite(tmp, image, extension=".png")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual permissions
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
+    return Path(path)
 
 
 @app.command()
@@ -66,5 +51,11 @@ def render(
     target = out if out is not None else Path(f"{scene}.png")
     if target.suffix.lower() != ".png":
         raise InputError(f"{target}: the output must be a .png file")
+    replacing = check_output_file(target, "--out")
+    from omnirotor.safe_io import route_mujoco_log
+
+    route_mujoco_log(None)  # MuJoCo's log: nowhere (no MUJOCO_LOG.TXT in the working folder)
     image = render_scene(scene, load_vehicle(vehicle), width=width, height=height)
     print(write_png_atomic(target, image))
+    if replacing:
+        note(f"--out {target}: replaced the existing file")

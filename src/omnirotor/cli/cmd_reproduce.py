@@ -9,6 +9,8 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_SEED
+from omnirotor.safe_io import check_output_dir
 
 
 @app.command()
@@ -28,8 +30,9 @@ def reproduce(
     from omnirotor.experiments.reproduce import claims
     from omnirotor.experiments.reproduce import reproduce as run_all
 
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    check_output_dir(out, "--out")
+    if not 0 <= seed <= MAX_SEED:
+        raise InputError("--seed must be an integer in [0, 2^63 - 1]")
     if estimator not in ("ukf", "bypass"):
         raise InputError(f"--estimator must be ukf or bypass, got {estimator!r}")
     con = Console(stderr=True)

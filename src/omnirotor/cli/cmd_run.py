@@ -7,14 +7,14 @@ Errors are those of SPEC §6 (true EE pose against the compliant EE reference).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from omnirotor.cli import app
+from omnirotor.cli import app, number_option
 from omnirotor.errors import InputError
+from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
 
 
 @app.command()
@@ -38,7 +38,9 @@ def run(
         str, typer.Option(help="Allocation QP backend: active-set (compiled, default), daqp or proxsuite.")
     ] = "active-set",
     estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass (truth plus noise).")] = "ukf",
-    duration: Annotated[float | None, typer.Option(help="Simulated time [s]; default: the task's.")] = None,
+    duration: Annotated[
+        float | None, typer.Option(parser=number_option, help="Simulated time [s]; default: the task's.")
+    ] = None,
     truth: Annotated[str, typer.Option(help="Truth aerodynamics: wake, spec7 (= interference), nominal.")] = "wake",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
@@ -50,21 +52,20 @@ def run(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fly TASK in the simulator with the interaction controller; print its metrics."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    from omnirotor.experiments.closed_loop import TASKS, discover_tasks, run_task
+    from omnirotor.experiments.closed_loop import TASKS, discover_tasks
     from omnirotor.experiments.tasks import ExperimentOptions
 
     discover_tasks()
     if task not in TASKS:
         raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
-    if maps is not None and not maps.is_file():
-        raise InputError(f"--maps {maps}: no such file")
-    if out is not None and out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    if maps is not None:
+        check_input_file(maps, "--maps")
+    if out is not None:
+        check_output_dir(out, "--out")
     if video is not None and not video.lower().endswith(".mp4"):
         raise InputError(f"--video {video}: expected a .mp4 file name")
+    if video is not None and check_output_file(video, "--video"):
+        note(f"--video {video}: the existing file will be replaced")
     if blend not in ("hard", "smooth"):
         raise InputError(f"--blend must be hard or smooth, got {blend!r}")
     options = ExperimentOptions(
@@ -84,11 +85,40 @@ def run(
         out_dir=str(out) if out is not None else None,
         zero_observer=zero,
     )
-    options.controller_params()  # validate solver, config and overrides before flying
-    if options.maps is not None:
-        from omnirotor.vehicle import load_vehicle
+    from omnirotor.safe_io import make_dir, route_mujoco_log
+    from omnirotor.vehicle import load_vehicle
 
-        options.load_maps(load_vehicle(vehicle))  # validate the map file before flying
+    veh = load_vehicle(vehicle)  # validate the vehicle, parameters and map file before flying
+    options.controller_params()
+    if options.maps is not None:
+        options.load_maps(veh)
+    new_folder = out is not None and not out.exists()
+    if out is not None:
+        make_dir(out, "--out")
+    route_mujoco_log(out)  # MuJoCo's log goes under --out, or nowhere
+    try:
+        rep = _fly(task, map_mode, options)
+    except InputError:
+        if new_folder and not any(out.iterdir()):
+            out.rmdir()  # bad input found while setting up the run: leave nothing behind
+        raise
+    if out is not None:
+        from omnirotor.safe_io import write_json_atomic
+
+        write_json_atomic(out / f"{task}-{map_mode}.json", rep)
+    if as_json:
+        print(dumps_json(rep))
+        return
+    _print_table(task, rep)
+
+
+def _fly(task: str, map_mode: str, options) -> dict:
+    """Run the task under a progress bar on stderr; returns its summary."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from omnirotor.experiments.closed_loop import run_task
+
     err = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{task}[/bold] ({map_mode} map)"),
@@ -101,15 +131,7 @@ def run(
     ) as bar:
         bar_id = bar.add_task(task, total=1.0)
         result = run_task(task, options, progress=lambda frac: bar.update(bar_id, completed=frac))
-    rep = result.summary()
-    if out is not None:
-        from omnirotor.wrench_maps import write_json_atomic
-
-        write_json_atomic(out / f"{task}-{map_mode}.json", rep)
-    if as_json:
-        print(json.dumps(rep, indent=1))
-        return
-    _print_table(task, rep)
+    return result.summary()
 
 
 def _print_table(task: str, rep: dict) -> None:

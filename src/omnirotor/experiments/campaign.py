@@ -60,7 +60,15 @@ equilibria of that run's true plant (:func:`identify_truth_maps`), so a piecewis
 Output folder: ``campaign.json`` (the definition and its hash; a different definition in the same folder is
 refused unless restarted), ``results.jsonl`` (one JSON line per finished run, appended and flushed as it
 arrives: a killed campaign resumes where it stopped), ``summary.json`` (success rate with its 95 % Wilson
-interval, the distribution of every metric, binned success per parameter) and ``plots/success-vs-<param>.png``.
+interval, the distribution of every metric, binned success per parameter; written before the plots, so a
+plotting failure never loses it) and ``plots/success-vs-<param>.png``.
+
+Reliability (issue 14): ``.lock`` in the folder is held (``flock``) while a campaign runs, so a second
+campaign into the same folder is refused; the kernel releases it when the process dies, even by SIGKILL.
+Ctrl-C stops the runs under way (the results already appended are kept; run the command again to resume).
+The pool's workers ignore Ctrl-C (the main process stops them) and die with the main process
+(``PR_SET_PDEATHSIG``, and a watchdog thread polling the parent's pid). A run whose summary holds
+non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
 Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor`) or ``ray`` (the optional ``ray``
 extra; a local Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor
 installed).
@@ -73,12 +81,18 @@ public names are re-exported here). The tasks are those of SPEC §5.2; the truth
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import json
+import math
 import os
+import signal
+import sys
 import tempfile
+import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -115,7 +129,7 @@ from omnirotor.experiments.campaign_spec import (
     run_options,
 )
 from omnirotor.experiments.tasks import ExperimentOptions
-from omnirotor.wrench_maps import write_json_atomic
+from omnirotor.safe_io import append_bytes, load_json, make_dir, note, route_mujoco_log, write_json_atomic
 
 __all__ = [
     "CampaignOptions",
@@ -192,55 +206,102 @@ def execute_run(job: RunJob) -> dict:
     """Run one job in this process and return its record (never raises for a failed run).
 
     The record: ``index``, ``status`` ("ok" or "error"), ``params``, ``derived``, ``success`` (the task's
-    verdict, or None), ``metrics`` (the run's summary), ``error`` and ``elapsed_s``.
+    verdict, or None), ``metrics`` (the run's summary), ``error``, ``elapsed_s``, and when they apply
+    ``failure`` (why a finished run failed whatever the task's verdict) and ``warnings`` (the Python warnings
+    the run raised, counted here instead of printed on the terminal by a worker).
     """
     from omnirotor.experiments.closed_loop import run_task
 
     tic = time.perf_counter()
     record: dict[str, Any] = {"index": job.index, "params": job.params, "derived": job.derived}
+    caught: list = []
     try:
         options = job.options
-        with tempfile.TemporaryDirectory(prefix="omnirotor-campaign-") as tmp:
+        with (
+            warnings.catch_warnings(record=True) as caught,
+            tempfile.TemporaryDirectory(prefix="omnirotor-campaign-") as tmp,
+        ):
+            warnings.simplefilter("always")
             if job.identify_truth:
                 maps_path = Path(tmp) / "maps.json"
                 identify_truth_maps(options, seed=job.derived["sim_seed"]).save(maps_path)
                 options = dataclasses.replace(options, maps=str(maps_path))
             summary = run_task(job.task, options).summary()
         summary.pop("figure", None)
+        blown = non_finite_keys(summary)
         record.update(status="ok", success=summary.get("success"), metrics=summary, error=None)
+        if blown:  # the run's state went non-finite: whatever the task's verdict, it failed
+            record.update(success=False, failure=f"non-finite values in {', '.join(blown[:6])}")
     except Exception as exc:  # a campaign records a failed run and goes on
         kind = "input" if isinstance(exc, InputError) else type(exc).__name__
         where = "" if isinstance(exc, InputError) else " at " + traceback.extract_tb(exc.__traceback__)[-1].name
         record.update(status="error", success=None, metrics=None, error=f"{kind}: {exc}{where}")
+    if caught:
+        record["warnings"] = {"count": len(caught), "first": f"{caught[0].category.__name__}: {caught[0].message}"}
     record["elapsed_s"] = time.perf_counter() - tic
     return jsonable(record)
 
 
+def non_finite_keys(obj: Any, prefix: str = "") -> list[str]:
+    """Dotted names of the NaN or infinite numbers in a (nested) run summary."""
+    if isinstance(obj, dict):
+        return [k for key, v in obj.items() for k in non_finite_keys(v, f"{prefix}{key}.")]
+    if isinstance(obj, (list, tuple)):
+        return [k for i, v in enumerate(obj) for k in non_finite_keys(v, f"{prefix}{i}.")]
+    if isinstance(obj, (float, np.floating)) and not math.isfinite(float(obj)):
+        return [prefix[:-1]]
+    return []
+
+
 # -- the results file ---------------------------------------------------------------------------------------------
+
+LOCK_FILE = ".lock"
 
 
 def _append_record(path: Path, record: dict) -> None:
-    """Append one JSON line with a single write, flushed to disk."""
+    """Append one JSON line with a single write, flushed to disk (never through a symbolic link)."""
     line = (json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n").encode()
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    append_bytes(path, line)
+
+
+@contextlib.contextmanager
+def _folder_lock(out: Path):
+    """Hold ``out/.lock`` (flock) for the campaign; yields its file descriptor. A second holder is refused."""
+    import fcntl
+
+    path = out / LOCK_FILE
     try:
-        os.write(fd, line)
-        os.fsync(fd)
-    finally:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create the campaign lock ({exc.strerror})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
         os.close(fd)
+        raise InputError(f"{out}: another campaign is running into this folder (it holds {LOCK_FILE})") from None
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield fd
+    finally:
+        os.close(fd)  # releases the lock
 
 
-def _prepare_folder(spec: CampaignSpec, out: Path, restart: bool) -> None:
-    """Create or check the campaign folder (refuses another campaign's folder unless restarting)."""
+def _prepare_folder(spec: CampaignSpec, out: Path, restart: bool, check_only: bool = False) -> None:
+    """Create or check the campaign folder (refuses another campaign's folder unless restarting).
+
+    With ``check_only`` nothing is written: the refusals happen before the folder or its lock exist.
+    """
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     definition_path = out / DEFINITION_FILE
     digest = spec.digest()
     if definition_path.exists() and not restart:
         try:
-            stored = json.loads(definition_path.read_text())
+            stored = load_json(definition_path)
             old_digest, old_def = stored["hash"], stored["definition"]
-        except (OSError, ValueError, KeyError, TypeError):
+            old_digest[:12], set(old_def)  # noqa: B018  (a str and a dict, else the file is unreadable)
+        except (InputError, KeyError, TypeError):
             raise InputError(f"{definition_path}: unreadable campaign definition (use --restart)") from None
         if old_digest != digest:
             new_def = spec.definition()
@@ -252,10 +313,9 @@ def _prepare_folder(spec: CampaignSpec, out: Path, restart: bool) -> None:
         return
     if not definition_path.exists() and (out / RESULTS_FILE).exists() and not restart:
         raise InputError(f"{out} has results but no {DEFINITION_FILE}; use --restart to discard them")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"--out {out}: cannot create ({exc.strerror})") from None
+    if check_only:
+        return
+    make_dir(out, "--out")
     if restart:
         for name in (RESULTS_FILE, SUMMARY_FILE):
             (out / name).unlink(missing_ok=True)
@@ -269,19 +329,60 @@ def _prepare_folder(spec: CampaignSpec, out: Path, restart: bool) -> None:
 # -- running -----------------------------------------------------------------------------------------------------
 
 
-def _local_backend(jobs: list[RunJob], workers: int):
+PARENT_POLL_S = 0.5
+"""How often a pool worker checks that the campaign's main process is alive [s]."""
+
+
+def _die_with_parent(parent_pid: int, close_fds: tuple[int, ...] = ()) -> None:
+    """Pool-worker initializer: ignore Ctrl-C and exit when the main process dies.
+
+    The main process stops the pool on Ctrl-C. Death of the main process is caught by the kernel's
+    parent-death signal (Linux), and by a thread polling the parent's pid elsewhere.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for fd in close_fds:  # the folder lock stays the main process's alone
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="omnirotor-parent-watch", daemon=True).start()
+
+
+def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
     """Yield records as the runs finish, on a process pool (one worker: in this process, in order)."""
     if workers == 1:
         for job in jobs:
             yield execute_run(job)
         return
-    pool = cf.ProcessPoolExecutor(max_workers=workers)
+    pool = cf.ProcessPoolExecutor(
+        max_workers=workers,
+        initializer=_die_with_parent,
+        initargs=(os.getpid(), (lock_fd,) if lock_fd is not None else ()),
+    )
+    finished = False
     try:
         futures = [pool.submit(execute_run, job) for job in jobs]
         for fut in cf.as_completed(futures):
             yield fut.result()
+        finished = True
     finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+        if not finished:  # interrupted or failed: stop the runs under way now, not when they end
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                with contextlib.suppress(Exception):
+                    proc.kill()
+        pool.shutdown(wait=finished, cancel_futures=True)
 
 
 RAY_CONNECT_TIMEOUT_S = 5.0
@@ -396,7 +497,16 @@ def run_campaign(
 
 def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool) -> dict:
     """:func:`run_campaign` once the backend is up."""
+    _prepare_folder(spec, out, restart, check_only=True)  # refuse before writing anything
+    make_dir(out, "--out")
+    with _folder_lock(out) as lock_fd:
+        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd)
+
+
+def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd) -> dict:
+    """:func:`_run` holding the folder's lock."""
     _prepare_folder(spec, out, restart)
+    route_mujoco_log(out)  # the workers inherit it
     done = {i: r for i, r in load_results(out, repair=True).items() if i < n}
     todo = [i for i in range(n) if i not in done]
     report = progress or (lambda k, total, rec: None)
@@ -414,7 +524,7 @@ def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, pro
     report(count, n, None)
     if jobs:
         if backend == "local":
-            stream = _local_backend(jobs, workers or min(len(jobs), os.cpu_count() or 1))
+            stream = _local_backend(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
         else:
             stream = _ray_backend(ray, jobs, workers)
         for rec in stream:
@@ -422,9 +532,15 @@ def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, pro
             done[rec["index"]] = rec
             count += 1
             report(count, n, rec)
-    summary = summarize(spec, [done[i] for i in sorted(done)], n)
+    records = [done[i] for i in sorted(done)]
+    summary = summarize(spec, records, n)
     summary["executed"] = len(jobs)
+    write_json_atomic(out / SUMMARY_FILE, summary)  # before the plots: a plotting failure never loses it
     if plots:
-        summary["plots"] = [str(p) for p in plot_campaign(spec, [done[i] for i in sorted(done)], out / PLOTS_DIR)]
-    write_json_atomic(out / SUMMARY_FILE, summary)
+        try:
+            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR)]
+        except Exception as exc:  # the summary stands; say what went wrong with the plots
+            summary["plots_error"] = f"{type(exc).__name__}: {exc}"
+            note(f"campaign plots failed ({summary['plots_error'][:200]}); {out / SUMMARY_FILE} is written")
+        write_json_atomic(out / SUMMARY_FILE, summary)
     return summary

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.experiments.campaign_spec import KEY_METRICS, PARAMETERS, CampaignSpec
+from omnirotor.safe_io import load_json, plain_json, read_bytes, truncate_file
 
 __all__ = [
     "RESULTS_FILE",
@@ -43,19 +45,31 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def jsonable(obj: Any) -> Any:
-    """Plain JSON data: numpy scalars and arrays converted, non-finite floats as None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return jsonable(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+jsonable = plain_json
+"""Plain JSON data: numpy scalars and arrays converted, non-finite floats as None."""
+
+_RECORD_TYPES = {"index": int, "status": str, "params": dict, "derived": dict, "metrics": dict, "error": str}
+
+
+def _check_record(rec: Any, path: Path, n: int) -> dict:
+    """A record of results.jsonl with the types the summary and the plots rely on, else an InputError."""
+    where = f"{path}: line {n}"
+    if not isinstance(rec, dict):
+        raise InputError(f"{where}: not a JSON object (fix it or start again with --restart)")
+    idx = rec.get("index")
+    if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
+        raise InputError(f"{where} has no run index (fix it or start again with --restart)")
+    for key, tp in _RECORD_TYPES.items():
+        v = rec.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, tp)):
+            raise InputError(f"{where}: {key} must be a {tp.__name__} (fix it or start again with --restart)")
+    if rec.get("status") not in (None, "ok", "error"):
+        raise InputError(f"{where}: status must be ok or error")
+    if rec.get("success") not in (None, True, False):
+        raise InputError(f"{where}: success must be true, false or null")
+    if rec.get("status") == "ok" and not isinstance(rec.get("metrics"), dict):
+        raise InputError(f"{where}: a finished run needs its metrics")
+    return rec
 
 
 def load_results(out_dir: str | Path, repair: bool = False) -> dict[int, dict]:
@@ -65,28 +79,22 @@ def load_results(out_dir: str | Path, repair: bool = False) -> dict[int, dict]:
     ``repair``). Any other unreadable line is an :class:`InputError`.
     """
     path = Path(out_dir) / RESULTS_FILE
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
+    if not os.path.lexists(path):
         return {}
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    raw = read_bytes(path)
     end = raw.rfind(b"\n") + 1
     if end < len(raw) and repair:
-        with path.open("r+b") as fh:
-            fh.truncate(end)
+        truncate_file(path, end)  # never through a symbolic link
     out: dict[int, dict] = {}
     for n, line in enumerate(raw[:end].splitlines(), start=1):
         if not line.strip():
             continue
         try:
             rec = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (ValueError, RecursionError):  # also numbers of too many digits and nesting too deep
             raise InputError(f"{path}: line {n} is not valid JSON (fix it or start again with --restart)") from None
-        idx = rec.get("index") if isinstance(rec, dict) else None
-        if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
-            raise InputError(f"{path}: line {n} has no run index (fix it or start again with --restart)")
-        out[idx] = rec
+        rec = _check_record(rec, path, n)
+        out[rec["index"]] = rec
     return out
 
 
@@ -307,13 +315,17 @@ def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path) 
 
 def _load_folder(folder: str | Path) -> tuple[dict, list[dict]]:
     path = Path(folder) / DEFINITION_FILE
-    try:
-        stored = json.loads(path.read_text())
-        definition = stored["definition"]
-    except FileNotFoundError:
-        raise InputError(f"{folder}: not a campaign folder (no {DEFINITION_FILE})") from None
-    except (OSError, ValueError, KeyError, TypeError):
-        raise InputError(f"{path}: unreadable campaign definition") from None
+    if not os.path.lexists(path):
+        raise InputError(f"{folder}: not a campaign folder (no {DEFINITION_FILE})")
+    stored = load_json(path)
+    definition = stored.get("definition") if isinstance(stored, dict) else None
+    if (
+        not isinstance(definition, dict)
+        or not isinstance(definition.get("vary", {}), dict)
+        or not isinstance(definition.get("options", {}), dict)
+        or not isinstance(definition.get("task", ""), str)
+    ):
+        raise InputError(f"{path}: unreadable campaign definition")
     return definition, [r for r in load_results(folder).values() if r.get("status") == "ok"]
 
 
@@ -352,7 +364,7 @@ def plot_comparison(
     task = loaded[0][0].get("task", "")
     metric = KEY_METRICS.get(task, "ee_rms_error.x_cm")
     for j, (folder, (definition, recs)) in enumerate(zip(folders, loaded, strict=True)):
-        label = labels[j] if labels else f"{definition['options']['map']} map ({Path(folder).name})"
+        label = labels[j] if labels else f"{definition['options'].get('map', '?')} map ({Path(folder).name})"
         color = colors[j % len(colors)]
         rows = []
         judged = [(r["params"][param], bool(r["success"])) for r in recs if r.get("success") is not None]

@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -26,6 +27,8 @@ from omnirotor.experiments.closed_loop import HOVER_DURATION_S
 from omnirotor.experiments.faults import MocapDropout, PlantPerturbation, RotorFailure, WindGust
 from omnirotor.experiments.scenarios import ScenarioParams
 from omnirotor.experiments.tasks import CONTACT_TASKS, HOVER_TASKS, MAP_MODES, ExperimentOptions
+from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_SEED
+from omnirotor.safe_io import check_input_file
 from omnirotor.sim.params import SensorParams, SimParams
 
 __all__ = [
@@ -394,7 +397,7 @@ def load_campaign(spec: str | Path | None = None, task: str | None = None, **ove
         where, base_dir = f"campaign preset {text}", None
     else:
         path = Path(text)
-        if not path.suffix and not path.exists():
+        if not path.suffix and not os.path.lexists(path) and len(os.fsencode(path.name)) <= 255:
             raise InputError(f"unknown campaign {text!r}: no such file; presets: {', '.join(campaign_preset_names())}")
         where, base_dir = str(path), path.resolve().parent
     data = load_toml(path)
@@ -429,7 +432,7 @@ def campaign_from_mapping(
     for key, tp, default in (("runs", int, 20), ("seed", int, 0), ("bins", int, 6), ("maps", str, "none")):
         v = data.get(key, default)
         if isinstance(v, bool) or not isinstance(v, tp):
-            raise InputError(f"{where}: {key} must be {'an integer' if tp is int else 'a string'}, got {v!r}")
+            raise InputError(f"{where}: {key} must be {'an integer' if tp is int else 'a string'}, got {v!r:.40}")
         scalars[key] = v
     metric = data.get("metric")
     if metric is not None and (not isinstance(metric, str) or not metric):
@@ -440,15 +443,16 @@ def campaign_from_mapping(
         scalars["maps"] = str(ov["maps"])
     elif scalars["maps"] not in ("none", "identify-truth"):
         scalars["maps"] = _resolve(scalars["maps"], base_dir)
-    if isinstance(scalars["seed"], bool) or not isinstance(scalars["seed"], int) or scalars["seed"] < 0:
-        raise InputError(f"{where}: seed must be an integer >= 0, got {scalars['seed']!r}")
-    if scalars["runs"] < 1:
-        raise InputError(f"{where}: runs must be >= 1, got {scalars['runs']}")
+    seed = scalars["seed"]
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise InputError(f"{where}: seed must be an integer >= 0 and < 2^63")
+    if not 1 <= scalars["runs"] <= MAX_CAMPAIGN_RUNS:
+        raise InputError(f"{where}: runs must lie in 1..{MAX_CAMPAIGN_RUNS} (omnirotor.limits)")
     if not 1 <= scalars["bins"] <= 50:
         raise InputError(f"{where}: bins must be in 1..50, got {scalars['bins']}")
     maps = scalars["maps"]
-    if maps not in ("none", "identify-truth") and not Path(maps).is_file():
-        raise InputError(f"maps {maps}: no such file (or use 'identify-truth' or 'none')")
+    if maps not in ("none", "identify-truth"):
+        check_input_file(maps, "maps (a file, or 'identify-truth' or 'none')")
     opt_table = data.get("options", {})
     if not isinstance(opt_table, Mapping):
         raise InputError(f"{where}: [options] must be a table")

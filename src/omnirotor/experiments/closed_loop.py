@@ -37,6 +37,7 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
 from omnirotor.experiments.metrics import RunLog, error_stats
+from omnirotor.limits import MAX_DURATION_S, MAX_SEED, MIN_DURATION_S
 from omnirotor.recorder import Recorder
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.params import AeroParams
@@ -269,10 +270,13 @@ class TaskOptions:
             raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
         if self.truth not in TRUTH_MODELS:
             raise InputError(f"truth must be one of {', '.join(TRUTH_MODELS)}, got {self.truth!r}")
-        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
-            raise InputError(f"duration must be a finite number of seconds > 0, got {self.duration_s}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if self.duration_s is not None and not (MIN_DURATION_S <= self.duration_s <= MAX_DURATION_S):
+            raise InputError(
+                f"duration must be in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}] s (omnirotor.limits), "
+                f"got {self.duration_s:g}"
+            )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_SEED:
+            raise InputError(f"seed must be an integer in [0, 2^63 - 1], got {_short_int(self.seed)}")
 
     def controller_params(self, admittance: AdmittanceParams | None = None) -> ControllerParams:
         """Controller parameters: file and overrides, then these options' solver and estimator.
@@ -357,6 +361,16 @@ class TaskResult:
 
 
 TaskFn = Callable[[TaskOptions, Callable[[float], None] | None], TaskResult]
+
+
+def _short_int(v: object) -> str:
+    return f"an integer of {v.bit_length()} bits" if isinstance(v, int) and v.bit_length() > 64 else repr(v)
+
+
+NOMINAL_MAP_TASKS = frozenset({"hover"})
+"""Tasks that fly the nominal map whatever the options say (``run_task`` refuses map options for them)."""
+_MAP_OPTIONS = (("--map", "map_mode", "nominal"), ("--maps", "maps", None), ("--blend", "blend", "hard"))
+
 TASKS: dict[str, TaskFn] = {}
 """Registered tasks of ``omnirotor run``, by name."""
 
@@ -397,7 +411,13 @@ def run_task(
         discover_tasks()
     if name not in TASKS:
         raise InputError(f"unknown task {name!r}; tasks: {', '.join(sorted(TASKS))}")
-    return TASKS[name](options if options is not None else TaskOptions(), progress)
+    fn = TASKS[name]
+    if options is not None and name in NOMINAL_MAP_TASKS:
+        # the task flies the nominal map: say so rather than ignore the map options silently
+        ignored = [flag for flag, field, default in _MAP_OPTIONS if getattr(options, field, default) != default]
+        if ignored:
+            raise InputError(f"task {name!r} flies the nominal map only; {', '.join(ignored)} do(es) not apply")
+    return fn(options if options is not None else TaskOptions(), progress)
 
 
 HOVER_DURATION_S = 5.0

@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import matplotlib
@@ -19,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from omnirotor.experiments.metrics import AXES, RunLog, held_contact, pose_errors, smoothed  # noqa: E402
+from omnirotor.safe_io import atomic_path  # noqa: E402
 
 __all__ = ["plot_run", "plot_hover_violins", "plot_table1", "save_figure"]
 
@@ -27,13 +27,12 @@ _MAP_COLORS = {"nominal": "#c0392b", "global": "#2980b9", "piecewise": "#27ae60"
 
 def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
     """Write a figure atomically as PNG and close it."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.stem}.tmp.png")
-    fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, p)
-    return p
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    return Path(path)
 
 
 def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray) -> None:

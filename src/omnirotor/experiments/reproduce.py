@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.errors import InputError
 from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
 from omnirotor.experiments.tasks import ExperimentOptions
 from omnirotor.identification import IdentificationParams, identify, load_hover_data
+from omnirotor.safe_io import make_dir, route_mujoco_log, write_json_atomic, write_text_atomic
 from omnirotor.vehicle import load_vehicle
-from omnirotor.wrench_maps import write_json_atomic
 
 __all__ = ["Plan", "plan", "run_one", "reproduce", "claims", "write_report"]
 
@@ -78,11 +77,8 @@ def reproduce(
         workers: processes for the independent runs (default: CPU count, at most 4).
         progress: called with (stage description, fraction of the campaign done).
     """
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"{out}: cannot create the output folder ({exc.strerror})") from None
+    out = make_dir(out_dir, "--out")
+    route_mujoco_log(out)  # MuJoCo's log goes under the output folder (the workers inherit it)
     report = progress or (lambda stage, frac: None)
     base = ExperimentOptions(quick=quick, seed=seed, estimator=estimator, out_dir=str(out))
     metrics: dict = {}
@@ -297,5 +293,5 @@ def write_report(path: Path, metrics: dict, figures: dict, quick: bool) -> Path:
     for key, m in metrics.items():
         if "figure" in m:
             lines.append(f"![{key}]({Path(m['figure']).name})")
-    path.write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path

@@ -1,0 +1,35 @@
+"""The documented maxima of omnirotor's inputs, in one place (issue 14, "Bad input").
+
+A value beyond one of these is refused with one line on stderr and exit status 2 before anything runs, rather
+than allocating terabytes or running for years. The README's command-line section quotes them.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "MIN_DURATION_S",
+    "MAX_DURATION_S",
+    "MAX_CAMPAIGN_RUNS",
+    "MAX_WORKERS",
+    "MAX_SEED",
+    "MAX_INPUT_BYTES",
+    "MAX_JSON_DEPTH",
+    "SPEED_MARGIN",
+]
+
+MIN_DURATION_S = 0.01
+"""Shortest simulated run [s] (10 controller periods): shorter runs have no metrics to report."""
+MAX_DURATION_S = 600.0
+"""Longest simulated run [s]: its logs at 1 kHz take about 1 GB of memory."""
+MAX_CAMPAIGN_RUNS = 100_000
+"""Most runs in one campaign (about 1 s to a minute each)."""
+MAX_WORKERS = 256
+"""Most parallel workers of a campaign or of ``reproduce``."""
+MAX_SEED = 2**63 - 1
+"""Largest seed (seeds are integers >= 0)."""
+MAX_INPUT_BYTES = 256 * 2**20
+"""Largest input file read (vehicle, controller, campaign, map, hover data) [bytes]."""
+MAX_JSON_DEPTH = 64
+"""Deepest nesting of arrays and objects in an input JSON file (the wrench-map files need 4)."""
+SPEED_MARGIN = 1.05
+"""Hover data whose rotor speeds exceed the vehicle's limits by more than this factor are refused."""
