@@ -112,14 +112,31 @@ def _closure_hash(path: str) -> str:
 
 
 class DependencyCache(FunctionCache):
-    """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key."""
+    """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key.
+
+    The hash is taken when the kernel is defined (its module imported), so it describes the sources the
+    process compiles from even if files change while it runs.
+    """
+
+    def __init__(self, py_func) -> None:
+        super().__init__(py_func)
+        self._sources = _closure_hash(py_func.__code__.co_filename)
 
     def _index_key(self, sig, codegen):
         sig_key, magic, hashes = super()._index_key(sig, codegen)
-        return sig_key, magic, (*hashes, _closure_hash(self._py_func.__code__.co_filename))
+        return sig_key, magic, (*hashes, self._sources)
 
 
 _njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+
+def _leaf(signature: str):
+    """Decorator of a leaf helper compiled for one signature only (eagerly, cached by numba's own cache).
+
+    Calls with constant integers, which numba would otherwise compile once per value (as literals), all use
+    the one compiled version. A leaf depends on nothing but this file, which numba's cache checks.
+    """
+    return numba.njit(signature, cache=True, fastmath=False, error_model="numpy")
 
 
 def jit(fn):
@@ -268,13 +285,13 @@ def f64_view2(table, i: int):
     return numba.carray(_f64_pointer(table[o]), (table[o + 1], table[o + 2]))
 
 
-@jit
+@_leaf("float64[::1](int64, int64)")
 def f64_at(address: int, n: int):
     """The 1-D float64 array of ``n`` entries at ``address`` (the caller keeps the memory alive)."""
     return numba.carray(_f64_pointer(address), (n,))
 
 
-@jit
+@_leaf("float64[:, ::1](int64, int64, int64)")
 def f64_at2(address: int, rows: int, cols: int):
     """The C-ordered ``(rows, cols)`` float64 array at ``address`` (the caller keeps the memory alive)."""
     return numba.carray(_f64_pointer(address), (rows, cols))

@@ -206,20 +206,21 @@ def faults_wrench(st, t: float, ext) -> None:
 
 
 @jit
-def _bad(frame, o: int, size: int, f) -> None:
-    """Corrupt ``frame[o : o + size]`` by fault ``f`` (one component or all; an absent component: nothing)."""
+def _bad(values, f) -> None:
+    """Corrupt ``values`` (a signal of the frame) by fault ``f``: one component or all; an absent one: nothing."""
+    size = values.shape[0]
     lo, hi = 0, size
     if f["component"] >= 0:
         if f["component"] >= size:
             return
         lo, hi = f["component"], f["component"] + 1
-    for j in range(o + lo, o + hi):
+    for j in range(lo, hi):
         if f["corruption"] == _NAN:
-            frame[j] = math.nan
+            values[j] = math.nan
         elif f["corruption"] == _INF:
-            frame[j] = math.inf
+            values[j] = math.inf
         else:
-            frame[j] += f["magnitude"]
+            values[j] += f["magnitude"]
 
 
 @jit
@@ -258,18 +259,18 @@ def faults_frame(st, frame) -> None:
             continue
         sig = c["signal"]
         if sig == _SIG_ACC:
-            _bad(frame, FRAME_ACC_B, 3, c)
+            _bad(frame[FRAME_ACC_B : FRAME_ACC_B + 3], c)
         elif sig == _SIG_GYRO:
-            _bad(frame, FRAME_GYRO_B, 3, c)
+            _bad(frame[FRAME_GYRO_B : FRAME_GYRO_B + 3], c)
         elif sig == _SIG_ROTOR:
-            _bad(frame, FRAME_ROTOR_HZ, st["n_rotors"], c)
+            _bad(frame[FRAME_ROTOR_HZ : FRAME_ROTOR_HZ + st["n_rotors"]], c)
         elif sig == _SIG_MOCAP:
             if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
-                _bad(frame, FRAME_MOCAP_P_W, 3, c)
+                _bad(frame[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], c)
                 if c["corruption"] != _SPIKE:
-                    _bad(frame, FRAME_MOCAP_Q_WB, 4, c)
+                    _bad(frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c)
         elif frame[FRAME_HAS_STATE] != 0.0:  # the bypass state's position
-            _bad(frame, FRAME_STATE, 3, c)
+            _bad(frame[FRAME_STATE : FRAME_STATE + 3], c)
 
 
 @register("faults", "schedule")
