@@ -18,35 +18,11 @@ import math
 import numpy as np
 
 from omnirotor._jit import jit
+from omnirotor.blocks import compiled_step
+from omnirotor.control import observer as _observer  # noqa: F401 (registers the default observer)
 from omnirotor.errors import InputError
 
-# -- observer (omnirotor.control.observer, SPEC §4.3) ----------------------------------------------------------
-OBS_OUTPUT = 0  # (6,) f_ext_W, m_ext_B after bias and zeroing
-OBS_FILTERED = 6  # (6,) low-passed estimate
-OBS_OFFSET = 12  # (6,) offset captured by the zeroing
-OBS_F = 18  # (3,) raw force estimate
-OBS_MH = 21  # (3,) raw moment estimate
-OBS_S = 24  # (3,) momentum integral
-OBS_Q0 = 27  # (3,) momentum reference
-OBS_Q0_SET = 30  # 1 once q0 is taken
-OBS_SUBTRACT = 31  # (6,) bias plus captured offset
-OBS_CAPTURING = 37  # 1 while the zeroing runs
-OBS_ELAPSED = 38  # time since reset during the zeroing [s]
-OBS_ACC = 39  # (6,) sum of the filtered estimate over the capture window
-OBS_N_ACC = 45  # samples in that sum
-OBS_ZEROED = 46  # 1 once the offset is captured
-OBS_GAIN_F = 47  # (3,) L [1/s]
-OBS_GAIN_M = 50  # (3,) K_I [1/s]
-OBS_MASS = 53
-OBS_GRAVITY = 54
-OBS_J = 55  # (3,) inertia diagonal
-OBS_CUTOFF = 58  # low-pass cut-off [Hz] (inf: none)
-OBS_BIAS = 59  # (6,)
-OBS_SETTLE = 65
-OBS_WINDOW = 66
-OBS_LPF_DT = 67  # dt of the cached low-pass coefficient (NaN: none yet)
-OBS_LPF_LAM = 68
-OBS_SIZE = 69
+observer_step = compiled_step("observer")
 
 # -- admittance (omnirotor.control.admittance, SPEC §4.4) ------------------------------------------------------
 ADM_XI_P = 0  # (3,)
@@ -136,15 +112,16 @@ CTL_U_OBS = 38  # then u_obs (n), u_cmd (n), omega_cmd (n), omega_safe (n)
 def controller_layout(n: int) -> tuple[int, int, int, int, int, int, int, int]:
     """Offsets in the controller's one array of its blocks' packed states, for n rotors, and the size.
 
-    Order: the controller's own part (``CTL_*``, ``CTL_U_OBS + 4n``), the observer (``OBS_SIZE``), the
+    Order: the controller's own part (``CTL_*``, ``CTL_U_OBS + 4n``), the
     admittance filter (``ADM_SIZE``), the pose controller (``POSE_SIZE``), the desired, compliant and body
     references (``REF_SIZE`` each) and the allocator (``alloc_offsets(n)[-1]``).
 
     Returns:
-        ``(obs, adm, pose, des, comp, body, alloc, size)``.
+        ``(obs, adm, pose, des, comp, body, alloc, size)``; ``obs`` is the end of the controller's own part
+        (the observer's state is a field of the controller's structured state).
     """
     o_obs = CTL_U_OBS + 4 * n
-    o_adm = o_obs + OBS_SIZE
+    o_adm = o_obs
     o_pose = o_adm + ADM_SIZE
     o_des = o_pose + POSE_SIZE
     o_comp = o_des + REF_SIZE
@@ -205,20 +182,6 @@ def _all_finite(x) -> bool:
 
 
 @jit
-def lowpass_coefficient(cutoff_hz: float, dt: float) -> float:
-    """Coefficient ``lambda_f`` of the discrete low-pass ``y += lambda_f (x - y)`` (SPEC §4.3).
-
-    Args:
-        cutoff_hz: cut-off frequency [Hz]; ``inf`` disables the filter (coefficient 1).
-        dt: sample period [s].
-    """
-    if math.isinf(cutoff_hz):
-        return 1.0
-    a = 2.0 * math.pi * dt * cutoff_hz
-    return a / (a + 1.0)
-
-
-@jit
 def pack_state(p, v, a, R, w, out, o: int) -> bool:
     """Copy a state estimate into ``out[o:o+21]`` (p, v, a, R row-major, omega); True if all are finite."""
     for i in range(3):
@@ -239,83 +202,6 @@ def state_finite(p, v, a, R, w) -> bool:
 
 
 # -- blocks ----------------------------------------------------------------------------------------------------
-
-
-@jit
-def observer_step(obs, A, u, a_W, R, omega_B, dt: float) -> None:
-    """One step of the wrench observer (:class:`omnirotor.control.observer.WrenchObserver`), in place.
-
-    Args:
-        obs: the observer's packed state (``OBS_*``).
-        A: (6, n) wrench map [N/Hz², N·m/Hz²].
-        u: (n,) rotor inputs acting on the vehicle [Hz²].
-        a_W: (3,) acceleration [m/s²].
-        R: (3, 3) ``R_WB``.
-        omega_B: (3,) angular velocity [rad/s].
-        dt: period [s].
-    """
-    n = u.shape[0]
-    f1 = f2 = f3 = t1 = t2 = t3 = 0.0  # A u, body frame (each row summed over the rotors in order)
-    for j in range(n):
-        uj = u[j]
-        f1 += A[0, j] * uj
-        f2 += A[1, j] * uj
-        f3 += A[2, j] * uj
-        t1 += A[3, j] * uj
-        t2 += A[4, j] * uj
-        t3 += A[5, j] * uj
-    m, g = obs[OBS_MASS], obs[OBS_GRAVITY]
-    ax, ay, az = a_W[0], a_W[1], a_W[2]
-    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
-    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
-    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
-    wx, wy, wz = omega_B[0], omega_B[1], omega_B[2]
-    # Force: first-order filter of m (a + g e3) - R A1 u.
-    F = OBS_F
-    obs[F] += obs[OBS_GAIN_F] * dt * (m * ax - (r00 * f1 + r01 * f2 + r02 * f3) - obs[F])
-    obs[F + 1] += obs[OBS_GAIN_F + 1] * dt * (m * ay - (r10 * f1 + r11 * f2 + r12 * f3) - obs[F + 1])
-    obs[F + 2] += obs[OBS_GAIN_F + 2] * dt * (m * (az + g) - (r20 * f1 + r21 * f2 + r22 * f3) - obs[F + 2])
-    # Moment: generalized momentum q = J omega.
-    hx, hy, hz = obs[OBS_J] * wx, obs[OBS_J + 1] * wy, obs[OBS_J + 2] * wz
-    S, MH, Q0 = OBS_S, OBS_MH, OBS_Q0
-    if obs[OBS_Q0_SET] == 0.0:  # first step after reset: t0, the momentum reference (m_hat stays 0)
-        obs[Q0], obs[Q0 + 1], obs[Q0 + 2] = hx, hy, hz
-        obs[OBS_Q0_SET] = 1.0
-    else:
-        obs[S] += (wy * hz - wz * hy - t1 - obs[MH]) * dt
-        obs[S + 1] += (wz * hx - wx * hz - t2 - obs[MH + 1]) * dt
-        obs[S + 2] += (wx * hy - wy * hx - t3 - obs[MH + 2]) * dt
-        obs[MH] = obs[OBS_GAIN_M] * (hx - obs[Q0] + obs[S])
-        obs[MH + 1] = obs[OBS_GAIN_M + 1] * (hy - obs[Q0 + 1] + obs[S + 1])
-        obs[MH + 2] = obs[OBS_GAIN_M + 2] * (hz - obs[Q0 + 2] + obs[S + 2])
-    # Output low-pass, bias, zeroing.
-    if dt != obs[OBS_LPF_DT]:
-        obs[OBS_LPF_DT] = dt
-        obs[OBS_LPF_LAM] = lowpass_coefficient(obs[OBS_CUTOFF], dt)
-    lam = obs[OBS_LPF_LAM]
-    Y = OBS_FILTERED
-    for i in range(3):
-        obs[Y + i] += lam * (obs[F + i] - obs[Y + i])
-    for i in range(3):
-        obs[Y + 3 + i] += lam * (obs[MH + i] - obs[Y + 3 + i])
-    if obs[OBS_CAPTURING] != 0.0:
-        # Zeroing phase: output zero, average the filtered estimate over the window, then latch it.
-        obs[OBS_ELAPSED] += dt
-        if obs[OBS_ELAPSED] > obs[OBS_SETTLE]:
-            for i in range(6):
-                obs[OBS_ACC + i] += obs[Y + i]
-            obs[OBS_N_ACC] += 1.0
-            if obs[OBS_ELAPSED] >= obs[OBS_SETTLE] + obs[OBS_WINDOW]:
-                for i in range(6):
-                    obs[OBS_SUBTRACT + i] = obs[OBS_ACC + i] / obs[OBS_N_ACC]
-                    obs[OBS_OFFSET + i] = obs[OBS_SUBTRACT + i] - obs[OBS_BIAS + i]
-                obs[OBS_ZEROED] = 1.0
-                obs[OBS_CAPTURING] = 0.0
-        for i in range(6):
-            obs[OBS_OUTPUT + i] = 0.0
-    else:
-        for i in range(6):
-            obs[OBS_OUTPUT + i] = obs[Y + i] - obs[OBS_SUBTRACT + i]
 
 
 @jit
@@ -670,7 +556,7 @@ def pack_inputs(ws, p, v, a, R, w, rotor_hz, measured: bool) -> bool:
 
 @jit
 def controller_pre(
-    arena, p, v, a, R, w, rotor_hz, measured: bool, packed: bool, A, traj, t: float, dt: float
+    st, arena, p, v, a, R, w, rotor_hz, measured: bool, packed: bool, A, traj, t: float, dt: float
 ) -> int:  # fmt: skip
     """Everything of a control period before the QP (:meth:`InteractionController.step`, steps 3-6).
 
@@ -679,6 +565,7 @@ def controller_pre(
     references, the pose controller and the QP's linear term. With a non-finite input nothing is updated.
 
     Args:
+        st: the controller's state record (its blocks' states as fields: ``st.observer``).
         arena: the controller's array (:func:`controller_layout`).
         p: (3,) estimated position [m].
         v: (3,) velocity [m/s].
@@ -701,7 +588,7 @@ def controller_pre(
     ws = arena[0:o_obs]
     if not packed and not pack_inputs(ws, p, v, a, R, w, rotor_hz, measured):
         return PRE_STATE_NONFINITE
-    obs = arena[o_obs:o_adm]
+    obs = st.observer
     adm = arena[o_adm:o_pose]
     ps = arena[o_pose:o_des]
     des = arena[o_des:o_comp]
@@ -713,18 +600,18 @@ def controller_pre(
     f_E = ws[CTL_F_E : CTL_F_E + 3]
     m_E = ws[CTL_M_E : CTL_M_E + 3]
     p_E_B = ws[CTL_P_E_B : CTL_P_E_B + 3]
-    ee_wrench(obs[OBS_OUTPUT : OBS_OUTPUT + 3], obs[OBS_OUTPUT + 3 : OBS_OUTPUT + 6], R, p_E_B, f_E, m_E)
+    ee_wrench(obs.output[0:3], obs.output[3:6], R, p_E_B, f_E, m_E)
     admittance_step(adm, f_E, m_E, dt)
     trajectory_sample(traj, t, des)
     compliant_reference(adm, des, comp)
     body_reference(comp, p_E_B, body)
     # The pose controller compensates the whole unexplained wrench (before bias and zeroing).
-    pose_step(ps, body, p, v, R, w, obs[OBS_FILTERED : OBS_FILTERED + 3], obs[OBS_FILTERED + 3 : OBS_FILTERED + 6], dt)
+    pose_step(ps, body, p, v, R, w, obs.filtered[0:3], obs.filtered[3:6], dt)
     return alloc_prepare(al, ps[POSE_W_REF : POSE_W_REF + 6], R, A)
 
 
 @jit
-def write_log_row(row, ws, comp, des, adm, obs, ps) -> None:
+def write_log_row(row, ws, comp, des, adm, obs_output, ps) -> None:
     """One controller log row (:data:`omnirotor.control.controller.LOG_GROUPS`) from the blocks' buffers."""
     n = (row.shape[0] - CTL_HEAD_SIZE - 2 * REF_SIZE - 3 - 6 - 18) // 2
     k = 0
@@ -741,7 +628,7 @@ def write_log_row(row, ws, comp, des, adm, obs, ps) -> None:
         row[k] = adm[ADM_XI_P + i]
         k += 1
     for i in range(6):
-        row[k] = obs[OBS_OUTPUT + i]
+        row[k] = obs_output[i]
         k += 1
     for i in range(18):
         row[k] = ps[POSE_W_REF + i]  # w_ref (6) then the errors (12)
@@ -753,7 +640,7 @@ def write_log_row(row, ws, comp, des, adm, obs, ps) -> None:
 
 
 @jit
-def controller_post(arena, x, mode: int, saturated_before: bool, bits: int, region: float, t: float, row) -> tuple:
+def controller_post(st, arena, x, mode: int, saturated_before: bool, bits: int, region: float, t: float, row) -> tuple:
     """Everything of a control period after the QP (:meth:`InteractionController.step`, step 7, and the log).
 
     Finishes the allocation (``mode``: ``FINISH_QP``, ``FINISH_FALLBACK``, or ``FINISH_HELD`` when the
@@ -762,6 +649,7 @@ def controller_post(arena, x, mode: int, saturated_before: bool, bits: int, regi
     head and, when ``row`` is not empty, the log row (:func:`write_log_row`).
 
     Args:
+        st: the controller's state record.
         arena: the controller's array (:func:`controller_layout`).
         x: (n,) the QP's answer (ignored with ``FINISH_HELD``).
         mode: see above.
@@ -822,7 +710,7 @@ def controller_post(arena, x, mode: int, saturated_before: bool, bits: int, regi
             arena[o_comp:o_body],
             arena[o_des:o_comp],
             arena[o_adm:o_pose],
-            arena[o_obs:o_adm],
+            st.observer.output,
             arena[o_pose:o_des],
         )
     return bits, saturated

@@ -12,9 +12,11 @@ it directly. Its input is the packed frame of :mod:`omnirotor.messages`, its out
 array (``omega_cmd``, inside the controller's arena) and the ``ControlStatus`` bits it returns.
 
 Arguments come as one tuple, ``InteractionController.kernel_args``:
-``(arena, ints, floats, est, sched, alloc, traj, est_out)`` with
+``(state, arena, ints, floats, est, sched, alloc, traj, est_out)`` with
 
-* ``arena``: the blocks' packed states (:func:`~omnirotor.control._kernels.controller_layout`);
+* ``state``: the controller's ``(1,)`` structured state; its fields are the states of the converted blocks
+  (``observer``) and ``arrays``, the addresses of the other arrays (:func:`controller_step_by_state`);
+* ``arena``: the other blocks' packed states (:func:`~omnirotor.control._kernels.controller_layout`);
 * ``ints``: int64 parameters and flags ``CI_*``; ``floats``: float64 parameters ``CF_*``;
 * ``est``: ``(ukf_mem, ukf_counters, bypass_last, bypass_counters)`` (the arrays of the estimator not in use
   are placeholders);
@@ -30,7 +32,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import f64_view, f64_view2, i64_view, jit
+from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _kernels as _k
 from omnirotor.control import _map_kernels as _mk
@@ -49,7 +51,7 @@ from omnirotor.messages import (
     FRAME_T,
 )
 
-__all__ = ["controller_step", "controller_step_by_address", "kernel_arrays", "bypass_step", "allocation_fallback"]
+__all__ = ["controller_step", "controller_step_by_state", "kernel_arrays", "bypass_step", "allocation_fallback"]
 
 # -- the int parameters (ints) --------------------------------------------------------------------------------------
 CI_EST_KIND = 0  # EST_UKF or EST_BYPASS
@@ -162,7 +164,8 @@ def controller_step(args, frame, row) -> int:
     Returns:
         The ``ControlStatus`` bits of the command, or ``STEP_NO_ESTIMATE``.
     """
-    arena, ints, floats, est, sched, alloc, traj, eo = args
+    state, arena, ints, floats, est, sched, alloc, traj, eo = args
+    st = state[0]
     ukf_mem, ukf_cnt, by_last, by_cnt = est
     sch, maps_flat, map_out, weights, sch_state = sched
     H, lo, hi, x, active, work, As, failed, actr = alloc
@@ -208,7 +211,7 @@ def controller_step(args, frame, row) -> int:
         region = sch_state[_mk.STATE_REGION]
     # 3.-6. observer, admittance, references, pose controller, the QP's linear term
     if pre == _k.PRE_OK:
-        pre = _k.controller_pre(arena, p, v, a, R, w, rotor_hz, measured, packed, A, traj, t, dt)
+        pre = _k.controller_pre(st, arena, p, v, a, R, w, rotor_hz, measured, packed, A, traj, t, dt)
     o_ucmd = _k.CTL_U_OBS + n
     if pre == _k.PRE_STATE_NONFINITE:  # no stateful block was updated: hold the last safe command
         bits |= _BIT_NONFINITE
@@ -217,7 +220,7 @@ def controller_step(args, frame, row) -> int:
         ws[0], ws[1], ws[2] = t, region, bits
         if row.shape[0] > 0:
             _k.write_log_row(
-                row, ws, arena[o_comp:o_body], arena[o_des:o_comp], arena[o_adm:o_pose], arena[o_obs:o_adm],
+                row, ws, arena[o_comp:o_body], arena[o_des:o_comp], arena[o_adm:o_pose], st.observer.output,
                 arena[o_pose:o_des],
             )  # fmt: skip
         return bits
@@ -249,12 +252,12 @@ def controller_step(args, frame, row) -> int:
         sol = allocation_fallback(As, failed, w_B, actr)
         bits |= _BIT_QP_FALLBACK
         mode = _k.FINISH_FALLBACK
-    out, sat = _k.controller_post(arena, sol, mode, actr[AC_SATURATED] != 0, bits, region, t, row)
+    out, sat = _k.controller_post(st, arena, sol, mode, actr[AC_SATURATED] != 0, bits, region, t, row)
     if out < 0:  # the QP's answer was not finite: nothing was written
         bits |= _BIT_QP_FALLBACK
         mode = _k.FINISH_FALLBACK
         sol = allocation_fallback(As, failed, w_B, actr)
-        out, sat = _k.controller_post(arena, sol, mode, actr[AC_SATURATED] != 0, bits, region, t, row)
+        out, sat = _k.controller_post(st, arena, sol, mode, actr[AC_SATURATED] != 0, bits, region, t, row)
     if mode != _k.FINISH_HELD:
         actr[AC_SATURATED] = sat
         if mode == _k.FINISH_QP:
@@ -262,19 +265,33 @@ def controller_step(args, frame, row) -> int:
     return out
 
 
+N_ARRAYS = 23
+"""Arrays of ``kernel_args`` reached by address (all but ``state``), the length of ``state["arrays"]`` / 3."""
+
+
 def kernel_arrays(args: tuple) -> list[np.ndarray]:
-    """The arrays of a ``kernel_args`` tuple, flattened in the order :func:`controller_step_by_address` reads."""
-    arena, ints, floats, est, sched, alloc, traj, eo = args
+    """The arrays of a ``kernel_args`` tuple but its state, in the order :func:`controller_step_by_state` reads."""
+    state, arena, ints, floats, est, sched, alloc, traj, eo = args
     return [arena, ints, floats, *est, *sched, *alloc, traj, eo]
 
 
-@jit
-def controller_step_by_address(table, frame, row) -> int:
-    """:func:`controller_step` with its arrays given by address (``_jit.address_table(kernel_arrays(args))``).
+def store_addresses(args: tuple) -> None:
+    """Write the addresses of the arrays of ``args`` into its state's ``arrays`` field.
 
-    The same step; from Python it costs one table instead of some twenty array arguments to unbox.
+    The arrays must stay alive and in place while the state is used: the controller keeps them in ``args``.
     """
+    args[0]["arrays"][0] = address_table(kernel_arrays(args))
+
+
+@jit
+def controller_step_by_state(state, frame, row) -> int:
+    """:func:`controller_step` from the controller's state alone (the other arrays by their stored addresses).
+
+    The same step; from Python it costs one structured array instead of some twenty array arguments to unbox.
+    """
+    table = state[0].arrays
     args = (
+        state,
         f64_view(table, 0),
         i64_view(table, 1),
         f64_view(table, 2),

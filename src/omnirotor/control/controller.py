@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor._jit import address_table
+from omnirotor.blocks import block_class, block_names
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _kernels as _k
 from omnirotor.control import _step_kernels as _sk
@@ -56,7 +56,7 @@ from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, bod
 from omnirotor.control.allocation import AllocationParams, AllocationStatus, Allocator
 from omnirotor.control.estimator import EstimatorParams, make_estimator
 from omnirotor.control.maps import MapParams, MapScheduler
-from omnirotor.control.observer import ObserverParams, WrenchObserver
+from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
@@ -139,6 +139,8 @@ class ControllerParams:
         dt: control period [s] (1 kHz, SPEC §4).
         log_capacity: rows preallocated for the log [steps].
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
+        observer_kind: the registered name of the observer block (:mod:`omnirotor.blocks`; default
+            "momentum", :class:`~omnirotor.control.observer.WrenchObserver`); it is built from ``observer``.
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -150,6 +152,7 @@ class ControllerParams:
     dt: float = 1e-3
     log_capacity: int = 120_000
     observer_input: str = "measured"
+    observer_kind: str = "momentum"
 
     def __post_init__(self) -> None:
         check_positive("controller dt", self.dt)
@@ -157,6 +160,8 @@ class ControllerParams:
             raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
+        if self.observer_kind not in block_names("observer"):
+            block_class("observer", self.observer_kind)  # raises, listing the registered observers
 
 
 def load_controller_params(
@@ -164,7 +169,7 @@ def load_controller_params(
 ) -> ControllerParams:
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
-    The file has top-level ``dt``, ``log_capacity``, ``observer_input`` and sections ``[pose]``,
+    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
     ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]`` whose keys are the
     fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
@@ -216,9 +221,15 @@ class InteractionController:
         # compiled step takes one array for all of them.
         o_obs, o_adm, o_pose, o_des, o_comp, o_body, o_alloc, size = _k.controller_layout(n)
         self._arena = arena = np.zeros(size)
+        # The controller's structured state: the converted blocks' states as fields, and the addresses of
+        # the other arrays of the compiled step (_step_kernels.controller_step_by_state).
+        observer_cls = block_class("observer", p.observer_kind)
+        self.state = np.zeros(
+            1, dtype=[("observer", observer_cls.state_dtype), ("arrays", np.int64, (3 * _sk.N_ARRAYS,))]
+        )
         self.estimator = make_estimator(vehicle, p.estimator)
         self.scheduler = MapScheduler(vehicle, maps, p.maps)
-        self.observer = WrenchObserver(vehicle, p.observer, buffer=arena[o_obs:o_adm])
+        self.observer = observer_cls(vehicle, p.observer, state=self.state["observer"])
         self.admittance = AdmittanceFilter(p.admittance, buffer=arena[o_adm:o_pose])
         self.pose = PoseController(vehicle, p.pose, buffer=arena[o_pose:o_des])
         self.allocator = Allocator(vehicle, p.allocation, buffer=arena[o_alloc:size])
@@ -349,11 +360,11 @@ class InteractionController:
             alloc.kernel_failed, alloc.kernel_counters,
         )  # fmt: skip
         self._kernel_args = (
-            self._arena, ints, floats, est_arrays, sched_arrays, alloc_arrays, self._trajectory.kernel_data,
+            self.state, self._arena, ints, floats, est_arrays, sched_arrays, alloc_arrays, self._trajectory.kernel_data,
             self._est_out,
         )  # fmt: skip
         # The same arrays by address, for step(): the arrays stay alive and in place in _kernel_args.
-        self._kernel_table = address_table(_sk.kernel_arrays(self._kernel_args))
+        _sk.store_addresses(self._kernel_args)
         self._kernel_estimator = est
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
@@ -423,7 +434,7 @@ class InteractionController:
                 except ValueError as exc:
                     raise InputError(f"sensor frame of the wrong shape: {exc}") from None
             row = self.log.next_row()
-            bits = _sk.controller_step_by_address(self._kernel_table, packed, self._no_row if row is None else row)
+            bits = _sk.controller_step_by_state(self.state, packed, self._no_row if row is None else row)
             if bits == _sk.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
                 raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
             if self._piecewise:
@@ -457,8 +468,8 @@ class InteractionController:
             code = _k.PRE_STATE_NONFINITE
         else:
             code = _k.controller_pre(
-                self._arena, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured, packed, A, trajectory.kernel_data,
-                t, self._dt,
+                self.state[0], self._arena, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured, packed, A,
+                trajectory.kernel_data, t, self._dt,
             )  # fmt: skip
         if code == _k.PRE_STATE_NONFINITE:  # no stateful block was updated: hold the last safe command
             bits |= _NONFINITE
@@ -484,12 +495,13 @@ class InteractionController:
             row = self._no_row
         region = float(scheduler.region_index)
         arena = self._arena
-        out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
+        st = self.state[0]
+        out, sat = _k.controller_post(st, arena, x, mode, alloc.saturated, bits, region, t, row)
         if out < 0:  # the QP's answer was not finite: nothing was written
             bits |= _QP_FALLBACK
             mode = _k.FINISH_FALLBACK
             x = alloc._fallback()
-            out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
+            out, sat = _k.controller_post(st, arena, x, mode, alloc.saturated, bits, region, t, row)
         bits = out
         if mode != _k.FINISH_HELD:
             alloc.saturated = bool(sat)
