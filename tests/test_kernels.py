@@ -1,7 +1,7 @@
 """The compiled kernels of the 1 kHz loop against reference implementations, and the fast paths around them.
 
-* the fused controller step (two compiled calls around the QP) gives the same commands and log as the
-  blocks' own public methods composed by hand;
+* the controller's compiled step gives the same commands and log as the blocks' own public methods
+  composed by hand;
 * small kernels (SO(3), Cholesky, inverse, quaternion perturbation, the interference truth) agree with
   NumPy / Python float references;
 * the simulator's flat truth row is the :class:`GroundTruth` record in the layout of the closed loop's
@@ -214,9 +214,10 @@ def test_blocks_keep_their_state_in_a_given_buffer():
             WrenchObserver(V, state=bad)
     # The controller's blocks share its state; a step changes them through it.
     ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=10))
-    assert np.shares_memory(ctl.observer.state, ctl.state)
-    for block in (ctl.admittance, ctl.pose, ctl.allocator):
-        assert np.shares_memory(block.kernel_state, ctl._arena)
+    for block in (ctl.observer, ctl.admittance, ctl.pose, ctl.allocator, ctl.estimator):
+        assert np.shares_memory(block.state, ctl.state)
+    for ref in (ctl.desired_ee, ctl.compliant_ee, ctl.body_ref):
+        assert np.shares_memory(ref.data, ctl.state)
 
 
 def test_messages_stay_frozen_dataclasses():
