@@ -15,7 +15,8 @@ reference of the code before the change (``tests/test_controller_reference.py``)
 
 from __future__ import annotations
 
-import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,45 +26,24 @@ from omnirotor.control.allocation import AllocationParams, Allocator
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
-from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.experiments.closed_loop import run_closed_loop
 from omnirotor.experiments.faults import FaultInjector, MocapDropout, SensorCorruption
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams, Simulator
-from omnirotor.so3 import rot_x
 from omnirotor.vehicle import load_vehicle
-from omnirotor.wrench_maps import MapEntry, WrenchMapSet
+
+sys.path.insert(0, str(Path(__file__).parent / "reference"))
+
+from record_controller import maps, slide  # noqa: E402 (the same slide and maps as the recorded reference)
 
 V = load_vehicle("omnirotor")
 PARTITION = load_partition("paper")
 
 
-def _maps(seed: int = 3) -> WrenchMapSet:
-    """A different map in every region (force rows scaled by 1.0 ... 1.2), so that every switch matters."""
-    rng = np.random.default_rng(seed)
-    regions = {
-        name: MapEntry(A=V.A_nom * np.r_[rng.uniform(1.0, 1.2, 3), np.ones(3)][:, None], points=10, identified=True)
-        for name in PARTITION.names
-    }
-    return WrenchMapSet(vehicle="omnirotor", nominal=V.A_nom, partition=PARTITION, regions=regions)
-
-
 def _slide(sim: Simulator) -> PoseTrajectory:
     """Approach the pipe, touch it, slide over it to 45 deg of roll (across the R1/R3 border at 30 deg)."""
-    s = sim.scene
-    c, r = np.asarray(s.pipe_centre_W), s.pipe_radius - 0.01
-    th = math.radians(45.0)
-    touch = c + np.array([0.0, -r, 0.0])
-    apex = c + np.array([0.0, -r * math.cos(th), r * math.sin(th)])
-    R0 = np.eye(3)
-    return PoseTrajectory(
-        [
-            Waypoint(0.0, touch - [0.0, 0.08, 0.0], R0),
-            Waypoint(1.0, touch, R0),
-            Waypoint(1.4, touch, R0),
-            Waypoint(3.4, apex, rot_x(-th)),
-        ]
-    )
+    return slide(sim.scene.pipe_centre_W, sim.scene.pipe_radius)
 
 
 def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = None, solver: str = "active-set"):
@@ -73,7 +53,7 @@ def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = 
         maps=MapParams(mode=mode, blend=blend, blend_width_deg=10.0),
         allocation=AllocationParams(solver=solver),
     )
-    ctl = InteractionController(V, params, maps=_maps() if mode != "nominal" else None)
+    ctl = InteractionController(V, params, maps=maps() if mode != "nominal" else None)
     if failed is not None:
         mask = np.zeros(V.n_rotors, dtype=bool)
         mask[failed] = True

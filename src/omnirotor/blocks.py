@@ -37,7 +37,16 @@ from numba.extending import overload
 
 from omnirotor.errors import InputError
 
-__all__ = ["Block", "BLOCK_KINDS", "register", "block_class", "block_names", "compiled_step", "state_array"]
+__all__ = [
+    "Block",
+    "BLOCK_KINDS",
+    "register",
+    "block_class",
+    "block_names",
+    "compiled_step",
+    "state_array",
+    "new_state",
+]
 
 BLOCK_KINDS = (
     "trajectory",
@@ -140,6 +149,19 @@ def block_names(kind: str) -> tuple[str, ...]:
     return tuple(sorted(_REGISTRY[kind]))
 
 
+_PURE_PYTHON = bool(numba.config.DISABLE_JIT)
+
+
+def new_state(dtype: np.dtype) -> np.ndarray:
+    """A zeroed ``(1,)`` state of ``dtype``.
+
+    With ``NUMBA_DISABLE_JIT=1`` (kernels run as Python) it is a ``numpy.recarray``, whose records read their
+    fields as attributes (``r.output``) as compiled code does; compiled, a plain array.
+    """
+    state = np.zeros(1, dtype=dtype)
+    return state.view(np.recarray) if _PURE_PYTHON else state
+
+
 def state_array(dtype: np.dtype, state: np.ndarray | None, owner: str) -> np.ndarray:
     """A block's state: ``state`` (zeroed) when given (e.g. a field of its composer's state), else a new one.
 
@@ -147,7 +169,7 @@ def state_array(dtype: np.dtype, state: np.ndarray | None, owner: str) -> np.nda
         InputError: ``state`` is not a writeable ``(1,)`` array of ``dtype``.
     """
     if state is None:
-        return np.zeros(1, dtype=dtype)
+        return new_state(dtype)
     if not (isinstance(state, np.ndarray) and state.dtype == dtype and state.shape == (1,) and state.flags.writeable):
         raise InputError(f"{owner} state must be a writeable (1,) array of its state_dtype")
     state[...] = np.zeros(1, dtype=dtype)
@@ -177,10 +199,11 @@ def compiled_step(kind: str) -> Callable[..., Any]:
         return None
 
     def step(record, *inputs):
-        cls = _class_of_record(numba.typeof(record))
-        if cls is None:
-            raise InputError(f"no {kind} block has the state type of this record")
-        return cls.kernel(record, *inputs)
+        dtype = getattr(record, "dtype", None)
+        for cls in _REGISTRY[kind].values():
+            if dtype is not None and getattr(cls, "state_dtype", None) == dtype:
+                return cls.kernel(record, *inputs)
+        raise InputError(f"no {kind} block has the state type of this record")
 
     step.__name__ = step.__qualname__ = f"{kind}_step"
 

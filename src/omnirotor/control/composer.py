@@ -224,55 +224,35 @@ def _take_estimate(c, e) -> bool:
 
 
 @jit
+def _put(row, k: int, v) -> int:
+    """Copy the 1-D array ``v`` into ``row[k:]``; the next free index."""
+    for i in range(v.shape[0]):
+        row[k + i] = v[i]
+    return k + v.shape[0]
+
+
+@jit
+def _put_pose(row, k: int, p, v, a, R, w, b) -> int:
+    """Copy three 3-vectors, a 3 x 3 matrix (row-major) and two 3-vectors into ``row[k:]``; the next index."""
+    k = _put(row, _put(row, _put(row, k, p), v), a)
+    for i in range(3):
+        k = _put(row, k, R[i])
+    return _put(row, _put(row, k, w), b)
+
+
+@jit
 def write_log_row(row, st, rot) -> None:
     """One log row (:data:`omnirotor.control.controller.LOG_GROUPS`) from the named signals."""
     c = st.own
     row[0], row[1], row[2] = c.t, c.region, c.status
-    k = 3
-    for v in (c.p_W, c.v_W, c.a_W):
-        for i in range(3):
-            row[k] = v[i]
-            k += 1
-    for i in range(3):
-        for j in range(3):
-            row[k] = c.R_WB[i, j]
-            k += 1
-    for v in (c.omega_B, c.p_E_W):
-        for i in range(3):
-            row[k] = v[i]
-            k += 1
+    k = _put_pose(row, 3, c.p_W, c.v_W, c.a_W, c.R_WB, c.omega_B, c.p_E_W)
     for ref in (st.compliant_ee, st.desired_ee):
-        for v in (ref.p_W, ref.v_W, ref.a_W):
-            for i in range(3):
-                row[k] = v[i]
-                k += 1
-        for i in range(3):
-            for j in range(3):
-                row[k] = ref.R_WB[i, j]
-                k += 1
-        for v in (ref.omega_W, ref.alpha_W):
-            for i in range(3):
-                row[k] = v[i]
-                k += 1
-    for i in range(3):
-        row[k] = st.admittance.xi_p_W[i]
-        k += 1
-    for i in range(6):
-        row[k] = st.observer.output[i]
-        k += 1
-    for i in range(6):
-        row[k] = st.pose.w_ref[i]
-        k += 1
-    for i in range(12):
-        row[k] = st.pose.errors[i]
-        k += 1
-    n = rot.u_cmd_hz2.shape[0]
-    for i in range(n):
-        row[k] = rot.u_cmd_hz2[i]
-        k += 1
-    for i in range(n):
-        row[k] = rot.omega_cmd_hz[i]
-        k += 1
+        k = _put_pose(row, k, ref.p_W, ref.v_W, ref.a_W, ref.R_WB, ref.omega_W, ref.alpha_W)
+    k = _put(row, k, st.admittance.xi_p_W)
+    k = _put(row, k, st.observer.output)
+    k = _put(row, k, st.pose.w_ref)
+    k = _put(row, k, st.pose.errors)
+    _put(row, _put(row, k, rot.u_cmd_hz2), rot.omega_cmd_hz)
 
 
 @jit

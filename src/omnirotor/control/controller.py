@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.blocks import block_class, block_names
+from omnirotor.blocks import block_class, block_names, new_state
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
@@ -214,7 +214,7 @@ class InteractionController:
         # One structured state: the controller's own part and every block's state as a named field
         # (composer.controller_dtype); each block is built on its field.
         observer_cls = block_class("observer", p.observer_kind)
-        self.state = state = np.zeros(1, dtype=_c.controller_dtype(observer_cls.state_dtype))
+        self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype))
         self._own = own = state[0]["own"]
         self.estimator = make_estimator(vehicle, p.estimator, state=state["bypass"])
         self.scheduler = MapScheduler(vehicle, maps, p.maps)

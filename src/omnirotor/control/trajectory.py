@@ -32,6 +32,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from omnirotor._jit import jit
+from omnirotor.blocks import new_state
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
 
@@ -97,7 +98,7 @@ class ReferenceSample:
             InputError: ``data`` is neither.
         """
         if data is None:
-            state = np.zeros(1, dtype=REFERENCE_DTYPE)
+            state = new_state(REFERENCE_DTYPE)
         elif (
             isinstance(data, np.ndarray)
             and data.dtype == REFERENCE_DTYPE
@@ -113,6 +114,7 @@ class ReferenceSample:
             and data.flags.writeable
         ):
             state = data.view(REFERENCE_DTYPE)
+            state = state.view(np.recarray) if isinstance(new_state(REFERENCE_DTYPE), np.recarray) else state
         else:
             raise InputError(
                 "ReferenceSample memory must be a (1,) REFERENCE_DTYPE or a contiguous (24,) float64 array"
