@@ -248,6 +248,10 @@ class InteractionController:
         self._frame_buf = np.zeros(frame_size(n))
         self._kernel_args: tuple | None = None
         self._kernel_estimator = None  # the estimator whose arrays the kernel arguments hold
+        self._fast_table = None  # _table when step() is one compiled call (set by reset)
+        self._table = None  # (1,) int64: the state's address, when its dtype is composer.DEFAULT_DTYPE
+        if state.dtype == _c.DEFAULT_DTYPE and not isinstance(state, np.recarray):
+            self._table = np.array([state.ctypes.data], dtype=np.int64)
 
     # -- set-up -------------------------------------------------------------------------------------------
 
@@ -321,6 +325,10 @@ class InteractionController:
         _c.store_addresses(self._kernel_args)
         self._kernel_estimator = est
         self._own_estimator_kind = int(own["estimator"])
+        # One compiled call by address when nothing runs from Python (after reset the estimator is
+        # initialised: its reset raises otherwise) and the state has the default dtype.
+        compiled = self.allocator.kernel_backend is not None and self._own_estimator_kind != _c.EST_GIVEN
+        self._fast_table = self._table if compiled and self._estimator_compiled() else None
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
@@ -384,6 +392,25 @@ class InteractionController:
                 frame.pack_into(packed)
             except ValueError as exc:
                 raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+        row = self.log.next_row()
+        if row is None:
+            row = self._no_row
+        if self.estimator is self._kernel_estimator and self._fast_table is not None:
+            # The default blocks, a compiled estimator and QP: one compiled call, the state by its address.
+            bits = _c.controller_step_by_table(self._fast_table, packed, row)
+        else:
+            bits = self._step_slow(frame, packed, row)
+        if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
+            raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
+        if self._piecewise:
+            self.scheduler.sync()
+        return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+
+    def _step_slow(self, frame: SensorFrame, packed: np.ndarray, row: np.ndarray) -> int:
+        """:meth:`step` through the same composer when it is not one compiled call by address.
+
+        That is: another observer (its state passed whole), or an estimator or a QP solver run from Python.
+        """
         kind = self._own_estimator_kind
         if not self._estimator_compiled():
             kind = self._give_estimate(frame)
@@ -391,23 +418,16 @@ class InteractionController:
             self._give_estimate(frame)
         if kind != int(self._own["estimator"]):
             self._own["estimator"] = kind
-        row = self.log.next_row()
-        if row is None:
-            row = self._no_row
         if self.allocator.kernel_backend is not None:
-            bits = _c.controller_step_by_state(self.state, packed, row)
-        else:  # a QP solver called from Python, between the composer's two halves
-            bits = code = _c.step_begin_by_state(self.state, packed, row)
-            if code >= 0:
-                solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
-                bits = _c.step_end_by_state(self.state, solved, row)
-            elif code == _c.BEGIN_DONE:
-                bits = int(self._own["status"])
-        if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
-            raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        if self._piecewise:
-            self.scheduler.sync()
-        return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+            return _c.controller_step_by_state(self.state, packed, row)
+        # A QP solver called from Python, between the composer's two halves.
+        code = _c.step_begin_by_state(self.state, packed, row)
+        if code >= 0:
+            solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
+            return _c.step_end_by_state(self.state, solved, row)
+        if code == _c.BEGIN_DONE:
+            return int(self._own["status"])
+        return code
 
     def _give_estimate(self, frame: SensorFrame) -> int:
         """Run an estimator the compiled step does not run (a stand-in, one not initialised) from Python.
