@@ -102,3 +102,18 @@ def test_a_new_observer_flies_the_hover_through_the_public_api():
     assert np.abs(dp[:, 1:]).max() < 0.03 and 0.0 < dp[-1, 0] < 0.2, dp[-1]
     R_end = truth_log.group("R_WB")[-1].reshape(3, 3)
     assert R_end[2, 2] > math.cos(math.radians(1.0))
+
+
+def test_the_observer_is_chosen_by_name_from_the_parameters():
+    from omnirotor.control.controller import load_controller_params
+    from omnirotor.errors import InputError
+
+    params = load_controller_params(overrides=["observer_kind=test-force-only"])
+    assert params.observer_kind == "test-force-only"
+    assert ControllerParams().observer_kind == "momentum"
+    try:
+        ControllerParams(observer_kind="no-such-observer")
+    except InputError as exc:
+        assert "momentum" in str(exc) and "test-force-only" in str(exc)  # the message lists the registered ones
+    else:
+        raise AssertionError("an unknown observer name was accepted")
