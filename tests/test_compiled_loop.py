@@ -1,74 +1,59 @@
-"""The compiled paths of the 1 kHz loop give the Python paths' numbers, bit for bit.
+"""The compiled paths of the 1 kHz loop against independent references.
 
-* the controller's compiled step (``_step_kernels.controller_step``, one call per period) against the same
-  step with the blocks called from Python (``InteractionController._step_python``): estimate, map selection
-  (hard switch and smooth blend across the R1/R3 border), QP, command, every log entry and the counters, on a
-  slide over the pipe with contact, with the UKF and with the bypass, with a failed rotor, and with corrupted
-  sensor frames;
+The controller's compiled step has no Python twin any more; its numbers are pinned to the recorded
+reference of the code before the change (``tests/test_controller_reference.py``). Here:
+
+* the same composer with the QP solved by daqp from Python (between its two compiled halves) flies the
+  slide over the pipe (contact, map switches, UKF and bypass, a failed rotor) as the compiled QP does: the
+  same commands to the solvers' precision, the same statuses and regions;
+* an estimate given from Python (any estimator the compiled step does not run) gives the compiled
+  estimator's numbers bit for bit, when it is the same estimate;
 * the compiled closed loop (``experiments._loop.run_steps``, in chunks between progress reports) against the
   Python loop of ``run_closed_loop``: both logs and the final simulator state;
-* the compiled QP-failure fallback against the allocator's own.
+* the QP-failure fallback against NumPy's pseudo-inverse (an independent oracle).
 """
 
 from __future__ import annotations
 
-import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from omnirotor.control import _step_kernels as _sk
-from omnirotor.control.allocation import Allocator
+from omnirotor.control import composer as _c
+from omnirotor.control.allocation import AllocationParams, Allocator
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
-from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.experiments.closed_loop import run_closed_loop
 from omnirotor.experiments.faults import MocapDropout, SensorCorruption, install_faults
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams, Simulator
-from omnirotor.so3 import rot_x
 from omnirotor.vehicle import load_vehicle
-from omnirotor.wrench_maps import MapEntry, WrenchMapSet
+
+sys.path.insert(0, str(Path(__file__).parent / "reference"))
+
+from record_controller import maps, slide  # noqa: E402 (the same slide and maps as the recorded reference)
 
 V = load_vehicle("omnirotor")
 PARTITION = load_partition("paper")
 
 
-def _maps(seed: int = 3) -> WrenchMapSet:
-    """A different map in every region (force rows scaled by 1.0 ... 1.2), so that every switch matters."""
-    rng = np.random.default_rng(seed)
-    regions = {
-        name: MapEntry(A=V.A_nom * np.r_[rng.uniform(1.0, 1.2, 3), np.ones(3)][:, None], points=10, identified=True)
-        for name in PARTITION.names
-    }
-    return WrenchMapSet(vehicle="omnirotor", nominal=V.A_nom, partition=PARTITION, regions=regions)
-
-
 def _slide(sim: Simulator) -> PoseTrajectory:
     """Approach the pipe, touch it, slide over it to 45 deg of roll (across the R1/R3 border at 30 deg)."""
-    s = sim.scene
-    c, r = np.asarray(s.pipe_centre_W), s.pipe_radius - 0.01
-    th = math.radians(45.0)
-    touch = c + np.array([0.0, -r, 0.0])
-    apex = c + np.array([0.0, -r * math.cos(th), r * math.sin(th)])
-    R0 = np.eye(3)
-    return PoseTrajectory(
-        [
-            Waypoint(0.0, touch - [0.0, 0.08, 0.0], R0),
-            Waypoint(1.0, touch, R0),
-            Waypoint(1.4, touch, R0),
-            Waypoint(3.4, apex, rot_x(-th)),
-        ]
-    )
+    return slide(sim.scene.pipe_centre_W, sim.scene.pipe_radius)
 
 
-def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = None):
+def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = None, solver: str = "active-set"):
     sim = Simulator(V, "pipe", SimParams(), seed=5)
     params = ControllerParams(
-        estimator=EstimatorParams(kind=estimator), maps=MapParams(mode=mode, blend=blend, blend_width_deg=10.0)
+        estimator=EstimatorParams(kind=estimator),
+        maps=MapParams(mode=mode, blend=blend, blend_width_deg=10.0),
+        allocation=AllocationParams(solver=solver),
     )
-    ctl = InteractionController(V, params, maps=_maps() if mode != "nominal" else None)
+    ctl = InteractionController(V, params, maps=maps() if mode != "nominal" else None)
     if failed is not None:
         mask = np.zeros(V.n_rotors, dtype=bool)
         mask[failed] = True
@@ -83,20 +68,23 @@ CASES = [
 ]
 
 
-def _fly(sim, ctl, traj, duration, python_controller: bool, plant=None):
-    """A hand-written loop: ``plant`` (default ``sim``) and the controller's compiled or Python step."""
-    plant = sim if plant is None else plant
+def _fly(sim, ctl, traj, duration, wrap=None):
+    """A hand-written loop of the simulator and the controller (``wrap``: wrap its estimator after the reset,
+    e.g. in a stand-in the compiled step does not know)."""
+    plant = sim
     p0 = traj.waypoints[0].p_W - traj.waypoints[0].R_WB @ V.p_E_B_array
     frame = plant.reset(p_W=p0, R_WB=traj.waypoints[0].R_WB)
     ctl.log.ensure_capacity(int(round(duration / ctl.params.dt)))
     ctl.reset(frame, traj)
+    if wrap is not None:
+        ctl.estimator = wrap(ctl.estimator)
     cmd = ctl.hold_command()
     statuses, regions = [], []
     row = np.zeros(64)
     contact_steps = 0
     for _ in range(int(round(duration / ctl.params.dt))):
         frame = plant.step(cmd)
-        cmd = ctl._step_python(frame, traj) if python_controller else ctl.step(frame)
+        cmd = ctl.step(frame)
         statuses.append(int(cmd.status))
         regions.append(ctl.scheduler.region_index)
         sim.truth_row(row)
@@ -105,47 +93,61 @@ def _fly(sim, ctl, traj, duration, python_controller: bool, plant=None):
 
 
 @pytest.mark.parametrize(("estimator", "mode", "blend", "failed"), CASES)
-def test_compiled_controller_step_equals_the_python_step(estimator, mode, blend, failed):
+def test_composer_with_a_python_qp_solver_flies_as_the_compiled_one(estimator, mode, blend, failed):
     runs = []
-    for python_controller in (False, True):
-        sim, ctl, traj = _setup(estimator, mode, blend, failed)
-        statuses, regions, contact_steps = _fly(sim, ctl, traj, 3.4, python_controller)
-        a, e = ctl.allocator, ctl.estimator
-        counters = (a.n_fallbacks, a.n_nonfinite, int(a.status), a.saturated, e.rejected_inputs, e.degraded)
-        log = ctl.log.data[: ctl.log.n].copy()
-        runs.append((log, statuses, regions, counters, sim.data.qpos.copy(), contact_steps))
-    (log_c, st_c, reg_c, cnt_c, q_c, contact_c), (log_p, st_p, reg_p, cnt_p, q_p, _) = runs
-    np.testing.assert_array_equal(log_c, log_p)
-    np.testing.assert_array_equal(st_c, st_p)
-    np.testing.assert_array_equal(reg_c, reg_p)
-    np.testing.assert_array_equal(q_c, q_p)
-    assert cnt_c == cnt_p
+    for solver in ("active-set", "daqp"):
+        sim, ctl, traj = _setup(estimator, mode, blend, failed, solver)
+        assert (ctl.allocator.kernel_backend is None) == (solver == "daqp")
+        statuses, regions, contact_steps = _fly(sim, ctl, traj, 3.4)
+        runs.append((ctl.log.group("omega_cmd_hz").copy(), statuses, regions, contact_steps, ctl.allocator))
+    (cmd_c, st_c, reg_c, contact_c, al_c), (cmd_d, st_d, reg_d, _, al_d) = runs
+    # Both solvers are exact active-set methods: the same optimum to rounding, hence the same flight.
+    np.testing.assert_allclose(cmd_d, cmd_c, rtol=0.0, atol=1e-6)
+    np.testing.assert_array_equal(st_c, st_d)
+    np.testing.assert_array_equal(reg_c, reg_d)
+    assert (al_c.n_fallbacks, al_c.n_nonfinite) == (al_d.n_fallbacks, al_d.n_nonfinite)
     # The run did what it is meant to cover: contact with the pipe, and the map switch in piecewise mode.
     assert contact_c > 500
     if mode == "piecewise":
         assert {PARTITION.names.index("R1"), PARTITION.names.index("R3")} <= set(reg_c.tolist())
     if failed is not None:
-        assert np.all(st_c & int(_sk._BIT_EXCLUDED))
+        assert np.all(st_c & int(_c._BIT_EXCLUDED))
 
 
-def test_compiled_controller_step_equals_the_python_step_on_corrupted_frames():
+class _Relay:
+    """An estimator the compiled step does not know, passing another one's estimates through unchanged."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def reset(self, frame):
+        self.inner.reset(frame)
+
+    def step(self, frame):
+        return self.inner.step(frame)
+
+
+@pytest.mark.parametrize("estimator", ["ukf", "bypass"])
+def test_an_estimate_given_from_python_gives_the_compiled_numbers(estimator):
     faults = [
         SensorCorruption(signal="imu_gyro", kind="nan", t_start_s=0.5, duration_s=0.004),
-        SensorCorruption(signal="mocap", kind="nan", t_start_s=0.8, duration_s=0.03),
-        SensorCorruption(signal="rotor_hz", kind="inf", t_start_s=1.1, duration_s=0.003),
-        MocapDropout(t_start_s=1.5, duration_s=0.3),
+        MocapDropout(t_start_s=0.8, duration_s=0.3),
     ]
     runs = []
-    for python_controller in (False, True):
-        sim, ctl, traj = _setup("ukf", "piecewise")
+    for wrap in (None, _Relay):
+        sim, ctl, traj = _setup(estimator, "piecewise")
         install_faults(sim, faults)
-        statuses, _, _ = _fly(sim, ctl, traj, 2.5, python_controller)
+        statuses, _, _ = _fly(sim, ctl, traj, 1.5, wrap=wrap)
+        assert ctl.kernel_args is None if wrap else ctl.kernel_args is not None
         runs.append((ctl.log.data[: ctl.log.n].copy(), statuses, ctl.estimator.rejected_inputs))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
-    assert runs[0][2] == runs[1][2] > 0
-    flags = int(_sk._BIT_NONFINITE) | int(_sk._BIT_DEGRADED)
-    assert np.count_nonzero(runs[0][1] & flags) > 10  # the corruptions and the dropout were seen
+    assert runs[0][2] == runs[1][2]
+    if estimator == "ukf":
+        assert runs[0][2] > 0 and np.count_nonzero(runs[0][1] & int(_c._BIT_DEGRADED)) > 10
 
 
 @pytest.mark.parametrize(("estimator", "mode", "blend", "failed"), CASES)
@@ -172,9 +174,10 @@ def test_compiled_closed_loop_equals_the_python_loop(estimator, mode, blend, fai
     assert np.any(t1.group("in_contact") > 0.5)
 
 
-def test_compiled_fallback_is_the_allocators_pseudo_inverse():
+def test_fallback_is_the_clipped_pseudo_inverse():
     rng = np.random.default_rng(1)
     alloc = Allocator(V)
+    scale = alloc.state["u_scale_hz2"][0]
     for failed in (None, 4):
         mask = np.zeros(V.n_rotors, dtype=bool)
         if failed is not None:
@@ -182,14 +185,16 @@ def test_compiled_fallback_is_the_allocators_pseudo_inverse():
         alloc.set_failed_rotors(mask)
         alloc.solve(rng.normal(0.0, 3.0, 6) + [0, 0, 14, 0, 0, 0], np.eye(3), V.A_nom)
         before = alloc.n_fallbacks
-        counters = alloc.kernel_counters.copy()
-        expect = alloc._fallback()
-        got = _sk.allocation_fallback(alloc.kernel_As, alloc.kernel_failed, alloc._w_B, counters)
-        np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12 * np.abs(expect).max())
-        assert counters[_sk.AC_N_FALLBACKS] == before + 1 == alloc.n_fallbacks
-        assert counters[_sk.AC_STATUS] == _sk.ALLOC_FALLBACK
+        alloc._backend.max_iter = 0  # the QP fails: the allocator falls back
+        w_ref = rng.normal(0.0, 3.0, 6) + [0, 0, 14, 0, 0, 0]
+        u = alloc.solve(w_ref, np.eye(3), V.A_nom).copy()
+        alloc._backend.max_iter = AllocationParams().max_iter
+        As = np.where(mask, 0.0, V.A_nom * scale)
+        x = np.clip(np.linalg.pinv(As) @ w_ref, alloc.arrays.lo, alloc.arrays.hi)
+        np.testing.assert_allclose(u, x * scale, rtol=1e-12, atol=1e-12 * np.abs(x * scale).max())
+        assert alloc.n_fallbacks == before + 1 and int(alloc.status) == 1
         if failed is not None:
-            assert abs(got[failed]) <= 1e-12 * np.abs(got).max()  # zero up to rounding; the bounds pin it
+            assert u[failed] == 0.0
 
 
 def test_address_table_gives_views_of_the_same_memory_and_refuses_strided_arrays():

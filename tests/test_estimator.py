@@ -321,7 +321,10 @@ def test_bypass_passes_the_state_through():
     with pytest.raises(InputError):
         est.step(f)
     state = StateEstimate(t=f.t, p_W=np.ones(3), v_W=np.zeros(3), a_W=np.zeros(3), R_WB=np.eye(3), omega_B=np.zeros(3))
-    assert est.step(dataclasses.replace(f, state=state)) is state
+    passed = est.step(dataclasses.replace(f, state=state))
+    assert passed.valid and passed.t == state.t
+    for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
+        np.testing.assert_array_equal(getattr(passed, name), getattr(state, name))
     held = est.step(dataclasses.replace(f, t=f.t + DT))
     assert not held.valid and held.t == f.t + DT and est.degraded and est.rejected_inputs == 1
     np.testing.assert_array_equal(held.p_W, state.p_W)

@@ -1,7 +1,7 @@
 """The compiled kernels of the 1 kHz loop against reference implementations, and the fast paths around them.
 
-* the fused controller step (two compiled calls around the QP) gives the same commands and log as the
-  blocks' own public methods composed by hand;
+* the controller's compiled step gives the same commands and log as the blocks' own public methods
+  composed by hand;
 * small kernels (SO(3), Cholesky, inverse, quaternion perturbation, the interference truth) agree with
   NumPy / Python float references;
 * the simulator's flat truth row is the :class:`GroundTruth` record in the layout of the closed loop's
@@ -19,7 +19,6 @@ import pytest
 
 from omnirotor._jit import R9_from_quat_into
 from omnirotor.control import _estimator_kernels as ek
-from omnirotor.control import _kernels as ck
 from omnirotor.control.admittance import AdmittanceFilter, body_reference_from_ee, ee_wrench_W
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
@@ -39,6 +38,7 @@ from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle("omnirotor")
 DT = 1e-3
+OBS_FLOATS = 69
 
 
 def _random_rotation(rng):
@@ -206,19 +206,25 @@ def test_truth_row_is_the_ground_truth_in_the_truth_log_layout():
 
 
 def test_blocks_keep_their_state_in_a_given_buffer():
-    arena = np.full(ck.OBS_SIZE + 10, 3.0)
-    obs = WrenchObserver(V, buffer=arena[5 : 5 + ck.OBS_SIZE])
-    assert np.shares_memory(obs.output, arena) and np.all(obs.output == 0.0)
-    assert arena[0] == 3.0 and arena[-1] == 3.0  # only its slice is used
+    from omnirotor.control.observer import STATE_DTYPE
+
+    outer = np.zeros(1, dtype=[("before", np.float64), ("observer", STATE_DTYPE), ("after", np.float64)])
+    outer["before"], outer["after"] = 3.0, 3.0
+    obs = WrenchObserver(V, state=outer["observer"])
+    assert np.shares_memory(obs.output, outer) and np.all(obs.output == 0.0)
+    assert outer["before"][0] == 3.0 and outer["after"][0] == 3.0  # only its field is used
     sample = ReferenceSample(np.ones(24))
     np.testing.assert_array_equal(sample.R_WB, np.eye(3))
-    for bad in (np.zeros(ck.OBS_SIZE - 1), np.zeros(ck.OBS_SIZE, dtype=np.float32), np.zeros(2 * ck.OBS_SIZE)[::2]):
+    other = np.dtype([(name, np.float32, STATE_DTYPE[name].shape) for name in STATE_DTYPE.names])
+    for bad in (np.zeros(2, dtype=STATE_DTYPE), np.zeros(1, dtype=other), np.zeros(OBS_FLOATS)):
         with pytest.raises(InputError):
-            WrenchObserver(V, buffer=bad)
-    # The controller's blocks share one array; a step changes them through it.
+            WrenchObserver(V, state=bad)
+    # The controller's blocks share its state; a step changes them through it.
     ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=10))
-    for block in (ctl.observer, ctl.admittance, ctl.pose, ctl.allocator):
-        assert np.shares_memory(block.kernel_state, ctl._arena)
+    for block in (ctl.observer, ctl.admittance, ctl.pose, ctl.allocator, ctl.estimator):
+        assert np.shares_memory(block.state, ctl.state)
+    for ref in (ctl.desired_ee, ctl.compliant_ee, ctl.body_ref):
+        assert np.shares_memory(ref.data, ctl.state)
 
 
 def test_messages_stay_frozen_dataclasses():

@@ -7,7 +7,7 @@
   does nearly every step of a slowly varying 1 kHz-like sequence, also across a change of H;
 * non-finite input, a non-positive-definite H, an empty box and the iteration cap give their codes;
 * the solver can be called from compiled code (the future one-loop control period);
-* ``alloc_set_map`` writes the allocator's state as the NumPy code it replaced, and the allocator's default
+* ``alloc_set_map`` writes the allocator's arrays as the NumPy code it replaced, and the allocator's default
   backend keeps its arrays as shared attributes.
 """
 
@@ -21,9 +21,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
-from omnirotor.control import _kernels as _k
 from omnirotor.control import _qp
-from omnirotor.control.allocation import AllocationParams, Allocator
+from omnirotor.control.allocation import AllocationParams, Allocator, alloc_set_map
 from omnirotor.vehicle import load_vehicle
 
 VEHICLE = load_vehicle("omnirotor")
@@ -282,26 +281,27 @@ def test_alloc_set_map_matches_the_numpy_code():
     alloc = Allocator(VEHICLE)
     rng = np.random.default_rng(12)
     n = VEHICLE.n_rotors
-    o_f, o_key, o_G, *_ = _k.alloc_offsets(n)
-    scale = alloc.kernel_state[_k.ALLOC_SCALE]
+    ar = alloc.arrays
+    scale = alloc.state["u_scale_hz2"][0]
     lam = AllocationParams().reg_lambda * scale**2
+    assert alloc.state["lam_scaled"][0] == lam
+    written = ("As", "H", "G", "A_key")
     for k in range(20):
         A = VEHICLE.A_nom * (1.0 + 0.2 * rng.normal(size=VEHICLE.A_nom.shape)) if k else VEHICLE.A_nom
-        As = np.empty((WRENCH_DIM, n))
-        H = np.empty((n, n))
-        before = alloc.kernel_state.copy()
-        _qp.alloc_set_map(alloc.kernel_state, A, As, H, lam)
+        before_state = alloc.state.copy()
+        before = {name: getattr(ar, name).copy() for name in ar._fields if name not in written}
+        alloc_set_map(alloc.state[0], ar, A)
         As_ref = A * scale
-        np.testing.assert_array_equal(As, As_ref)
-        np.testing.assert_array_equal(alloc.kernel_state[o_G : o_G + WRENCH_DIM * n].reshape(n, WRENCH_DIM), -As_ref.T)
-        np.testing.assert_array_equal(alloc.kernel_state[o_key : o_key + WRENCH_DIM * n].reshape(WRENCH_DIM, n), A)
-        untouched = np.ones(before.size, dtype=bool)
-        untouched[o_key : o_G + WRENCH_DIM * n] = False
-        np.testing.assert_array_equal(alloc.kernel_state[untouched], before[untouched])
-        np.testing.assert_array_equal(H, H.T)
+        np.testing.assert_array_equal(ar.As, As_ref)
+        np.testing.assert_array_equal(ar.G, -As_ref.T)
+        np.testing.assert_array_equal(ar.A_key, A)
+        for name, value in before.items():  # nothing else is touched
+            np.testing.assert_array_equal(getattr(ar, name), value)
+        assert alloc.state.tobytes() == before_state.tobytes()
+        np.testing.assert_array_equal(ar.H, ar.H.T)
         H_ref = As_ref.T @ As_ref + lam * np.eye(n)
         # Sums of 6 products in another order (BLAS): a few roundings of the largest entry.
-        assert np.abs(H - H_ref).max() <= 4 * np.finfo(float).eps * np.abs(H_ref).max()
+        assert np.abs(ar.H - H_ref).max() <= 4 * np.finfo(float).eps * np.abs(H_ref).max()
 
 
 def test_default_backend_shares_the_allocators_arrays():
@@ -309,8 +309,8 @@ def test_default_backend_shares_the_allocators_arrays():
     assert alloc.params.solver == "active-set"
     be = alloc._backend
     assert be.H is alloc._H
-    for arr in (be.lo, be.hi):
-        assert np.shares_memory(arr, alloc.kernel_state)
+    for arr, name in ((be.lo, "lo"), (be.hi, "hi"), (be.x, "x"), (be.active, "active"), (be.work, "work")):
+        assert arr is getattr(alloc.arrays, name)  # the compiled controller step continues the same warm start
     assert be.active.dtype == np.int64 and be.x.shape == (VEHICLE.n_rotors,)
     assert be.work.size >= _qp.boxqp_work_size(VEHICLE.n_rotors) and be.max_iter == AllocationParams().max_iter
     # Upright hover from the cold start, then a warm step: one iteration, the answer in be.x.
@@ -318,7 +318,7 @@ def test_default_backend_shares_the_allocators_arrays():
     alloc.solve(hover, np.eye(3), VEHICLE.A_nom)
     u = alloc.solve(hover + 0.01, np.eye(3), VEHICLE.A_nom)
     assert be.iterations == 1
-    np.testing.assert_array_equal(u, be.x * alloc.kernel_state[_k.ALLOC_SCALE])
+    np.testing.assert_array_equal(u, be.x * alloc.state["u_scale_hz2"][0])
     # A failed rotor changes the bound arrays in place: the next solve pins it.
     mask = np.zeros(VEHICLE.n_rotors, dtype=bool)
     mask[2] = True

@@ -1,4 +1,4 @@
-"""Numba set-up shared by the compiled kernels of the 1 kHz loop (``control/_kernels.py``, ``sim/_kernels.py``).
+"""Numba set-up shared by the compiled kernels of the 1 kHz loop (the blocks of ``control/`` and ``sim/``).
 
 Every kernel is compiled with :data:`jit`: ``nopython``, ``cache=True`` (machine code is kept in the
 ``__pycache__`` folder next to the module, so only the first import on a machine compiles), ``fastmath=False``

@@ -371,3 +371,9 @@ def schedule_select(
             out_flat[i] = maps_flat[k, i]
         state[STATE_BLENDED] = 0.0
     return k
+
+
+@jit
+def region_of(state) -> float:
+    """The current region index of a selection state (-1 before the first selection)."""
+    return state[STATE_REGION]

@@ -32,7 +32,6 @@ from __future__ import annotations
 import math
 
 from omnirotor._jit import jit
-from omnirotor.control import _kernels as _k
 
 __all__ = [
     "BOXQP_INFEASIBLE",
@@ -42,7 +41,6 @@ __all__ = [
     "AT_UPPER",
     "FREE",
     "DUAL_TOL_REL",
-    "alloc_set_map",
     "boxqp_solve",
     "boxqp_work_size",
 ]
@@ -268,45 +266,3 @@ def boxqp_solve(H, f, lo, hi, x, active, work, max_iter: int) -> int:
         x[block] = lo[block] if side == AT_LOWER else hi[block]
         active[block] = side
         feasible = False
-
-
-_alloc_offsets = _k.alloc_offsets  # the allocator's state layout (compiled)
-
-
-@jit
-def alloc_set_map(al, A, As, H, lam_scaled: float) -> None:
-    """Rebuild the allocation QP for a new wrench map (compiled ``Allocator._set_map``, SPEC §4.2).
-
-    Writes ``As = A u_scale`` [N, N·m per unit x], ``G = -Asᵀ`` and the map key ``A`` into the allocator's
-    packed state ``al`` (layout ``ALLOC_*`` and ``alloc_offsets`` of :mod:`omnirotor.control._kernels`), and
-    ``H = AsᵀAs + lam_scaled I`` (each entry summed over the wrench rows in order, then the regulariser added
-    on the diagonal; exactly symmetric).
-
-    Args:
-        al: the allocator's packed state (reads ``u_scale`` at ``ALLOC_SCALE``).
-        A: (6, n) wrench map, body frame [N/Hz², N·m/Hz²], finite (checked by the caller).
-        As: (6, n) output, the scaled map.
-        H: (n, n) output, the Hessian in scaled units.
-        lam_scaled: the regulariser in scaled units, ``lambda u_scale²``.
-    """
-    m, n = A.shape
-    offsets = _alloc_offsets(n)
-    o_key = offsets[1]
-    o_G = offsets[2]
-    scale = al[_k.ALLOC_SCALE]
-    for r in range(m):
-        for j in range(n):
-            a = A[r, j]
-            s = a * scale
-            As[r, j] = s
-            al[o_G + m * j + r] = -s
-            al[o_key + n * r + j] = a
-    for i in range(n):
-        for j in range(i + 1):
-            acc = 0.0
-            for r in range(m):
-                acc += As[r, i] * As[r, j]
-            if i == j:
-                acc += lam_scaled
-            H[i, j] = acc
-            H[j, i] = acc

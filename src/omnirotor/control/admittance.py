@@ -35,8 +35,9 @@ import math
 
 import numpy as np
 
+from omnirotor._jit import jit
+from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite
-from omnirotor.control import _kernels as _k
 from omnirotor.control.trajectory import ReferenceSample
 from omnirotor.errors import InputError
 
@@ -46,9 +47,208 @@ __all__ = [
     "ADMITTANCE_PRESETS",
     "ee_wrench_W",
     "body_reference_from_ee",
+    "STATE_DTYPE",
+    "admittance_step",
+    "compliant_reference",
+    "ee_wrench",
+    "body_reference",
 ]
 
 Vec3 = tuple[float, float, float]
+
+_F8 = np.float64
+STATE_DTYPE = np.dtype(
+    [
+        ("xi_p_W", _F8, 3),  # position offset [m]
+        ("xi_p_dot_W", _F8, 3),  # its rate [m/s]
+        ("xi_p_ddot_W", _F8, 3),  # its acceleration at the last step [m/s²]
+        ("omega_xi_W", _F8, 3),  # angular rate of the rotation offset [rad/s], world frame
+        ("omega_xi_dot_W", _F8, 3),  # its derivative at the last step [rad/s²]
+        ("R_xi", _F8, (3, 3)),  # rotation offset (world to world)
+        ("q_xi", _F8, 4),  # R_xi as a unit quaternion wxyz
+        ("n_nonfinite", _F8),  # steps with a non-finite input (nothing else changed)
+        # parameters
+        ("inv_mass_pos", _F8, 3),  # 1 / M_p [1/kg]
+        ("damping_pos", _F8, 3),
+        ("stiffness_pos", _F8, 3),
+        ("inv_mass_rot", _F8, 3),  # 1 / M_R
+        ("damping_rot", _F8, 3),
+        ("stiffness_rot", _F8, 3),
+    ]
+)
+"""State and parameters of the admittance filter (named fields; the compiled step reads them so)."""
+
+_PARAMETERS = ("inv_mass_pos", "damping_pos", "stiffness_pos", "inv_mass_rot", "damping_rot", "stiffness_rot")
+
+
+@jit
+def ee_wrench(f_ext_W, m_ext_B, R, p_E_B, f_E_W, m_E_W) -> None:
+    """The external wrench moved to the EE tip, world frame (:func:`ee_wrench_W`)."""
+    fx, fy, fz = f_ext_W[0], f_ext_W[1], f_ext_W[2]
+    mx, my, mz = m_ext_B[0], m_ext_B[1], m_ext_B[2]
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    ex, ey, ez = p_E_B[0], p_E_B[1], p_E_B[2]
+    rx = r00 * ex + r01 * ey + r02 * ez
+    ry = r10 * ex + r11 * ey + r12 * ez
+    rz = r20 * ex + r21 * ey + r22 * ez
+    f_E_W[0], f_E_W[1], f_E_W[2] = fx, fy, fz
+    m_E_W[0] = r00 * mx + r01 * my + r02 * mz - (ry * fz - rz * fy)
+    m_E_W[1] = r10 * mx + r11 * my + r12 * mz - (rz * fx - rx * fz)
+    m_E_W[2] = r20 * mx + r21 * my + r22 * mz - (rx * fy - ry * fx)
+
+
+@jit
+def body_reference(e, p_E_B, d) -> None:
+    """Body (CoM) reference record ``d`` from the EE reference record ``e``; ``d`` may be ``e``.
+
+    See :func:`body_reference_from_ee`.
+    """
+    px, py, pz = e.p_W[0], e.p_W[1], e.p_W[2]
+    vx, vy, vz = e.v_W[0], e.v_W[1], e.v_W[2]
+    ax, ay, az = e.a_W[0], e.a_W[1], e.a_W[2]
+    R = e.R_WB
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
+        R[0, 0],
+        R[0, 1],
+        R[0, 2],
+        R[1, 0],
+        R[1, 1],
+        R[1, 2],
+        R[2, 0],
+        R[2, 1],
+        R[2, 2],
+    )
+    wx, wy, wz = e.omega_W[0], e.omega_W[1], e.omega_W[2]
+    bx, by, bz = e.alpha_W[0], e.alpha_W[1], e.alpha_W[2]
+    ex, ey, ez = p_E_B[0], p_E_B[1], p_E_B[2]
+    rx = r00 * ex + r01 * ey + r02 * ez
+    ry = r10 * ex + r11 * ey + r12 * ez
+    rz = r20 * ex + r21 * ey + r22 * ez
+    cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
+    ccx, ccy, ccz = wy * cz - wz * cy, wz * cx - wx * cz, wx * cy - wy * cx
+    d.p_W[0] = px - rx
+    d.p_W[1] = py - ry
+    d.p_W[2] = pz - rz
+    d.v_W[0] = vx - cx
+    d.v_W[1] = vy - cy
+    d.v_W[2] = vz - cz
+    d.a_W[0] = ax - (by * rz - bz * ry) - ccx
+    d.a_W[1] = ay - (bz * rx - bx * rz) - ccy
+    d.a_W[2] = az - (bx * ry - by * rx) - ccz
+    # Attitude and its rates are the EE's (R_E^B = I).
+    d.R_WB[0, 0], d.R_WB[0, 1], d.R_WB[0, 2] = r00, r01, r02
+    d.R_WB[1, 0], d.R_WB[1, 1], d.R_WB[1, 2] = r10, r11, r12
+    d.R_WB[2, 0], d.R_WB[2, 1], d.R_WB[2, 2] = r20, r21, r22
+    d.omega_W[0], d.omega_W[1], d.omega_W[2] = wx, wy, wz
+    d.alpha_W[0], d.alpha_W[1], d.alpha_W[2] = bx, by, bz
+
+
+@jit
+def admittance_step(r, f_E_W, m_E_W, dt: float) -> None:
+    """Advance the admittance filter (module docstring) by ``dt`` under the EE wrench, in place.
+
+    Args:
+        r: the filter's state record (:data:`STATE_DTYPE`).
+        f_E_W: (3,) force at the EE [N], world frame.
+        m_E_W: (3,) moment about the EE [N·m], world frame.
+        dt: step [s].
+    """
+    fx, fy, fz = f_E_W[0], f_E_W[1], f_E_W[2]
+    mx, my, mz = m_E_W[0], m_E_W[1], m_E_W[2]
+    if not math.isfinite(fx + fy + fz + mx + my + mz + dt):
+        r.n_nonfinite += 1.0
+        return
+    P, V, A = r.xi_p_W, r.xi_p_dot_W, r.xi_p_ddot_W
+    W, WD, q = r.omega_xi_W, r.omega_xi_dot_W, r.q_xi
+    inv_m, D, K = r.inv_mass_pos, r.damping_pos, r.stiffness_pos
+    inv_j, D_R, K_R = r.inv_mass_rot, r.damping_rot, r.stiffness_rot
+    xp, yp, zp = P[0], P[1], P[2]
+    xv, yv, zv = V[0], V[1], V[2]
+    wx, wy, wz = W[0], W[1], W[2]
+    ax = inv_m[0] * (fx - D[0] * xv - K[0] * xp)
+    ay = inv_m[1] * (fy - D[1] * yv - K[1] * yp)
+    az = inv_m[2] * (fz - D[2] * zv - K[2] * zp)
+    half_dt2 = 0.5 * dt * dt
+    # Rotational spring: 1/2 (R_xi - R_xi^T)^v = 2 q_w q_v for a unit quaternion.
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    alx = inv_j[0] * (mx - D_R[0] * wx - K_R[0] * 2.0 * qw * qx)
+    aly = inv_j[1] * (my - D_R[1] * wy - K_R[1] * 2.0 * qw * qy)
+    alz = inv_j[2] * (mz - D_R[2] * wz - K_R[2] * 2.0 * qw * qz)
+    wx += alx * dt
+    wy += aly * dt
+    wz += alz * dt
+    P[0] = xp + xv * dt + ax * half_dt2
+    P[1] = yp + yv * dt + ay * half_dt2
+    P[2] = zp + zv * dt + az * half_dt2
+    V[0] = xv + ax * dt
+    V[1] = yv + ay * dt
+    V[2] = zv + az * dt
+    A[0], A[1], A[2] = ax, ay, az
+    W[0], W[1], W[2] = wx, wy, wz
+    WD[0], WD[1], WD[2] = alx, aly, alz
+    # R_xi <- exp([omega dt]x) R_xi, i.e. q <- dq (x) q with dq the world-frame increment.
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
+    if angle > 0.0:
+        c = math.cos(0.5 * angle)
+        sn = math.sin(0.5 * angle) / angle * dt
+        dw, dx, dy, dz = c, sn * wx, sn * wy, sn * wz
+        qw, qx, qy, qz = (
+            dw * qw - dx * qx - dy * qy - dz * qz,
+            dw * qx + dx * qw + dy * qz - dz * qy,
+            dw * qy - dx * qz + dy * qw + dz * qx,
+            dw * qz + dx * qy - dy * qx + dz * qw,
+        )
+        norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw, qx, qy, qz = qw * norm, qx * norm, qy * norm, qz * norm
+        q[0], q[1], q[2], q[3] = qw, qx, qy, qz
+        R = r.R_xi
+        R[0, 0] = 1.0 - 2.0 * (qy * qy + qz * qz)
+        R[0, 1] = 2.0 * (qx * qy - qw * qz)
+        R[0, 2] = 2.0 * (qx * qz + qw * qy)
+        R[1, 0] = 2.0 * (qx * qy + qw * qz)
+        R[1, 1] = 1.0 - 2.0 * (qx * qx + qz * qz)
+        R[1, 2] = 2.0 * (qy * qz - qw * qx)
+        R[2, 0] = 2.0 * (qx * qz - qw * qy)
+        R[2, 1] = 2.0 * (qy * qz + qw * qx)
+        R[2, 2] = 1.0 - 2.0 * (qx * qx + qy * qy)
+
+
+@jit
+def compliant_reference(r, des, out) -> None:
+    """The desired EE reference record ``des`` displaced by the filter's offsets ``r``, into ``out``.
+
+    See :meth:`AdmittanceFilter.compliant_reference`; ``out`` is not ``des``.
+    """
+    P, V, A = r.xi_p_W, r.xi_p_dot_W, r.xi_p_ddot_W
+    for i in range(3):
+        out.p_W[i] = des.p_W[i] + P[i]
+        out.v_W[i] = des.v_W[i] + V[i]
+        out.a_W[i] = des.a_W[i] + A[i]
+    Rx, Rd = r.R_xi, des.R_WB
+    r00, r01, r02 = Rx[0, 0], Rx[0, 1], Rx[0, 2]
+    r10, r11, r12 = Rx[1, 0], Rx[1, 1], Rx[1, 2]
+    r20, r21, r22 = Rx[2, 0], Rx[2, 1], Rx[2, 2]
+    # R_r = R_xi R_d
+    for i in range(3):
+        a0, a1, a2 = Rx[i, 0], Rx[i, 1], Rx[i, 2]
+        for j in range(3):
+            out.R_WB[i, j] = a0 * Rd[0, j] + a1 * Rd[1, j] + a2 * Rd[2, j]
+    ox, oy, oz = des.omega_W[0], des.omega_W[1], des.omega_W[2]
+    bx, by, bz = des.alpha_W[0], des.alpha_W[1], des.alpha_W[2]
+    W, WD = r.omega_xi_W, r.omega_xi_dot_W
+    wx, wy, wz = W[0], W[1], W[2]
+    vx, vy, vz = WD[0], WD[1], WD[2]
+    rox = r00 * ox + r01 * oy + r02 * oz
+    roy = r10 * ox + r11 * oy + r12 * oz
+    roz = r20 * ox + r21 * oy + r22 * oz
+    out.omega_W[0] = wx + rox
+    out.omega_W[1] = wy + roy
+    out.omega_W[2] = wz + roz
+    out.alpha_W[0] = vx + r00 * bx + r01 * by + r02 * bz + wy * roz - wz * roy
+    out.alpha_W[1] = vy + r10 * bx + r11 * by + r12 * bz + wz * rox - wx * roz
+    out.alpha_W[2] = vz + r20 * bx + r21 * by + r22 * bz + wx * roy - wy * rox
 
 
 def _diag(x: float) -> Vec3:
@@ -142,7 +342,7 @@ def ee_wrench_W(
         m_E_W: (3,) output: moment about the EE tip [N·m], world frame.
     """
     f64 = np.float64
-    _k.ee_wrench(
+    ee_wrench(
         np.asarray(f_ext_W, dtype=f64),
         np.asarray(m_ext_B, dtype=f64),
         np.asarray(R_WB, dtype=f64),
@@ -163,53 +363,67 @@ def body_reference_from_ee(ee: ReferenceSample, p_E_B: np.ndarray, out: Referenc
     Returns:
         ``out``.
     """
-    _k.body_reference(ee.data, np.asarray(p_E_B, dtype=np.float64), out.data)
+    body_reference(ee.state[0], np.asarray(p_E_B, dtype=np.float64), out.state[0])
     return out
 
 
+@register("admittance", "mass-spring-damper")
 class AdmittanceFilter:
     """The admittance filter of SPEC §4.4 (see the module docstring for the equations).
 
     Args:
         params: virtual mass, damping and stiffness.
-        buffer: optional (``ADM_SIZE``,) float64 array to hold :attr:`kernel_state`; a new one by default.
+        state: optional ``(1,)`` array of :data:`STATE_DTYPE` to hold :attr:`state` (e.g. a field of the
+            controller's state); a new one by default.
 
     Attributes:
+        state: the ``(1,)`` state record the compiled step reads and writes (the arrays below are views).
         xi_p_W: (3,) position offset [m]. Read-only view; updated by :meth:`step`.
         xi_p_dot_W: (3,) its rate [m/s].
         xi_p_ddot_W: (3,) its acceleration [m/s²] at the last step.
         R_xi: (3, 3) rotation offset (world to world).
         omega_xi_W: (3,) angular rate of the offset [rad/s], world frame.
         omega_xi_dot_W: (3,) its derivative [rad/s²] at the last step.
-        kernel_state: the packed state and parameters the compiled step reads and writes (layout ``ADM_*``
-            of :mod:`omnirotor.control._kernels`; the arrays above are views into it).
     """
 
-    def __init__(self, params: AdmittanceParams | None = None, *, buffer: np.ndarray | None = None) -> None:
+    state_dtype = STATE_DTYPE
+    log_fields = ("xi_p_W",)
+    kernel = admittance_step
+
+    def __init__(self, params: AdmittanceParams | None = None, *, state: np.ndarray | None = None) -> None:
         self.params = params if params is not None else AdmittanceParams()
         p = self.params
-        # State and parameters in one array, the layout of control._kernels (ADM_*).
-        self.kernel_state = s = _k.state_buffer(buffer, _k.ADM_SIZE, "admittance")
-        s[_k.ADM_INV_M : _k.ADM_INV_M + 3] = [1.0 / m for m in p.mass_pos]
-        s[_k.ADM_D : _k.ADM_D + 3] = p.damping_pos
-        s[_k.ADM_K : _k.ADM_K + 3] = p.stiffness_pos
-        s[_k.ADM_INV_J : _k.ADM_INV_J + 3] = [1.0 / m for m in p.mass_rot]
-        s[_k.ADM_D_R : _k.ADM_D_R + 3] = p.damping_rot
-        s[_k.ADM_K_R : _k.ADM_K_R + 3] = p.stiffness_rot
-        self.xi_p_W = s[_k.ADM_XI_P : _k.ADM_XI_P + 3]
-        self.xi_p_dot_W = s[_k.ADM_XI_P_DOT : _k.ADM_XI_P_DOT + 3]
-        self.xi_p_ddot_W = s[_k.ADM_XI_P_DDOT : _k.ADM_XI_P_DDOT + 3]
-        self.omega_xi_W = s[_k.ADM_OMEGA_XI : _k.ADM_OMEGA_XI + 3]
-        self.omega_xi_dot_W = s[_k.ADM_OMEGA_XI_DOT : _k.ADM_OMEGA_XI_DOT + 3]
-        self.R_xi = s[_k.ADM_R_XI : _k.ADM_R_XI + 9].reshape(3, 3)
-        self._q = s[_k.ADM_Q : _k.ADM_Q + 4]  # R_xi as a unit quaternion, wxyz
+        self.state = st = state_array(STATE_DTYPE, state, "admittance")
+        st["inv_mass_pos"] = [1.0 / m for m in p.mass_pos]
+        st["damping_pos"] = p.damping_pos
+        st["stiffness_pos"] = p.stiffness_pos
+        st["inv_mass_rot"] = [1.0 / m for m in p.mass_rot]
+        st["damping_rot"] = p.damping_rot
+        st["stiffness_rot"] = p.stiffness_rot
+        rec = st[0]
+        self.xi_p_W = rec["xi_p_W"]
+        self.xi_p_dot_W = rec["xi_p_dot_W"]
+        self.xi_p_ddot_W = rec["xi_p_ddot_W"]
+        self.omega_xi_W = rec["omega_xi_W"]
+        self.omega_xi_dot_W = rec["omega_xi_dot_W"]
+        self.R_xi = rec["R_xi"]
+        self._q = rec["q_xi"]  # R_xi as a unit quaternion, wxyz
         self.reset()
 
     def reset(self) -> None:
         """Zero the offsets (compliant reference = desired reference)."""
-        self.kernel_state[0 : _k.ADM_INV_M] = 0.0
+        st = self.state
+        kept = {name: st[name].copy() for name in _PARAMETERS}
+        st[...] = np.zeros(1, dtype=STATE_DTYPE)
+        for name, value in kept.items():
+            st[name] = value
         self.R_xi[...] = np.eye(3)
         self._q[0] = 1.0
+
+    @property
+    def n_nonfinite(self) -> int:
+        """Steps whose inputs were not finite (each changed nothing else)."""
+        return int(self.state["n_nonfinite"][0])
 
     def rotation_offset_vector(self) -> np.ndarray:
         """(3,) ``1/2 (R_xi - R_xi^T)^v`` = sin(angle) * axis: the spring's generalized deflection."""
@@ -217,7 +431,7 @@ class AdmittanceFilter:
         return np.array([2.0 * w * x, 2.0 * w * y, 2.0 * w * z])
 
     def step(self, f_E_W: np.ndarray, m_E_W: np.ndarray, dt: float) -> None:
-        """Advance the filter by ``dt`` [s] under the EE wrench (:func:`omnirotor.control._kernels.admittance_step`).
+        """Advance the filter by ``dt`` [s] under the EE wrench (:func:`admittance_step`).
 
         Args:
             f_E_W: (3,) force at the EE [N], world frame.
@@ -225,7 +439,7 @@ class AdmittanceFilter:
             dt: step [s].
         """
         f64 = np.float64
-        _k.admittance_step(self.kernel_state, np.asarray(f_E_W, dtype=f64), np.asarray(m_E_W, dtype=f64), float(dt))
+        admittance_step(self.state[0], np.asarray(f_E_W, dtype=f64), np.asarray(m_E_W, dtype=f64), float(dt))
 
     def compliant_reference(self, desired: ReferenceSample, out: ReferenceSample) -> ReferenceSample:
         """The compliant EE reference: the desired one displaced by the filter's offsets.
@@ -237,5 +451,5 @@ class AdmittanceFilter:
         Returns:
             ``out``.
         """
-        _k.compliant_reference(self.kernel_state, desired.data, out.data)
+        compliant_reference(self.state[0], desired.state[0], out.state[0])
         return out

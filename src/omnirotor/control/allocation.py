@@ -50,17 +50,29 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+from typing import NamedTuple
 
 import numpy as np
 
+from omnirotor._jit import jit
+from omnirotor.blocks import register, state_array
 from omnirotor.config import check_positive
-from omnirotor.control import _kernels as _k
 from omnirotor.control import _qp
-from omnirotor.control import _step_kernels as _sk
 from omnirotor.errors import InputError
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["AllocationParams", "AllocationStatus", "Allocator", "SOLVERS", "REG_REFERENCE_C_F"]
+__all__ = [
+    "AllocationParams",
+    "AllocationStatus",
+    "Allocator",
+    "SOLVERS",
+    "REG_REFERENCE_C_F",
+    "STATE_DTYPE",
+    "AllocArrays",
+    "alloc_begin",
+    "alloc_end",
+    "alloc_solve",
+]
 
 SOLVERS = ("active-set", "daqp", "proxsuite")
 """Names of the QP backends :class:`Allocator` can use."""
@@ -123,6 +135,202 @@ class AllocationStatus(enum.IntEnum):
     """An input was NaN or inf; the last safe command is held."""
 
 
+# -- the block's state and its compiled step -------------------------------------------------------------------
+
+_F8 = np.float64
+STATE_DTYPE = np.dtype(
+    [
+        ("w_B", _F8, 6),  # body-frame wrench reference [N; N·m]
+        ("status", _F8),  # AllocationStatus of the last solve
+        ("n_fallbacks", _F8),  # pseudo-inverse fallbacks since reset
+        ("n_nonfinite", _F8),  # calls with a non-finite input since reset (the last safe input held)
+        ("saturated", _F8),  # 1 when an active rotor sits at a bound in the last result
+        # parameters
+        ("u_scale_hz2", _F8),  # u = x u_scale [Hz²]
+        ("lam_scaled", _F8),  # the regulariser in scaled units, lambda u_scale²
+        ("max_iter", _F8),  # iteration cap of the compiled QP
+    ]
+)
+"""The allocator's scalar state and parameters (named fields); its per-rotor arrays are :class:`AllocArrays`."""
+
+
+class AllocArrays(NamedTuple):
+    """The allocator's arrays, by name (compiled code reads them as ``ar.f``, ``ar.lo``, ...); n rotors."""
+
+    f: np.ndarray  # (n,) the QP's linear term G w_B (scaled)
+    A_key: np.ndarray  # (6, n) the map the QP was built for (NaN: none yet)
+    G: np.ndarray  # (n, 6) -(A u_scale)ᵀ
+    lo: np.ndarray  # (n,) scaled lower bounds (0 for a failed rotor)
+    hi: np.ndarray  # (n,) scaled upper bounds
+    lo_sat: np.ndarray  # (n,) saturation thresholds
+    hi_sat: np.ndarray
+    u_hz2: np.ndarray  # (n,) the allocated inputs [Hz²]
+    u_safe_hz2: np.ndarray  # (n,) the last finite, in-bounds inputs [Hz²]
+    failed: np.ndarray  # (n,) 1.0 for a failed rotor
+    As: np.ndarray  # (6, n) A u_scale
+    H: np.ndarray  # (n, n) Hessian, scaled units
+    x: np.ndarray  # (n,) the QP's solution (scaled)
+    active: np.ndarray  # (n,) int64 working set of the compiled QP (warm start)
+    work: np.ndarray  # scratch of the compiled QP
+
+
+_OK, _FALLBACK, _NONFINITE = 0.0, 1.0, 2.0  # AllocationStatus values, as the state stores them
+
+# Results of alloc_begin.
+BEGIN_SOLVE = 0  # the QP's linear term is ready
+BEGIN_SOLVE_NEW_MAP = 1  # ready, after a new map rebuilt H (a Python backend must be given the new H)
+BEGIN_HELD = 2  # an input was not finite: the last safe input is held (status NONFINITE)
+
+
+@jit
+def alloc_set_map(r, ar, A) -> None:
+    """Rebuild the QP for a new wrench map ``A`` (finite), in place.
+
+    ``As = A u_scale``, ``G = -Asᵀ``, the map key and ``H = AsᵀAs + lam_scaled I`` (each entry summed over the
+    wrench rows in order, the regulariser added on the diagonal; exactly symmetric).
+    """
+    m, n = A.shape
+    scale = r.u_scale_hz2
+    As, G, key, H = ar.As, ar.G, ar.A_key, ar.H
+    for i in range(m):
+        for j in range(n):
+            a = A[i, j]
+            s = a * scale
+            As[i, j] = s
+            G[j, i] = -s
+            key[i, j] = a
+    lam = r.lam_scaled
+    for i in range(n):
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(m):
+                acc += As[k, i] * As[k, j]
+            if i == j:
+                acc += lam
+            H[i, j] = acc
+            H[j, i] = acc
+
+
+@jit
+def _prepare(r, ar, w_ref, R, A) -> int:
+    """Body-frame reference and ``f = G w_B``.
+
+    Returns:
+        0; 1 when ``A`` is not the QP's map (nothing computed); 2 when f is not finite.
+    """
+    n = A.shape[1]
+    key = ar.A_key
+    for i in range(6):
+        for j in range(n):
+            if A[i, j] != key[i, j]:
+                return 1
+    W = r.w_B
+    for j in range(3):
+        W[j] = w_ref[0] * R[0, j] + w_ref[1] * R[1, j] + w_ref[2] * R[2, j]  # R^T f_ref
+    for j in range(3, 6):
+        W[j] = w_ref[j]
+    G, f = ar.G, ar.f
+    ff = 0.0
+    for i in range(n):
+        acc = 0.0
+        for k in range(6):
+            acc += G[i, k] * W[k]
+        f[i] = acc
+        ff += acc * acc
+    if not math.isfinite(ff):  # a NaN/inf anywhere in w_ref or R reaches f (0 * inf is NaN too)
+        return 2
+    return 0
+
+
+@jit
+def alloc_begin(r, ar, w_ref, R, A) -> int:
+    """Everything of an allocation before the QP (module docstring).
+
+    Returns:
+        ``BEGIN_SOLVE``, ``BEGIN_SOLVE_NEW_MAP`` (the map changed and the QP was rebuilt) or ``BEGIN_HELD``
+        (a NaN/inf in ``w_ref``, ``R`` or ``A``: the last safe input is held, the status is NONFINITE).
+    """
+    code = _prepare(r, ar, w_ref, R, A)
+    new_map = False
+    if code == 1:
+        finite = True
+        for i in range(A.shape[0]):
+            for j in range(A.shape[1]):
+                finite = finite and math.isfinite(A[i, j])
+        code = 2
+        if finite:
+            alloc_set_map(r, ar, A)
+            new_map = True
+            code = _prepare(r, ar, w_ref, R, A)
+    if code != 0:
+        r.status = _NONFINITE
+        r.n_nonfinite += 1.0
+        for i in range(ar.u_hz2.shape[0]):
+            ar.u_hz2[i] = ar.u_safe_hz2[i]
+        return BEGIN_HELD
+    return BEGIN_SOLVE_NEW_MAP if new_map else BEGIN_SOLVE
+
+
+@jit
+def _finish(r, ar, x) -> int:
+    """Clip the scaled ``x`` to the bounds, scale it to u [Hz²] (also the new safe input); 1 if saturated."""
+    n = x.shape[0]
+    scale = r.u_scale_hz2
+    lo, hi, lo_sat, hi_sat, u, u_safe = ar.lo, ar.hi, ar.lo_sat, ar.hi_sat, ar.u_hz2, ar.u_safe_hz2
+    saturated = 0
+    for i in range(n):
+        xi = x[i]
+        if xi < lo[i]:
+            xi = lo[i]
+        elif xi > hi[i]:
+            xi = hi[i]
+        if xi <= lo_sat[i] or xi >= hi_sat[i]:
+            saturated = 1
+        ui = xi * scale
+        u[i] = ui
+        u_safe[i] = ui
+    return saturated
+
+
+@jit
+def alloc_end(r, ar, solved: bool) -> None:
+    """Everything after the QP, once for every solver: the inputs ``ar.u_hz2`` and ``saturated``.
+
+    ``ar.x`` clipped and scaled when ``solved`` and finite, else the clipped pseudo-inverse of the map
+    restricted to the working rotors (status FALLBACK, counted; this allocates, a rare path).
+    """
+    x = ar.x
+    ok = solved
+    if ok:
+        for i in range(x.shape[0]):
+            ok = ok and math.isfinite(x[i])
+    if ok:
+        r.status = _OK
+        r.saturated = float(_finish(r, ar, x))
+        return
+    r.status = _FALLBACK
+    r.n_fallbacks += 1.0
+    Aw = ar.As.copy()
+    for j in range(Aw.shape[1]):
+        if ar.failed[j] != 0.0:
+            for i in range(Aw.shape[0]):
+                Aw[i, j] = 0.0
+    r.saturated = float(_finish(r, ar, np.linalg.pinv(Aw) @ r.w_B))
+
+
+@jit
+def alloc_solve(r, ar, w_ref, R, A) -> int:
+    """One allocation with the compiled QP (:func:`omnirotor.control._qp.boxqp_solve`).
+
+    Returns:
+        The code of :func:`alloc_begin`; the inputs are in ``ar.u_hz2``.
+    """
+    code = alloc_begin(r, ar, w_ref, R, A)
+    if code != BEGIN_HELD:
+        alloc_end(r, ar, boxqp_solve_arrays(ar, int(r.max_iter)) >= 1)
+    return code
+
+
 class _ActiveSetBackend:
     """Our compiled primal active-set solver (:func:`omnirotor.control._qp.boxqp_solve`), warm-started.
 
@@ -136,14 +344,26 @@ class _ActiveSetBackend:
         iterations: iterations of the last solve, or its negative ``BOXQP_*`` code.
     """
 
-    def __init__(self, H: np.ndarray, f: np.ndarray, lo: np.ndarray, hi: np.ndarray, params: AllocationParams):
+    def __init__(
+        self,
+        H: np.ndarray,
+        f: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        params: AllocationParams,
+        arrays: AllocArrays | None = None,
+    ):
+        """Wrap the solver; ``arrays``: the allocator's, whose ``x``, ``active`` and ``work`` it then uses.
+
+        Shared with the controller's compiled step, so both continue the same warm start; new ones by default.
+        """
         n = f.shape[0]
         self.H = H
         self.lo = lo
         self.hi = hi
-        self.x = np.zeros(n)
-        self.active = np.zeros(n, dtype=np.int64)
-        self.work = np.zeros(_qp.boxqp_work_size(n))
+        self.x = np.zeros(n) if arrays is None else arrays.x
+        self.active = np.zeros(n, dtype=np.int64) if arrays is None else arrays.active
+        self.work = np.zeros(_qp.boxqp_work_size(n)) if arrays is None else arrays.work
         self.max_iter = int(params.max_iter)
         self.iterations = 0
         self.setup(H, f)
@@ -253,29 +473,33 @@ class _ProxsuiteBackend:
         return results.x if results.info.status == self._solved else None
 
 
+@register("allocation", "box-qp")
 class Allocator:
     """Rotor inputs [Hz²] from a wrench reference by the bounded least-squares QP of SPEC §4.2.
 
     Attributes:
+        state: the ``(1,)`` record of :data:`STATE_DTYPE` (status, counters, body-frame reference, scale).
+        arrays: the per-rotor arrays (:class:`AllocArrays`) the compiled step reads and writes.
         status: :class:`AllocationStatus` of the last :meth:`solve`.
         n_fallbacks: number of solver failures (pseudo-inverse fallbacks) since construction or :meth:`reset`.
         n_nonfinite: number of calls with a NaN/inf input since construction or :meth:`reset`.
         saturated: True when some active rotor sits at a bound in the last result.
         failed_rotors: (n,) bool mask of the rotors excluded from the allocation (read-only view).
-        kernel_state: the packed per-step data the compiled kernels read and write (layout ``ALLOC_*`` and
-            ``alloc_offsets`` of :mod:`omnirotor.control._kernels`).
     """
 
+    state_dtype = STATE_DTYPE
+    log_fields = ()
+
     def __init__(
-        self, vehicle: VehicleParams, params: AllocationParams | None = None, *, buffer: np.ndarray | None = None
+        self, vehicle: VehicleParams, params: AllocationParams | None = None, *, state: np.ndarray | None = None
     ):
         """Set up the QP for ``vehicle`` with the nominal map and upright hover as a first solution.
 
         Args:
             vehicle: the vehicle (rotor count and input bounds ``u_min``/``u_max`` [Hz²]).
             params: allocation parameters; defaults to :class:`AllocationParams()`.
-            buffer: optional float64 array of ``alloc_offsets(n)[-1]`` entries (:mod:`omnirotor.control._kernels`)
-                to hold :attr:`kernel_state`; a new one by default.
+            state: optional ``(1,)`` array of :data:`STATE_DTYPE` to hold :attr:`state` (e.g. a field of the
+                controller's state); a new one by default.
         """
         self.params = params if params is not None else AllocationParams()
         self.vehicle = vehicle
@@ -283,95 +507,70 @@ class Allocator:
         self.n = n
         self._u_scale = max(abs(vehicle.u_min), abs(vehicle.u_max))
         self._lam_scaled = self.reg_lambda_used * self._u_scale**2
-        # The per-step data in one array, the layout of control._kernels (ALLOC_*, alloc_offsets): the
-        # body-frame reference, the linear term f, the map the QP was built for, G = -(A u_scale)ᵀ, the scaled
-        # bounds in force (failed rotors pinned to 0) and their saturation thresholds, u and the last safe u.
-        o_f, o_key, o_G, o_lo, o_hi, o_lo_sat, o_hi_sat, o_u, o_u_safe, size = _k.alloc_offsets(n)
-        self.kernel_state = ws = _k.state_buffer(buffer, size, "allocator")
-        ws[_k.ALLOC_SCALE] = self._u_scale
-        self._w_B = ws[_k.ALLOC_W_B : _k.ALLOC_W_B + 6]  # body-frame reference [N; N·m]
-        self._f = ws[o_f : o_f + n]
-        self._A_key = ws[o_key : o_key + 6 * n].reshape(6, n)
-        self._A_key[:] = math.nan  # no map yet
-        self._G = ws[o_G : o_G + 6 * n].reshape(n, 6)  # -(A u_scale)ᵀ: f = G w_B
-        self._lo = ws[o_lo : o_lo + n]
-        self._hi = ws[o_hi : o_hi + n]
-        self._lo_sat = ws[o_lo_sat : o_lo_sat + n]
-        self._hi_sat = ws[o_hi_sat : o_hi_sat + n]
-        self._u = ws[o_u : o_u + n]  # returned to the caller [Hz²]
-        self._u_safe = ws[o_u_safe : o_u_safe + n]  # last finite, in-bounds command [Hz²]
+        self.state = st = state_array(STATE_DTYPE, state, "allocator")
+        st["u_scale_hz2"] = self._u_scale
+        st["lam_scaled"] = self._lam_scaled
+        st["max_iter"] = float(self.params.max_iter)
+        self._rec = st[0]
+        self._w_B = self._rec["w_B"]  # body-frame reference [N; N·m]
+        self.arrays = ar = AllocArrays(
+            f=np.zeros(n),
+            A_key=np.full((6, n), math.nan),  # no map yet
+            G=np.zeros((n, 6)),
+            lo=np.full(n, vehicle.u_min / self._u_scale),
+            hi=np.full(n, vehicle.u_max / self._u_scale),
+            lo_sat=np.zeros(n),
+            hi_sat=np.zeros(n),
+            u_hz2=np.zeros(n),
+            u_safe_hz2=np.zeros(n),
+            failed=np.zeros(n),
+            As=np.empty((6, n)),
+            H=np.empty((n, n)),
+            x=np.zeros(n),
+            active=np.zeros(n, dtype=np.int64),
+            work=np.zeros(_qp.boxqp_work_size(n)),
+        )
+        self._f, self._lo, self._hi, self._u = ar.f, ar.lo, ar.hi, ar.u_hz2
+        self._lo_sat, self._hi_sat = ar.lo_sat, ar.hi_sat
+        self._u_safe, self._As, self._H = ar.u_safe_hz2, ar.As, ar.H
         # Scaled bounds of every rotor.
-        self._lo_all = np.full(n, vehicle.u_min / self._u_scale)
-        self._hi_all = np.full(n, vehicle.u_max / self._u_scale)
-        self._lo[:] = self._lo_all
-        self._hi[:] = self._hi_all
+        self._lo_all = ar.lo.copy()
+        self._hi_all = ar.hi.copy()
         self._failed = np.zeros(n, dtype=bool)
-        self.kernel_failed = np.zeros(n)
-        """(n,) 1.0 for a failed rotor (the mask as floats, for the compiled fallback)."""
-        self.kernel_counters = np.zeros(_sk.AC_SIZE, dtype=np.int64)
-        """int64 ``AC_*`` of :mod:`omnirotor.control._step_kernels`: status, counts and the saturation flag."""
         self._sat_margin = self.params.saturation_tol * float(self._hi_all[0] - self._lo_all[0])
-        # Problem data in the scaled variables, rebuilt when the map changes.
-        self._As = np.empty((6, n))  # A * u_scale  [N, N·m per unit x]
-        self._H = np.empty((n, n))
-        self.status = AllocationStatus.OK
-        self.n_fallbacks = 0
-        self.n_nonfinite = 0
-        self.saturated = False
-        self._set_map(vehicle.A_nom)
+        alloc_set_map(self._rec, ar, np.asarray(vehicle.A_nom, dtype=np.float64))
         self._refresh_bound_lists()
         self._backend = self._make_backend()
         self.reset()
 
     # -- set-up -----------------------------------------------------------------------------------------
 
-    # -- the outcome of the last solve, kept in kernel_counters (the compiled controller step updates it) ---------
+    # -- the outcome of the last solve, kept in the state (the compiled step updates it) ---------------------
 
     @property
     def status(self) -> AllocationStatus:
         """:class:`AllocationStatus` of the last solve."""
-        return AllocationStatus(int(self.kernel_counters[_sk.AC_STATUS]))
-
-    @status.setter
-    def status(self, value: AllocationStatus) -> None:
-        self.kernel_counters[_sk.AC_STATUS] = int(value)
+        return AllocationStatus(int(self._rec["status"]))
 
     @property
     def n_fallbacks(self) -> int:
         """Solver failures (pseudo-inverse fallbacks) since construction or :meth:`reset`."""
-        return int(self.kernel_counters[_sk.AC_N_FALLBACKS])
-
-    @n_fallbacks.setter
-    def n_fallbacks(self, value: int) -> None:
-        self.kernel_counters[_sk.AC_N_FALLBACKS] = value
+        return int(self._rec["n_fallbacks"])
 
     @property
     def n_nonfinite(self) -> int:
         """Calls with a NaN/inf input since construction or :meth:`reset`."""
-        return int(self.kernel_counters[_sk.AC_N_NONFINITE])
-
-    @n_nonfinite.setter
-    def n_nonfinite(self, value: int) -> None:
-        self.kernel_counters[_sk.AC_N_NONFINITE] = value
+        return int(self._rec["n_nonfinite"])
 
     @property
     def saturated(self) -> bool:
         """True when some active rotor sits at a bound in the last result."""
-        return bool(self.kernel_counters[_sk.AC_SATURATED])
-
-    @saturated.setter
-    def saturated(self, value: bool) -> None:
-        self.kernel_counters[_sk.AC_SATURATED] = 1 if value else 0
+        return bool(self._rec["saturated"])
 
     @property
     def kernel_backend(self) -> _ActiveSetBackend | None:
-        """The compiled solver's backend (its arrays go to the compiled step), or None for daqp and proxsuite."""
+        """The compiled solver's backend, or None for daqp and proxsuite (solved from Python)."""
         return self._backend if isinstance(self._backend, _ActiveSetBackend) else None
-
-    @property
-    def kernel_As(self) -> np.ndarray:  # noqa: N802 (a matrix)
-        """(6, n) the map in use times u_scale, the compiled fallback's and ``alloc_set_map``'s array."""
-        return self._As
 
     @property
     def reg_lambda_used(self) -> float:
@@ -381,22 +580,11 @@ class Allocator:
             lam *= (self.vehicle.c_f / REG_REFERENCE_C_F) ** 2
         return lam
 
-    @property
-    def kernel_lam_scaled(self) -> float:
-        """The regulariser in scaled units, ``lambda u_scale²``."""
-        return self._lam_scaled
-
     def _make_backend(self) -> _ActiveSetBackend | _DaqpBackend | _ProxsuiteBackend:
-        cls = {"active-set": _ActiveSetBackend, "daqp": _DaqpBackend, "proxsuite": _ProxsuiteBackend}
+        if self.params.solver == "active-set":
+            return _ActiveSetBackend(self._H, self._f, self._lo, self._hi, self.params, self.arrays)
+        cls = {"daqp": _DaqpBackend, "proxsuite": _ProxsuiteBackend}
         return cls[self.params.solver](self._H, self._f, self._lo, self._hi, self.params)
-
-    def _set_map(self, A: np.ndarray) -> None:
-        """Rebuild the Hessian for a new wrench map (A already checked finite by the caller).
-
-        Compiled (:func:`omnirotor.control._qp.alloc_set_map`): As = A u_scale, G = -Asᵀ, H = AsᵀAs + lambda_s I
-        and the map key, in place.
-        """
-        _qp.alloc_set_map(self.kernel_state, A, self._As, self._H, self._lam_scaled)
 
     @property
     def failed_rotors(self) -> np.ndarray:
@@ -423,7 +611,7 @@ class Allocator:
             if failed.all():
                 raise InputError("cannot exclude every rotor")
         self._failed[:] = failed
-        self.kernel_failed[:] = failed
+        self.arrays.failed[:] = failed
         self._lo[:] = np.where(failed, 0.0, self._lo_all)
         self._hi[:] = np.where(failed, 0.0, self._hi_all)
         self._refresh_bound_lists()
@@ -446,15 +634,15 @@ class Allocator:
         hover = self.vehicle.hover_input()
         np.clip(hover, self._lo * self._u_scale, self._hi * self._u_scale, out=self._u_safe)
         self._u[:] = self._u_safe
-        self.status = AllocationStatus.OK
-        self.n_fallbacks = 0
-        self.n_nonfinite = 0
-        self.saturated = False
+        for name in ("w_B", "status", "n_fallbacks", "n_nonfinite", "saturated"):
+            self.state[name] = 0.0
+        for arr in (self.arrays.f, self.arrays.x, self.arrays.work):  # last step's values and scratch
+            arr[:] = 0.0
 
     # -- the 1 kHz call -----------------------------------------------------------------------------------
 
     def solve(self, w_ref: np.ndarray, R_WB: np.ndarray, A: np.ndarray) -> np.ndarray:
-        """Allocate the wrench reference to the rotors.
+        """Allocate the wrench reference to the rotors (:func:`alloc_begin`, the backend's QP, :func:`alloc_end`).
 
         Args:
             w_ref: (6,) ``[f_ref_W [N]; m_ref_B [N·m]]``.
@@ -466,47 +654,31 @@ class Allocator:
             overwritten by the next call: copy it to keep it.
         """
         f64 = np.float64
-        w_ref = np.asarray(w_ref, dtype=f64)
-        R_WB = np.asarray(R_WB, dtype=f64)
-        A = np.asarray(A, dtype=f64)
-        code = _k.alloc_prepare(self.kernel_state, w_ref, R_WB, A)
-        if code != _k.PRE_OK and not self._resolve(code, w_ref, R_WB, A):
-            return self._hold()
-        return self._finish(self._backend.solve(self._f))
+        code = alloc_begin(
+            self._rec, self.arrays, np.asarray(w_ref, dtype=f64), np.asarray(R_WB, dtype=f64), np.asarray(A, dtype=f64)
+        )
+        if code != BEGIN_HELD:
+            alloc_end(self._rec, self.arrays, self.solve_qp(code))
+        return self._u
 
-    def _resolve(self, code: int, w_ref: np.ndarray, R_WB: np.ndarray, A: np.ndarray) -> bool:
-        """After :func:`alloc_prepare` did not return OK: rebuild the QP for a new map and prepare again.
+    def solve_qp(self, begin_code: int) -> bool:
+        """The backend's QP on the prepared linear term; its answer in ``arrays.x``. True when solved.
 
-        Returns:
-            True when the linear term is ready, False when the inputs are not finite (the caller holds).
+        Args:
+            begin_code: the result of :func:`alloc_begin` (``BEGIN_SOLVE_NEW_MAP``: the backend is given the
+                rebuilt Hessian first).
         """
-        if code == _k.PRE_MAP_CHANGED:
-            if not math.isfinite(float(A.sum())):
-                return False
-            self._set_map(A)
+        if begin_code == BEGIN_SOLVE_NEW_MAP:
             self._backend.set_hessian(self._H)
-            code = _k.alloc_prepare(self.kernel_state, w_ref, R_WB, A)
-        return code == _k.PRE_OK
+        x = self._backend.solve(self._f)
+        if x is None:
+            return False
+        if x is not self.arrays.x:
+            self.arrays.x[:] = x
+        return True
 
-    def _finish(self, x: np.ndarray | None) -> np.ndarray:
-        """Clip, scale and flag saturation (:func:`alloc_finish`); the clipped pseudo-inverse if x failed."""
-        sat = -1 if x is None else _k.alloc_finish(self.kernel_state, np.asarray(x, dtype=np.float64), _k.FINISH_QP)
-        if sat < 0:
-            sat = _k.alloc_finish(self.kernel_state, self._fallback(), _k.FINISH_FALLBACK)
-        else:
-            self.status = AllocationStatus.OK
-        self.saturated = bool(sat)
-        return self._u
 
-    def _hold(self) -> np.ndarray:
-        self.status = AllocationStatus.NONFINITE
-        self.n_nonfinite += 1
-        self._u[:] = self._u_safe
-        return self._u
-
-    def _fallback(self) -> np.ndarray:
-        """Pseudo-inverse of the map restricted to the working rotors (scaled x; clipped by the caller)."""
-        self.status = AllocationStatus.FALLBACK
-        self.n_fallbacks += 1
-        As = np.where(self._failed, 0.0, self._As)
-        return np.linalg.pinv(As) @ self._w_B
+@jit
+def boxqp_solve_arrays(ar, max_iter: int) -> int:
+    """The compiled QP (:func:`omnirotor.control._qp.boxqp_solve`) on the allocator's arrays; its code."""
+    return _qp.boxqp_solve(ar.H, ar.f, ar.lo, ar.hi, ar.x, ar.active, ar.work, max_iter)

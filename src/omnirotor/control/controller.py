@@ -30,15 +30,14 @@ Every step is logged in :attr:`InteractionController.log` (a :class:`~omnirotor.
 in :data:`LOG_GROUPS`): time, estimate, actual EE position, desired and compliant EE poses, admittance
 offset, estimated wrench, wrench reference, pose errors, u, omega command, region index and status.
 
-Cost. The blocks keep their states in slices of one array (:func:`omnirotor.control._kernels.controller_layout`).
-With the default QP solver ("active-set", compiled) and an initialised estimator, :meth:`step` is **one**
-compiled call, :func:`omnirotor.control._step_kernels.controller_step`, on the frame's packed form
-(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is packed first. That call
-runs the same kernels as the blocks' own ``step`` methods, and a compiled closed loop calls it directly with
-:attr:`InteractionController.kernel_args`. With the "daqp" or "proxsuite" solvers (called from Python), or
-while the UKF waits for its first motion-capture sample, the step runs the blocks from Python around two
-compiled calls (:func:`~omnirotor.control._kernels.controller_pre` and
-:func:`~omnirotor.control._kernels.controller_post`); both paths give the same numbers.
+Cost. Every block keeps its state in a field of the controller's one structured state (:attr:`state`, see
+:mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled) :meth:`step` is
+**one** compiled call, :func:`~omnirotor.control.composer.controller_step_by_state`, on the frame's packed form
+(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is packed first. A
+compiled closed loop calls :func:`~omnirotor.control.composer.controller_step` directly with
+:attr:`InteractionController.kernel_args`. With the "daqp" or "proxsuite" solvers (called from Python) the
+same composer runs in two compiled calls around that solver; with an estimator that is not compiled (e.g. a
+stand-in) its estimate is given to the same composer. There is one implementation of every block's step.
 """
 
 from __future__ import annotations
@@ -48,15 +47,15 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor._jit import address_table
+from omnirotor.blocks import block_class, block_names, new_state
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
-from omnirotor.control import _kernels as _k
-from omnirotor.control import _step_kernels as _sk
+from omnirotor.control import _estimator_kernels as _ek
+from omnirotor.control import composer as _c
 from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
-from omnirotor.control.allocation import AllocationParams, AllocationStatus, Allocator
-from omnirotor.control.estimator import EstimatorParams, make_estimator
+from omnirotor.control.allocation import BEGIN_HELD, AllocationParams, Allocator
+from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
 from omnirotor.control.maps import MapParams, MapScheduler
-from omnirotor.control.observer import ObserverParams, WrenchObserver
+from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
@@ -139,6 +138,8 @@ class ControllerParams:
         dt: control period [s] (1 kHz, SPEC §4).
         log_capacity: rows preallocated for the log [steps].
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
+        observer_kind: the registered name of the observer block (:mod:`omnirotor.blocks`; default
+            "momentum", :class:`~omnirotor.control.observer.WrenchObserver`); it is built from ``observer``.
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -150,6 +151,7 @@ class ControllerParams:
     dt: float = 1e-3
     log_capacity: int = 120_000
     observer_input: str = "measured"
+    observer_kind: str = "momentum"
 
     def __post_init__(self) -> None:
         check_positive("controller dt", self.dt)
@@ -157,6 +159,8 @@ class ControllerParams:
             raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
+        if self.observer_kind not in block_names("observer"):
+            block_class("observer", self.observer_kind)  # raises, listing the registered observers
 
 
 def load_controller_params(
@@ -164,7 +168,7 @@ def load_controller_params(
 ) -> ControllerParams:
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
-    The file has top-level ``dt``, ``log_capacity``, ``observer_input`` and sections ``[pose]``,
+    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
     ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]`` whose keys are the
     fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
@@ -184,11 +188,6 @@ def load_controller_params(
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
 _STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(32))
-_QP_FALLBACK = int(ControlStatus.QP_FALLBACK)
-_NONFINITE = int(ControlStatus.NONFINITE_INPUT)
-_SATURATED = int(ControlStatus.SATURATED)
-_DEGRADED = int(ControlStatus.ESTIMATE_DEGRADED)
-_EXCLUDED = int(ControlStatus.ROTOR_EXCLUDED)
 
 
 class InteractionController:
@@ -212,16 +211,17 @@ class InteractionController:
         self.params = params if params is not None else ControllerParams()
         p = self.params
         n = vehicle.n_rotors
-        # Every block's packed state is a slice of one array (layout: _kernels.controller_layout), so that the
-        # compiled step takes one array for all of them.
-        o_obs, o_adm, o_pose, o_des, o_comp, o_body, o_alloc, size = _k.controller_layout(n)
-        self._arena = arena = np.zeros(size)
-        self.estimator = make_estimator(vehicle, p.estimator)
+        # One structured state: the controller's own part and every block's state as a named field
+        # (composer.controller_dtype); each block is built on its field.
+        observer_cls = block_class("observer", p.observer_kind)
+        self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype))
+        self._own = own = state[0]["own"]
+        self.estimator = make_estimator(vehicle, p.estimator, state=state["bypass"])
         self.scheduler = MapScheduler(vehicle, maps, p.maps)
-        self.observer = WrenchObserver(vehicle, p.observer, buffer=arena[o_obs:o_adm])
-        self.admittance = AdmittanceFilter(p.admittance, buffer=arena[o_adm:o_pose])
-        self.pose = PoseController(vehicle, p.pose, buffer=arena[o_pose:o_des])
-        self.allocator = Allocator(vehicle, p.allocation, buffer=arena[o_alloc:size])
+        self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
+        self.admittance = AdmittanceFilter(p.admittance, state=state["admittance"])
+        self.pose = PoseController(vehicle, p.pose, state=state["pose"])
+        self.allocator = Allocator(vehicle, p.allocation, state=state["allocation"])
         self._dt = p.dt
         self._measured_input = p.observer_input == "measured"
         self._p_E_B = vehicle.p_E_B_array
@@ -229,50 +229,29 @@ class InteractionController:
         self._omega_hi = float(vehicle.omega_max_hz)
         self._n = n
         self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
-        # References.
-        self.desired_ee = ReferenceSample(arena[o_des:o_comp])
-        self.compliant_ee = ReferenceSample(arena[o_comp:o_body])
-        self.body_ref = ReferenceSample(arena[o_body:o_alloc])
-        # The controller's own values (layout CTL_* of control._kernels): the logged head (t, region, status,
-        # estimate, EE tip), the EE wrench, p_E_B, the speed limits, the inputs and commands.
-        self._ws = ws = arena[0:o_obs]
-        self._head = ws[_k.CTL_HEAD : _k.CTL_HEAD + _k.CTL_HEAD_SIZE]
-        self._f_E_W = ws[_k.CTL_F_E : _k.CTL_F_E + 3]
-        self._m_E_W = ws[_k.CTL_M_E : _k.CTL_M_E + 3]
-        ws[_k.CTL_P_E_B : _k.CTL_P_E_B + 3] = vehicle.p_E_B
-        ws[_k.CTL_OMEGA_LO] = self._omega_lo
-        ws[_k.CTL_OMEGA_HI] = self._omega_hi
-        o = _k.CTL_U_OBS
-        self._u_obs = ws[o : o + n]  # u fed to the observer [Hz²]
-        self._u_cmd = ws[o + n : o + 2 * n]  # last allocated u [Hz²]
-        self._omega_cmd = ws[o + 2 * n : o + 3 * n]  # last command [Hz]
-        self._omega_safe = ws[o + 3 * n : o + 4 * n]  # last finite command [Hz]
+        self.desired_ee = ReferenceSample(state["desired_ee"])
+        self.compliant_ee = ReferenceSample(state["compliant_ee"])
+        self.body_ref = ReferenceSample(state["body_ref"])
+        own["p_E_B"] = vehicle.p_E_B
+        own["omega_min_hz"] = self._omega_lo
+        own["omega_max_hz"] = self._omega_hi
+        own["dt"] = self._dt
+        own["measured"] = 1 if self._measured_input else 0
+        own["piecewise"] = 1 if self._piecewise else 0
+        self._rot = _c.RotorArrays(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(21))
+        self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe, self._estimate = self._rot
         self._excluded = False
-        # The log row is the head followed by the blocks' own buffers; the compiled step writes it directly
-        # (_kernels.write_log_row), the rare held step through these bound sources.
         self.log = Recorder(p.log_capacity, LOG_GROUPS(n))
-        self.log.bind(
-            self._head,
-            self.compliant_ee.data,
-            self.desired_ee.data,
-            self.admittance.xi_p_W,
-            self.observer.output,
-            self.pose.w_ref,
-            self.pose.errors,
-            self._u_cmd,
-            self._omega_cmd,
-        )
         self._no_row = np.zeros(0)
-        self._no_x = np.zeros(n)
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
-        # The compiled step (_step_kernels.controller_step): its parameters, the packed frame, the estimate.
-        self._ints = np.zeros(_sk.CI_SIZE, dtype=np.int64)
-        self._floats = np.zeros(_sk.CF_SIZE)
         self._frame_buf = np.zeros(frame_size(n))
-        self._est_out = np.zeros(21)
         self._kernel_args: tuple | None = None
         self._kernel_estimator = None  # the estimator whose arrays the kernel arguments hold
+        self._fast_table = None  # _table when step() is one compiled call (set by reset)
+        self._table = None  # (1,) int64: the state's address, when its dtype is composer.DEFAULT_DTYPE
+        if state.dtype == _c.DEFAULT_DTYPE and not isinstance(state, np.recarray):
+            self._table = np.array([state.ctypes.data], dtype=np.int64)
 
     # -- set-up -------------------------------------------------------------------------------------------
 
@@ -285,19 +264,23 @@ class InteractionController:
         """Exclude rotors from the allocation (see :meth:`Allocator.set_failed_rotors`)."""
         self.allocator.set_failed_rotors(mask)
         self._excluded = bool(np.any(self.allocator.failed_rotors))
-        self._ints[_sk.CI_EXCLUDED] = 1 if self._excluded else 0
+        self._own["excluded"] = 1 if self._excluded else 0
 
     @property
     def kernel_args(self) -> tuple | None:
-        """The argument tuple of :func:`omnirotor.control._step_kernels.controller_step` (its module docstring).
+        """The arguments of :func:`omnirotor.control.composer.controller_step` (its module docstring).
 
-        None before :meth:`reset`, with a QP solver called from Python ("daqp", "proxsuite"), while the UKF
-        is not initialised, or when the estimator was replaced after :meth:`reset`: the step then runs from
-        Python. Valid until the next :meth:`reset`.
+        None before :meth:`reset`, with a QP solver called from Python ("daqp", "proxsuite"), or while the
+        estimator is not one the compiled step runs (not initialised, or replaced after :meth:`reset`).
+        Valid until the next :meth:`reset`.
         """
-        if self._kernel_args is None or self.estimator is not self._kernel_estimator:
+        if self._kernel_args is None or self.allocator.kernel_backend is None or not self._estimator_compiled():
             return None
-        return self._kernel_args if self.estimator.initialised else None
+        return self._kernel_args
+
+    def _estimator_compiled(self) -> bool:
+        est = self.estimator
+        return est is self._kernel_estimator and bool(getattr(est, "initialised", False))
 
     @property
     def kernel_command(self) -> np.ndarray:
@@ -316,45 +299,36 @@ class InteractionController:
         self.scheduler.sync()
 
     def _build_kernel_args(self) -> None:
-        alloc, est, sched = self.allocator, self.estimator, self.scheduler
-        backend = alloc.kernel_backend
-        self._kernel_args = None
-        self._kernel_estimator = None
-        if backend is None or not hasattr(est, "kernel_counters"):  # a Python solver, or a stand-in estimator
-            return
-        ints, floats = self._ints, self._floats
-        kind = self.params.estimator.kind
-        ints[_sk.CI_EST_KIND] = _sk.EST_BYPASS if kind == "bypass" else _sk.EST_UKF
-        ints[_sk.CI_MEASURED] = 1 if self._measured_input else 0
-        ints[_sk.CI_PIECEWISE] = 1 if self._piecewise else 0
-        ints[_sk.CI_EXCLUDED] = 1 if self._excluded else 0
-        ints[_sk.CI_MAX_ITER] = backend.max_iter
-        floats[_sk.CF_T0] = self._t0
-        floats[_sk.CF_DT] = self._dt
-        floats[_sk.CF_LAM] = alloc.kernel_lam_scaled
-        if kind == "bypass":
-            est_arrays = (np.zeros(1), np.zeros(1, dtype=np.int64), est.kernel_last, est.kernel_counters)
+        est, sched = self.estimator, self.scheduler
+        own = self._own
+        own["t0"] = self._t0
+        own["excluded"] = 1 if self._excluded else 0
+        if isinstance(est, UKFEstimator):
+            own["estimator"] = _c.EST_UKF
+            own["compensate"] = 1 if est.kernel_compensate_latency else 0
+            est_arrays = _c.EstimatorArrays(est.kernel_mem, est.kernel_counters)
         else:
-            ints[_sk.CI_COMPENSATE] = 1 if est.kernel_compensate_latency else 0
-            est_arrays = (est.kernel_mem, est.kernel_counters, np.zeros(1), np.zeros(1, dtype=np.int64))
-        sched_arrays = (
-            sched.kernel_schedule,
-            sched.kernel_maps,
-            sched.kernel_out,
-            sched.kernel_weights,
-            sched.kernel_state,
+            own["estimator"] = _c.EST_BYPASS if isinstance(est, BypassEstimator) else _c.EST_GIVEN
+            est_arrays = _c.EstimatorArrays(np.zeros(1), np.zeros(1, dtype=np.int64))
+        sched_arrays = _c.SchedulerArrays(
+            sched.kernel_schedule, sched.kernel_maps, sched.kernel_out, sched.kernel_weights, sched.kernel_state
         )
-        alloc_arrays = (
-            backend.H, backend.lo, backend.hi, backend.x, backend.active, backend.work, alloc.kernel_As,
-            alloc.kernel_failed, alloc.kernel_counters,
-        )  # fmt: skip
         self._kernel_args = (
-            self._arena, ints, floats, est_arrays, sched_arrays, alloc_arrays, self._trajectory.kernel_data,
-            self._est_out,
-        )  # fmt: skip
-        # The same arrays by address, for step(): the arrays stay alive and in place in _kernel_args.
-        self._kernel_table = address_table(_sk.kernel_arrays(self._kernel_args))
+            self.state,
+            self._rot,
+            self.allocator.arrays,
+            est_arrays,
+            sched_arrays,
+            self._trajectory.kernel_data,
+        )
+        # The same arrays by address, in the state: the arrays stay alive and in place in _kernel_args.
+        _c.store_addresses(self._kernel_args)
         self._kernel_estimator = est
+        self._own_estimator_kind = int(own["estimator"])
+        # One compiled call by address when nothing runs from Python (after reset the estimator is
+        # initialised: its reset raises otherwise) and the state has the default dtype.
+        compiled = self.allocator.kernel_backend is not None and self._own_estimator_kind != _c.EST_GIVEN
+        self._fast_table = self._table if compiled and self._estimator_compiled() else None
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
@@ -409,90 +383,65 @@ class InteractionController:
         Returns:
             A command with fresh arrays; its speeds are finite and within the vehicle's limits.
         """
-        trajectory = self._trajectory
-        if trajectory is None:
+        if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
-        args = self._kernel_args
-        estimator = self.estimator
-        if args is not None and estimator is self._kernel_estimator and estimator.initialised:
-            packed = frame.packed
-            if packed is None or packed.shape != self._frame_buf.shape:
-                packed = self._frame_buf
-                try:
-                    frame.pack_into(packed)
-                except ValueError as exc:
-                    raise InputError(f"sensor frame of the wrong shape: {exc}") from None
-            row = self.log.next_row()
-            bits = _sk.controller_step_by_address(self._kernel_table, packed, self._no_row if row is None else row)
-            if bits == _sk.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
-                raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-            if self._piecewise:
-                self.scheduler.sync()
-            return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
-        return self._step_python(frame, trajectory)
-
-    def _step_python(self, frame: SensorFrame, trajectory: PoseTrajectory) -> RotorCommand:
-        """:meth:`step` with the blocks called from Python (QP solvers with a Python interface, UKF start-up)."""
-        t = frame.t - self._t0
-        bits = 0
-        estimator = self.estimator
-        state = estimator.step(frame)
-        if estimator.degraded or not state.valid:
-            bits |= _DEGRADED
-        if estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
-            bits |= _NONFINITE
-        if self._excluded:
-            bits |= _EXCLUDED
-        ws = self._ws
-        p_W, v_W, a_W, R, omega_B = state.p_W, state.v_W, state.a_W, state.R_WB, state.omega_B
-        measured = self._measured_input
-        scheduler = self.scheduler
-        packed = False
-        if self._piecewise:  # the region follows the attitude only while the estimate is finite
-            packed = _k.pack_inputs(ws, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured)
-            A = scheduler.select(R) if packed else None
-        else:
-            A = scheduler.select(R)
-        if A is None:
-            code = _k.PRE_STATE_NONFINITE
-        else:
-            code = _k.controller_pre(
-                self._arena, p_W, v_W, a_W, R, omega_B, frame.rotor_hz, measured, packed, A, trajectory.kernel_data,
-                t, self._dt,
-            )  # fmt: skip
-        if code == _k.PRE_STATE_NONFINITE:  # no stateful block was updated: hold the last safe command
-            bits |= _NONFINITE
-            self._omega_cmd[:] = self._omega_safe
-            self._head[0:3] = (t, scheduler.region_index, bits)
-            self.log.record_bound()
-            return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
-        alloc = self.allocator
-        mode = _k.FINISH_QP
-        x = self._no_x
-        if code != _k.PRE_OK and not alloc._resolve(code, self.pose.w_ref, R, A):
-            alloc._hold()
-            bits |= _NONFINITE
-            mode = _k.FINISH_HELD
-        else:
-            x = alloc._backend.solve(alloc._f)
-            if x is None:
-                x = alloc._fallback()
-                bits |= _QP_FALLBACK
-                mode = _k.FINISH_FALLBACK
+        packed = frame.packed
+        if packed is None or packed.shape != self._frame_buf.shape:
+            packed = self._frame_buf
+            try:
+                frame.pack_into(packed)
+            except ValueError as exc:
+                raise InputError(f"sensor frame of the wrong shape: {exc}") from None
         row = self.log.next_row()
         if row is None:
             row = self._no_row
-        region = float(scheduler.region_index)
-        arena = self._arena
-        out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
-        if out < 0:  # the QP's answer was not finite: nothing was written
-            bits |= _QP_FALLBACK
-            mode = _k.FINISH_FALLBACK
-            x = alloc._fallback()
-            out, sat = _k.controller_post(arena, x, mode, alloc.saturated, bits, region, t, row)
-        bits = out
-        if mode != _k.FINISH_HELD:
-            alloc.saturated = bool(sat)
-            if mode == _k.FINISH_QP:
-                alloc.status = AllocationStatus.OK
+        if self.estimator is self._kernel_estimator and self._fast_table is not None:
+            # The default blocks, a compiled estimator and QP: one compiled call, the state by its address.
+            bits = _c.controller_step_by_table(self._fast_table, packed, row)
+        else:
+            bits = self._step_slow(frame, packed, row)
+        if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
+            raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
+        if self._piecewise:
+            self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+
+    def _step_slow(self, frame: SensorFrame, packed: np.ndarray, row: np.ndarray) -> int:
+        """:meth:`step` through the same composer when it is not one compiled call by address.
+
+        That is: another observer (its state passed whole), or an estimator or a QP solver run from Python.
+        """
+        kind = self._own_estimator_kind
+        if not self._estimator_compiled():
+            kind = self._give_estimate(frame)
+        elif kind == _c.EST_GIVEN:
+            self._give_estimate(frame)
+        if kind != int(self._own["estimator"]):
+            self._own["estimator"] = kind
+        if self.allocator.kernel_backend is not None:
+            return _c.controller_step_by_state(self.state, packed, row)
+        # A QP solver called from Python, between the composer's two halves.
+        code = _c.step_begin_by_state(self.state, packed, row)
+        if code >= 0:
+            solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
+            return _c.step_end_by_state(self.state, solved, row)
+        if code == _c.BEGIN_DONE:
+            return int(self._own["status"])
+        return code
+
+    def _give_estimate(self, frame: SensorFrame) -> int:
+        """Run an estimator the compiled step does not run (a stand-in, one not initialised) from Python.
+
+        Its estimate is given to the composer; returns ``EST_GIVEN``.
+        """
+        estimator = self.estimator
+        state = estimator.step(frame)
+        code = 0
+        if estimator.degraded or not state.valid:
+            code |= _ek.STEP_DEGRADED
+        if estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
+            code |= _ek.STEP_REJECTED
+        e = self._estimate
+        e[0:3], e[3:6], e[6:9], e[9:18], e[18:21] = state.p_W, state.v_W, state.a_W, np.ravel(state.R_WB), state.omega_B
+        self._own["given_code"] = code
+        return _c.EST_GIVEN

@@ -71,15 +71,24 @@ import math
 
 import numpy as np
 
+from omnirotor._jit import jit
+from omnirotor.blocks import block_class, register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
-from omnirotor.control import _kernels as _k
-from omnirotor.control import _step_kernels as _sk
 from omnirotor.errors import InputError
-from omnirotor.messages import SensorFrame, StateEstimate
+from omnirotor.messages import FRAME_HAS_STATE, FRAME_STATE, FRAME_STATE_SIZE, SensorFrame, StateEstimate, frame_size
+from omnirotor.so3 import quat_wxyz_from_R
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["EstimatorParams", "UKFEstimator", "BypassEstimator", "make_estimator", "ESTIMATOR_KINDS"]
+__all__ = [
+    "EstimatorParams",
+    "UKFEstimator",
+    "BypassEstimator",
+    "make_estimator",
+    "ESTIMATOR_KINDS",
+    "BYPASS_DTYPE",
+    "bypass_step",
+]
 
 ESTIMATOR_KINDS = ("ukf", "bypass")
 """Names of the estimators :func:`make_estimator` builds."""
@@ -203,30 +212,10 @@ class EstimatorParams:
 # -- small helpers --------------------------------------------------------------------------------------------
 
 
-def _q_from_R(R: np.ndarray) -> list[float]:
-    """Unit quaternion wxyz (w >= 0) of a (3, 3) rotation matrix (Shepperd)."""
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    if q[0] < 0:
-        q = [-c for c in q]
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [float(c / n) for c in q]
-
-
 # -- the UKF ------------------------------------------------------------------------------------------------
 
 
+@register("estimator", "ukf")
 class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
 
@@ -262,6 +251,10 @@ class UKFEstimator:
         kernel_compensate_latency: ``params.compensate_latency``, the flag ``ukf_step`` takes.
     """
 
+    state_dtype = None
+    """Not converted to named fields yet: the state is the flat memory of :mod:`_estimator_kernels`."""
+    log_fields = ()
+
     def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
         """Allocate the filter; it initialises on the first frame with a pose (see :meth:`reset`).
 
@@ -282,6 +275,7 @@ class UKFEstimator:
         o_buf, o_sbuf, o_P, o_W, o_M, o_wk, size = _ek.memory_layout(self._cap)
         self._mem = mem = np.zeros(size)
         self.kernel_mem = mem
+        self.state = mem  # the block's state (not converted to named fields: layout in _estimator_kernels)
         self.kernel_counters = np.zeros(_ek.CNT_SIZE, dtype=np.int64)
         self.kernel_compensate_latency = bool(p.compensate_latency)
         # The pose ukf_step gets for a sample announced without a well-formed one (rejected as non-finite).
@@ -367,7 +361,7 @@ class UKFEstimator:
             x[S + 6 : S + 10] = q / np.linalg.norm(q)
         elif state is not None:
             x[S : S + 3] = state.p_W
-            x[S + 6 : S + 10] = _q_from_R(np.asarray(state.R_WB, dtype=float))
+            x[S + 6 : S + 10] = quat_wxyz_from_R(np.asarray(state.R_WB, dtype=float))
         else:
             raise InputError("the estimator needs a motion-capture sample or a state to initialise")
         _ek.R9_from_quat_into(x[S + 6], x[S + 7], x[S + 8], x[S + 9], x, _ek.UKF_RS)
@@ -515,65 +509,128 @@ class UKFEstimator:
 
 
 def _state_finite(state: StateEstimate) -> bool:
-    """True if every entry of the estimate's arrays is finite (one compiled call)."""
-    return _k.state_finite(state.p_W, state.v_W, state.a_W, state.R_WB, state.omega_B)
+    """True if every entry of the estimate's arrays is finite."""
+    return bool(
+        np.isfinite(state.p_W).all()
+        and np.isfinite(state.v_W).all()
+        and np.isfinite(state.a_W).all()
+        and np.isfinite(state.R_WB).all()
+        and np.isfinite(state.omega_B).all()
+    )
 
 
 # -- bypass ----------------------------------------------------------------------------------------------------
 
+BYPASS_DTYPE = np.dtype(
+    [
+        ("last", np.float64, FRAME_STATE_SIZE),  # the last good state: p_W, v_W, a_W, R_WB (row-major), omega_B
+        ("initialised", np.float64),  # 1 once a state was received
+        ("degraded", np.float64),  # 1 when the last frame's state was missing or not finite
+        ("last_rejected", np.float64),
+        ("n_nonfinite", np.float64),  # frames whose state was missing or not finite
+    ]
+)
+"""The bypass estimator's state (named fields)."""
 
+BYPASS_NO_STATE = -1
+""":func:`bypass_step`: the frame has no finite state and none was ever received (the plant gives none)."""
+
+
+@jit
+def bypass_step(frame, r, out) -> int:
+    """The bypass estimator on a packed frame: its state (kept as the last good one), or the last good state.
+
+    Args:
+        frame: the packed frame (:mod:`omnirotor.messages`).
+        r: the bypass state record (:data:`BYPASS_DTYPE`).
+        out: (21,) the estimate.
+
+    Returns:
+        0, or ``STEP_REJECTED | STEP_DEGRADED`` when the last state is repeated, or ``BYPASS_NO_STATE``
+        (nothing written) when there is none.
+    """
+    finite = frame[FRAME_HAS_STATE] != 0.0
+    if finite:
+        for i in range(FRAME_STATE_SIZE):
+            if not math.isfinite(frame[FRAME_STATE + i]):
+                finite = False
+                break
+    last = r.last
+    if finite:
+        for i in range(FRAME_STATE_SIZE):
+            last[i] = frame[FRAME_STATE + i]
+            out[i] = last[i]
+        r.initialised = 1.0
+        r.degraded = 0.0
+        r.last_rejected = 0.0
+        return 0
+    if r.initialised == 0.0:
+        return BYPASS_NO_STATE
+    r.n_nonfinite += 1.0
+    r.last_rejected = 1.0
+    r.degraded = 1.0
+    for i in range(FRAME_STATE_SIZE):
+        out[i] = last[i]
+    return _ek.STEP_REJECTED | _ek.STEP_DEGRADED
+
+
+@register("estimator", "bypass")
 class BypassEstimator:
     """Pass the plant's ``SensorFrame.state`` (ground truth plus noise) through, for fast studies.
 
     A frame without a state, or with a non-finite one, repeats the last good state flagged invalid. The last
-    good state and the flags live in arrays (:attr:`kernel_last`, :attr:`kernel_counters`) that the compiled
-    :func:`omnirotor.control._step_kernels.bypass_step` updates, called by the controller's compiled step.
+    good state and the flags live in :attr:`state` (:data:`BYPASS_DTYPE`), which :func:`bypass_step` updates
+    (called by :meth:`step` and by the controller's compiled step).
 
     Attributes:
+        state: the ``(1,)`` state record.
         degraded: True when the last frame's state was missing or non-finite.
         initialised: True once a state was received.
         rejected_inputs: count of frames whose state was missing or non-finite.
         last_input_rejected: True when the last frame's state was rejected.
-        kernel_last: (21,) the last good state (p, v, a, R row-major, omega).
-        kernel_counters: (``BY_SIZE``,) int64 flags and counts (``BY_*`` of ``_step_kernels``).
     """
 
-    def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
-        """Args: vehicle: the vehicle (unused, for a uniform interface). params: estimator parameters."""
+    state_dtype = BYPASS_DTYPE
+    log_fields = ()
+    kernel = bypass_step
+
+    def __init__(
+        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+    ):
+        """Set up.
+
+        Args:
+            vehicle: the vehicle (unused, for a uniform interface).
+            params: estimator parameters.
+            state: optional ``(1,)`` array of :data:`BYPASS_DTYPE` (e.g. a field of the controller's state).
+        """
         self.params = params if params is not None else EstimatorParams(kind="bypass")
         self.vehicle = vehicle
-        self.kernel_last = np.zeros(21)
-        self.kernel_counters = np.zeros(_sk.BY_SIZE, dtype=np.int64)
-        self.kernel_counters[_sk.BY_DEGRADED] = 1
-        self._last_t = 0.0
+        self.state = state_array(BYPASS_DTYPE, state, "bypass estimator")
+        self._rec = self.state[0]
+        self._rec["degraded"] = 1.0
+        self._frame: np.ndarray | None = None
+        self._out = np.zeros(FRAME_STATE_SIZE)
 
     @property
     def initialised(self) -> bool:
         """True once a state was received."""
-        return bool(self.kernel_counters[_sk.BY_INITIALISED])
+        return bool(self._rec["initialised"])
 
     @property
     def degraded(self) -> bool:
         """True when the last frame's state was missing or non-finite."""
-        return bool(self.kernel_counters[_sk.BY_DEGRADED])
+        return bool(self._rec["degraded"])
 
     @property
     def rejected_inputs(self) -> int:
         """Count of frames whose state was missing or non-finite."""
-        return int(self.kernel_counters[_sk.BY_REJECTED_INPUTS])
+        return int(self._rec["n_nonfinite"])
 
     @property
     def last_input_rejected(self) -> bool:
         """True when the last frame's state was rejected."""
-        return bool(self.kernel_counters[_sk.BY_LAST_REJECTED])
-
-    def _take(self, state: StateEstimate) -> None:
-        o = self.kernel_last
-        o[0:3], o[3:6], o[6:9], o[9:18], o[18:21] = state.p_W, state.v_W, state.a_W, np.ravel(state.R_WB), state.omega_B
-        c = self.kernel_counters
-        c[_sk.BY_INITIALISED] = 1
-        c[_sk.BY_DEGRADED] = 0
-        c[_sk.BY_LAST_REJECTED] = 0
+        return bool(self._rec["last_rejected"])
 
     def reset(self, frame: SensorFrame) -> None:
         """Start from the frame's state.
@@ -583,32 +640,39 @@ class BypassEstimator:
         """
         if frame.state is None or not _state_finite(frame.state):
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        self.kernel_counters[:] = 0
-        self._take(frame.state)
+        self.state[...] = np.zeros(1, dtype=BYPASS_DTYPE)
+        self.step(frame)
 
     def step(self, frame: SensorFrame) -> StateEstimate:
-        """Return ``frame.state``, or the last good state flagged invalid.
+        """Return ``frame.state``, or the last good state flagged invalid (:func:`bypass_step`).
 
         Raises:
             InputError: no state was ever received (the plant does not provide one).
         """
-        state = frame.state
-        if state is not None and _state_finite(state):
-            self._take(state)
-            return state
-        if not self.initialised:
+        n = np.asarray(frame.rotor_hz).shape[0]
+        if self._frame is None or self._frame.shape[0] != frame_size(n):
+            self._frame = np.zeros(frame_size(n))
+        frame.pack_into(self._frame)
+        out = self._out
+        code = bypass_step(self._frame, self._rec, out)
+        if code == BYPASS_NO_STATE:
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        c = self.kernel_counters
-        c[_sk.BY_REJECTED_INPUTS] += 1
-        c[_sk.BY_LAST_REJECTED] = 1
-        c[_sk.BY_DEGRADED] = 1
-        o = self.kernel_last.copy()
-        return StateEstimate(frame.t, o[0:3], o[3:6], o[6:9], o[9:18].reshape(3, 3), o[18:21], False)
+        o = out.copy()
+        return StateEstimate(frame.t, o[0:3], o[3:6], o[6:9], o[9:18].reshape(3, 3), o[18:21], code == 0)
 
 
-def make_estimator(vehicle: VehicleParams, params: EstimatorParams | None = None) -> UKFEstimator | BypassEstimator:
-    """The estimator ``params.kind`` names ("ukf" or "bypass")."""
+def make_estimator(
+    vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+) -> UKFEstimator | BypassEstimator:
+    """The estimator ``params.kind`` names (its registered name: "ukf" or "bypass").
+
+    Args:
+        vehicle: the vehicle.
+        params: estimator parameters.
+        state: for the bypass, the ``(1,)`` array of :data:`BYPASS_DTYPE` to keep its state in.
+    """
     params = params if params is not None else EstimatorParams()
-    if params.kind == "bypass":
-        return BypassEstimator(vehicle, params)
-    return UKFEstimator(vehicle, params)
+    cls = block_class("estimator", params.kind)
+    if cls is BypassEstimator:
+        return BypassEstimator(vehicle, params, state=state)
+    return cls(vehicle, params)

@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from omnirotor.blocks import register
 from omnirotor.config import check_positive
 from omnirotor.control import _map_kernels as _mk
 from omnirotor.errors import InputError
@@ -130,6 +131,7 @@ class _SoftRegion:
         return min(widths, default=math.inf)
 
 
+@register("maps", "regions")
 class MapScheduler:
     """Select the wrench map for the current attitude (SPEC §3.3), for the allocation and the observer.
 
@@ -216,10 +218,27 @@ class MapScheduler:
         self._weights_view = self.kernel_weights.view()
         self._weights_view.flags.writeable = False
         self.kernel_state = _mk.state_buffer()
+        self.state = self.kernel_state
+        self.n_nonfinite = 0
         self.region_index = -1
         self.region_name = mode
+        self._initial = (self._out.copy(), self.kernel_weights.copy(), self.kernel_state.copy())
         if self._partition is not None:
             self.select(np.eye(3))
+            self._initial = (self._out.copy(), self.kernel_weights.copy(), self.kernel_state.copy())
+
+    state_dtype = None
+    """Not converted to named fields yet: the selection state is ``kernel_state`` (layout in ``_map_kernels``)."""
+    log_fields = ()
+
+    def reset(self) -> None:
+        """Back to the selection made at construction (upright), the counter cleared."""
+        out, weights, state = self._initial
+        self._out[...] = out
+        self.kernel_weights[:] = weights
+        self.kernel_state[:] = state
+        self.n_nonfinite = 0
+        self.sync()
 
     @property
     def weights(self) -> np.ndarray:
@@ -245,6 +264,8 @@ class MapScheduler:
             return self._view
         if type(R_WB) is not np.ndarray or R_WB.dtype != np.float64:
             R_WB = np.asarray(R_WB, dtype=np.float64)
+        if not np.isfinite(R_WB).all():  # counted; the kernel keeps the previous map
+            self.n_nonfinite += 1
         k = _mk.schedule_select(
             self.kernel_schedule, R_WB, self.kernel_maps, self.kernel_out, self.kernel_weights, self.kernel_state
         )

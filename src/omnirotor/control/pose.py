@@ -22,19 +22,145 @@ commented out); the angular feed-forward is the code's (``feedforward_angular_ac
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
+from omnirotor._jit import jit
+from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite, check_positive
-from omnirotor.control import _kernels as _k
 from omnirotor.control.trajectory import ReferenceSample
 from omnirotor.errors import InputError
 from omnirotor.messages import StateEstimate
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["PoseControlParams", "PoseController"]
+__all__ = ["PoseControlParams", "PoseController", "STATE_DTYPE", "pose_step"]
 
 Vec3 = tuple[float, float, float]
+
+_F8 = np.float64
+STATE_DTYPE = np.dtype(
+    [
+        ("w_ref", _F8, 6),  # output [f_ref_W [N]; m_ref_B [N·m]]
+        ("errors", _F8, 12),  # e_p_W, e_v_W, e_R_B, e_omega_B of the last step
+        ("e_i_W", _F8, 3),  # clamped integral of the position error [m·s]
+        ("n_nonfinite", _F8),  # steps with a non-finite input (nothing else changed)
+        # parameters
+        ("mass_kg", _F8),
+        ("gravity", _F8),
+        ("J_diag", _F8, 3),  # inertia diagonal [kg·m²]
+        ("compensate", _F8),  # 1: subtract the estimated external wrench
+        ("feedforward", _F8),  # 1: angular-acceleration feed-forward
+        ("k_p", _F8, 3),
+        ("k_v", _F8, 3),
+        ("k_i", _F8, 3),
+        ("k_R", _F8, 3),
+        ("k_omega", _F8, 3),
+        ("max_pos_error", _F8),
+        ("max_vel_error", _F8),
+        ("max_integral", _F8),
+    ]
+)
+"""Outputs, state and parameters of the pose controller (named fields; the compiled step reads them so)."""
+
+
+@jit
+def _sat(x: float, lim: float) -> float:
+    return lim if x > lim else (-lim if x < -lim else x)
+
+
+@jit
+def pose_step(r, rd, p, v, R, w, f_hat, m_hat, dt: float) -> None:
+    """One step of the pose controller (module docstring), in place.
+
+    Args:
+        r: the controller's state record (:data:`STATE_DTYPE`); ``w_ref`` and ``errors`` are written there.
+        rd: the body reference record (:data:`omnirotor.control.trajectory.REFERENCE_DTYPE`).
+        p: (3,) position [m].
+        v: (3,) velocity [m/s].
+        R: (3, 3) ``R_WB``.
+        w: (3,) ``omega_B`` [rad/s].
+        f_hat: (3,) estimated external force [N], world frame.
+        m_hat: (3,) estimated external moment [N·m], body frame.
+        dt: period [s].
+    """
+    m, g = r.mass_kg, r.gravity
+    J = r.J_diag
+    jx, jy, jz = J[0], J[1], J[2]
+    lim_p, lim_v, lim_i = r.max_pos_error, r.max_vel_error, r.max_integral
+    px, py, pz = p[0], p[1], p[2]
+    vx, vy, vz = v[0], v[1], v[2]
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    wx, wy, wz = w[0], w[1], w[2]
+    fhx, fhy, fhz = f_hat[0], f_hat[1], f_hat[2]
+    mhx, mhy, mhz = m_hat[0], m_hat[1], m_hat[2]
+    check = px + py + pz + vx + vy + vz + wx + wy + wz + fhx + fhy + fhz + mhx + mhy + mhz + dt
+    check += r00 + r01 + r02 + r10 + r11 + r12 + r20 + r21 + r22
+    if not math.isfinite(check):
+        r.n_nonfinite += 1.0
+        return
+    # --- translation (world frame)
+    epx = _sat(rd.p_W[0] - px, lim_p)
+    epy = _sat(rd.p_W[1] - py, lim_p)
+    epz = _sat(rd.p_W[2] - pz, lim_p)
+    evx = _sat(rd.v_W[0] - vx, lim_v)
+    evy = _sat(rd.v_W[1] - vy, lim_v)
+    evz = _sat(rd.v_W[2] - vz, lim_v)
+    E = r.e_i_W
+    eix = E[0] = _sat(E[0] + epx * dt, lim_i)
+    eiy = E[1] = _sat(E[1] + epy * dt, lim_i)
+    eiz = E[2] = _sat(E[2] + epz * dt, lim_i)
+    c = r.compensate
+    kp, kv, ki = r.k_p, r.k_v, r.k_i
+    fx = m * (rd.a_W[0] + kp[0] * epx + kv[0] * evx + ki[0] * eix) - c * fhx
+    fy = m * (rd.a_W[1] + kp[1] * epy + kv[1] * evy + ki[1] * eiy) - c * fhy
+    fz = m * (rd.a_W[2] + g + kp[2] * epz + kv[2] * evz + ki[2] * eiz) - c * fhz
+    # --- rotation (body frame): E = R^T R^r, e_R = 1/2 (E - E^T)^v
+    Q = rd.R_WB
+    q00, q01, q02, q10, q11, q12, q20, q21, q22 = (
+        Q[0, 0],
+        Q[0, 1],
+        Q[0, 2],
+        Q[1, 0],
+        Q[1, 1],
+        Q[1, 2],
+        Q[2, 0],
+        Q[2, 1],
+        Q[2, 2],
+    )
+    e01 = r00 * q01 + r10 * q11 + r20 * q21
+    e02 = r00 * q02 + r10 * q12 + r20 * q22
+    e10 = r01 * q00 + r11 * q10 + r21 * q20
+    e12 = r01 * q02 + r11 * q12 + r21 * q22
+    e20 = r02 * q00 + r12 * q10 + r22 * q20
+    e21 = r02 * q01 + r12 * q11 + r22 * q21
+    eRx = 0.5 * (e21 - e12)
+    eRy = 0.5 * (e02 - e20)
+    eRz = 0.5 * (e10 - e01)
+    # R^T omega^r_W and R^T alpha^r_W
+    ox, oy, oz = rd.omega_W[0], rd.omega_W[1], rd.omega_W[2]
+    ax, ay, az = rd.alpha_W[0], rd.alpha_W[1], rd.alpha_W[2]
+    ewx = r00 * ox + r10 * oy + r20 * oz - wx
+    ewy = r01 * ox + r11 * oy + r21 * oz - wy
+    ewz = r02 * ox + r12 * oy + r22 * oz - wz
+    ff = r.feedforward
+    kR, kw = r.k_R, r.k_omega
+    dwx = kR[0] * eRx + kw[0] * ewx + ff * (r00 * ax + r10 * ay + r20 * az)
+    dwy = kR[1] * eRy + kw[1] * ewy + ff * (r01 * ax + r11 * ay + r21 * az)
+    dwz = kR[2] * eRz + kw[2] * ewz + ff * (r02 * ax + r12 * ay + r22 * az)
+    hx, hy, hz = jx * wx, jy * wy, jz * wz  # J omega
+    W = r.w_ref
+    W[0], W[1], W[2] = fx, fy, fz
+    W[3] = wy * hz - wz * hy + jx * dwx - c * mhx
+    W[4] = wz * hx - wx * hz + jy * dwy - c * mhy
+    W[5] = wx * hy - wy * hx + jz * dwz - c * mhz
+    er = r.errors
+    er[0], er[1], er[2] = epx, epy, epz
+    er[3], er[4], er[5] = evx, evy, evz
+    er[6], er[7], er[8] = eRx, eRy, eRz
+    er[9], er[10], er[11] = ewx, ewy, ewz
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,48 +208,54 @@ class PoseControlParams:
         check_positive("pose.max_integral", self.max_integral)
 
 
+@register("pose", "geometric-pid")
 class PoseController:
     """The pose controller of SPEC §4.1 (module docstring): body reference + state -> wrench reference.
 
     Args:
         vehicle: mass, inertia (diagonal) and gravity are used.
         params: gains and saturations.
-        buffer: optional (``POSE_SIZE``,) float64 array to hold :attr:`kernel_state`; a new one by default.
+        state: optional ``(1,)`` array of :data:`STATE_DTYPE` to hold :attr:`state` (e.g. a field of the
+            controller's state); a new one by default.
 
     Attributes:
+        state: the ``(1,)`` state record the compiled step reads and writes (the arrays below are views).
         w_ref: (6,) output ``[f_ref_W [N]; m_ref_B [N·m]]``, overwritten by every :meth:`step`.
         errors: (12,) the errors of the last step ``[e_p_W [m], e_v_W [m/s], e_R_B [-], e_omega_B [rad/s]]``.
-        kernel_state: the packed outputs, state and parameters the compiled step reads and writes (layout
-            ``POSE_*`` of :mod:`omnirotor.control._kernels`; the arrays above are views into it).
     """
 
+    state_dtype = STATE_DTYPE
+    log_fields = ("w_ref", "errors")
+    kernel = pose_step
+
     def __init__(
-        self, vehicle: VehicleParams, params: PoseControlParams | None = None, *, buffer: np.ndarray | None = None
+        self, vehicle: VehicleParams, params: PoseControlParams | None = None, *, state: np.ndarray | None = None
     ) -> None:
         self.params = params if params is not None else PoseControlParams()
         self.vehicle = vehicle
         p = self.params
-        # Outputs, state and parameters in one array, the layout of control._kernels (POSE_*).
-        self.kernel_state = x = _k.state_buffer(buffer, _k.POSE_SIZE, "pose controller")
-        x[_k.POSE_MASS] = vehicle.mass
-        x[_k.POSE_GRAVITY] = vehicle.gravity
-        x[_k.POSE_J : _k.POSE_J + 3] = [float(j) for j in vehicle.inertia_diag]
-        x[_k.POSE_COMP] = 1.0 if p.compensate_ext_wrench else 0.0
-        x[_k.POSE_FF] = 1.0 if p.feedforward_angular_acc else 0.0
-        for name, at in (("k_p", _k.POSE_KP), ("k_v", _k.POSE_KV), ("k_i", _k.POSE_KI)):
-            x[at : at + 3] = getattr(p, name)
-        x[_k.POSE_KR : _k.POSE_KR + 3] = p.k_R
-        x[_k.POSE_KW : _k.POSE_KW + 3] = p.k_omega
-        x[_k.POSE_LIM_P] = p.max_pos_error
-        x[_k.POSE_LIM_V] = p.max_vel_error
-        x[_k.POSE_LIM_I] = p.max_integral
-        self.w_ref = x[_k.POSE_W_REF : _k.POSE_W_REF + 6]
-        self.errors = x[_k.POSE_ERRORS : _k.POSE_ERRORS + 12]
-        self._ei = x[_k.POSE_EI : _k.POSE_EI + 3]
+        self.state = st = state_array(STATE_DTYPE, state, "pose controller")
+        st["mass_kg"] = vehicle.mass
+        st["gravity"] = vehicle.gravity
+        st["J_diag"] = [float(j) for j in vehicle.inertia_diag]
+        st["compensate"] = 1.0 if p.compensate_ext_wrench else 0.0
+        st["feedforward"] = 1.0 if p.feedforward_angular_acc else 0.0
+        for name in ("k_p", "k_v", "k_i", "k_R", "k_omega", "max_pos_error", "max_vel_error", "max_integral"):
+            st[name] = getattr(p, name)
+        rec = st[0]
+        self.w_ref = rec["w_ref"]
+        self.errors = rec["errors"]
+        self._ei = rec["e_i_W"]
 
     def reset(self) -> None:
-        """Zero the integral."""
-        self._ei[:] = 0.0
+        """Zero the integral, the outputs and the counter of rejected steps (parameters kept)."""
+        for name in ("w_ref", "errors", "e_i_W", "n_nonfinite"):
+            self.state[name] = 0.0
+
+    @property
+    def n_nonfinite(self) -> int:
+        """Steps whose inputs were not finite (each changed nothing else)."""
+        return int(self.state["n_nonfinite"][0])
 
     @property
     def e_i_W(self) -> np.ndarray:
@@ -138,7 +270,7 @@ class PoseController:
         m_ext_hat_B: np.ndarray,
         dt: float,
     ) -> np.ndarray:
-        """One control step (:func:`omnirotor.control._kernels.pose_step`).
+        """One control step (:func:`pose_step`).
 
         Args:
             ref: body (CoM) reference, world-frame rates.
@@ -151,9 +283,9 @@ class PoseController:
             :attr:`w_ref`, the (6,) wrench reference ``[f_ref_W; m_ref_B]`` (reused buffer; copy to keep).
         """
         f64 = np.float64
-        _k.pose_step(
-            self.kernel_state,
-            ref.data,
+        pose_step(
+            self.state[0],
+            ref.state[0],
             np.asarray(state.p_W, dtype=f64),
             np.asarray(state.v_W, dtype=f64),
             np.asarray(state.R_WB, dtype=f64),

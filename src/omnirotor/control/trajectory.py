@@ -16,7 +16,7 @@ direction: ``omega_W = R_i phi_i s_R'`` and ``alpha_W = R_i phi_i s_R''``. Every
 therefore linear in the eight scalars ``(1, s, s', s'', sin(theta s_R), 1 - cos(theta s_R), s_R', s_R'')``
 (Rodrigues' formula with ``theta = |phi_i|``); a segment stores that linear map as one (24, 8) matrix, and
 sampling is a single matrix-vector product into the flat buffer of a :class:`ReferenceSample` (no
-allocation per call; :func:`omnirotor.control._kernels.trajectory_sample`).
+allocation per call; :func:`trajectory_sample`).
 
 Velocities are zero at every waypoint; before the first and after the last waypoint the trajectory holds
 that pose at rest. Angular velocity and acceleration are **world-frame** vectors (``omega_W``,
@@ -31,17 +31,39 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from omnirotor.control import _kernels as _k
+from omnirotor._jit import jit
+from omnirotor.blocks import new_state
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
 
-__all__ = ["Waypoint", "ReferenceSample", "PoseTrajectory", "ATTITUDE_PROFILES", "ROTATION_TOLERANCE"]
+__all__ = [
+    "Waypoint",
+    "ReferenceSample",
+    "PoseTrajectory",
+    "ATTITUDE_PROFILES",
+    "ROTATION_TOLERANCE",
+    "REFERENCE_DTYPE",
+    "trajectory_sample",
+]
 
 ATTITUDE_PROFILES = ("quintic", "cubic")
 ROTATION_TOLERANCE = 1e-6
 """Largest entry of ``R^T R - I`` accepted for a waypoint attitude."""
 
-# Layout of the flat (24,) buffer of a ReferenceSample.
+_F8 = np.float64
+REFERENCE_DTYPE = np.dtype(
+    [
+        ("p_W", _F8, 3),  # position [m]
+        ("v_W", _F8, 3),  # velocity [m/s]
+        ("a_W", _F8, 3),  # acceleration [m/s²]
+        ("R_WB", _F8, (3, 3)),  # attitude (frame to world)
+        ("omega_W", _F8, 3),  # angular velocity [rad/s], world frame
+        ("alpha_W", _F8, 3),  # angular acceleration [rad/s²], world frame
+    ]
+)
+"""A pose reference with its derivatives (named fields; 24 contiguous floats in this order)."""
+
+# The rows of the (24, 8) segment bases, one per float of a reference (the order of REFERENCE_DTYPE).
 _P, _V, _A, _R, _OMEGA, _ALPHA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 21), slice(21, 24)
 _N_FLAT = 24
 # Columns of the per-segment basis: the scalar functions of time the sample is linear in.
@@ -50,10 +72,11 @@ _N_BASIS = 8
 
 
 class ReferenceSample:
-    """A mutable pose reference with its derivatives, all views into one flat (24,) float buffer.
+    """A mutable pose reference with its derivatives: a record of :data:`REFERENCE_DTYPE` and views into it.
 
     Attributes:
-        data: (24,) the buffer: ``p_W, v_W, a_W, R_WB (row-major), omega_W, alpha_W``.
+        state: the ``(1,)`` record the compiled kernels read and write by field name.
+        data: (24,) the same memory as floats: ``p_W, v_W, a_W, R_WB (row-major), omega_W, alpha_W``.
         p_W: (3,) position [m], world frame.
         v_W: (3,) velocity [m/s], world frame.
         a_W: (3,) acceleration [m/s²], world frame.
@@ -62,22 +85,50 @@ class ReferenceSample:
         alpha_W: (3,) angular acceleration [rad/s²], world frame (time derivative of ``omega_W``).
     """
 
-    __slots__ = ("data", "p_W", "v_W", "a_W", "R_WB", "omega_W", "alpha_W")
+    __slots__ = ("state", "data", "p_W", "v_W", "a_W", "R_WB", "omega_W", "alpha_W")
 
     def __init__(self, data: np.ndarray | None = None) -> None:
         """A sample at the origin with identity attitude, at rest.
 
         Args:
-            data: optional (24,) float64 array to use as :attr:`data` (e.g. a slice of a larger array); a new
-                one by default.
+            data: optional memory to use (zeroed): a ``(1,)`` array of :data:`REFERENCE_DTYPE` (e.g. a field of
+                the controller's state) or a contiguous (24,) float64 array; a new one by default.
+
+        Raises:
+            InputError: ``data`` is neither.
         """
-        self.data = _k.state_buffer(data, _N_FLAT, "ReferenceSample")
-        self.p_W = self.data[_P]
-        self.v_W = self.data[_V]
-        self.a_W = self.data[_A]
-        self.R_WB = self.data[_R].reshape(3, 3)
-        self.omega_W = self.data[_OMEGA]
-        self.alpha_W = self.data[_ALPHA]
+        if data is None:
+            state = new_state(REFERENCE_DTYPE)
+        elif (
+            isinstance(data, np.ndarray)
+            and data.dtype == REFERENCE_DTYPE
+            and data.shape == (1,)
+            and data.flags.writeable
+        ):
+            state = data
+        elif (
+            isinstance(data, np.ndarray)
+            and data.dtype == np.float64
+            and data.shape == (_N_FLAT,)
+            and data.flags.c_contiguous
+            and data.flags.writeable
+        ):
+            state = data.view(REFERENCE_DTYPE)
+            state = state.view(np.recarray) if isinstance(new_state(REFERENCE_DTYPE), np.recarray) else state
+        else:
+            raise InputError(
+                "ReferenceSample memory must be a (1,) REFERENCE_DTYPE or a contiguous (24,) float64 array"
+            )
+        state[...] = np.zeros(1, dtype=REFERENCE_DTYPE)
+        self.state = state
+        self.data = state.view(np.float64)
+        rec = state[0]
+        self.p_W = rec["p_W"]
+        self.v_W = rec["v_W"]
+        self.a_W = rec["a_W"]
+        self.R_WB = rec["R_WB"]
+        self.omega_W = rec["omega_W"]
+        self.alpha_W = rec["alpha_W"]
         self.R_WB[...] = np.eye(3)
 
     @classmethod
@@ -100,6 +151,92 @@ class ReferenceSample:
 
     def __repr__(self) -> str:
         return f"ReferenceSample(p_W={self.p_W.tolist()}, R_WB={self.R_WB.tolist()})"
+
+
+# Packed trajectory (PoseTrajectory.kernel_data): n_waypoints, cubic flag, times (n_wp), thetas (n_wp - 1),
+# then (24 x 8) bases, row-major: hold first, hold last, one per segment.
+_BASIS_SIZE = _N_FLAT * _N_BASIS
+
+
+@jit
+def _basis_row(pk, b: int, k1: float, k2: float, k3: float, k4: float, k5: float, sd: float, sdd: float) -> float:
+    """One row of a segment basis times the scalars of time (the columns' order)."""
+    acc = 0.0
+    acc += pk[b] * 1.0
+    acc += pk[b + 1] * k1
+    acc += pk[b + 2] * k2
+    acc += pk[b + 3] * k3
+    acc += pk[b + 4] * k4
+    acc += pk[b + 5] * k5
+    acc += pk[b + 6] * sd
+    acc += pk[b + 7] * sdd
+    return acc
+
+
+@jit
+def _write_rows(pk, o: int, k1: float, k2: float, k3: float, k4: float, k5: float, sd: float, sdd: float, out) -> None:
+    """The reference from the basis at ``pk[o:]`` into the record ``out``, field by field."""
+    nb = _N_BASIS
+    for i in range(3):
+        out.p_W[i] = _basis_row(pk, o + i * nb, k1, k2, k3, k4, k5, sd, sdd)
+        out.v_W[i] = _basis_row(pk, o + (3 + i) * nb, k1, k2, k3, k4, k5, sd, sdd)
+        out.a_W[i] = _basis_row(pk, o + (6 + i) * nb, k1, k2, k3, k4, k5, sd, sdd)
+    for i in range(3):
+        for j in range(3):
+            out.R_WB[i, j] = _basis_row(pk, o + (9 + 3 * i + j) * nb, k1, k2, k3, k4, k5, sd, sdd)
+    for i in range(3):
+        out.omega_W[i] = _basis_row(pk, o + (18 + i) * nb, k1, k2, k3, k4, k5, sd, sdd)
+        out.alpha_W[i] = _basis_row(pk, o + (21 + i) * nb, k1, k2, k3, k4, k5, sd, sdd)
+
+
+@jit
+def _write_hold(pk, o: int, out) -> None:
+    """The hold basis at ``pk[o:]`` times (1, 0, ..., 0), i.e. its first column, into record ``out``."""
+    nb = _N_BASIS
+    for i in range(3):
+        out.p_W[i] = pk[o + i * nb]
+        out.v_W[i] = pk[o + (3 + i) * nb]
+        out.a_W[i] = pk[o + (6 + i) * nb]
+    for i in range(3):
+        for j in range(3):
+            out.R_WB[i, j] = pk[o + (9 + 3 * i + j) * nb]
+    for i in range(3):
+        out.omega_W[i] = pk[o + (18 + i) * nb]
+        out.alpha_W[i] = pk[o + (21 + i) * nb]
+
+
+@jit
+def trajectory_sample(pk, t: float, out) -> None:
+    """The reference at time ``t`` [s] of a packed trajectory (:meth:`PoseTrajectory.sample`) into record ``out``."""
+    n_wp = int(pk[0])
+    cubic = pk[1] != 0.0
+    times = pk[2 : 2 + n_wp]
+    thetas = pk[2 + n_wp : 2 + 2 * n_wp - 1]
+    o_hold = 2 * n_wp + 1
+    if not t > times[0]:
+        _write_hold(pk, o_hold, out)
+        return
+    if not t < times[n_wp - 1]:
+        _write_hold(pk, o_hold + _BASIS_SIZE, out)
+        return
+    i = np.searchsorted(times, t, side="right") - 1
+    t0 = times[i]
+    T = times[i + 1] - t0
+    tau = (t - t0) / T
+    tau2 = tau * tau
+    tau3 = tau2 * tau
+    # The basis values k0 ... k7 (scalars: no array per call).
+    k1 = s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
+    k2 = sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
+    k3 = sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
+    if cubic:
+        s = tau2 * (3.0 - 2.0 * tau)
+        sd = 6.0 * tau * (1.0 - tau) / T
+        sdd = (6.0 - 12.0 * tau) / (T * T)
+    angle = thetas[i] * s
+    k4 = math.sin(angle)
+    k5 = 1.0 - math.cos(angle)
+    _write_rows(pk, o_hold + 2 * _BASIS_SIZE + i * _BASIS_SIZE, k1, k2, k3, k4, k5, sd, sdd, out)
 
 
 def _check_rotation(R: np.ndarray, where: str) -> None:
@@ -202,7 +339,7 @@ class PoseTrajectory:
             [[float(len(wps)), 1.0 if attitude_profile == "cubic" else 0.0], self._times, thetas]
             + [M.reshape(-1) for M in (hold_first, hold_last, *bases)]
         )
-        """The packed trajectory :func:`omnirotor.control._kernels.trajectory_sample` reads: waypoint count,
+        """The packed trajectory :func:`trajectory_sample` reads: waypoint count,
         cubic flag, times, segment angles theta [rad], then the (24, 8) bases (hold first, hold last, one per
         segment), row-major."""
 
@@ -226,7 +363,7 @@ class PoseTrajectory:
         Returns:
             ``out``.
         """
-        _k.trajectory_sample(self.kernel_data, float(t), out.data)
+        trajectory_sample(self.kernel_data, float(t), out.state[0])
         return out
 
     def __call__(self, t: float) -> ReferenceSample:

@@ -4,7 +4,7 @@
 exactly what the Python loop does, through the same kernels: the simulator's step
 (:func:`omnirotor.sim.step.sim_step`, which calls MuJoCo's C step functions) writes the packed sensor frame
 (:mod:`omnirotor.messages`) and the truth row; the controller's step
-(:func:`omnirotor.control._step_kernels.controller_step`) reads that frame and writes its command, which the
+(:func:`omnirotor.control.composer.controller_step`) reads that frame and writes its command, which the
 next simulator step reads. The two sides meet only through the packed frame and the command array, as their
 Python methods meet through :class:`~omnirotor.messages.SensorFrame` and
 :class:`~omnirotor.messages.RotorCommand`; this module (an experiment) is the only place that holds both.
@@ -17,7 +17,7 @@ and calls again.
 from __future__ import annotations
 
 from omnirotor._jit import jit, monotonic_ns
-from omnirotor.control._step_kernels import controller_step
+from omnirotor.control.composer import controller_step
 from omnirotor.sim.sensors import needs_refill
 from omnirotor.sim.step import sim_step
 
