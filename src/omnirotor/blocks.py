@@ -12,8 +12,10 @@ faults). Each block lives in one module, which owns:
 * its **compiled step**, beside the Python set-up, written once: Python keeps set-up, validation and
   reporting, and calls the same kernel the compiled composers call;
 * the **fields it logs** (names of state fields copied to the run's log each period);
-* a count of the steps whose inputs were not finite (field ``n_nonfinite``): such a step leaves the rest of
-  the state as it was.
+* for the controller's blocks (:data:`CONTROLLER_KINDS`, which read measurements that may be corrupt), a count
+  of the steps whose inputs were not finite (field ``n_nonfinite``): such a step leaves the rest of the state as
+  it was. The simulator's blocks are fed by the simulator's own state; their conformance suite checks instead
+  that a non-finite command is held or propagated as their docstrings say.
 
 Compiled code reaches the step of whichever block of a kind it was given through :func:`compiled_step`:
 ``compiled_step("observer")(state, ...)`` compiles to the ``kernel`` of the class registered under that kind
@@ -63,6 +65,9 @@ BLOCK_KINDS = (
     "faults",
 )
 """The kinds of block the composers know, in the order of one period's data flow."""
+
+CONTROLLER_KINDS = BLOCK_KINDS[:7]
+"""The controller's kinds (the rest are the simulator's)."""
 
 
 @runtime_checkable
@@ -114,7 +119,9 @@ def register(kind: str, name: str) -> Callable[[type[T]], type[T]]:
             raise InputError(f"a {kind} block named {name!r} is registered already ({taken.__qualname__})")
         dtype = getattr(cls, "state_dtype", None)
         if dtype is not None:
-            if dtype.names is None or "n_nonfinite" not in dtype.names:
+            if dtype.names is None:
+                raise InputError(f"{cls.__qualname__}.state_dtype must be a structured dtype (named fields)")
+            if kind in CONTROLLER_KINDS and "n_nonfinite" not in dtype.names:
                 raise InputError(f"{cls.__qualname__}.state_dtype must be structured with a field 'n_nonfinite'")
             for other_name, other in _REGISTRY[kind].items():
                 if other is not cls and getattr(other, "state_dtype", None) == dtype:
