@@ -118,9 +118,10 @@ def _perpendiculars(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tool_joints(d: np.ndarray, arm: float, params: SceneParams) -> list[str]:
-    """The coupling's joints at the mount: a slide along the tool axis ``d`` and two hinges across it.
+    """The coupling's joints at the vehicle's CoM: a slide along the tool axis ``d`` and two hinges across it.
 
-    Damping gives each mode (the tool's mass on the coupling's stiffness) the damping ratio of ``params``.
+    Damping gives each mode (the tool's mass, or its moment of inertia ``tool_mass arm²``, on the coupling's
+    stiffness) the damping ratio of ``params``.
     """
     m, zeta = params.tool_mass, params.tool_damping_ratio
     k_ax, k_rot = params.tool_axial_stiffness, params.tool_bending_stiffness
@@ -142,7 +143,7 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
 
     Returns:
         ``(elements of the vehicle body, the tool's child body or "")``: with ``params.tool_compliant`` the rod
-        and the tip sit on a child body ``ee_tool`` joined to the vehicle where the rod leaves the frame.
+        and the tip sit on a child body ``ee_tool`` joined to the vehicle at its CoM.
     """
     p_E = vehicle.p_E_B_array
     length = float(np.linalg.norm(p_E))
@@ -162,26 +163,29 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
     start = d * start_len
     rod_end = centre - ROD_RADIUS * d
     compliant = params.tool_compliant
-    origin = start if compliant else np.zeros(3)
     tool = [
         f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
-        f'pos="{_fmt(centre - origin)}" rgba="{_TIP_RGBA}"/>'
+        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"/>'
     ]
     if length - TIP_RADIUS - ROD_RADIUS - start_len > 1e-6:
         tool.append(
             f'<geom name="{EE_ROD_GEOM}" class="robot" type="capsule" size="{ROD_RADIUS}" '
-            f'fromto="{_fmt(start - origin)} {_fmt(rod_end - origin)}"/>'
+            f'fromto="{_fmt(start)} {_fmt(rod_end)}"/>'
         )
     if not compliant:
         return out + tool, ""
-    arm = length - TIP_RADIUS - start_len
+    # Lumped tool: its mass sits at the pivot (the vehicle's CoM, so that the vehicle's CoM stays the body
+    # origin and gravity loads no hinge) with the moment of inertia about the pivot of that mass at the tip.
     m = params.tool_mass
-    inner = _tool_joints(d, arm, params)
-    # The tool's mass lumped at the tip centre (a small sphere's inertia keeps the body well posed).
-    i_tip = 0.4 * m * TIP_RADIUS**2
-    inner.append(f'<inertial pos="{_fmt(centre - start)}" mass="{m:.9g}" diaginertia="{_fmt((i_tip,) * 3)}"/>')
+    i_perp = m * length * length
+    i_ax = 0.4 * m * TIP_RADIUS**2
+    inertia = i_perp * (np.eye(3) - np.outer(d, d)) + i_ax * np.outer(d, d)
+    full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2])
+    inner = _tool_joints(d, length, params)
+    inner.append(f'<inertial pos="0 0 0" mass="{m:.9g}" fullinertia="{_fmt(full)}"/>')
     body = "\n        ".join(inner + tool)
-    return out, f'<body name="{TOOL_BODY}" pos="{_fmt(start)}">\n        {body}\n      </body>'
+    # The tool's body frame is the vehicle's at rest.
+    return out, f'<body name="{TOOL_BODY}" pos="0 0 0">\n        {body}\n      </body>'
 
 
 def ee_contact_sensor(geom: str) -> str:

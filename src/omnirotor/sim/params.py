@@ -238,9 +238,9 @@ class SceneParams:
             that the vehicle weighs what the vehicle file says.
         tool_axial_stiffness: stiffness of the coupling along the tool axis [N/m] [A: 4000, elastomer isolators
             that a 3 N push compresses by 0.75 mm].
-        tool_bending_stiffness: rotational stiffness of the coupling and the rod about the mount [N·m/rad]
-            [A: 20: 1 N of friction at the tip tilts a 0.36 m tool by ~1°; the Ø16 mm carbon tube alone is ~40x
-            stiffer, so the coupling sets it].
+        tool_bending_stiffness: rotational stiffness of the coupling and the rod across the tool axis [N·m/rad]
+            [A: 20: 1 N of friction at the tip, 0.5 m out, tilts the tool by 1.4°; a Ø16/14 mm carbon tube
+            cantilevered 0.36 m out of the frame alone is ~40x stiffer, so the coupling sets it].
         tool_damping_ratio: damping ratio of the tool's axial and bending modes [A: 0.15, half the loss factor
             ~0.3 of damping elastomers].
         start_standoff: distance of the EE tip from the contact surface in the default start pose [m].
