@@ -98,6 +98,12 @@ def test_point_contact_is_steady(point_contact_runs):
     assert nf["true_std_N"] < 0.5, nf  # steady, no bouncing
 
 
+def test_point_contact_force_has_no_chatter(point_contact_runs):
+    # issue 12 item 3: the true contact force's part above 20 Hz stays within 10 % of its mean (compliant tool)
+    for task, m in point_contact_runs.items():
+        assert m["contact"]["force_hf_ratio"] <= 0.10, (task, m["contact"])
+
+
 @pytest.mark.xfail(
     strict=True,
     reason="calibrated rotor-wake truth: on the 30 deg surface the nominal map underestimates the normal force "
@@ -120,6 +126,12 @@ def sliding_runs(truth_maps):
         ).summary()
         for mode in ("nominal", "global", "piecewise")
     }
+
+
+def test_sliding_force_has_no_chatter(sliding_runs):
+    # issue 12 item 3: the true contact force's part above 20 Hz within 10 % of its mean while sliding
+    for mode, m in sliding_runs.items():
+        assert m["contact"]["force_hf_ratio"] <= 0.10, (mode, m["contact"])
 
 
 def test_sliding_optimized_maps_keep_contact(sliding_runs):

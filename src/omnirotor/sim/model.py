@@ -231,7 +231,8 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + ee + ([tool] if tool else []))
     return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
   <compiler angle="radian" autolimits="true" balanceinertia="true"/>
-  <option timestep="{timestep:.9g}" gravity="0 0 {-vehicle.gravity:.9g}" integrator="Euler"/>
+  <option timestep="{timestep:.9g}" gravity="0 0 {-vehicle.gravity:.9g}" integrator="Euler"
+    cone="{params.friction_cone}"/>
   <visual>
     <global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
     <quality shadowsize="4096"/>

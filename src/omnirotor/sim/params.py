@@ -231,6 +231,8 @@ class SceneParams:
             steel, wood or PVC: published plastic-on-steel/plastic pairs lie at 0.2-0.4].
         contact_timeconst: MuJoCo ``solref`` time constant of contacts [s] [A: 5 ms; >= 2 steps].
         contact_dampratio: MuJoCo ``solref`` damping ratio of contacts [A: 1, critically damped].
+        friction_cone: MuJoCo's friction cone, "elliptic" (Coulomb's cone) or "pyramidal" (its linearisation,
+            which makes a sliding contact creep off the surface: the tip chatters over the pipe).
         tool_compliant: mount the tool (rod and tip) on the vehicle through a compliant coupling (paper §5.3: "a
             coupling between the EE and body ... to reduce vibrations"); False: the tool is part of the rigid body.
         tool_mass: moving mass of the tool, lumped at the tip [kg] [A: 10 g, a 3D-printed tip (~5 g) plus the
@@ -267,6 +269,7 @@ class SceneParams:
     friction: float = 0.3
     contact_timeconst: float = 0.005
     contact_dampratio: float = 1.0
+    friction_cone: str = "elliptic"
     tool_compliant: bool = True
     tool_mass: float = 0.010
     tool_axial_stiffness: float = 4000.0
@@ -302,6 +305,8 @@ class SceneParams:
             check_positive(f"scene.{label}", getattr(self, label))
         _check_nonneg("scene.friction", self.friction)
         _check_nonneg("scene.tool_damping_ratio", self.tool_damping_ratio)
+        if self.friction_cone not in ("elliptic", "pyramidal"):
+            raise InputError(f"scene.friction_cone must be elliptic or pyramidal, got {self.friction_cone!r}")
         if self.funnel_entrance_diameter < self.hole_diameter:
             raise InputError("scene.funnel_entrance_diameter must be >= scene.hole_diameter")
         if self.ring_segments < 6:
