@@ -1,14 +1,21 @@
 """MJCF of a vehicle in a scene, generated from the vehicle file (SPEC §1.2, §1.5, §5.2).
 
 The vehicle is one free body whose CoM is the body origin, with the vehicle's mass and principal inertia
-given explicitly (the geoms carry no mass). Its geoms:
+given explicitly (the geoms carry no mass), and by default a compliant tool. Its geoms:
 
 * the frame: the 12 edges of a cube of side ``frame_size`` when the rotors span three dimensions (the
   Omnirotor), otherwise a flat hub plate with one arm per rotor;
 * one propeller disk per rotor (radius half the propeller diameter, collision-enabled so that a crash
   shows as a contact) and one site ``rotor<i>`` whose z axis is the thrust axis;
-* the end-effector: a rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
-  (SPEC §1.5), and a site ``ee`` there.
+* the end-effector: a Ø16 mm rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
+  (SPEC §1.5; Ø16 mm is the paper's peg, SPEC §5.2), and a site ``ee`` there on the body. With
+  ``SceneParams.tool_compliant`` the rod and the tip sit on a child body ``ee_tool`` joined to the vehicle at
+  its CoM by a slide along the tool axis and two hinges across it (spring-dampers: the paper's vibration-
+  damping coupling, §5.3). The tool's mass, taken from the body's, sits at that pivot with the moment of inertia
+  of that mass at the tip, so the vehicle's mass and CoM stay those of its file. Its joints follow the free
+  joint in ``qpos``.
+
+Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone.
 
 Measured inertias of flat vehicles may violate the triangle inequality by a hair (the quadrotor preset by
 1%); MuJoCo's ``balanceinertia`` then nudges them onto it.
