@@ -232,7 +232,7 @@ class SceneParams:
         contact_timeconst: MuJoCo ``solref`` time constant of contacts [s] [A: 5 ms; >= 2 steps].
         contact_dampratio: MuJoCo ``solref`` damping ratio of contacts [A: 1, critically damped].
         friction_cone: MuJoCo's friction cone, "elliptic" (Coulomb's cone) or "pyramidal" (its linearisation,
-            which makes a sliding contact creep off the surface: the tip chatters over the pipe).
+            with which the tip sliding over the pipe leaves it for single steps more often: docs/fidelity.md).
         tool_compliant: mount the tool (rod and tip) on the vehicle through a compliant coupling (paper §5.3: "a
             coupling between the EE and body ... to reduce vibrations"); False: the tool is part of the rigid body.
         tool_mass: moving mass of the tool, lumped at the tip [kg] [A: 10 g, a 3D-printed tip (~5 g) plus the
