@@ -16,7 +16,9 @@ V = load_vehicle("omnirotor")
 QUIET = SensorParams(
     **{name: 0.0 for name in SensorParams.__dataclass_fields__ if name.endswith("_std") or name.endswith("_std_hz")}
 )
-NOMINAL = SimParams(aero=AeroParams(model="nominal"), sensors=QUIET)
+# The rigid-body plant: these tests check the rigid body, its contacts and exact equilibria, so the tool is rigid
+# (the compliant tool sags under gravity and lags a push; tests/test_sim_tool.py covers it).
+NOMINAL = SimParams(aero=AeroParams(model="nominal"), sensors=QUIET, scene=SceneParams(tool_compliant=False))
 
 
 def run(sim, omega_hz, steps):

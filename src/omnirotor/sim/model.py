@@ -1,14 +1,21 @@
 """MJCF of a vehicle in a scene, generated from the vehicle file (SPEC §1.2, §1.5, §5.2).
 
 The vehicle is one free body whose CoM is the body origin, with the vehicle's mass and principal inertia
-given explicitly (the geoms carry no mass). Its geoms:
+given explicitly (the geoms carry no mass), and by default a compliant tool. Its geoms:
 
 * the frame: the 12 edges of a cube of side ``frame_size`` when the rotors span three dimensions (the
   Omnirotor), otherwise a flat hub plate with one arm per rotor;
 * one propeller disk per rotor (radius half the propeller diameter, collision-enabled so that a crash
   shows as a contact) and one site ``rotor<i>`` whose z axis is the thrust axis;
-* the end-effector: a rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
-  (SPEC §1.5), and a site ``ee`` there.
+* the end-effector: a Ø16 mm rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
+  (SPEC §1.5; Ø16 mm is the paper's peg, SPEC §5.2), and a site ``ee`` there on the body. With
+  ``SceneParams.tool_compliant`` the rod and the tip sit on a child body ``ee_tool`` joined to the vehicle at
+  its CoM by a slide along the tool axis and two hinges across it (spring-dampers: the paper's vibration-
+  damping coupling, §5.3). The tool's mass, taken from the body's, sits at that pivot with the moment of inertia
+  of that mass at the tip, so the vehicle's mass and CoM stay those of its file. Its joints follow the free
+  joint in ``qpos``.
+
+Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone.
 
 Measured inertias of flat vehicles may violate the triangle inequality by a hair (the quadrotor preset by
 1%); MuJoCo's ``balanceinertia`` then nudges them onto it.
@@ -22,11 +29,24 @@ import itertools
 
 import numpy as np
 
+from omnirotor.errors import InputError
 from omnirotor.sim.params import SceneParams
 from omnirotor.sim.scenes import scene_geoms_xml
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["build_mjcf", "BODY_NAME", "EE_TIP_GEOM", "EE_ROD_GEOM", "EE_SITE", "TIP_RADIUS", "ee_contact_sensor"]
+__all__ = [
+    "build_mjcf",
+    "BODY_NAME",
+    "EE_TIP_GEOM",
+    "EE_ROD_GEOM",
+    "EE_SITE",
+    "TIP_RADIUS",
+    "ROD_RADIUS",
+    "TOOL_BODY",
+    "TOOL_AXIAL_JOINT",
+    "TOOL_BEND_JOINTS",
+    "ee_contact_sensor",
+]
 
 BODY_NAME = "vehicle"
 EE_TIP_GEOM = "ee_tip"
@@ -34,8 +54,12 @@ EE_ROD_GEOM = "ee_rod"
 EE_SITE = "ee"
 TIP_RADIUS = 0.008
 """Radius of the end-effector tip [m] (Ø16 mm, SPEC §5.2's peg)."""
-ROD_RADIUS = 0.005
-"""Radius of the end-effector rod [m] [A], thinner than the tip so that only the tip meets a surface."""
+ROD_RADIUS = 0.008
+"""Radius of the end-effector rod [m]: the paper's end-effector is Ø16 mm along what enters the hole (§5.3)."""
+TOOL_BODY = "ee_tool"
+"""Child body of the vehicle carrying the rod and the tip when the tool is compliant."""
+TOOL_AXIAL_JOINT = "tool_axial"
+TOOL_BEND_JOINTS = ("tool_bend_a", "tool_bend_b")
 EDGE_RADIUS = 0.006
 """Radius of the frame's edges and arms [m] [A]."""
 PROP_HALF_THICKNESS = 0.004
@@ -92,7 +116,42 @@ def _rotor_elements(vehicle: VehicleParams) -> list[str]:
     return out
 
 
-def _ee_elements(vehicle: VehicleParams) -> list[str]:
+def _perpendiculars(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit vector d to a right-handed orthonormal frame."""
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    e1 = np.cross(d, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(d, e1)
+
+
+def _tool_joints(d: np.ndarray, arm: float, params: SceneParams) -> list[str]:
+    """The coupling's joints at the vehicle's CoM: a slide along the tool axis ``d`` and two hinges across it.
+
+    Damping gives each mode (the tool's mass, or its moment of inertia ``tool_mass arm²``, on the coupling's
+    stiffness) the damping ratio of ``params``.
+    """
+    m, zeta = params.tool_mass, params.tool_damping_ratio
+    k_ax, k_rot = params.tool_axial_stiffness, params.tool_bending_stiffness
+    c_ax = 2.0 * zeta * np.sqrt(k_ax * m)
+    c_rot = 2.0 * zeta * np.sqrt(k_rot * m * arm * arm)
+    e1, e2 = _perpendiculars(d)
+    out = [
+        f'<joint name="{TOOL_AXIAL_JOINT}" type="slide" axis="{_fmt(d)}" stiffness="{k_ax:.9g}" damping="{c_ax:.9g}"/>'
+    ]
+    for name, e in zip(TOOL_BEND_JOINTS, (e1, e2), strict=True):
+        out.append(
+            f'<joint name="{name}" type="hinge" axis="{_fmt(e)}" stiffness="{k_rot:.9g}" damping="{c_rot:.9g}"/>'
+        )
+    return out
+
+
+def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str], str]:
+    """The EE site (on the body) and the tool: a Ø16 mm rod ending in a Ø16 mm tip sphere (SPEC §5.2's peg).
+
+    Returns:
+        ``(elements of the vehicle body, the tool's child body or "")``: with ``params.tool_compliant`` the rod
+        and the tip sit on a child body ``ee_tool`` joined to the vehicle at its CoM.
+    """
     p_E = vehicle.p_E_B_array
     length = float(np.linalg.norm(p_E))
     out = [f'<site name="{EE_SITE}" pos="{_fmt(p_E)}" size="0.006" rgba="1 1 0 1"/>']
@@ -101,23 +160,39 @@ def _ee_elements(vehicle: VehicleParams) -> list[str]:
             f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
             f'pos="{_fmt(p_E)}" rgba="{_TIP_RGBA}"/>'
         )
-        return out
+        return out, ""
     d = p_E / length
     centre = p_E - TIP_RADIUS * d
-    out.append(
-        f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
-        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"/>'
-    )
-    # The rod starts where the EE ray leaves the frame's cube (or at the CoM for a flat frame).
+    # The rod starts where the EE ray leaves the frame's cube (or at the CoM for a flat frame) and ends one
+    # radius short of the tip's centre, so that its cap stays inside the tip and only the tip meets a surface.
     h = 0.5 * vehicle.frame_size
     start_len = min(h / float(np.max(np.abs(d))), length - TIP_RADIUS)
     start = d * start_len
-    if length - TIP_RADIUS - start_len > 1e-6:
-        out.append(
+    rod_end = centre - ROD_RADIUS * d
+    compliant = params.tool_compliant
+    tool = [
+        f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
+        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"/>'
+    ]
+    if length - TIP_RADIUS - ROD_RADIUS - start_len > 1e-6:
+        tool.append(
             f'<geom name="{EE_ROD_GEOM}" class="robot" type="capsule" size="{ROD_RADIUS}" '
-            f'fromto="{_fmt(start)} {_fmt(centre)}"/>'
+            f'fromto="{_fmt(start)} {_fmt(rod_end)}"/>'
         )
-    return out
+    if not compliant:
+        return out + tool, ""
+    # Lumped tool: its mass sits at the pivot (the vehicle's CoM, so that the vehicle's CoM stays the body
+    # origin and gravity loads no hinge) with the moment of inertia about the pivot of that mass at the tip.
+    m = params.tool_mass
+    i_perp = m * length * length
+    i_ax = 0.4 * m * TIP_RADIUS**2
+    inertia = i_perp * (np.eye(3) - np.outer(d, d)) + i_ax * np.outer(d, d)
+    full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2])
+    inner = _tool_joints(d, length, params)
+    inner.append(f'<inertial pos="0 0 0" mass="{m:.9g}" fullinertia="{_fmt(full)}"/>')
+    body = "\n        ".join(inner + tool)
+    # The tool's body frame is the vehicle's at rest.
+    return out, f'<body name="{TOOL_BODY}" pos="0 0 0">\n        {body}\n      </body>'
 
 
 def ee_contact_sensor(geom: str) -> str:
@@ -156,10 +231,15 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     friction = f"{params.friction:.9g} 0.005 0.0001"
     J = vehicle.inertia_diag
     floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
-    body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + _ee_elements(vehicle))
+    ee, tool = _ee_elements(vehicle, params)
+    mass = vehicle.mass - (params.tool_mass if tool else 0.0)
+    if mass <= 0.5 * vehicle.mass:
+        raise InputError(f"scene.tool_mass ({params.tool_mass} kg) must be below half the vehicle's mass")
+    body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + ee + ([tool] if tool else []))
     return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
   <compiler angle="radian" autolimits="true" balanceinertia="true"/>
-  <option timestep="{timestep:.9g}" gravity="0 0 {-vehicle.gravity:.9g}" integrator="Euler"/>
+  <option timestep="{timestep:.9g}" gravity="0 0 {-vehicle.gravity:.9g}" integrator="Euler"
+    cone="{params.friction_cone}"/>
   <visual>
     <global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
     <quality shadowsize="4096"/>
@@ -188,7 +268,7 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     {scene_geoms_xml(scene, params)}
     <body name="{BODY_NAME}" pos="0 0 1">
       <freejoint name="root"/>
-      <inertial pos="0 0 0" mass="{vehicle.mass:.9g}" diaginertia="{_fmt(J)}"/>
+      <inertial pos="0 0 0" mass="{mass:.9g}" diaginertia="{_fmt(J)}"/>
       {body}
     </body>
   </worldbody>

@@ -227,9 +227,24 @@ class SceneParams:
         hole_wall_thickness: thickness of the plates that make the funnel and the hole [m] [A].
         ring_segments: number of plates in each ring of the funnel and the hole.
         floor: put a floor plane at z = 0.
-        friction: sliding friction coefficient of every contact [A: 0.3, a plastic tip on painted wood/PVC].
+        friction: sliding friction coefficient of every contact [A: 0.3, a 3D-printed PLA/PETG tip on painted
+            steel, wood or PVC: published plastic-on-steel/plastic pairs lie at 0.2-0.4].
         contact_timeconst: MuJoCo ``solref`` time constant of contacts [s] [A: 5 ms; >= 2 steps].
         contact_dampratio: MuJoCo ``solref`` damping ratio of contacts [A: 1, critically damped].
+        friction_cone: MuJoCo's friction cone, "elliptic" (Coulomb's cone) or "pyramidal" (its linearisation,
+            with which the tip sliding over the pipe leaves it for single steps more often: docs/fidelity.md).
+        tool_compliant: mount the tool (rod and tip) on the vehicle through a compliant coupling (paper §5.3: "a
+            coupling between the EE and body ... to reduce vibrations"); False: the tool is part of the rigid body.
+        tool_mass: moving mass of the tool, lumped at the tip [kg] [A: 10 g, a 3D-printed tip (~5 g) plus the
+            effective mass of a Ø16 mm carbon tube at its tip (~1/4 of its ~25 g)]; taken from the body's mass so
+            that the vehicle weighs what the vehicle file says.
+        tool_axial_stiffness: stiffness of the coupling along the tool axis [N/m] [A: 4000, elastomer isolators
+            that a 3 N push compresses by 0.75 mm].
+        tool_bending_stiffness: rotational stiffness of the coupling and the rod across the tool axis [N·m/rad]
+            [A: 20: 1 N of friction at the tip, 0.5 m out, tilts the tool by 1.4°; a Ø16/14 mm carbon tube
+            cantilevered 0.36 m out of the frame alone is ~40x stiffer, so the coupling sets it].
+        tool_damping_ratio: damping ratio of the tool's axial and bending modes [A: 0.15, half the loss factor
+            ~0.3 of damping elastomers].
         start_standoff: distance of the EE tip from the contact surface in the default start pose [m].
         free_start: default start position of the body in the free scene [m].
     """
@@ -254,6 +269,12 @@ class SceneParams:
     friction: float = 0.3
     contact_timeconst: float = 0.005
     contact_dampratio: float = 1.0
+    friction_cone: str = "elliptic"
+    tool_compliant: bool = True
+    tool_mass: float = 0.010
+    tool_axial_stiffness: float = 4000.0
+    tool_bending_stiffness: float = 20.0
+    tool_damping_ratio: float = 0.15
     start_standoff: float = 0.3
     free_start: tuple[float, float, float] = (0.0, 0.0, 1.5)
 
@@ -276,10 +297,16 @@ class SceneParams:
             "hole_wall_thickness",
             "contact_timeconst",
             "contact_dampratio",
+            "tool_mass",
+            "tool_axial_stiffness",
+            "tool_bending_stiffness",
             "start_standoff",
         ):
             check_positive(f"scene.{label}", getattr(self, label))
         _check_nonneg("scene.friction", self.friction)
+        _check_nonneg("scene.tool_damping_ratio", self.tool_damping_ratio)
+        if self.friction_cone not in ("elliptic", "pyramidal"):
+            raise InputError(f"scene.friction_cone must be elliptic or pyramidal, got {self.friction_cone!r}")
         if self.funnel_entrance_diameter < self.hole_diameter:
             raise InputError("scene.funnel_entrance_diameter must be >= scene.hole_diameter")
         if self.ring_segments < 6:

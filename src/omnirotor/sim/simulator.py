@@ -137,7 +137,7 @@ class Simulator:
         m = self.model
         self._body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BODY_NAME)
         self._ee_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, EE_SITE)
-        robot = np.flatnonzero(m.geom_bodyid == self._body)
+        robot = np.flatnonzero(m.body_rootid[m.geom_bodyid] == self._body)  # the vehicle and its tool
         self._robot_geom = np.zeros(m.ngeom, dtype=bool)
         self._robot_geom[robot] = True
         self._ee_geom = np.zeros(m.ngeom, dtype=bool)

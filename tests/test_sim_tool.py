@@ -1,0 +1,143 @@
+"""The tool of the simulated vehicle and the peg-in-hole geometry, read from the built MuJoCo model (SPEC §5.2).
+
+The tool (rod and tip, Ø16 mm) hangs on a compliant coupling (paper §5.3); the hole is a funnel 10 cm long
+from Ø80 mm to a Ø19 mm bore, 1.5 mm of play around the Ø16 mm peg.
+"""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from omnirotor.messages import RotorCommand
+from omnirotor.sim import SceneParams, SimParams, Simulator
+from omnirotor.sim.model import (
+    BODY_NAME,
+    EE_ROD_GEOM,
+    EE_TIP_GEOM,
+    TOOL_AXIAL_JOINT,
+    TOOL_BEND_JOINTS,
+    TOOL_BODY,
+    build_mjcf,
+)
+from omnirotor.vehicle import load_vehicle
+
+V = load_vehicle("omnirotor")
+
+
+def model(scene="free", **scene_kw):
+    return mujoco.MjModel.from_xml_string(build_mjcf(V, scene, SceneParams(**scene_kw), 1e-3))
+
+
+def geom(m, name):
+    return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)
+
+
+def body(m, name):
+    return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+
+
+def test_peg_and_hole_dimensions_from_the_built_model():
+    p = SceneParams()
+    m = model("peg-in-hole")
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    # the peg: rod and tip are Ø16 mm
+    assert m.geom_size[geom(m, EE_TIP_GEOM), 0] == pytest.approx(0.008)
+    assert m.geom_size[geom(m, EE_ROD_GEOM), 0] == pytest.approx(0.008)
+    e = np.asarray(p.hole_entrance)
+
+    def radial_axial(x):
+        r = x - e
+        return math.hypot(r[0], r[2]), r[1]  # the hole axis is world y, opening to +y
+
+    def inner_face(g):
+        """Centre and in-plane axis of a plate's face that looks at the hole axis."""
+        R = d.geom_xmat[g].reshape(3, 3)
+        faces = [d.geom_xpos[g] + s * m.geom_size[g, 2] * R[:, 2] for s in (-1.0, 1.0)]
+        return min(faces, key=lambda x: radial_axial(x)[0]), R[:, 1]
+
+    bore, mouth, end = [], [], []
+    for k in range(p.ring_segments):
+        face, _ = inner_face(geom(m, f"hole{k}"))
+        bore.append(radial_axial(face)[0])
+        g = geom(m, f"funnel{k}")
+        face, along = inner_face(g)
+        a, b = (radial_axial(face + s * m.geom_size[g, 1] * along) for s in (-1.0, 1.0))
+        lo, hi = sorted((a, b), key=lambda ra: ra[1])  # hi: the mouth (axial 0), lo: the funnel's end
+        mouth.append(hi)
+        end.append(lo)
+    # MJCF carries 9 significant digits: positions of ~1 m are exact to ~1e-8 m
+    np.testing.assert_allclose(bore, 0.0095, atol=1e-7)  # Ø19 mm bore (inradius of the plate ring)
+    np.testing.assert_allclose([r for r, _ in mouth], 0.040, atol=1e-7)  # Ø80 mm entrance
+    np.testing.assert_allclose([s for _, s in mouth], 0.0, atol=1e-7)
+    np.testing.assert_allclose([r for r, _ in end], 0.0095, atol=1e-7)
+    np.testing.assert_allclose([s for _, s in end], -0.10, atol=1e-7)  # 10 cm long
+    assert bore[0] - m.geom_size[geom(m, EE_ROD_GEOM), 0] == pytest.approx(0.0015, abs=1e-7)  # 1.5 mm play
+
+
+def test_tool_hangs_on_a_compliant_coupling():
+    m = model()
+    tool = body(m, TOOL_BODY)
+    assert m.body_parentid[tool] == body(m, BODY_NAME)
+    for name in (EE_TIP_GEOM, EE_ROD_GEOM):
+        assert m.geom_bodyid[geom(m, name)] == tool
+    # the vehicle weighs what its file says and its CoM stays the body origin
+    assert m.body_subtreemass[body(m, BODY_NAME)] == pytest.approx(V.mass)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    np.testing.assert_allclose(d.subtree_com[body(m, BODY_NAME)], d.xpos[body(m, BODY_NAME)], atol=1e-12)
+
+
+def test_rigid_tool_option_puts_the_tip_on_the_body():
+    m = model(tool_compliant=False)
+    assert body(m, TOOL_BODY) < 0 and m.nq == 7
+    assert m.geom_bodyid[geom(m, EE_TIP_GEOM)] == body(m, BODY_NAME)
+
+
+@pytest.mark.parametrize("direction", ["axial", "lateral"])
+def test_tool_deflects_by_force_over_stiffness(direction):
+    """Equal and opposite forces on the tip and on the vehicle at the same point: the tool settles at F / k."""
+    p = SceneParams()
+    m = model()
+    m.opt.gravity[:] = 0.0
+    d = mujoco.MjData(m)
+    tool, veh = body(m, TOOL_BODY), body(m, BODY_NAME)
+    tip = geom(m, EE_TIP_GEOM)
+    F_mag = 2.0
+    F = np.array([0.0, -F_mag, 0.0]) if direction == "axial" else np.array([F_mag, 0.0, 0.0])  # tool along +y
+    for _ in range(4000):
+        mujoco.mj_forward(m, d)
+        d.qfrc_applied[:] = 0.0
+        point = d.geom_xpos[tip].copy()
+        mujoco.mj_applyFT(m, d, F, np.zeros(3), point, tool, d.qfrc_applied)
+        mujoco.mj_applyFT(m, d, -F, np.zeros(3), point, veh, d.qfrc_applied)
+        mujoco.mj_step(m, d)
+    q = {m.joint(j).name: d.qpos[m.jnt_qposadr[j]] for j in range(m.njnt) if m.joint(j).name != "root"}
+    assert set(q) == {TOOL_AXIAL_JOINT, *TOOL_BEND_JOINTS}
+    if direction == "axial":
+        assert q[TOOL_AXIAL_JOINT] == pytest.approx(-F_mag / p.tool_axial_stiffness, rel=0.02)
+        assert abs(q[TOOL_BEND_JOINTS[0]]) + abs(q[TOOL_BEND_JOINTS[1]]) < 1e-6
+    else:
+        arm = float(np.linalg.norm(V.p_E_B_array)) - 0.008  # lever from the pivot (the CoM) to the tip's centre
+        angle = math.hypot(q[TOOL_BEND_JOINTS[0]], q[TOOL_BEND_JOINTS[1]])
+        assert angle == pytest.approx(F_mag * arm / p.tool_bending_stiffness, rel=0.03)
+
+
+def test_simulator_reads_the_tool_contact_as_the_end_effectors():
+    """Pushed onto the wall at the EE, the vehicle leans on the tool's tip: the EE's contact, no other part's."""
+    sim = Simulator(V, "wall", SimParams())
+    p0, R0 = sim.default_start()
+    n = sim.scene.normal_W
+    sim.reset(p0 - (sim.params.scene.start_standoff - 0.005) * n, R0)
+    sim.set_external_wrench(-3.0 * n, at="ee")
+    cmd = RotorCommand(0.0, sim.hover_speeds_hz(R0))
+    for _ in range(1500):
+        sim.step(cmd)
+    tr = sim.truth
+    row = np.zeros(64)
+    sim.truth_row(row)
+    assert tr.in_contact and not tr.other_contact
+    assert tr.contact_force_W @ n > 1.0  # the wall pushes back along its normal
+    np.testing.assert_allclose(row[22:25], tr.contact_force_W, atol=1e-9)  # the compiled truth row agrees
