@@ -330,9 +330,16 @@ def _qp_terms(data: HoverData, A_nom: np.ndarray, p: IdentificationParams):
     return H, f, x_nom, p.delta / s
 
 
-def solve_map(data: HoverData, A_nom: np.ndarray, params: IdentificationParams) -> np.ndarray:
-    """Identify one wrench map with DAQP (SPEC §3.2). Returns A (6 x n)."""
-    _check_enough(data, "identification")
+def solve_map(
+    data: HoverData, A_nom: np.ndarray, params: IdentificationParams, require_determined: bool = True
+) -> np.ndarray:
+    """Identify one wrench map with DAQP (SPEC §3.2). Returns A (6 x n).
+
+    ``require_determined=False`` solves even with fewer than n - 3 independent points (the proximal term
+    and the box then decide the rest; used by the points-per-region study).
+    """
+    if require_determined:
+        _check_enough(data, "identification")
     H, f, x_nom, d = _qp_terms(data, A_nom, params)
     H = 0.5 * (H + H.T)
     A_empty = np.zeros((0, x_nom.size))
