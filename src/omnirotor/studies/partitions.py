@@ -122,7 +122,7 @@ def _sliding(maps: WrenchMapSet, quick: bool, seed: int) -> dict:
         "success": m["success"],
         "contact_fraction": m["contact"]["fraction"],
         "contact_lost": m["contact"]["lost"],
-        "ee_rms_error_m": m["ee_rms_error"]["position"] if isinstance(m["ee_rms_error"], dict) else m["ee_rms_error"],
+        "ee_rms_error": m["ee_rms_error"],
         "map_switches": m["map_switches"],
         "force": m.get("force"),
     }
