@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from omnirotor.cli import app
@@ -130,3 +131,31 @@ def partitions_cmd(
             line += f", sliding contact {100 * s['contact_fraction']:.0f} %, {s['map_switches']} map switches"
         print(line)
     print(json.dumps(result["nominal"]))
+
+
+@study_app.command("torque-rows")
+def torque_rows_cmd(
+    out: Annotated[Path, typer.Option(help="Folder for the flights, maps, torque-rows.json and .png.")],
+    quick: Annotated[bool, typer.Option("--quick", help="Shortened flights (R1 only for the sweeps).")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the flights.")] = 0,
+    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+) -> None:
+    """Torque rows from an attitude-sweep flight against hover-only maps (closed loop, paper Fig. 3 moments)."""
+    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
+    from omnirotor.wrench_maps import write_json_atomic
+
+    out = _out_dir(out)
+    result = torque_rows_study(out, quick=quick, seed=seed, vehicle_name=vehicle)
+    write_json_atomic(out / "torque-rows.json", result)
+    plot_torque_rows(result, out / "torque-rows.png")
+    for r, e in result["torque_rows"].items():
+        print(
+            f"{r}: mean |A2 entry - truth| nominal {e['entry_abs_error_nominal_mean']:.2e}, identified "
+            f"{e['entry_abs_error_identified_mean']:.2e} N·m/Hz² ({e['samples']} samples)"
+        )
+    for mname, regs in result["hover_validation_moments"].items():
+        cells = "; ".join(
+            f"{r} mean {np.round(v['moment_B_mean_Nm'], 3).tolist()} std {np.round(v['moment_B_std_Nm'], 3).tolist()}"
+            for r, v in regs.items()
+        )
+        print(f"hover moment estimate [N·m], {mname}: {cells}")
