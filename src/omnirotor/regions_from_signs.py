@@ -331,7 +331,7 @@ def write_partition_toml(path: str | Path, result: SignPartition, vehicle: Vehic
     tmp.replace(p)
 
 
-def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str | Path, n: int = 40000) -> None:
+def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str | Path, n: int = 15000) -> None:
     """Figure: local sign patterns on an azimuth-elevation map, the regions' borders, and mismatched area."""
     import matplotlib
 
@@ -346,10 +346,10 @@ def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str
     idx = np.array([result.partition.index_of_direction(v) for v in pts])
     wrong = local != np.asarray(result.codes)[idx]
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.2), sharey=True)
-    axes[0].scatter(az, el, c=inv, s=1.5, cmap="tab20", rasterized=True)
+    axes[0].scatter(az, el, c=inv, s=3, cmap="tab20", rasterized=True)
     axes[0].set_title(f"local hover sign pattern ({result.n_patterns} patterns)")
-    axes[1].scatter(az, el, c=idx, s=1.5, cmap="tab20", rasterized=True)
-    axes[1].scatter(az[wrong], el[wrong], c="k", s=1.5, rasterized=True)
+    axes[1].scatter(az, el, c=idx, s=3, cmap="tab20", rasterized=True)
+    axes[1].scatter(az[wrong], el[wrong], c="k", s=3, rasterized=True)
     axes[1].set_title(
         f"{len(result.partition.regions)} regions; black: pattern differs from the region's "
         f"({100 * result.mismatch_frac:.1f} %)"
@@ -366,5 +366,5 @@ def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str
     axes[0].set_ylabel("elevation of v_B [deg]")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
