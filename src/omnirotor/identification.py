@@ -41,6 +41,7 @@ __all__ = [
     "HoverData",
     "load_mat",
     "load_csv",
+    "read_csv_rows",
     "load_hover_data",
     "write_csv",
     "solve_map",
@@ -179,6 +180,17 @@ _RPY_COLS = ("roll_deg", "pitch_deg", "yaw_deg")
 _W_COLS = ("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz_Nm")
 
 
+def read_csv_rows(path: Path) -> list[list[str]]:
+    """The non-empty rows of a CSV file, ``#`` comment lines left out; unreadable files are an InputError."""
+    try:
+        with path.open(newline="") as fh:
+            return [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"{path}: cannot read as CSV ({exc})") from None
+
+
 def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
     """Read hover points from a CSV file.
 
@@ -194,13 +206,7 @@ def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
     p = Path(path)
     n = vehicle.n_rotors
     speed_cols = tuple(f"omega{i + 1}_hz" for i in range(n))
-    try:
-        with p.open(newline="") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise InputError(f"{p}: cannot read as CSV ({exc})") from None
+    rows = read_csv_rows(p)
     if not rows:
         raise InputError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]

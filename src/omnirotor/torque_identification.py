@@ -49,7 +49,7 @@ from scipy.signal import butter, filtfilt
 
 from omnirotor.config import check_positive
 from omnirotor.errors import InputError
-from omnirotor.identification import HoverData, IdentificationParams, solve_map
+from omnirotor.identification import HoverData, IdentificationParams, read_csv_rows, solve_map
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import MapEntry, WrenchMapSet
 
@@ -155,13 +155,7 @@ def load_flight_csv(path: str | Path, vehicle: VehicleParams) -> FlightLog:
     p = Path(path)
     n = vehicle.n_rotors
     speed_cols = tuple(f"omega{i + 1}_hz" for i in range(n))
-    try:
-        with p.open(newline="") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise InputError(f"{p}: cannot read as CSV ({exc})") from None
+    rows = read_csv_rows(p)
     if len(rows) < 2:
         raise InputError(f"{p}: no data rows")
     header = [h.strip() for h in rows[0]]
