@@ -43,6 +43,7 @@ __all__ = [
     "HoverData",
     "load_mat",
     "load_csv",
+    "read_csv_rows",
     "load_hover_data",
     "write_csv",
     "solve_map",
@@ -181,6 +182,21 @@ _RPY_COLS = ("roll_deg", "pitch_deg", "yaw_deg")
 _W_COLS = ("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz_Nm")
 
 
+def read_csv_rows(path: Path) -> list[list[str]]:
+    """The non-empty rows of a CSV file, ``#`` comment lines left out; unreadable files are an InputError.
+
+    The file must be a regular one (:func:`omnirotor.safe_io.read_text`: a FIFO named ``*.csv`` is refused, never
+    waited on).
+    """
+    import io
+
+    text = read_text(path)
+    try:
+        return [r for r in csv.reader(io.StringIO(text, newline="")) if r and not r[0].lstrip().startswith("#")]
+    except csv.Error as exc:
+        raise InputError(f"{path}: cannot read as CSV ({exc})") from None
+
+
 def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
     """Read hover points from a CSV file.
 
@@ -196,13 +212,7 @@ def load_csv(path: str | Path, vehicle: VehicleParams) -> HoverData:
     p = Path(path)
     n = vehicle.n_rotors
     speed_cols = tuple(f"omega{i + 1}_hz" for i in range(n))
-    import io
-
-    text = read_text(p)  # a regular file (a FIFO named *.csv is refused, never waited on)
-    try:
-        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and not r[0].lstrip().startswith("#")]
-    except csv.Error as exc:
-        raise InputError(f"{p}: cannot read as CSV ({exc})") from None
+    rows = read_csv_rows(p)
     if not rows:
         raise InputError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]
@@ -342,9 +352,16 @@ def _qp_terms(data: HoverData, A_nom: np.ndarray, p: IdentificationParams):
     return H, f, x_nom, p.delta / s
 
 
-def solve_map(data: HoverData, A_nom: np.ndarray, params: IdentificationParams) -> np.ndarray:
-    """Identify one wrench map with DAQP (SPEC §3.2). Returns A (6 x n)."""
-    _check_enough(data, "identification")
+def solve_map(
+    data: HoverData, A_nom: np.ndarray, params: IdentificationParams, require_determined: bool = True
+) -> np.ndarray:
+    """Identify one wrench map with DAQP (SPEC §3.2). Returns A (6 x n).
+
+    ``require_determined=False`` solves even with fewer than n - 3 independent points (the proximal term
+    and the box then decide the rest; used by the points-per-region study).
+    """
+    if require_determined:
+        _check_enough(data, "identification")
     H, f, x_nom, d = _qp_terms(data, A_nom, params)
     H = 0.5 * (H + H.T)
     A_empty = np.zeros((0, x_nom.size))

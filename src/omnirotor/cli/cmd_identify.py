@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -63,6 +64,9 @@ def identify_cmd(
     vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
     weights: Annotated[str | None, typer.Option(help="Row weights fx,fy,fz,mx,my,mz.")] = None,
+    torque: Annotated[
+        Path | None, typer.Option(help="Flight-log CSV (run identify-dynamic): fit the torque rows from it.")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Identify per-region and global wrench maps from hover data (box-constrained weighted QP)."""
@@ -82,11 +86,18 @@ def identify_cmd(
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh)
     maps = identify(hover, veh, params, part, region)
+    torque_fits = {}
+    if torque is not None:
+        from omnirotor.torque_identification import flight_torque_rows
+
+        maps, torque_fits = flight_torque_rows(maps, torque, veh, delta_value)
     if out is not None:
         maps.save(out)
         if replacing:
             note(f"--out {out}: replaced the existing file")
     rep = summary(maps)
+    if torque_fits:
+        rep["torque"] = {k: dataclasses.asdict(f) | {"A2": f.A2.tolist()} for k, f in torque_fits.items()}
     if as_json:
         print(dumps_json(rep))
         return
@@ -104,5 +115,10 @@ def identify_cmd(
         )
     con = Console()
     con.print(t)
+    for name, f in torque_fits.items():
+        con.print(
+            f"torque rows of {name} from {f.samples} flight samples: moment residual RMS "
+            f"{f.base_residual_rms_Nm:.3f} -> {f.residual_rms_Nm:.3f} N·m"
+        )
     if out is not None:
         con.print(f"maps written to {out}")

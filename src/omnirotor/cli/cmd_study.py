@@ -1,0 +1,161 @@
+"""``omnirotor study``: studies beyond the paper (its §6): partitions compared, points per region, torque rows."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from omnirotor.cli import app
+from omnirotor.errors import InputError
+from omnirotor.regions import load_partition
+from omnirotor.studies.hover_pool import NOISE_LEVELS
+from omnirotor.vehicle import load_vehicle
+
+study_app = typer.Typer(
+    help="Studies beyond the paper; each writes a JSON and a figure into --out.", no_args_is_help=True
+)
+app.add_typer(study_app, name="study")
+
+
+def _out_dir(out: Path) -> Path:
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file, not a folder")
+    if not out.parent.exists():
+        raise InputError(f"--out {out}: folder {out.parent} does not exist")
+    return out
+
+
+def _ints(text: str, what: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"{what}: expected comma-separated integers, got {text!r}") from None
+    return vals
+
+
+@study_app.command("points-per-region")
+def points_per_region_cmd(
+    out: Annotated[Path, typer.Option(help="Folder for points-per-region.json and .png.")],
+    counts: Annotated[str, typer.Option(help="Points per region, comma separated.")] = "3,4,5,6,8,10,12,15,20,25,30",
+    noise: Annotated[str, typer.Option(help=f"Noise levels, comma separated ({', '.join(NOISE_LEVELS)}).")] = (
+        "low,medium,high"
+    ),
+    reps: Annotated[int, typer.Option(help="Seeded repetitions per (count, noise).")] = 40,
+    validation: Annotated[int, typer.Option(help="Validation attitudes.")] = 300,
+    workers: Annotated[int, typer.Option(help="Processes.")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed of the study.")] = 0,
+    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
+) -> None:
+    """Validation error of the identified maps against hover points per region and hover noise."""
+    from omnirotor.studies.points_per_region import plot_points_per_region, points_per_region_study
+    from omnirotor.wrench_maps import write_json_atomic
+
+    out = _out_dir(out)
+    result = points_per_region_study(
+        load_vehicle(vehicle),
+        counts=_ints(counts, "--counts"),
+        noises=tuple(n.strip() for n in noise.split(",")),
+        reps=reps,
+        n_validation=validation,
+        seed=seed,
+        workers=workers,
+        partition=load_partition(partition),
+    )
+    out.mkdir(exist_ok=True)
+    write_json_atomic(out / "points-per-region.json", result)
+    plot_points_per_region(result, out / "points-per-region.png")
+    for name, res in result["results"].items():
+        cells = ", ".join(f"{k}: {v['mean']:.3f}" for k, v in res.items())
+        print(f"noise {name}: validation force residual RMS [N] by points per region: {cells}")
+    print(f"nominal map: {result['nominal_force_residual_rms_N']:.3f} N; written to {out}")
+
+
+@study_app.command("partitions")
+def partitions_cmd(
+    out: Annotated[Path, typer.Option(help="Folder for partitions.json and .png.")],
+    partition: Annotated[
+        list[str], typer.Option(help="Partitions to compare (preset name or TOML file); repeat the option.")
+    ] = None,  # noqa: B008
+    total: Annotated[int, typer.Option(help="Hover points in total per identification.")] = 150,
+    reps: Annotated[int, typer.Option(help="Seeded repetitions.")] = 10,
+    noise: Annotated[str, typer.Option(help=f"Noise level ({', '.join(NOISE_LEVELS)}).")] = "medium",
+    validation: Annotated[int, typer.Option(help="Validation attitudes.")] = 300,
+    sliding: Annotated[bool, typer.Option("--sliding/--no-sliding", help="Fly one sliding run per partition.")] = True,
+    full_sliding: Annotated[
+        bool, typer.Option("--full-sliding", help="The paper's sliding run, not the quick one.")
+    ] = (False),
+    seed: Annotated[int, typer.Option(help="Seed of the study.")] = 0,
+    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+) -> None:
+    """Compare partitions at equal total hover points: residual, hover bias, sliding (closed loop)."""
+    from omnirotor.studies.partitions import compare_partitions, plot_comparison, write_json
+
+    if noise not in NOISE_LEVELS:
+        raise InputError(f"--noise must be one of {', '.join(NOISE_LEVELS)}, got {noise!r}")
+    names = partition or ["paper"]
+    parts = {}
+    for spec in names:
+        p = load_partition(spec)
+        key = Path(spec).stem if spec.endswith(".toml") else spec
+        if key in parts:
+            raise InputError(f"--partition {spec}: named twice")
+        parts[key] = p
+    out = _out_dir(out)
+    result = compare_partitions(
+        load_vehicle(vehicle),
+        parts,
+        total_points=total,
+        reps=reps,
+        noise=NOISE_LEVELS[noise],
+        n_validation=validation,
+        seed=seed,
+        sliding=sliding,
+        sliding_quick=not full_sliding,
+    )
+    out.mkdir(exist_ok=True)
+    plot_comparison(result, out / "partitions.png")
+    write_json(result, out / "partitions.json")
+    for name, e in result["partitions"].items():
+        line = (
+            f"{name}: {e['regions']} regions, residual RMS {e['force_residual_rms_N']['mean']:.3f} N, "
+            f"hover force bias RMS {e['bias_f_rms_N']['mean']:.3f} N, "
+            f"moment bias RMS {e['bias_m_rms_Nm']['mean']:.3f} N·m"
+        )
+        if "sliding" in e:
+            s = e["sliding"]
+            line += f", sliding contact {100 * s['contact_fraction']:.0f} %, {s['map_switches']} map switches"
+        print(line)
+    print(json.dumps(result["nominal"]))
+
+
+@study_app.command("torque-rows")
+def torque_rows_cmd(
+    out: Annotated[Path, typer.Option(help="Folder for the flights, maps, torque-rows.json and .png.")],
+    quick: Annotated[bool, typer.Option("--quick", help="Shortened flights (R1 only for the sweeps).")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the flights.")] = 0,
+    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+) -> None:
+    """Torque rows from an attitude-sweep flight against hover-only maps (closed loop, paper Fig. 3 moments)."""
+    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
+    from omnirotor.wrench_maps import write_json_atomic
+
+    out = _out_dir(out)
+    result = torque_rows_study(out, quick=quick, seed=seed, vehicle_name=vehicle)
+    write_json_atomic(out / "torque-rows.json", result)
+    plot_torque_rows(result, out / "torque-rows.png")
+    for r, e in result["torque_rows"].items():
+        print(
+            f"{r}: mean |A2 entry - truth| nominal {e['entry_abs_error_nominal_mean']:.2e}, identified "
+            f"{e['entry_abs_error_identified_mean']:.2e} N·m/Hz² ({e['samples']} samples)"
+        )
+    for mname, regs in result["hover_validation_moments"].items():
+        cells = "; ".join(
+            f"{r} mean {np.round(v['moment_B_mean_Nm'], 3).tolist()} std {np.round(v['moment_B_std_Nm'], 3).tolist()}"
+            for r, v in regs.items()
+        )
+        print(f"hover moment estimate [N·m], {mname}: {cells}")

@@ -1,0 +1,204 @@
+"""Task ``identify-dynamic``: a free flight that excites the attitude, for the torque rows (issue 15, item 1).
+
+The vehicle holds its position and, at a base attitude in each of the protocol's regions (upright in R1, and
+the centres of R3 and R4's sampling boxes, SPEC §3.4), turns about each body axis in turn: rest-to-rest
+minimum-jerk swings between ``±amplitude_deg`` whose durations shrink from ``slowest_s`` to ``fastest_s``
+(a stepped sweep: slow swings excite the inputs near hover, fast ones large moments). The swings stay well
+inside the region (10° about a base attitude 30° or more from the region's border) and within the rotor
+limits. The controller flies the nominal map by default, as the authors' identification flights did (``--map``
+chooses another).
+
+What a real robot logs is recorded: the gyroscope and the measured rotor speeds of every sensor frame
+(the simulator's noise, bias and ESC noise included), and the region of the attitude, into
+``flight.csv`` (:mod:`omnirotor.torque_identification` format) in the out folder. The flight needs Python
+every period to copy the frame, so it runs the step-by-step loop (about five times slower than compiled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from omnirotor.control.admittance import AdmittanceParams
+from omnirotor.control.controller import InteractionController
+from omnirotor.control.maps import MapParams
+from omnirotor.control.trajectory import PoseTrajectory
+from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import TaskOptions, register_task, run_closed_loop, run_log
+from omnirotor.experiments.faults import plant_simulator
+from omnirotor.experiments.metrics import error_stats
+from omnirotor.experiments.scenarios import body_to_ee_waypoint
+from omnirotor.experiments.tasks import ExperimentOptions, ExperimentResult
+from omnirotor.messages import FRAME_GYRO_B, FRAME_ROTOR_HZ, FRAME_T
+from omnirotor.regions import load_partition
+from omnirotor.sim import default_start_pose, scene_anchors
+from omnirotor.so3 import exp_so3
+from omnirotor.torque_identification import FlightLog, write_flight_csv
+from omnirotor.vehicle import VehicleParams, load_vehicle
+
+__all__ = ["SweepProtocol", "sweep_waypoints", "BASE_ATTITUDES"]
+
+BASE_ATTITUDES = {"R1": (0.0, 90.0), "R3": (-90.0, 45.0), "R4": (90.0, 45.0)}
+"""Base up direction (azimuth, elevation) [deg] per region: R1 upright, R3/R4 their sampling boxes' centres."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepProtocol:
+    """The excitation of ``identify-dynamic``.
+
+    Attributes:
+        regions: regions visited (base attitudes in :data:`BASE_ATTITUDES`).
+        amplitude_deg: swing amplitude about each axis [deg].
+        slowest_s: duration of the first (slowest) swing [s].
+        fastest_s: duration of the last (fastest) swing [s].
+        swings: swings per axis.
+        transition_s: time to turn to a region's base attitude [s].
+        settle_s: hold before and after each axis's sweep [s].
+    """
+
+    regions: tuple[str, ...] = ("R1", "R3", "R4")
+    amplitude_deg: float = 10.0
+    slowest_s: float = 1.2
+    fastest_s: float = 0.35
+    swings: int = 8
+    transition_s: float = 3.0
+    settle_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        unknown = [r for r in self.regions if r not in BASE_ATTITUDES]
+        if unknown or not self.regions:
+            raise InputError(f"identify-dynamic regions must be among {', '.join(BASE_ATTITUDES)}, got {self.regions}")
+        if not (0 < self.amplitude_deg <= 20):
+            raise InputError(f"amplitude_deg must be in (0, 20], got {self.amplitude_deg}")
+        if not (0 < self.fastest_s <= self.slowest_s) or self.swings < 2:
+            raise InputError("need 0 < fastest_s <= slowest_s and swings >= 2")
+
+    @staticmethod
+    def quick() -> SweepProtocol:
+        """A shortened excitation (one region, fewer swings) for tests and ``--quick``."""
+        return SweepProtocol(regions=("R1",), swings=5, slowest_s=0.8, transition_s=1.0, settle_s=0.3)
+
+
+def _base_attitude(region: str) -> np.ndarray:
+    az, el = (math.radians(a) for a in BASE_ATTITUDES[region])
+    v = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    # R_WB with third row v (R_WBᵀ e3 = v): turn e3 onto v about the axis e3 x v
+    axis = np.cross([0.0, 0.0, 1.0], v)
+    s = np.linalg.norm(axis)
+    R_BW = np.eye(3) if s < 1e-12 else exp_so3(axis / s * math.atan2(s, v[2]))  # maps e3 to v
+    return R_BW.T
+
+
+def sweep_waypoints(p_body_W: np.ndarray, vehicle: VehicleParams, proto: SweepProtocol) -> tuple[list, float]:
+    """EE waypoints of the excitation and its duration [s] (module docstring)."""
+    t = 1.0
+    up = np.eye(3)
+    wps = [body_to_ee_waypoint(0.0, p_body_W, up, vehicle), body_to_ee_waypoint(t, p_body_W, up, vehicle)]
+    amp = math.radians(proto.amplitude_deg)
+    durations = np.geomspace(proto.slowest_s, proto.fastest_s, proto.swings)
+    R0 = up
+    for region in proto.regions:
+        R0 = _base_attitude(region)
+        t += proto.transition_s
+        wps.append(body_to_ee_waypoint(t, p_body_W, R0, vehicle))
+        for axis in np.eye(3):
+            t += proto.settle_s
+            wps.append(body_to_ee_waypoint(t, p_body_W, R0, vehicle))
+            for k, d in enumerate(durations):
+                sign = 1.0 if k % 2 == 0 else -1.0
+                amp_k = amp if k > 0 else 0.5 * amp  # the first swing starts from the base: half way
+                t += float(d)
+                wps.append(body_to_ee_waypoint(t, p_body_W, R0 @ exp_so3(sign * amp_k * axis), vehicle))
+            t += float(durations[-1])
+            wps.append(body_to_ee_waypoint(t, p_body_W, R0, vehicle))
+    t += proto.settle_s
+    wps.append(body_to_ee_waypoint(t, p_body_W, R0, vehicle))
+    return wps, t + 0.5
+
+
+class _FrameTap:
+    """Copies the gyro and the measured rotor speeds of every sensor frame (``on_step`` of the loop)."""
+
+    def __init__(self, n_steps: int, n_rotors: int) -> None:
+        self.gyro = np.zeros((n_steps + 1, 3))
+        self.rotor = np.zeros((n_steps + 1, n_rotors))
+        self.t = np.zeros(n_steps + 1)
+        self.k = 0
+        self.n = n_rotors
+
+    def __call__(self, sim, t: float) -> None:
+        if self.k == 0:  # the reset frame was consumed by the controller; the first step's frame follows
+            self.k = 1
+            return
+        b = sim.packed_frame
+        i = self.k - 1
+        if i < self.t.size:
+            self.t[i] = b[FRAME_T]
+            self.gyro[i] = b[FRAME_GYRO_B : FRAME_GYRO_B + 3]
+            self.rotor[i] = b[FRAME_ROTOR_HZ : FRAME_ROTOR_HZ + self.n]
+        self.k += 1
+
+
+@register_task("identify-dynamic")
+def identify_dynamic(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Fly the attitude excitation and write ``flight.csv`` into the out folder (module docstring)."""
+    if isinstance(options, ExperimentOptions):
+        opts = options
+    else:
+        opts = ExperimentOptions(**{f.name: getattr(options, f.name) for f in dataclasses.fields(TaskOptions)})
+    vehicle = load_vehicle(opts.vehicle)
+    proto = SweepProtocol.quick() if opts.quick else SweepProtocol()
+    scene = opts.sim_params().scene
+    p_body, _ = default_start_pose(scene_anchors("free", scene), vehicle, scene)
+    wps, duration = sweep_waypoints(p_body, vehicle, proto)
+    if opts.duration_s is not None:
+        duration = opts.duration_s
+    params = opts.controller_params(AdmittanceParams.preset("free"))
+    params = dataclasses.replace(params, maps=MapParams(mode=opts.map_mode, blend=opts.blend))
+    controller = InteractionController(vehicle, params, opts.load_maps(vehicle))
+    sim = plant_simulator(vehicle, "free", opts.sim_params(), opts.seed, opts.plant, controller)
+    n_steps = int(round(duration / controller.params.dt))
+    tap = _FrameTap(n_steps, vehicle.n_rotors)
+    ctl_log, truth_log = run_closed_loop(sim, controller, PoseTrajectory(wps), duration, progress, on_step=tap)
+    log = run_log(ctl_log, truth_log)
+    # the frame read before step k+1 is the one step k produced: row k of the logs
+    n = min(tap.k - 1, log.t.size)
+    partition = load_partition("paper")
+    R_true = truth_log.group("R_WB")[:n].reshape(-1, 3, 3)
+    region = tuple(partition.name_of_attitude(R) for R in R_true)
+    flight = FlightLog(tap.t[:n].copy(), tap.gyro[:n].copy(), tap.rotor[:n].copy(), region)
+    rms, mx = error_stats(log, log.t >= 1.0)
+    tilt = np.degrees(np.arccos(np.clip(R_true[:, 2, 2], -1, 1)))
+    m = {
+        "task": "identify-dynamic",
+        "seed": opts.seed,
+        "quick": opts.quick,
+        "duration_s": duration,
+        "samples": int(n),
+        "map": opts.map_mode,
+        "samples_per_region": {r: region.count(r) for r in proto.regions},
+        "ee_rms_error": rms,
+        "ee_max_error": mx,
+        "omega_B_max_rad_s": float(np.abs(flight.gyro_B).max()),
+        "tilt_max_deg": float(tilt.max()),
+        "rotor_speed_min_abs_hz": float(np.abs(flight.rotor_hz).min()),
+        "controller_step_us_median": float(np.median(truth_log.group("controller_step_us"))),
+        "steps_flagged": int(np.count_nonzero(log.status.astype(int))),
+        "success": bool(np.count_nonzero(log.status.astype(int)) == 0),
+    }
+    if opts.out_dir is not None:
+        path = Path(opts.out_dir) / "flight.csv"
+        write_flight_csv(path, flight)
+        m["flight_csv"] = str(path)
+    return ExperimentResult(
+        task="identify-dynamic",
+        options=opts,
+        duration_s=duration,
+        controller_log=ctl_log,
+        truth_log=truth_log,
+        metrics=m,
+        log=log,
+    )

@@ -1,0 +1,167 @@
+"""Torque rows from dynamic flight against hover-only maps, in closed loop (issue 15, item 1; paper Fig. 3).
+
+Steps, all in the simulator with its truth aerodynamics (``make_aero(vehicle)``):
+
+1. ``identify-flights`` (closed loop, nominal map): hover points; ``identify`` gives the hover-only maps,
+   whose torque rows stay nominal (SPEC §3.2 weighs them 1e-12);
+2. ``identify-dynamic`` (closed loop, nominal map): the attitude sweeps; their gyro and measured rotor
+   speeds give the torque rows per region (:mod:`omnirotor.torque_identification`), which replace those
+   of the hover-only maps;
+3. the truth's torque rows per region, for comparison entry by entry: the truth model is not linear in u, so
+   its "A_2" is defined here as the least-squares linear map ``min Σ |m_true(u) - A_2 u|²`` over the
+   flight's inputs of that region, each repeated 4 times with every rotor's input scaled by an independent
+   factor ``1 + 0.2 N(0, 1)`` (seeded): the flight's own inputs leave the 2-D null space of the nominal map
+   unexcited, so a fit on them alone would not define every entry. The moment residuals on the flight's
+   own inputs are reported too;
+4. ``hover-validation`` (closed loop, new attitudes) with the nominal map, the hover-only piecewise maps and
+   the hover + flight piecewise maps: the observer's moment estimate in free hover, whose mean is its bias
+   and whose standard deviation its spread (paper Fig. 3, moments).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import run_task
+from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.identification import identify, load_csv
+from omnirotor.sim.aero import make_aero
+from omnirotor.torque_identification import (
+    TorqueIdParams,
+    load_flight_csv,
+    merge_torque_rows,
+    moment_samples,
+    torque_residual_rms,
+)
+from omnirotor.vehicle import load_vehicle
+
+__all__ = ["truth_torque_rows", "torque_rows_study", "plot_torque_rows"]
+
+
+def truth_torque_rows(aero, u_hz2: np.ndarray, rng: np.random.Generator, spread: float = 0.2) -> np.ndarray:
+    """(3, n) least-squares torque rows of the truth model around the inputs ``u_hz2`` (N, n) [Hz²] (step 3)."""
+    U = np.repeat(u_hz2, 4, axis=0)
+    U = U * (1.0 + spread * rng.standard_normal(U.shape))
+    m = np.array([aero.wrench_B(u)[3:] for u in U])
+    return np.linalg.lstsq(U, m, rcond=None)[0].T
+
+
+def _validation(maps_path: str | None, mode: str, quick: bool, seed: int) -> dict:
+    opts = ExperimentOptions(map_mode=mode, maps=maps_path, quick=quick, seed=seed, out_dir=None)
+    m = run_task("hover-validation", opts).summary()
+    return {
+        r: {k: v for k, v in e.items() if k.startswith("moment") or k == "attitudes"} for r, e in m["regions"].items()
+    }
+
+
+def torque_rows_study(out: str | Path, quick: bool = False, seed: int = 0, vehicle_name: str = "omnirotor") -> dict:
+    """Run the study (module docstring); files go to ``out``; returns a JSON-able dict."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    vehicle = load_vehicle(vehicle_name)
+    aero = make_aero(vehicle)
+    common = {"quick": quick, "seed": seed, "vehicle": vehicle_name}
+    run_task("identify-flights", ExperimentOptions(out_dir=str(out), **common))
+    run_task("identify-dynamic", ExperimentOptions(out_dir=str(out), **common))
+    hover = load_csv(out / "hover_points.csv", vehicle)
+    maps_hover = identify(hover, vehicle)
+    params = TorqueIdParams()
+    flight = load_flight_csv(out / "flight.csv", vehicle)
+    u, m, region = moment_samples(flight, vehicle, params)
+    maps_dyn, fits = merge_torque_rows(maps_hover, u, m, region, params)
+    if not any(k != "global" for k in fits):
+        raise InputError("the flight left no region with enough samples for a torque fit")
+    maps_hover.save(out / "maps-hover.json")
+    maps_dyn.save(out / "maps-hover-flight.json")
+    names = np.array(region)
+    entries = {}
+    for r, fit in fits.items():
+        mask = np.ones(names.size, dtype=bool) if r == "global" else names == r
+        A2_true = truth_torque_rows(aero, u[mask], np.random.default_rng([seed, 7]))
+        m_true = np.array([aero.wrench_B(x)[3:] for x in u[mask]])
+        A2_nom = vehicle.A_nom[3:]
+        entries[r] = {
+            "samples": fit.samples,
+            "A2_nominal": A2_nom.tolist(),
+            "A2_truth": A2_true.tolist(),
+            "A2_identified": fit.A2.tolist(),
+            "entry_abs_error_nominal_mean": float(np.abs(A2_nom - A2_true).mean()),
+            "entry_abs_error_identified_mean": float(np.abs(fit.A2 - A2_true).mean()),
+            "entry_abs_error_nominal_max": float(np.abs(A2_nom - A2_true).max()),
+            "entry_abs_error_identified_max": float(np.abs(fit.A2 - A2_true).max()),
+            "truth_moment_residual_rms_Nm": {
+                "nominal": torque_residual_rms(u[mask], m_true, A2_nom),
+                "identified": torque_residual_rms(u[mask], m_true, fit.A2),
+                "truth_local_ls": torque_residual_rms(u[mask], m_true, A2_true),
+            },
+            "measured_moment_residual_rms_Nm": {"nominal": fit.base_residual_rms_Nm, "identified": fit.residual_rms_Nm},
+        }
+    hover_val = {
+        "nominal": _validation(None, "nominal", quick, seed),
+        "hover-only": _validation(str(out / "maps-hover.json"), "piecewise", quick, seed),
+        "hover+flight": _validation(str(out / "maps-hover-flight.json"), "piecewise", quick, seed),
+    }
+    result = {
+        "vehicle": vehicle_name,
+        "quick": quick,
+        "seed": seed,
+        "params": dataclasses.asdict(params),
+        "torque_rows": entries,
+        "hover_validation_moments": hover_val,
+    }
+    return result
+
+
+def plot_torque_rows(result: dict, path: str | Path) -> None:
+    """Figure: torque-row entries (nominal, truth, identified) and the hover moment estimate per region and map."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    regions = [r for r in result["torque_rows"] if r != "global"]
+    fig, axes = plt.subplots(1 + len(regions), 1, figsize=(11, 2.6 * (1 + len(regions))))
+    axes = np.atleast_1d(axes)
+    for ax, r in zip(axes[: len(regions)], regions, strict=True):
+        e = result["torque_rows"][r]
+        x = np.arange(np.asarray(e["A2_truth"]).size)
+        for k, (key, lab) in enumerate(
+            (("A2_nominal", "nominal"), ("A2_truth", "truth (LS)"), ("A2_identified", "identified from flight"))
+        ):
+            ax.bar(x + (k - 1) * 0.27, np.asarray(e[key]).ravel() * 1e5, 0.27, label=lab)
+        n = np.asarray(e["A2_truth"]).shape[1]
+        ax.set_xticks(x, [f"{'xyz'[i // n]}{i % n + 1}" for i in x], fontsize=7)
+        ax.set_ylabel("A2 [1e-5 N·m/Hz²]")
+        ax.set_title(
+            f"{r}: torque-row entries (row m_x/m_y/m_z, rotor); mean |entry - truth|: nominal "
+            f"{e['entry_abs_error_nominal_mean'] * 1e5:.2f}, "
+            f"identified {e['entry_abs_error_identified_mean'] * 1e5:.2f}",
+            fontsize=9,
+        )
+        ax.legend(fontsize=7, ncol=3)
+    ax = axes[-1]
+    hv = result["hover_validation_moments"]
+    maps = list(hv)
+    regs = sorted({r for m in maps for r in hv[m]})
+    width = 0.8 / len(maps)
+    for i, mname in enumerate(maps):
+        for j, r in enumerate(regs):
+            if r not in hv[mname]:
+                continue
+            mean = np.asarray(hv[mname][r]["moment_B_mean_Nm"])
+            std = np.asarray(hv[mname][r]["moment_B_std_Nm"])
+            xs = j * 4 + np.arange(3) + (i - (len(maps) - 1) / 2) * width
+            ax.bar(xs, mean, width, yerr=std, color=f"C{i}", label=mname if j == 0 else None)
+    ax.set_xticks([j * 4 + k for j in range(len(regs)) for k in range(3)], [f"{r} m{a}" for r in regs for a in "xyz"])
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_ylabel("estimated moment in hover [N·m]")
+    ax.set_title("observer's moment estimate in free hover at new attitudes (mean ± std; no moment acts)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
