@@ -18,8 +18,9 @@ MuJoCo free-joint conventions used here: ``qpos = [p_W, q_WB (wxyz)]``, ``qvel =
 Assumptions [A] of the plant (all parameters, see :mod:`omnirotor.sim.params`): sensor noise levels and
 4 ms motion-capture latency; sliding friction 0.3; soft contacts with a 5 ms time constant, critically
 damped (MuJoCo's default impedance, which leaves sub-millimetre penetration at a few newtons); a Ø16 mm
-compliant tool (rod and tip on spring-damper joints, :mod:`omnirotor.sim.model`); collision-enabled propeller disks; rotor lag 25 ms (SPEC §1.4). With ``substeps`` > 1
-the rotor wrench is computed once per control period and held (its world direction follows the body).
+compliant tool (rod and tip on spring-damper joints, :mod:`omnirotor.sim.model`); collision-enabled propeller
+disks; rotor lag 25 ms (SPEC §1.4). With ``substeps`` > 1 the rotor wrench is computed once per control
+period and held (its world direction follows the body).
 """
 
 from __future__ import annotations
