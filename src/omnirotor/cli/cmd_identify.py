@@ -58,11 +58,17 @@ def summary(maps: WrenchMapSet) -> dict:
 
 @app.command("identify")
 def identify_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Hover data: .mat or .csv files, or folders of them.")],
+    data: Annotated[list[Path], typer.Argument(help="Hover data: .mat, .csv or PX4 .ulg files, or folders of them.")],
     delta: Annotated[str, typer.Option(help="Bound on each entry's change from nominal (units of A).")] = "3e-5",
     region: Annotated[str | None, typer.Option(help="Put every point of this call in region Rk.")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the wrench-map JSON here.")] = None,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[
+        str | None,
+        typer.Option(help="Preset, vehicle TOML, PX4 airframe or ULog (default: a ULog's own, else omnirotor)."),
+    ] = None,
+    vehicle_overlay: Annotated[
+        Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
+    ] = None,
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
     weights: Annotated[str | None, typer.Option(help="Row weights fx,fy,fz,mx,my,mz.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
@@ -76,7 +82,9 @@ def identify_cmd(
         raise InputError(f"--delta must be a finite number > 0, got {delta}")
     if out is not None and out.exists() and out.is_dir():
         raise InputError(f"--out {out}: is a folder")
-    veh = load_vehicle(vehicle)
+    if vehicle is None:  # a PX4 log carries its own rotor geometry
+        vehicle = next((str(d) for d in data if d.suffix.lower() == ".ulg"), "omnirotor")
+    veh = load_vehicle(vehicle, vehicle_overlay)
     part = load_partition(partition)
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Annotated
 
 import numpy as np
@@ -14,9 +15,9 @@ from omnirotor.cli import app
 from omnirotor.vehicle import force_envelope, load_vehicle
 
 
-def vehicle_report(spec: str, n_directions: int = 400) -> dict:
+def vehicle_report(spec: str, n_directions: int = 400, overlay: Path | None = None) -> dict:
     """Properties of a vehicle's nominal wrench map, as plain data (the JSON of ``omnirotor info``)."""
-    v = load_vehicle(spec)
+    v = load_vehicle(spec, overlay)
     A = v.A_nom
     sv = np.linalg.svd(A, compute_uv=False)
     rank = int(np.sum(sv > 1e-9 * sv[0]))
@@ -43,12 +44,15 @@ def vehicle_report(spec: str, n_directions: int = 400) -> dict:
 
 @app.command()
 def info(
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help="Preset, vehicle TOML, PX4 airframe file or ULog.")] = "omnirotor",
+    vehicle_overlay: Annotated[
+        Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     directions: Annotated[int, typer.Option(min=20, max=20000, help="Directions sampled for the envelope.")] = 400,
 ) -> None:
     """Show the wrench map of a vehicle: rank, condition number, hover speeds, force envelope."""
-    rep = vehicle_report(vehicle, directions)
+    rep = vehicle_report(vehicle, directions, vehicle_overlay)
     if as_json:
         print(json.dumps(rep, indent=1))
         return
