@@ -10,8 +10,8 @@ parameters. PX4's effectiveness of rotor i is ``f = ct a``, ``m = ct p × a − 
     position = D p,  axis = D a,  spin k_i = −sign(km_i),  c_tau = |km| c_f.
 
 PX4 stores no mass, inertia, thrust coefficient in SI or rotor-speed limits (``CA_ROTORn_CT`` is in normalised
-units). Those come from a TOML overlay (keys of the vehicle file except ``rotor``) and otherwise from the
-defaults :data:`PX4_DEFAULTS`; the inertia defaults to the mass spread equally over the rotor positions.
+units). Those come from a TOML overlay (keys of the vehicle file except ``rotor``), from ``OMR_*`` parameters
+(which our own simulated logs add) and otherwise from the defaults :data:`PX4_DEFAULTS`; the inertia defaults to the mass spread equally over the rotor positions.
 What was assumed is returned, and the caller says it on stderr.
 """
 
@@ -135,7 +135,7 @@ def vehicle_from_px4_params(
     """
     from omnirotor.vehicle import RotorParams, VehicleParams
 
-    overlay = dict(overlay or {})
+    overlay = {**_omr_values(params), **dict(overlay or {})}
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
     if unknown:
         raise InputError(f"vehicle overlay: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(_OVERLAY_KEYS)}")
@@ -143,9 +143,7 @@ def vehicle_from_px4_params(
     n = pos_frd.shape[0]
     reversible = [(rev >> i) & 1 == 1 for i in range(n)]
     if any(reversible) and not all(reversible):
-        raise InputError(
-            f"{where}: CA_R_REV = {rev} makes only some rotors reversible; the model needs all or none"
-        )
+        raise InputError(f"{where}: CA_R_REV = {rev} makes only some rotors reversible; the model needs all or none")
     pos = vec_from_px4(pos_frd)
     axis = vec_from_px4(axis_frd)
     if np.any(np.linalg.norm(axis, axis=1) < 1e-9):
@@ -205,6 +203,26 @@ def vehicle_from_px4_params(
         if key in overlay:
             data[key] = overlay[key]
     return from_mapping(VehicleParams, data, where), assumed
+
+
+_OMR = {
+    "OMR_MASS": "mass",
+    "OMR_CF": "c_f",
+    "OMR_CTAU": "c_tau",
+    "OMR_WMAX": "omega_max_hz",
+    "OMR_WMIN": "omega_min_hz",
+    "OMR_G": "gravity",
+}
+
+
+def _omr_values(params: Mapping[str, float]) -> dict[str, Any]:
+    """Vehicle values our own logs store as ``OMR_*`` parameters (:func:`omnirotor.px4.run_export.px4_params_of`)."""
+    out: dict[str, Any] = {key: float(params[name]) for name, key in _OMR.items() if name in params}
+    if all(f"OMR_J{a}{a}" in params for a in "XYZ"):
+        out["inertia_diag"] = [float(params[f"OMR_J{a}{a}"]) for a in "XYZ"]
+    if all(f"OMR_EE_{a}" in params for a in "XYZ"):
+        out["p_E_B"] = [float(params[f"OMR_EE_{a}"]) for a in "XYZ"]
+    return out
 
 
 def _rank(pos: np.ndarray, axis: np.ndarray, spins: np.ndarray, km: float) -> int:

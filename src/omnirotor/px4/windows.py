@@ -37,7 +37,15 @@ from omnirotor.errors import InputError
 from omnirotor.px4.flight import Flight, Series, read_flight
 from omnirotor.so3 import project_to_SO3
 
-__all__ = ["WindowCriteria", "HoverWindow", "find_hover_windows", "HoverPoints", "hover_points", "plot_windows", "load_ulog"]
+__all__ = [
+    "WindowCriteria",
+    "HoverWindow",
+    "find_hover_windows",
+    "HoverPoints",
+    "hover_points",
+    "plot_windows",
+    "load_ulog",
+]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,223 @@
+"""PX4 in: frames, vehicles from airframes and ULogs, automatic hover windows, identification from a ULog."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.cli import main
+from omnirotor.errors import InputError
+from omnirotor.px4.airframe import read_airframe_params, vehicle_from_px4_params
+from omnirotor.px4.frames import R_WB_from_px4_quat, px4_quat_from_R_WB, vec_from_px4
+from omnirotor.so3 import R_from_rpy, rot_x, rot_z
+from omnirotor.vehicle import load_vehicle
+
+from conftest import SHARED
+
+PX4 = SHARED / "data" / "px4"
+EVENTS = PX4 / "sample_px4_events.ulg"
+SMALL = PX4 / "sample_log_small.ulg"
+OMNICOPTER = PX4 / "10019_omnicopter"
+
+
+def _need(path):
+    if not path.is_file():
+        pytest.skip(f"PX4 test file not found at {path} (../shared is not beside the checkout)")
+    return path
+
+
+# -- frames ---------------------------------------------------------------------------------------------------
+
+
+def test_px4_yaw_east_is_our_yaw_minus_90_deg():
+    # PX4: yaw 90 deg about NED down = nose to the east. Ours (x north, y west, z up): nose along -y.
+    q = np.array([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+    R = R_WB_from_px4_quat(q)[0]
+    np.testing.assert_allclose(R @ [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(R, rot_z(-math.pi / 2), atol=1e-12)
+
+
+def test_px4_roll_right_is_our_roll_right():
+    # PX4 roll +30 deg about forward: the right side (FRD +y) goes down. Our left side (FLU +y) goes up.
+    a = math.radians(30.0)
+    q = np.array([math.cos(a / 2), math.sin(a / 2), 0.0, 0.0])
+    R = R_WB_from_px4_quat(q)[0]
+    np.testing.assert_allclose(R, rot_x(a), atol=1e-12)
+    assert (R @ [0.0, 1.0, 0.0])[2] > 0.49  # left wing up
+
+
+def test_level_px4_attitude_is_level_and_down_is_minus_up():
+    R = R_WB_from_px4_quat([1.0, 0.0, 0.0, 0.0])[0]
+    np.testing.assert_allclose(R, np.eye(3))
+    np.testing.assert_allclose(vec_from_px4([1.0, 2.0, 3.0]), [1.0, -2.0, -3.0])  # NED down 3 m = 3 m below
+
+
+def test_quaternion_round_trip_on_random_attitudes():
+    rng = np.random.default_rng(3)
+    Rs = np.array([R_from_rpy(*rng.uniform(-3, 3, 3)) for _ in range(50)])
+    q = px4_quat_from_R_WB(Rs)
+    np.testing.assert_allclose(R_WB_from_px4_quat(q), Rs, atol=1e-12)
+    # and the PX4 quaternion rotates NED vectors: R_NF = D R_WB D
+    D = np.diag([1.0, -1.0, -1.0])
+    w, x, y, z = q[7]
+    R_nf = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    np.testing.assert_allclose(R_nf, D @ Rs[7] @ D, atol=1e-12)
+
+
+# -- vehicles -------------------------------------------------------------------------------------------------
+
+
+def _quad_params(km0=0.05, rev=0):
+    p = {"CA_ROTOR_COUNT": 4, "CA_R_REV": rev}
+    for i, (x, y, km) in enumerate([(0.2, 0.2, km0), (-0.2, -0.2, 0.05), (0.2, -0.2, -0.05), (-0.2, 0.2, -0.05)]):
+        p.update({f"CA_ROTOR{i}_PX": x, f"CA_ROTOR{i}_PY": y, f"CA_ROTOR{i}_PZ": 0.0, f"CA_ROTOR{i}_KM": km})
+        p.update({f"CA_ROTOR{i}_AX": 0.0, f"CA_ROTOR{i}_AY": 0.0, f"CA_ROTOR{i}_AZ": -1.0})
+    return p
+
+
+def test_px4_quadrotor_signs_follow_px4_effectiveness():
+    v, assumed = vehicle_from_px4_params(_quad_params(), "q", "test", {"mass": 1.0, "c_f": 1e-4})
+    assert v.actuated_dof == 4
+    np.testing.assert_allclose(v.axes_B, [[0, 0, 1]] * 4)  # FRD up (0, 0, -1) is our +z
+    np.testing.assert_allclose(v.positions_B[0], [0.2, -0.2, 0.0])  # front right in FRD = front, -y in FLU
+    # PX4: moment = ct p x a - ct km a (FRD). Rotor 0 alone: compare in FRD after converting back.
+    D = np.diag([1.0, -1.0, -1.0])
+    a = np.array([0.0, 0.0, -1.0])
+    p = np.array([0.2, 0.2, 0.0])
+    m_px4 = np.cross(p, a) - 0.05 * a  # per unit thrust
+    m_ours = v.A_nom[3:, 0] / v.c_f
+    np.testing.assert_allclose(D @ m_ours, m_px4, atol=1e-12)
+    assert math.isclose(v.c_tau, 0.05 * 1e-4)
+    assert any(s.startswith("omega_max_hz") for s in assumed) and not any(s.startswith("mass") for s in assumed)
+
+
+def test_mixed_reversible_rotors_are_refused():
+    with pytest.raises(InputError, match="CA_R_REV"):
+        vehicle_from_px4_params(_quad_params(rev=0b0011), "q", "test")
+
+
+def test_unknown_overlay_key_is_refused():
+    with pytest.raises(InputError, match="unknown key"):
+        vehicle_from_px4_params(_quad_params(), "q", "test", {"mas": 1.0})
+
+
+def test_omnicopter_airframe_is_fully_actuated(capsys):
+    path = _need(OMNICOPTER)
+    params = read_airframe_params(path)
+    assert params["CA_ROTOR_COUNT"] == 8 and params["CA_R_REV"] == 255
+    assert main(["info", "--vehicle", str(path), "--json"]) == 0
+    out = capsys.readouterr()
+    rep = json.loads(out.out)
+    assert rep["rank"] == 6 and rep["n_rotors"] == 8
+    assert rep["omega_limits_hz"][0] < 0  # reversible
+    assert rep["hover_feasible"] and rep["min_zero_torque_force_N"] > rep["weight_N"]
+    assert len(rep["hover_speeds_hz"]) == 8
+    # the rotors are at the corners of a cube of half side 0.14435 m
+    v = load_vehicle(str(path))
+    np.testing.assert_allclose(np.abs(v.positions_B), 0.14435)
+
+
+def test_assumed_values_are_said_on_stderr(tmp_path, capsys):
+    path = _need(OMNICOPTER)
+    overlay = tmp_path / "overlay.toml"
+    overlay.write_text("mass = 2.0\nc_f = 2e-4\ninertia_diag = [0.02, 0.02, 0.03]\n")
+    assert main(["info", "--vehicle", str(path), "--vehicle-overlay", str(overlay), "--json"]) == 0
+    out = capsys.readouterr()
+    rep = json.loads(out.out)
+    assert rep["mass_kg"] == 2.0
+    assert "assumed" in out.err and "omega_max_hz" in out.err and "mass =" not in out.err
+    np.testing.assert_allclose(rep["A_nom"][2], np.asarray(load_vehicle(str(path), overlay).A_nom[2]))
+
+
+def test_ulog_vehicle_is_the_logs_quadrotor(capsys):
+    path = _need(EVENTS)
+    assert main(["info", "--vehicle", str(path), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["rank"] == 4 and rep["n_rotors"] == 4
+    v = load_vehicle(str(path))
+    np.testing.assert_allclose(v.positions_B[0], [0.1515, -0.245, 0.0], atol=1e-6)  # CA_ROTOR0 (FRD y = +0.245)
+    np.testing.assert_allclose(v.spins, [-1, -1, 1, 1])  # KM +0.05 (CCW) -> k = -1
+
+
+def test_overlay_with_a_preset_is_refused(tmp_path):
+    overlay = tmp_path / "o.toml"
+    overlay.write_text("mass = 2.0\n")
+    with pytest.raises(InputError, match="overlay"):
+        load_vehicle("omnirotor", overlay)
+
+
+# -- ULog in --------------------------------------------------------------------------------------------------
+
+
+def test_windows_of_the_sample_are_the_steady_descent():
+    from omnirotor.px4.flight import read_flight
+    from omnirotor.px4.windows import hover_points
+
+    flight = read_flight(_need(EVENTS))
+    assert flight.speed_source == "esc_status"
+    pts = hover_points(flight)
+    assert len(pts.windows) == 1
+    w = pts.windows[0]
+    # the README's steady descent, t = 23.0-25.8 s (rotors ~2930 rpm); not the ground, the climb or the 0.5 s hover
+    assert 22.8 < w.t0_s < 23.6 and 25.5 < w.t1_s < 26.6
+    np.testing.assert_allclose(pts.omega_hz[0], 2930 / 60, rtol=0.02)
+    # level flight: the mean up axis within a degree of world up
+    assert pts.R_WB[0][2, 2] > math.cos(math.radians(1.0))
+    assert any("too slow" in n for n in pts.notes)  # 4 Hz esc_status cannot take the 5 Hz low-pass
+
+
+def test_stricter_duration_finds_nothing_and_identify_says_so(capsys):
+    path = _need(EVENTS)
+    from omnirotor.px4.flight import read_flight
+    from omnirotor.px4.windows import WindowCriteria, hover_points
+
+    assert hover_points(read_flight(path), WindowCriteria(min_duration_s=5.0)).windows == ()
+    assert hover_points(read_flight(path), WindowCriteria(accel_max=0.01)).windows == ()
+
+
+def test_hover_windows_command_writes_figure_and_csv(tmp_path, capsys):
+    path = _need(EVENTS)
+    png, csv = tmp_path / "w.png", tmp_path / "p.csv"
+    assert main(["hover-windows", str(path), "--out", str(png), "--csv", str(csv)]) == 0
+    assert png.stat().st_size > 10_000
+    lines = csv.read_text().splitlines()
+    assert lines[0] == "qw,qx,qy,qz,omega1_hz,omega2_hz,omega3_hz,omega4_hz"
+    assert len(lines) == 2
+    # the CSV identifies exactly as the ULog does
+    capsys.readouterr()
+    assert main(["identify", str(path), "--json"]) == 0
+    from_log = json.loads(capsys.readouterr().out)
+    assert main(["identify", str(csv), "--vehicle", str(path), "--json"]) == 0
+    from_csv = json.loads(capsys.readouterr().out)
+    assert from_log["global"]["points"] == 1
+    assert math.isclose(
+        from_log["global"]["force_residual_rms_N"], from_csv["global"]["force_residual_rms_N"], rel_tol=1e-9
+    )
+
+
+def test_log_without_rotor_speeds_is_refused(capsys):
+    path = _need(SMALL)
+    assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no rotor speeds" in err[0] and "esc_status" in err[0]
+    assert main(["identify", str(path)]) == 2  # its own vehicle: no CA_ROTOR* parameters either
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "CA_ROTOR_COUNT" in err[0]
+
+
+def test_not_a_ulog_is_refused(tmp_path, capsys):
+    fake = tmp_path / "fake.ulg"
+    fake.write_text("hello")
+    assert main(["identify", str(fake), "--vehicle", "omnirotor"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a ULog" in err[0]
+    out = tmp_path / "w.png"
+    assert main(["hover-windows", str(fake), "--vehicle", "omnirotor", "--out", str(out)]) == 2
+    assert not out.exists()
