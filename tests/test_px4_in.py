@@ -6,14 +6,13 @@ import math
 import numpy as np
 import pytest
 
+from conftest import SHARED
 from omnirotor.cli import main
 from omnirotor.errors import InputError
 from omnirotor.px4.airframe import read_airframe_params, vehicle_from_px4_params
 from omnirotor.px4.frames import R_WB_from_px4_quat, px4_quat_from_R_WB, vec_from_px4
 from omnirotor.so3 import R_from_rpy, rot_x, rot_z
 from omnirotor.vehicle import load_vehicle
-
-from conftest import SHARED
 
 PX4 = SHARED / "data" / "px4"
 EVENTS = PX4 / "sample_px4_events.ulg"
@@ -207,7 +206,10 @@ def test_log_without_rotor_speeds_is_refused(capsys):
     assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no rotor speeds" in err[0] and "esc_status" in err[0]
-    assert main(["identify", str(path)]) == 2  # its own vehicle: no CA_ROTOR* parameters either
+    assert main(["identify", str(path)]) == 2  # with the log's own vehicle, the speeds are named first
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no rotor speeds" in err[0]
+    assert main(["info", "--vehicle", str(path)]) == 2  # and it has no CA_ROTOR* parameters either
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "CA_ROTOR_COUNT" in err[0]
 
@@ -221,3 +223,67 @@ def test_not_a_ulog_is_refused(tmp_path, capsys):
     out = tmp_path / "w.png"
     assert main(["hover-windows", str(fake), "--vehicle", "omnirotor", "--out", str(out)]) == 2
     assert not out.exists()
+
+
+def _write_log(path, with_attitude=True, with_esc=False, with_motors=False):
+    from omnirotor.px4.ulog_writer import ULogWriter
+
+    n, ts = 400, np.arange(400, dtype=np.uint64) * 10_000  # 4 s at 100 Hz, level hover
+    w = ULogWriter()
+    if with_attitude:
+        att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
+        att["timestamp"], att["q"][:, 0] = ts, 1.0
+        w.add_topic("vehicle_attitude", att)
+    if with_esc:
+        rep = np.dtype([("timestamp", "<u8"), ("esc_rpm", "<i4")])
+        esc = np.zeros(n, dtype=[("timestamp", "<u8"), ("esc", rep, (4,))])
+        esc["timestamp"], esc["esc"]["esc_rpm"] = ts, 6000
+        w.add_topic("esc_status", esc, {"esc": "esc_report"})
+    if with_motors:
+        am = np.zeros(n, dtype=[("timestamp", "<u8"), ("control", "<f4", (12,))])
+        am["timestamp"], am["control"][:, :4], am["control"][:, 4:] = ts, 0.25, np.nan
+        w.add_topic("actuator_motors", am)
+    w.write(path)
+
+
+def test_log_without_attitude_is_refused(tmp_path, capsys):
+    path = tmp_path / "noatt.ulg"
+    _write_log(path, with_attitude=False, with_esc=True)
+    assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no attitude" in err[0] and "vehicle_attitude" in err[0]
+
+
+def test_speeds_from_actuator_motors_are_mapped_and_said(tmp_path, capsys):
+    from omnirotor.px4.flight import read_flight
+
+    path = tmp_path / "motors.ulg"
+    _write_log(path, with_motors=True)
+    flight = read_flight(path, 4, omega_max_hz=200.0)
+    assert flight.speed_source == "actuator_motors"
+    np.testing.assert_allclose(flight.omega_hz.x, 100.0)  # sqrt(0.25) x 200 Hz
+    png = tmp_path / "w.png"
+    assert main(["hover-windows", str(path), "--vehicle", "quadrotor", "--out", str(png)]) == 0
+    err = capsys.readouterr().err
+    assert "actuator_motors" in err and "sqrt" in err
+    assert png.is_file()
+
+
+def test_esc_rpm_is_hz_times_60(tmp_path):
+    from omnirotor.px4.flight import read_flight
+
+    path = tmp_path / "esc.ulg"
+    _write_log(path, with_esc=True)
+    np.testing.assert_allclose(read_flight(path, 4).omega_hz.x, 100.0)  # 6000 rpm
+
+
+def test_cli_start_does_not_import_pyulog_or_mcap():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, omnirotor.cli as c; c._register(); "
+        "bad = [m for m in ('pyulog', 'mcap') if m in sys.modules]; print(bad); sys.exit(1 if bad else 0)"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=None)
+    assert r.returncode == 0, r.stdout + r.stderr

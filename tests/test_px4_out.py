@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from conftest import SHARED
 
+from conftest import SHARED
 from omnirotor.cli import main
 from omnirotor.errors import InputError
 from omnirotor.px4.ulog_writer import ULogWriter
@@ -58,7 +58,7 @@ def test_vehicle_round_trips_through_px4_parameters():
     for name in ("omnirotor", "quadrotor", "hexarotor-tilted"):
         v = load_vehicle(name)
         back, assumed = vehicle_from_px4_params(px4_params_of(v), name, name)
-        assert assumed == ["propeller_diameter = 0.2032"]
+        assert assumed == []
         np.testing.assert_allclose(back.A_nom, v.A_nom, rtol=1e-12, atol=1e-15)
         assert (back.mass, back.omega_min_hz, back.p_E_B) == (v.mass, v.omega_min_hz, v.p_E_B)
 
@@ -103,20 +103,24 @@ def test_identify_from_the_runs_ulog_recovers_the_csv(identification_flight, cap
     for j in range(6):
         k = int(np.argmax(f_ulg @ f_csv[j]))
         angle = math.degrees(math.acos(min(1.0, float(f_ulg[k] @ f_csv[j]))))
-        assert angle < 0.2, (j, angle)  # same attitude (up direction) within 0.2 deg
-        # same inputs: the windows differ from the schedule's (automatic start, 100 Hz samples, rpm integers)
+        assert angle < 0.05, (j, angle)  # same attitude (up direction); measured <= 0.02 deg
+        # Same inputs within 0.3 % (measured <= 0.11 %, <= 0.17 Hz): the automatic window starts when the
+        # transition ends, the schedule's average 1 s later (rotors still settling); the ULog holds 100 Hz
+        # samples of whole rpm, the CSV the 1 kHz speeds.
         du = np.abs(ulg.u_hz2[k] - csv.u_hz2[j]).max() / np.abs(csv.u_hz2[j]).max()
-        assert du < 0.01, (j, du)
+        assert du < 3e-3, (j, du)
         assert pts.windows[k].t1_s - pts.windows[k].t0_s > 1.5
     maps_csv = identify(csv, vehicle)
     maps_ulg = identify(ulg, vehicle)
-    # each map explains the other's data as well as its own, within 0.05 N of force residual
+    # The ULog's map explains the CSV's points within 5 mN of the CSV's own map (measured 15 vs 17 mN; the
+    # nominal map: 1.9 N). The entries themselves may differ by up to the box (2 Δ): 6 points pin down only
+    # the force rows on the hover directions, the rest is set by the tie-breaker.
     from omnirotor.identification import force_residual_rms
 
     r_own = force_residual_rms(csv, maps_csv.global_.A)
     r_cross = force_residual_rms(csv, maps_ulg.global_.A)
     r_nom = force_residual_rms(csv, vehicle.A_nom)
-    assert r_cross < r_own + 0.05 < r_nom, (r_own, r_cross, r_nom)
+    assert r_cross < r_own + 0.005 and 20 * r_cross < r_nom, (r_own, r_cross, r_nom)
     # and the command line identifies the run's ULog with the vehicle stored in it (OMR_* parameters)
     assert main(["identify", str(out / "run.ulg"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
@@ -201,9 +205,9 @@ def test_px4_omnicopter_hovers_and_holds_30_deg():
     from omnirotor.control.estimator import EstimatorParams
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
     from omnirotor.experiments.closed_loop import run_closed_loop, run_log
-    from omnirotor.so3 import log_so3, rot_x
     from omnirotor.sim import SimParams, Simulator
     from omnirotor.sim.params import AeroParams
+    from omnirotor.so3 import log_so3, rot_x
 
     if not OMNICOPTER.is_file():
         pytest.skip(f"PX4 airframe not found at {OMNICOPTER}")
@@ -224,3 +228,27 @@ def test_px4_omnicopter_hovers_and_holds_30_deg():
     err = [math.degrees(np.linalg.norm(log_so3(R1.T @ Rk))) for Rk in R_true[held]]
     assert max(err) < 0.5, max(err)
     assert run_log(ctl_log, truth_log).t.size == 5000
+
+
+@pytest.mark.slow
+def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, capsys):
+    if not OMNICOPTER.is_file():
+        pytest.skip(f"PX4 airframe not found at {OMNICOPTER}")
+    overlay = tmp_path / "o.toml"
+    overlay.write_text("mass = 1.8\nomega_max_hz = 240.0\n")
+    ulg, mc = tmp_path / "r.ulg", tmp_path / "r.mcap"
+    args = ["run", "hover", "--vehicle", str(OMNICOPTER), "--vehicle-overlay", str(overlay), "--duration", "1.5"]
+    assert main([*args, "--ulog", str(ulg), "--mcap", str(mc), "--json"]) == 0
+    out = capsys.readouterr()
+    rep = json.loads(out.out)
+    assert rep["ee_max_error"]["z_cm"] < 1.0
+    assert "assumed" in out.err and "mass =" not in out.err
+    back = load_vehicle(str(ulg))  # the log carries the overlay's values
+    assert back.mass == pytest.approx(1.8) and back.omega_max_hz == pytest.approx(240.0)
+    assert mc.stat().st_size > 0
+    capsys.readouterr()
+    # bad export names: one line, exit 2, nothing flown or written
+    bad = tmp_path / "r.txt"
+    assert main([*args, "--ulog", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--ulog" in err[0] and not bad.exists()

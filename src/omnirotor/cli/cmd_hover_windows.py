@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -27,8 +28,8 @@ def hover_windows_cmd(
 ) -> None:
     """Find steady hover windows in a PX4 log; plot them and write one hover point per window."""
     from omnirotor.identification import write_csv
-    from omnirotor.px4.flight import read_flight
-    from omnirotor.px4.windows import WindowCriteria, hover_points, plot_windows
+    from omnirotor.px4.flight import check_flight_log, read_flight
+    from omnirotor.px4.windows import ACTUATOR_MOTORS_NOTE, WindowCriteria, hover_points, plot_windows
     from omnirotor.vehicle import load_vehicle
 
     if out.suffix.lower() != ".png":
@@ -41,11 +42,12 @@ def hover_windows_cmd(
     )
     if log.suffix.lower() != ".ulg":
         raise InputError(f"{log}: expected a PX4 flight log (.ulg)")
+    check_flight_log(log)
     veh = load_vehicle(vehicle if vehicle is not None else str(log), vehicle_overlay)
     flight = read_flight(log, veh.n_rotors, veh.omega_max_hz)
     pts = hover_points(flight, criteria)
-    import sys
-
+    if flight.speed_source == "actuator_motors":
+        print(f"omnirotor: {log.name}: {ACTUATOR_MOTORS_NOTE.format(omega_max=veh.omega_max_hz)}", file=sys.stderr)
     for note in pts.notes:
         print(f"omnirotor: {log.name}: {note}", file=sys.stderr)
     plot_windows(flight, pts, out)

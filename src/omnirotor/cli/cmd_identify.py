@@ -84,6 +84,10 @@ def identify_cmd(
         raise InputError(f"--out {out}: is a folder")
     if vehicle is None:  # a PX4 log carries its own rotor geometry
         vehicle = next((str(d) for d in data if d.suffix.lower() == ".ulg"), "omnirotor")
+        if vehicle.endswith((".ulg", ".ULG")):
+            from omnirotor.px4.flight import check_flight_log
+
+            check_flight_log(vehicle)  # name missing attitude or rotor speeds before missing geometry
     veh = load_vehicle(vehicle, vehicle_overlay)
     part = load_partition(partition)
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))

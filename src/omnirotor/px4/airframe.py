@@ -11,8 +11,8 @@ parameters. PX4's effectiveness of rotor i is ``f = ct a``, ``m = ct p × a − 
 
 PX4 stores no mass, inertia, thrust coefficient in SI or rotor-speed limits (``CA_ROTORn_CT`` is in normalised
 units). Those come from a TOML overlay (keys of the vehicle file except ``rotor``), from ``OMR_*`` parameters
-(which our own simulated logs add) and otherwise from the defaults :data:`PX4_DEFAULTS`; the inertia defaults to the mass spread equally over the rotor positions.
-What was assumed is returned, and the caller says it on stderr.
+(which our own simulated logs add) and otherwise from the defaults :data:`PX4_DEFAULTS`; the inertia defaults to
+the mass spread equally over the rotor positions. What was assumed is returned, and the caller says it on stderr.
 """
 
 from __future__ import annotations
@@ -212,6 +212,7 @@ _OMR = {
     "OMR_WMAX": "omega_max_hz",
     "OMR_WMIN": "omega_min_hz",
     "OMR_G": "gravity",
+    "OMR_PROP_D": "propeller_diameter",
 }
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from omnirotor.errors import InputError
 from omnirotor.px4.frames import R_WB_from_px4_quat, vec_from_px4
 
-__all__ = ["Flight", "read_flight", "read_ulog_params", "open_ulog"]
+__all__ = ["Flight", "read_flight", "check_flight_log", "read_ulog_params", "open_ulog"]
 
 _TOPICS = [
     "vehicle_attitude",
@@ -119,6 +119,35 @@ def _stack(d, fmt: str, count: int) -> np.ndarray:
     return np.column_stack([d.data[fmt.format(i)].astype(float) for i in range(count)])
 
 
+def _require(ulog, p: Path, need_omega_max: bool):
+    """The attitude, ESC and motor topics of a log; refuses a log without attitude or rotor speeds."""
+    att = _topic(ulog, "vehicle_attitude")
+    if att is None or len(att.data["timestamp"]) < 2:
+        raise InputError(f"{p}: no attitude in the log (topic vehicle_attitude missing)")
+    esc = _topic(ulog, "esc_status")
+    if esc is not None and ("esc[0].esc_rpm" not in esc.data or len(esc.data["timestamp"]) < 2):
+        esc = None
+    motors = _topic(ulog, "actuator_motors")
+    if motors is not None and len(motors.data["timestamp"]) < 2:
+        motors = None
+    if esc is None and (motors is None or need_omega_max):
+        raise InputError(
+            f"{p}: no rotor speeds in the log (topic esc_status with esc_rpm missing"
+            + ("" if motors is None else "; actuator_motors needs the vehicle's omega_max_hz")
+            + ")"
+        )
+    return att, esc, motors
+
+
+def check_flight_log(path: str | Path) -> None:
+    """Refuse, before anything else is read, a file that is not a ULog or has no attitude or rotor speeds.
+
+    Rotor speeds from ``actuator_motors`` count (the vehicle's ``omega_max_hz`` maps them later).
+    """
+    p = Path(path)
+    _require(open_ulog(p, ["vehicle_attitude", "esc_status", "actuator_motors"]), p, need_omega_max=False)
+
+
 def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: float | None = None) -> Flight:
     """Read what identification needs from a ULog.
 
@@ -134,33 +163,23 @@ def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: flo
     ulog = open_ulog(p, _TOPICS)
     t0 = int(ulog.start_timestamp)
     params = dict(ulog.initial_parameters)
-    att = _topic(ulog, "vehicle_attitude")
-    if att is None or len(att.data["timestamp"]) < 2:
-        raise InputError(f"{p}: no attitude in the log (topic vehicle_attitude missing)")
+    att, esc, motors = _require(ulog, p, need_omega_max=omega_max_hz is None)
     R = Series(_time(att, t0), R_WB_from_px4_quat(_stack(att, "q[{}]", 4)))
     if n_rotors is None and "CA_ROTOR_COUNT" in params:
         n_rotors = int(params["CA_ROTOR_COUNT"])
-    esc = _topic(ulog, "esc_status")
-    motors = _topic(ulog, "actuator_motors")
-    if esc is not None and "esc[0].esc_rpm" in esc.data and len(esc.data["timestamp"]) >= 2:
+    if esc is not None:
         n_esc = sum(1 for k in esc.data if k.startswith("esc[") and k.endswith("].esc_rpm"))
         n = n_esc if n_rotors is None else n_rotors
         if n > n_esc:
             raise InputError(f"{p}: esc_status reports {n_esc} ESCs, the vehicle has {n} rotors")
         omega = Series(_time(esc, t0), _stack(esc, "esc[{}].esc_rpm", n) / 60.0)
         source = "esc_status"
-    elif motors is not None and omega_max_hz is not None and len(motors.data["timestamp"]) >= 2:
+    else:
         n = n_rotors or sum(1 for k in motors.data if k.startswith("control["))
         c = _stack(motors, "control[{}]", n)
         c = np.where(np.isfinite(c), c, 0.0)  # PX4 logs NaN for a disarmed motor
         omega = Series(_time(motors, t0), np.sign(c) * np.sqrt(np.abs(c)) * omega_max_hz)
         source = "actuator_motors"
-    else:
-        raise InputError(
-            f"{p}: no rotor speeds in the log (topic esc_status with esc_rpm missing"
-            + ("" if motors is None else ", and actuator_motors needs the vehicle's omega_max_hz")
-            + ")"
-        )
     lp = _topic(ulog, "vehicle_local_position")
     p_W = v_W = a_W = None
     if lp is not None and len(lp.data["timestamp"]) >= 2:

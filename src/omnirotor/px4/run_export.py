@@ -18,6 +18,7 @@ omnirotor_reference, /reference          compliant and desired EE references, wo
 omnirotor_wrench, /wrench                estimated external wrench (observer), true contact wrench,
                                          controller wrench reference
 omnirotor_contact, /contact              true contact flag, map region index, controller status bits
+vehicle_status                           armed, offboard, rotary wing (for Flight Review's flight modes)
 (parameters CA_*, OMR_*), /scene         the vehicle (PX4's CA_* plus OMR_* for what PX4 lacks); MCAP: the
                                          scene's geometry as a foxglove.SceneUpdate
 =======================================  ===================================================================
@@ -141,6 +142,7 @@ def px4_params_of(vehicle: VehicleParams) -> dict[str, float | int]:
         "OMR_EE_Y": vehicle.p_E_B[1],
         "OMR_EE_Z": vehicle.p_E_B[2],
         "OMR_G": vehicle.gravity,
+        "OMR_PROP_D": vehicle.propeller_diameter,
     }
     out.update({k: float(v) for k, v in ours.items()})
     return out
@@ -194,6 +196,9 @@ def write_run_ulog(path: str | Path, s: RunSignals, vehicle: VehicleParams, task
             r[k] = True
         return r
 
+    vs = _rows(N, [("arming_state", "u1"), ("nav_state", "u1"), ("vehicle_type", "u1"), ("is_vtol", "bool")])
+    vs["timestamp"], vs["arming_state"], vs["nav_state"], vs["vehicle_type"] = ts, 2, 14, 1  # armed, offboard, rotary
+    w.add_topic("vehicle_status", vs)
     w.add_topic("vehicle_attitude", attitude(s.R_WB))
     w.add_topic("vehicle_local_position", local_position(s.p_W, s.v_W, s.a_W))
     w.add_topic("vehicle_attitude_groundtruth", attitude(s.R_true_WB))

@@ -1,7 +1,7 @@
 """A small ULog writer, from PX4's "ULog File Format" specification (version 1).
 
-A file is a 16-byte header (magic ``ULog`` and bytes 0x01 0x12 0x35, version 1, start time [µs]), the definitions section
-(flag bits 'B', formats 'F' ``name:type field;...``, information 'I' and parameters 'P', each a key
+A file is a 16-byte header (magic ``ULog`` and bytes 0x01 0x12 0x35, version 1, start time [µs]), the
+definitions section (flag bits 'B', formats 'F' ``name:type field;...``, information 'I' and parameters 'P', each a key
 ``"type name"`` and its little-endian value), then the data section: 'A' (add logged message: multi id, message
 id, format name) and 'D' (message id, then the packed fields, ``uint64_t timestamp`` [µs] first). Every message
 starts with ``uint16 msg_size`` (bytes after the 3-byte header) and ``uint8 msg_type``.

@@ -48,6 +48,12 @@ __all__ = [
 ]
 
 
+ACTUATOR_MOTORS_NOTE = (
+    "no esc_rpm in the log: rotor speeds mapped from actuator_motors as sign(c) sqrt(|c|) x {omega_max:g} Hz"
+)
+"""What is said on stderr when rotor speeds come from ``actuator_motors`` (:mod:`omnirotor.px4.flight`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class WindowCriteria:
     """Criteria of a steady hover window (module docstring).
@@ -262,7 +268,8 @@ def plot_windows(flight: Flight, points: HoverPoints, path: str | Path) -> None:
         ax.plot(flight.omega_B.t, np.linalg.norm(flight.omega_B.x, axis=1), lw=0.6, label="|omega_B| [rad/s]")
     ax.set_ylabel("motion")
     ax.set_xlabel("time since log start [s]")
-    ax.legend(fontsize=7, loc="upper left")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="upper left")
     for a in axes:
         for w in points.windows:
             a.axvspan(w.t0_s, w.t1_s, color="tab:green", alpha=0.2, lw=0)
@@ -295,11 +302,7 @@ def load_ulog(path: str | Path, vehicle, criteria: WindowCriteria | None = None)
     pts = hover_points(flight, criteria)
     notes = list(pts.notes)
     if flight.speed_source == "actuator_motors":
-        notes.insert(
-            0,
-            f"no esc_rpm in the log: rotor speeds mapped from actuator_motors as sign(c) sqrt(|c|) x "
-            f"{vehicle.omega_max_hz:g} Hz",
-        )
+        notes.insert(0, ACTUATOR_MOTORS_NOTE.format(omega_max=vehicle.omega_max_hz))
     if not pts.windows:
         raise InputError(f"{p}: no steady hover window found (criteria: {criteria or WindowCriteria()})")
     spans = ", ".join(f"{w.t0_s:.1f}-{w.t1_s:.1f}" for w in pts.windows[:8]) + (" ..." if len(pts.windows) > 8 else "")
