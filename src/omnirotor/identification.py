@@ -289,7 +289,7 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
         if p.is_dir():
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv", ".ulg"))
             if not found:
-                raise InputError(f"{p}: folder holds no .mat, .csv or .ulg hover data")
+                raise InputError(f"{p}: folder holds no .mat or .csv or .ulg hover data")
             files.extend(found)
         elif p.exists():
             files.append(p)

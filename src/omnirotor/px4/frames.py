@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from omnirotor.so3 import quat_wxyz_from_R
+from omnirotor.so3 import R_from_quat_wxyz, quat_wxyz_from_R
 
 __all__ = ["D_FLIP", "vec_from_px4", "R_WB_from_px4_quat", "px4_quat_from_R_WB"]
 
@@ -35,20 +35,9 @@ def R_WB_from_px4_quat(q_wxyz: np.ndarray) -> np.ndarray:
 
     With ``D = diag(1, -1, -1)``, ``R_WB = D R_NF D``; in quaternion terms (w, x, -y, -z).
     """
-    q = np.atleast_2d(np.asarray(q_wxyz, dtype=float))
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q[:, 0], q[:, 1], -q[:, 2], -q[:, 3]
-    R = np.empty((q.shape[0], 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - w * z)
-    R[:, 0, 2] = 2 * (x * z + w * y)
-    R[:, 1, 0] = 2 * (x * y + w * z)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - w * x)
-    R[:, 2, 0] = 2 * (x * z - w * y)
-    R[:, 2, 1] = 2 * (y * z + w * x)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
+    q = np.array(np.atleast_2d(q_wxyz), dtype=float)
+    q[:, 2:] *= -1.0
+    return np.array([R_from_quat_wxyz(qi) for qi in q]).reshape(-1, 3, 3)
 
 
 def px4_quat_from_R_WB(R_WB: np.ndarray) -> np.ndarray:
