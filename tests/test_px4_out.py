@@ -252,3 +252,18 @@ def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, caps
     assert main([*args, "--ulog", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--ulog" in err[0] and not bad.exists()
+
+
+def test_scene_update_holds_the_pipe_as_a_cylinder_along_x():
+    from omnirotor.px4.run_export import scene_entities
+    from omnirotor.sim.params import SceneParams
+    from omnirotor.so3 import R_from_quat_wxyz
+
+    params = SceneParams()
+    (entity,) = scene_entities(load_vehicle("omnirotor"), "pipe", params)
+    (cyl,) = entity["cylinders"]
+    assert cyl["size"]["x"] == pytest.approx(1.1)  # diameter of the 0.55 m pipe
+    o = cyl["pose"]["orientation"]
+    axis = R_from_quat_wxyz([o["w"], o["x"], o["y"], o["z"]])[:, 2]
+    assert abs(axis[0]) == pytest.approx(1.0)  # Foxglove's cylinder axis (local z) along world x
+    assert len(entity["cubes"]) == 1  # the floor; nothing of the vehicle

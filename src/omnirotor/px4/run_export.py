@@ -347,27 +347,31 @@ def _pose_json(p: np.ndarray, q_wxyz: np.ndarray) -> dict:
 
 
 def scene_entities(vehicle: VehicleParams, scene: str, scene_params) -> list[dict]:
-    """The scene's fixed geometry (world-body geoms of its MuJoCo model) as foxglove SceneEntity primitives."""
+    """The scene's fixed geometry (geoms welded to the world in its MuJoCo model) as foxglove primitives."""
     import mujoco
 
     from omnirotor.sim.model import build_mjcf
+    from omnirotor.so3 import quat_wxyz_from_R
 
     m = mujoco.MjModel.from_xml_string(build_mjcf(vehicle, scene, scene_params, 1e-3))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
     cubes, cylinders, spheres = [], [], []
     G = mujoco.mjtGeom
     for g in range(m.ngeom):
-        if m.geom_bodyid[g] != 0:
+        if m.body_weldid[m.geom_bodyid[g]] != 0:  # only what is welded to the world: not the vehicle
             continue
-        pos, quat, size = m.geom_pos[g], m.geom_quat[g], m.geom_size[g]
+        pos, size = d.geom_xpos[g], m.geom_size[g]
+        quat = quat_wxyz_from_R(d.geom_xmat[g].reshape(3, 3))
         color = {k: float(v) for k, v in zip("rgba", m.geom_rgba[g], strict=True)}
         pose = _pose_json(pos, quat)
-        kind = m.geom_type[g]
-        if kind == G.mjGEOM_BOX:
+        kind = int(m.geom_type[g])
+        if kind == int(G.mjGEOM_BOX):
             cubes.append({"pose": pose, "size": dict(zip("xyz", map(float, 2 * size), strict=True)), "color": color})
-        elif kind == G.mjGEOM_PLANE:
+        elif kind == int(G.mjGEOM_PLANE):
             extent = [float(2 * size[0]) or 10.0, float(2 * size[1]) or 10.0, 0.001]
             cubes.append({"pose": pose, "size": dict(zip("xyz", extent, strict=True)), "color": color})
-        elif kind in (G.mjGEOM_CYLINDER, G.mjGEOM_CAPSULE):
+        elif kind in (int(G.mjGEOM_CYLINDER), int(G.mjGEOM_CAPSULE)):
             d = float(2 * size[0])
             cylinders.append(
                 {
@@ -378,7 +382,7 @@ def scene_entities(vehicle: VehicleParams, scene: str, scene_params) -> list[dic
                     "color": color,
                 }
             )
-        elif kind == G.mjGEOM_SPHERE:
+        elif kind == int(G.mjGEOM_SPHERE):
             d = float(2 * size[0])
             spheres.append({"pose": pose, "size": {"x": d, "y": d, "z": d}, "color": color})
     return [
