@@ -287,3 +287,54 @@ def test_cli_start_does_not_import_pyulog_or_mcap():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=None)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _synthetic_flight(R_of_t, omega_of_t, duration=12.0, rate_hz=100.0):
+    """A Flight sampled at rate_hz: attitude and speeds from functions of time, body rate from the attitude."""
+    from omnirotor.px4.flight import Flight, Series
+    from omnirotor.so3 import log_so3
+
+    t = np.arange(0.0, duration, 1.0 / rate_hz)
+    R = np.array([R_of_t(x) for x in t])
+    w = np.array([log_so3(R[k].T @ R[min(k + 1, t.size - 1)]) * rate_hz for k in range(t.size)])
+    omega = np.array([omega_of_t(x) for x in t])
+    zeros = np.zeros((t.size, 3))
+    return Flight(
+        "synthetic", Series(t, R), Series(t, omega), "esc_status", None, Series(t, zeros), None, Series(t, w), None, {}
+    )
+
+
+def test_windows_split_at_rotations_and_average_signed_inputs():
+    from omnirotor.px4.windows import hover_points
+
+    def angle(x):  # level until 4 s, rotate 20 deg about x in 2 s (0.17 rad/s), hold
+        return math.radians(20.0) * min(max((x - 4.0) / 2.0, 0.0), 1.0)
+
+    def speeds(x):
+        return np.array([100.0, -60.0, 80.0, 90.0]) if x < 5.0 else np.array([110.0, -40.0, 85.0, 95.0])
+
+    pts = hover_points(_synthetic_flight(lambda x: rot_x(angle(x)), speeds))
+    assert len(pts.windows) == 2
+    (a, b) = pts.windows
+    assert a.t0_s < 0.3 and 3.5 < a.t1_s <= 4.0 and 6.0 <= b.t0_s < 6.5 and b.t1_s > 11.6
+    np.testing.assert_allclose(pts.R_WB[1], rot_x(math.radians(20.0)), atol=1e-9)
+    np.testing.assert_allclose(pts.u_hz2[0], [1e4, -3600.0, 6400.0, 8100.0], rtol=1e-6)  # |w| w, sign kept
+    np.testing.assert_allclose(pts.omega_hz[1], [110.0, -40.0, 85.0, 95.0], rtol=1e-6)
+
+
+def test_slow_drift_and_speed_steps_cut_windows():
+    from omnirotor.px4.windows import WindowCriteria, hover_points
+
+    # a 0.5 deg/s yaw drift stays under the rate limit, so the 3 deg drift limit cuts every 6 s
+    drift = _synthetic_flight(lambda x: rot_z(math.radians(0.5 * x)), lambda x: np.full(4, 100.0), duration=13.0)
+    pts = hover_points(drift)
+    assert len(pts.windows) == 2 and all(5.3 < w.t1_s - w.t0_s < 6.1 for w in pts.windows)
+    # a 10 % step of one rotor's speed is beyond the 5 % spread: two windows, none across the step
+    step = _synthetic_flight(lambda x: np.eye(3), lambda x: np.array([100.0, 100, 100, 110 if x > 6 else 100]))
+    pts = hover_points(step, WindowCriteria(cutoff_hz=5.0))
+    assert len(pts.windows) == 2 and pts.windows[0].t1_s < 5.85 and pts.windows[1].t0_s > 6.15
+    # trimmed past the low-pass's smear of the step, each window averages one level (the Butterworth's ringing
+    # beyond 0.2 s leaves 2e-5); without the trim the smear enters ten times more
+    np.testing.assert_allclose(pts.u_hz2[:, 3], [100.0**2, 110.0**2], rtol=5e-5)
+    untrimmed = hover_points(step, WindowCriteria(trim_s=0.0))
+    assert np.abs(untrimmed.u_hz2[:, 3] / [100.0**2, 110.0**2] - 1).max() > 2e-4

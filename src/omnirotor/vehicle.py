@@ -264,7 +264,7 @@ def load_vehicle(spec: str | Path = "omnirotor", overlay: str | Path | None = No
         if not p.suffix and not p.exists():
             raise InputError(f"unknown vehicle preset {text!r}; presets: {', '.join(preset_names())}")
         if _is_px4_source(p):
-            return _load_px4_vehicle(str(p), None if overlay is None else str(overlay))
+            return _load_px4_vehicle(str(p), None if overlay is None else str(overlay), _stamp(p), _stamp(overlay))
         if overlay is not None:
             raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
         data = load_toml(p)
@@ -287,9 +287,17 @@ def _is_px4_source(p: Path) -> bool:
     return is_airframe_file(p)
 
 
+def _stamp(path: str | Path | None) -> int:
+    """Modification time [ns] of a file (0 when absent): part of the cache key of :func:`_load_px4_vehicle`."""
+    try:
+        return Path(path).stat().st_mtime_ns if path is not None else 0
+    except OSError:
+        return 0
+
+
 @functools.lru_cache(maxsize=16)
-def _load_px4_vehicle(path: str, overlay: str | None) -> VehicleParams:
-    """A vehicle from a PX4 airframe file or ULog; says the assumed values on stderr (once: cached)."""
+def _load_px4_vehicle(path: str, overlay: str | None, _mtime: int, _overlay_mtime: int) -> VehicleParams:
+    """A vehicle from a PX4 airframe file or ULog; says the assumed values on stderr (once per file version)."""
     import sys
 
     from omnirotor.px4.airframe import load_overlay, read_airframe_params, vehicle_from_px4_params

@@ -14,8 +14,8 @@ speed. On a uniform time grid (``grid_hz``), a sample is *steady* when
 
 Each run of steady samples is cut greedily into windows in which the attitude stays within ``drift_max_deg``
 of the window's first attitude and every rotor speed within ``spread_frac`` × (mean |omega|) (at least
-``spread_min_hz``) of its running window mean. Windows shorter than ``min_duration_s`` are dropped, and
-``trim_s`` is cut from both ends of the rest.
+``spread_min_hz``) of its running window mean. ``trim_s`` is cut from both ends of each window, and windows
+shorter than ``min_duration_s`` are dropped.
 
 Rotor speeds are first smoothed by a zero-phase 4th-order Butterworth at ``cutoff_hz`` = 5 Hz (SPEC §3.1);
 rates and accelerations likewise. A signal sampled too slowly for the filter (below 2.5 × cutoff) is used
@@ -67,7 +67,8 @@ class WindowCriteria:
         spread_min_hz: floor of that deviation [Hz].
         spin_fraction: the mean |omega| must exceed this fraction of its 95th percentile over the flight.
         min_duration_s: shortest window [s].
-        trim_s: cut from both ends of a window [s].
+        trim_s: cut from both ends of a window [s]; 0.2 s is about the settling time of the 5 Hz low-pass,
+            so a window does not average the filter's smear of the change that ended or began it.
         cutoff_hz: zero-phase low-pass cutoff [Hz] (SPEC §3.1: 5 Hz, 4th order).
         grid_hz: rate of the grid the criteria are evaluated on [Hz].
     """
@@ -80,7 +81,7 @@ class WindowCriteria:
     spread_min_hz: float = 1.0
     spin_fraction: float = 0.5
     min_duration_s: float = 1.0
-    trim_s: float = 0.0
+    trim_s: float = 0.2
     cutoff_hz: float = 5.0
     grid_hz: float = 50.0
 
