@@ -9,11 +9,11 @@ What is read (PX4 topic → ours):
 * ``sensor_combined.gyro_rad`` (FRD) → ``omega_B`` [rad/s], else ``vehicle_angular_velocity.xyz``: optional;
 * ``vehicle_land_detected.landed``: optional.
 
-Rotor speeds from ``actuator_motors`` (when no ESC reports rpm): PX4's control allocator outputs a normalised
-thrust command ``c`` in [0, 1] (in [-1, 1] for reversible rotors). With PX4's default thrust model
-(``THR_MDL_FAC`` = 0) the thrust is proportional to ``c`` and to the squared speed, so we take
-``omega = sign(c) sqrt(|c|) omega_max`` with the vehicle's ``omega_max_hz``. It assumes that full command is full
-speed and no idle offset; the caller says on stderr that it was used.
+Rotor speeds from ``actuator_motors`` (when no ESC reports rpm): PX4's control allocator writes there each
+motor's normalised thrust ``c`` in [0, 1] (in [-1, 1] for reversible rotors), before the output stage applies
+its thrust curve (``THR_MDL_FAC``). With thrust proportional to the squared speed and full thrust at the
+vehicle's ``omega_max_hz``, ``omega = sign(c) sqrt(|c|) omega_max``. It ignores idle speed, the thrust curve's
+calibration and motor dynamics; the caller says on stderr that it was used.
 """
 
 from __future__ import annotations
