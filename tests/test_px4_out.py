@@ -71,7 +71,8 @@ def identification_flight(tmp_path_factory):
     """A short identification flight (region R1, 6 holds of 3 s): its CSV, its ULog and MCAP."""
     from omnirotor.experiments.closed_loop import run_task
     from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
-    from omnirotor.px4.run_export import run_signals, write_run_mcap, write_run_ulog
+    from omnirotor.px4.mcap_export import write_run_mcap
+    from omnirotor.px4.run_export import run_signals, write_run_ulog
 
     out = tmp_path_factory.mktemp("flight")
     proto = HoverProtocol(regions=("R1",), points_per_region=6, transition_s=2.0, hold_s=3.0)
@@ -256,7 +257,7 @@ def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, caps
 
 
 def test_scene_update_holds_the_pipe_as_a_cylinder_along_x():
-    from omnirotor.px4.run_export import scene_entities
+    from omnirotor.px4.mcap_export import scene_entities
     from omnirotor.sim.params import SceneParams
     from omnirotor.so3 import R_from_quat_wxyz
 

@@ -131,7 +131,8 @@ def run(
 
 def _export(result, options, ulog: Path | None, mcap: Path | None) -> None:
     """Write the run as ULog and/or MCAP (omnirotor.px4.run_export)."""
-    from omnirotor.px4.run_export import run_signals, write_run_mcap, write_run_ulog
+    from omnirotor.px4.mcap_export import write_run_mcap
+    from omnirotor.px4.run_export import run_signals, write_run_ulog
     from omnirotor.vehicle import load_vehicle
 
     vehicle = load_vehicle(options.vehicle)

@@ -17,7 +17,7 @@ import numpy as np
 
 from omnirotor.so3 import R_from_quat_wxyz, quat_wxyz_from_R
 
-__all__ = ["D_FLIP", "vec_from_px4", "R_WB_from_px4_quat", "px4_quat_from_R_WB"]
+__all__ = ["D_FLIP", "vec_from_px4", "R_WB_from_px4_quat", "px4_quat_from_R_WB", "quat_wxyz_of"]
 
 D_FLIP = np.diag([1.0, -1.0, -1.0])
 """Rotation by π about x: NED → NWU (world) and FRD → FLU (body); ``D_FLIP @ D_FLIP = I``."""
@@ -42,7 +42,12 @@ def R_WB_from_px4_quat(q_wxyz: np.ndarray) -> np.ndarray:
 
 def px4_quat_from_R_WB(R_WB: np.ndarray) -> np.ndarray:
     """(N, 4) PX4 quaternions (w, x, y, z, FRD → NED, w >= 0) of (N, 3, 3) attitudes ``R_WB``."""
-    Rs = np.asarray(R_WB, dtype=float).reshape(-1, 3, 3)
-    q = np.array([quat_wxyz_from_R(R) for R in Rs]).reshape(-1, 4)
+    q = quat_wxyz_of(R_WB)
     q[:, 2:] *= -1.0  # the inverse of R_WB_from_px4_quat: (w, x, y, z) -> (w, x, -y, -z)
     return q
+
+
+def quat_wxyz_of(R: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (w, x, y, z; w >= 0) of (N, 3, 3) rotation matrices (same frames)."""
+    Rs = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    return np.array([quat_wxyz_from_R(r) for r in Rs]).reshape(-1, 4)
