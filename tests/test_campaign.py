@@ -69,6 +69,8 @@ def test_draws_are_reproducible_per_run_index_and_within_the_distributions(tmp_p
     j = a[0]
     plant = j.options.plant_sim_params()
     assert plant.aero.gamma == pytest.approx(j.params["gamma"])
+    assert plant.aero.model == "spec7"  # varying SPEC §7's gamma makes SPEC §7's model the plant's truth
+    assert j.options.sim_params().aero.model == "wake"
     assert plant.scene.friction == j.params["friction"]
     assert j.options.sim_params().aero.gamma == 4.0
     other = load_campaign(tiny(tmp_path), seed=8)
@@ -226,7 +228,8 @@ def test_identify_truth_maps_follow_the_runs_interference():
 
     res = {}
     for g in (2.0, 14.0):
-        opts = ExperimentOptions(plant=PlantPerturbation(sim_overrides=(f"aero.gamma={g}",)))
+        # gamma is a parameter of SPEC §7's model: name that model as the truth
+        opts = ExperimentOptions(plant=PlantPerturbation(sim_overrides=(f"aero.gamma={g}", "aero.model=spec7")))
         maps = identify_truth_maps(opts)
         res[g] = maps
         for e in maps.regions.values():  # each region's map explains its own truth hover points

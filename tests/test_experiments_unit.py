@@ -7,7 +7,15 @@ import pytest
 
 from omnirotor.cli import main
 from omnirotor.errors import InputError
-from omnirotor.experiments.metrics import CONTACT_WINDOW_S, RunLog, contact_stats, error_stats, force_stats, pose_errors
+from omnirotor.experiments.metrics import (
+    CONTACT_WINDOW_S,
+    RunLog,
+    contact_stats,
+    error_stats,
+    force_stats,
+    high_frequency_ratio,
+    pose_errors,
+)
 from omnirotor.experiments.reproduce import claims
 from omnirotor.experiments.scenarios import (
     ScenarioParams,
@@ -142,6 +150,24 @@ def test_contact_loss_detection():
     assert not contact_stats(synthetic_log(n=3000, contact=c2), np.ones(3000, bool))["lost"]
     f = force_stats(log, log.in_contact)
     assert f["true_mean_N"] == pytest.approx([0, 3, 0]) and f["estimate_rms_error_N"] == pytest.approx(0.6)
+
+
+def test_force_hf_ratio_measures_chatter_above_20_hz_in_steady_contact():
+    t = np.arange(4000) * 1e-3
+    slow = 3.0 + 0.5 * np.sin(2 * math.pi * 5.0 * t)  # a 5 Hz swing is motion, not chatter
+    fast = 3.0 + 0.6 * np.sin(2 * math.pi * 120.0 * t)  # stick-slip at 120 Hz
+    assert high_frequency_ratio(slow, t) == pytest.approx(0.0, abs=1e-9)
+    assert high_frequency_ratio(fast, t) == pytest.approx(0.6 / math.sqrt(2) / 3.0, rel=1e-6)
+    assert high_frequency_ratio(fast[:20], t[:20]) is None  # shorter than two periods of 20 Hz
+    # in the run's contact statistics: only the steady stretch counts (0.5 s after the first touch)
+    c = np.ones(4000, bool)
+    c[:300] = False
+    log = synthetic_log(n=4000, contact=c)
+    log.f_contact_W[:, 1] = np.where(c, fast, 0.0)
+    log.f_contact_W[300:800, 1] += 5.0  # the touch-down transient lies outside the steady stretch
+    s = contact_stats(log, np.ones(4000, bool))
+    assert s["force_hf_ratio"] == pytest.approx(0.6 / math.sqrt(2) / 3.0, rel=2e-2)
+    assert contact_stats(synthetic_log(n=4000), np.ones(4000, bool))["force_hf_ratio"] == pytest.approx(0.0, abs=1e-9)
 
 
 def fake_metrics(nominal_lost=True, fz=(2.0, 0.1, 0.05)):

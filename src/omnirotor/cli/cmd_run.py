@@ -42,7 +42,7 @@ def run(
     ] = "active-set",
     estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass (truth plus noise).")] = "ukf",
     duration: Annotated[float | None, typer.Option(help="Simulated time [s]; default: the task's.")] = None,
-    truth: Annotated[str, typer.Option(help="Simulator aerodynamics: interference or nominal.")] = "interference",
+    truth: Annotated[str, typer.Option(help="Truth aerodynamics: wake, spec7 (= interference), nominal.")] = "wake",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
     set_: Annotated[

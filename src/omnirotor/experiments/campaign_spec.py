@@ -103,8 +103,8 @@ PARAMETERS: dict[str, Parameter] = {
     for p in (
         _P("mass_error", "relative error of the true mass: m_true = m (1 + e)", "", -0.9, 10.0),
         _P("inertia_error", "relative error of the true inertia (every axis): J_true = J (1 + e)", "", -0.9, 10.0),
-        _P("gamma", "inflow sensitivity of the truth interference model (SPEC §7; 4 = calibrated)", "", 0.0),
-        _P("kappa0", "isolated-rotor thrust gain of the truth model (SPEC §7; 1.18 = calibrated)", "", 1e-3),
+        _P("gamma", "inflow sensitivity of SPEC §7's truth model (4; makes SPEC §7 the truth)", "", 0.0),
+        _P("kappa0", "isolated-rotor thrust gain of SPEC §7's truth model (1.18; makes SPEC §7 the truth)", "", 1e-3),
         _P("rotor_gain_error_std", "per-rotor relative thrust-gain error, standard deviation", "", 0.0, 0.5),
         _P("rotor_tilt_error_std_deg", "per-rotor axis tilt error, standard deviation", "deg", 0.0, 30.0),
         _P("scene_offset_x", "true scene displaced along world x from the planned one", "m", tasks=CONTACT_TASKS),
@@ -273,7 +273,7 @@ class CampaignOptions:
         quick: shortened protocols.
         estimator: "ukf" or "bypass".
         solver: allocation QP backend, "active-set" (default), "daqp" or "proxsuite".
-        truth: truth aerodynamics, "interference" or "nominal".
+        truth: truth aerodynamics, "wake" (default), "spec7" / "interference" or "nominal".
         vehicle: vehicle preset or TOML file.
         duration_s: simulated time of each run [s] (None: the task's).
         zero_observer: zero the observer at the start (None: the task's default).
@@ -287,7 +287,7 @@ class CampaignOptions:
     quick: bool = False
     estimator: str = "ukf"
     solver: str = "active-set"
-    truth: str = "interference"
+    truth: str = "wake"
     vehicle: str = "omnirotor"
     duration_s: float | None = None
     zero_observer: bool | None = None
@@ -622,8 +622,8 @@ def run_options(spec: CampaignSpec, index: int) -> RunJob:
             mass = 1.0 + v
         elif name == "inertia_error":
             inertia = 1.0 + v
-        elif name in ("gamma", "kappa0"):
-            plant_over.append(f"aero.{name}={_toml_value(float(v))}")
+        elif name in ("gamma", "kappa0"):  # parameters of SPEC §7's model: that model is the run's truth
+            plant_over += [f"aero.{name}={_toml_value(float(v))}", 'aero.model="spec7"']
         elif name == "rotor_gain_error_std":
             plant_over += [
                 f"aero.gain_error_std={_toml_value(float(v))}",

@@ -62,7 +62,7 @@ __all__ = [
 _XYZ = ("x", "y", "z")
 _RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")
 _PROGRESS_UPDATES = 100
-TRUTH_MODELS = ("nominal", "interference")
+TRUTH_MODELS = ("wake", "spec7", "interference", "nominal")
 ESTIMATORS = ("ukf", "bypass")
 
 
@@ -244,7 +244,8 @@ class TaskOptions:
         estimator: "ukf" or "bypass" (ground truth plus noise).
         duration_s: simulated time [s]; None for the task's default.
         seed: simulator noise seed.
-        truth: truth aerodynamics of the simulator, "interference" (SPEC §7) or "nominal" (= A_nom u).
+        truth: truth aerodynamics of the simulator: "wake" (the calibrated rotor-wake model, default),
+            "spec7" or "interference" (SPEC §7), or "nominal" (= A_nom u).
         vehicle: vehicle preset or TOML file.
         controller_config: controller TOML file (see ``load_controller_params``), or None.
         overrides: dotted ``key=value`` overrides of the controller parameters.
@@ -255,7 +256,7 @@ class TaskOptions:
     estimator: str = "ukf"
     duration_s: float | None = None
     seed: int = 0
-    truth: str = "interference"
+    truth: str = "wake"
     vehicle: str = "omnirotor"
     controller_config: str | None = None
     overrides: tuple[str, ...] = ()

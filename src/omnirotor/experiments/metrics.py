@@ -121,16 +121,42 @@ def held_contact(in_contact: np.ndarray, t: np.ndarray, window_s: float = CONTAC
     return np.convolve(c.astype(float), np.ones(w), mode="full")[: c.size] > 0
 
 
+HF_CUTOFF_HZ = 20.0
+"""Frequency above which contact-force content counts as chatter (issue 12: a real tool tip shows little)."""
+
+
+def high_frequency_ratio(x: np.ndarray, t: np.ndarray, cutoff_hz: float = HF_CUTOFF_HZ) -> float | None:
+    """RMS of the part of ``x`` above ``cutoff_hz`` over the mean of ``x`` (zero-phase FFT split); None if too short.
+
+    Args:
+        x: (N,) samples (e.g. the true contact-force magnitude [N]).
+        t: (N,) their times [s], evenly spaced.
+        cutoff_hz: the split frequency [Hz].
+    """
+    if x.size < 8 or t.size != x.size:
+        return None
+    dt = float(np.median(np.diff(t)))
+    mean = float(np.mean(x))
+    if mean == 0.0 or x.size * dt < 2.0 / cutoff_hz:
+        return None
+    spec = np.fft.rfft(x - mean)
+    spec[np.fft.rfftfreq(x.size, dt) < cutoff_hz] = 0.0
+    hf = np.fft.irfft(spec, n=x.size)
+    return float(math.sqrt(np.mean(hf * hf)) / abs(mean))
+
+
 def contact_stats(log: RunLog, phase: np.ndarray, settle_s: float = 0.5) -> dict:
-    """Contact over the contact phase: fraction in contact, whether and when contact was lost.
+    """Contact over the contact phase: fraction in contact, whether and when contact was lost, chatter.
 
     Contact is :func:`held_contact` (touching within the last 20 ms). It counts as lost when the tip stays off
-    the surface for longer than ``settle_s`` after it first touched within the phase.
+    the surface for longer than ``settle_s`` after it first touched within the phase. ``force_hf_ratio`` is
+    :func:`high_frequency_ratio` of the true contact-force magnitude in steady contact (from ``settle_s`` after
+    the first touch to the end of the phase, or to the loss), None without such a stretch.
     """
     c = held_contact(log.in_contact, log.t)[phase]
     t = log.t[phase]
     if c.size == 0:
-        return {"fraction": 0.0, "lost": False, "first_loss_s": None, "first_contact_s": None}
+        return {"fraction": 0.0, "lost": False, "first_loss_s": None, "first_contact_s": None, "force_hf_ratio": None}
     first = int(np.argmax(c)) if c.any() else -1
     lost, first_loss = False, None
     if first >= 0:
@@ -143,11 +169,17 @@ def contact_stats(log: RunLog, phase: np.ndarray, settle_s: float = 0.5) -> dict
             if run >= need:
                 lost, first_loss = True, float(t[first + i - need + 1])
                 break
+    hf = None
+    if first >= 0:
+        steady = (t >= t[first] + settle_s) & (t < (first_loss if first_loss is not None else np.inf))
+        f = np.linalg.norm(log.f_contact_W[phase], axis=1)
+        hf = high_frequency_ratio(f[steady], t[steady])
     return {
         "fraction": float(c.mean()),
         "lost": lost,
         "first_loss_s": first_loss,
         "first_contact_s": float(t[first]) if first >= 0 else None,
+        "force_hf_ratio": hf,
     }
 
 

@@ -234,8 +234,8 @@ def write_report(path: Path, metrics: dict, figures: dict, quick: bool) -> Path:
     lines = ["# omnirotor reproduction of Veenstra et al., Drones 2026", ""]
     lines.append(
         ("**Quick run** (shortened protocols: fewer hover attitudes, shorter holds and segments). " if quick else "")
-        + "Simulation with the slipstream-interference truth model of SPEC §7 (κ0 = 1.18, γ = 4, never tuned per "
-        "experiment); the paper's numbers are from the real robot."
+        + "Simulation with the rotor-wake truth model calibrated on the authors' real hover data (docs/fidelity.md; "
+        "never tuned per experiment); the paper's numbers are from the real robot."
     )
     lines += ["", "## Claims", "", "| claim | measured here | verdict |", "|---|---|---|"]
     for c in claims(metrics):

@@ -4,8 +4,8 @@ Each kernel is the only implementation of its math, and the docstring of the mod
 the model (SPEC section cited there):
 
 * :func:`rotor_step`: the first-order speed lag of :mod:`omnirotor.sim.rotors` (SPEC §1.4);
-* :func:`interference_efficiency`, :func:`interference_wrench`: the slipstream-interference truth of
-  :mod:`omnirotor.sim.aero` (SPEC §7), on its precomputed (n, 2n) inflow matrix;
+* the truth aerodynamics' kernels live in :mod:`omnirotor.sim.aero` (the rotor-wake model and SPEC §7's
+  slipstream interference); :func:`actuate` dispatches on the model's kind;
 * :func:`apply_wrench`: body wrench to ``xfrc_applied`` (world frame, at the CoM) plus the external wrench,
   :meth:`omnirotor.sim.simulator.Simulator.step`;
 * :func:`imu_measure_into`, :func:`sense_into_frame`, :func:`mocap_push`, :func:`mocap_step`: the sensor models
@@ -39,6 +39,15 @@ from omnirotor.messages import (
     FRAME_STATE,
     FRAME_T,
 )
+from omnirotor.sim.aero import (
+    AERO_INTERFERENCE,
+    AERO_NOMINAL,
+    AERO_WAKE,
+    interference_efficiency,
+    interference_wrench,
+    pack_interference,
+    wake_wrench,
+)
 
 __all__ = [
     "rotor_step",
@@ -57,6 +66,7 @@ __all__ = [
     "actuate",
     "AERO_NOMINAL",
     "AERO_INTERFERENCE",
+    "AERO_WAKE",
     "truth_into",
     "truth_row_into",
     "TRUTH_SIZE",
@@ -120,74 +130,6 @@ def rotor_step(omega_hz, u_hz2, cmd_hz, lo: float, hi: float, alpha: float, dead
         u_hz2[i] = abs(w) * w
 
 
-def pack_interference(K2, v_coef, A_kappa, neg_eta_gain: float, eta_lo: float, eta_hi: float, n_floor: float):
-    """The (n + 8, 2n) array the interference kernels read (one argument instead of seven).
-
-    Rows ``0:n``: the inflow matrix ``K2`` (n, 2n); rows ``n:n+6``, columns ``0:n``: ``A_kappa`` (6, n);
-    row ``n+6``, columns ``0:n``: ``v_coef``; row ``n+7``: ``neg_eta_gain, eta_lo, eta_hi, n_floor``.
-    """
-    n = v_coef.shape[0]
-    model = np.zeros((n + 8, max(2 * n, 4)))
-    model[0:n, 0 : 2 * n] = K2
-    model[n : n + 6, 0:n] = A_kappa
-    model[n + 6, 0:n] = v_coef
-    model[n + 7, 0:4] = (neg_eta_gain, eta_lo, eta_hi, n_floor)
-    return model
-
-
-@jit
-def interference_efficiency(u, model, eta) -> None:
-    """Rotor efficiencies of SPEC §7 (:class:`omnirotor.sim.aero.InterferenceAero`), written into ``eta``.
-
-    ``n_i = max(sqrt|u_i|, n_floor)``, ``b = [min(s v, 0); max(s v, 0)]`` with ``s_j v_j = u_j / n_j v_coef_j``,
-    ``eta_i = clip(1 + neg_eta_gain (K2 b)_i (u_i / n_i) / n_i², eta_lo, eta_hi)`` (NaN propagates).
-
-    Args:
-        u: (n,) inputs [Hz²].
-        model: the packed model of :func:`pack_interference`.
-        eta: (n,) output.
-    """
-    n = u.shape[0]
-    v_coef = model[n + 6]
-    neg_eta_gain, eta_lo, eta_hi, n_floor = model[n + 7, 0], model[n + 7, 1], model[n + 7, 2], model[n + 7, 3]
-    b = np.empty(2 * n)
-    for j in range(n):
-        nj = math.sqrt(abs(u[j]))
-        if nj < n_floor:
-            nj = n_floor
-        t = (u[j] / nj) * v_coef[j]
-        b[j] = t if (t < 0.0 or t != t) else 0.0
-        b[n + j] = t if (t > 0.0 or t != t) else 0.0
-    for i in range(n):
-        acc = 0.0
-        for j in range(2 * n):
-            acc += model[i, j] * b[j]
-        ni = math.sqrt(abs(u[i]))
-        if ni < n_floor:
-            ni = n_floor
-        e = acc * ((u[i] / ni) / (ni * ni))
-        e = e * neg_eta_gain
-        e = e + 1.0
-        if e > eta_hi:
-            e = eta_hi
-        if e < eta_lo:
-            e = eta_lo
-        eta[i] = e
-
-
-@jit
-def interference_wrench(u, model, out) -> None:
-    """True body wrench ``A_kappa (eta * u)`` of SPEC §7 into ``out`` (6,) (model: :func:`pack_interference`)."""
-    n = u.shape[0]
-    eta = np.empty(n)
-    interference_efficiency(u, model, eta)
-    for r in range(6):
-        acc = 0.0
-        for j in range(n):
-            acc += model[n + r, j] * (eta[j] * u[j])
-        out[r] = acc
-
-
 @jit
 def apply_wrench(qpos, qp: int, w_B, ext, xfrc) -> None:
     """Rotor wrench (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
@@ -225,10 +167,6 @@ def apply_wrench(qpos, qp: int, w_B, ext, xfrc) -> None:
     xfrc[5] = Mz
 
 
-AERO_NOMINAL, AERO_INTERFERENCE = 0, 1
-"""Kinds of truth model :func:`actuate` evaluates: ``A_nom u``, or :func:`interference_wrench`."""
-
-
 @jit
 def actuate(omega_hz, u_hz2, cmd_hz, rotor_par, aero_kind: int, aero_model, qpos, qp: int, w_B, ext, xfrc) -> None:
     """The actuation of a control period in one call: :func:`rotor_step`, the truth wrench, :func:`apply_wrench`.
@@ -238,8 +176,8 @@ def actuate(omega_hz, u_hz2, cmd_hz, rotor_par, aero_kind: int, aero_model, qpos
         u_hz2: (n,) rotor inputs [Hz²], updated.
         cmd_hz: (n,) commanded speeds [Hz].
         rotor_par: (4,) ``lo, hi, alpha, dead_band_hz`` of :func:`rotor_step`.
-        aero_kind: ``AERO_NOMINAL`` (``aero_model`` is the (6, n) map) or ``AERO_INTERFERENCE`` (``aero_model``
-            from :func:`pack_interference`).
+        aero_kind: ``AERO_NOMINAL`` (``aero_model`` is the (6, n) map), ``AERO_WAKE`` (``aero_model`` from
+            :func:`omnirotor.sim.aero.pack_wake`) or ``AERO_INTERFERENCE`` (from :func:`pack_interference`).
         aero_model: see ``aero_kind``.
         qpos: MuJoCo's generalized positions.
         qp: address of the vehicle's joint in ``qpos``.
@@ -248,7 +186,9 @@ def actuate(omega_hz, u_hz2, cmd_hz, rotor_par, aero_kind: int, aero_model, qpos
         xfrc: (6,) output: the vehicle's row of ``xfrc_applied``.
     """
     rotor_step(omega_hz, u_hz2, cmd_hz, rotor_par[0], rotor_par[1], rotor_par[2], rotor_par[3])
-    if aero_kind == AERO_INTERFERENCE:
+    if aero_kind == AERO_WAKE:
+        wake_wrench(u_hz2, aero_model, w_B)
+    elif aero_kind == AERO_INTERFERENCE:
         interference_wrench(u_hz2, aero_model, w_B)
     else:
         n = u_hz2.shape[0]

@@ -1,8 +1,33 @@
-"""Truth aerodynamics of the simulator: the slipstream-interference model of SPEC §7, or ``A_nom u``.
+"""Truth aerodynamics of the simulator: the rotor-wake model (default), SPEC §7's interference, or ``A_nom u``.
 
-The model (SPEC §7 [A], calibrated on the authors' flight data): rotor j with input ``u_j`` [Hz²] has an
-isolated thrust ``T_j = kappa0 c_f |u_j|``, a disk induced speed ``v_j = sqrt(T_j / (2 rho pi R²))`` and
-a slipstream along ``d_j = -sign(u_j) z_j``. At a point ``x`` with ``r = x - p_j``, ``s = r . d_j`` and
+**Rotor-wake model** (``model = "wake"``, the default; calibrated on the authors' flight data by
+:mod:`omnirotor.sim.aero_calibration`, see ``docs/fidelity.md``). Each rotor i has the input ``u_i`` [Hz²],
+the speed ``n_i = |u_i|^(1/2)`` [rev/s] and the slipstream direction ``d_i = -sign(u_i) z_i`` (SPEC §7). For
+an ordered pair (j blows, i receives) with ``e_ji`` the unit vector from rotor j to rotor i and ``L_ij`` their
+distance, the pair's geometry and flow directions give
+
+* the aim of j's wake at i, ``a_ij = d_j . e_ji`` (only ``a_ij > 0`` counts: the wake goes towards i);
+* the side of i it reaches, ``c_ij = d_i . e_ji``: ``> +0.05`` it enters i's *intake* (i ingests j's wake,
+  like a rotor in climb: less thrust), ``< -0.05`` it meets i's *outlet* (j's wake blows against i's own
+  slipstream), otherwise it passes edge-on;
+
+and the wake's axial speed at i scales like j's induced speed, i.e. like ``n_j`` (momentum theory). With the
+propeller law linear in the advance ratio (SPEC §7, item 4) the efficiency of rotor i is
+
+    eta_i = clip(1 - sum_j G(c_ij) max(a_ij, 0)^m (L0 / L_ij) n_j / n_i, eta_min, eta_max),
+
+``G = ingest_gain`` (intake), ``counter_gain`` (outlet) or their mean (edge-on), ``m = aim_exponent`` (the
+wake's angular spread), ``L0`` the shortest rotor distance (the cube side). A reversed rotor (``u_i < 0``)
+makes ``(1 + reverse_gain)`` times the thrust of a forward one (bidirectional propellers are not quite
+symmetric in reverse). The true wrench is ``A_twist (kappa eta (1 + reverse_gain [u < 0]) * u)`` where
+``A_twist`` is the map of the (optionally perturbed) rotor axes turned about body z by ``frame_yaw_deg`` (the
+yaw between the rotors' frame and the measured body frame, see ``docs/fidelity.md``). Every geometric term
+is precomputed for the four sign combinations of (u_i, u_j), so a call is one compiled pass over an
+(n, n) pattern (:func:`wake_wrench`, no allocation).
+
+**SPEC §7 model** (``model = "spec7"``, also accepted as ``"interference"``): rotor j with input ``u_j`` [Hz²]
+has an isolated thrust ``T_j = kappa0 c_f |u_j|``, a disk induced speed ``v_j = sqrt(T_j / (2 rho pi R²))``
+and a slipstream along ``d_j = -sign(u_j) z_j``. At a point ``x`` with ``r = x - p_j``, ``s = r . d_j`` and
 ``r_perp² = |r|² - s²`` the jet speed is (for s > 0, zero otherwise)
 
     U_j(x) = v_j (1 + s / sqrt(s² + R²)) (R/sqrt(2)) / b(s) exp(-r_perp² / b(s)²),  b(s) = R/sqrt(2) + beta s.
@@ -10,12 +35,13 @@ a slipstream along ``d_j = -sign(u_j) z_j``. At a point ``x`` with ``r = x - p_j
 Disk i sees the axial inflow ``V_i = sum_{j != i} <U_j>_disk_i (d_j . d_i)`` (mean over the hub and 8
 points at 0.7 R) and keeps the efficiency ``eta_i = clip(1 - gamma V_i / (J0 n_i D), eta_min, eta_max)``
 with ``n_i = |u_i|^(1/2)`` [rev/s]. The true wrench is ``A (kappa0 eta * u)`` with ``A`` the map of the
-(optionally perturbed) rotor geometry.
-
-Everything geometric is precomputed: since ``s = -sign(u_j) (r . z_j)`` and ``r_perp`` does not depend on
+(optionally perturbed) rotor geometry. Since ``s = -sign(u_j) (r . z_j)`` and ``r_perp`` does not depend on
 the sign, the disk-averaged profile ``<U_j / v_j>_disk_i`` takes one of two precomputed values per pair
-(i, j), chosen by the sign of ``u_j``. A call is then one compiled pass over an (n, 2n) matrix
-(:func:`omnirotor.sim._kernels.interference_wrench`).
+(i, j), chosen by the sign of ``u_j``; a call is one compiled pass over an (n, 2n) matrix
+(:func:`interference_wrench`).
+
+The compiled kernels of both models are here; the simulator's step calls them through
+:func:`omnirotor.sim._kernels.actuate`, which dispatches on ``kernel_kind``.
 """
 
 from __future__ import annotations
@@ -24,12 +50,32 @@ import math
 
 import numpy as np
 
+from omnirotor._jit import jit
 from omnirotor.errors import InputError
-from omnirotor.sim import _kernels as _k
 from omnirotor.sim.params import AeroParams
 from omnirotor.vehicle import VehicleParams, wrench_map
 
-__all__ = ["InterferenceAero", "NominalAero", "make_aero", "hover_equilibrium", "TruthAero"]
+__all__ = [
+    "WakeAero",
+    "InterferenceAero",
+    "NominalAero",
+    "make_aero",
+    "hover_equilibrium",
+    "TruthAero",
+    "AERO_NOMINAL",
+    "AERO_INTERFERENCE",
+    "AERO_WAKE",
+    "pack_wake",
+    "wake_efficiency",
+    "wake_wrench",
+    "pack_interference",
+    "interference_efficiency",
+    "interference_wrench",
+]
+
+AERO_NOMINAL, AERO_INTERFERENCE, AERO_WAKE = 0, 1, 2
+"""Kinds of truth model :func:`omnirotor.sim._kernels.actuate` evaluates: ``A_nom u``,
+:func:`interference_wrench` or :func:`wake_wrench`."""
 
 _DISK_RING_FRACTION = 0.7
 """Radius of the ring of disk samples, as a fraction of the propeller radius (SPEC §7)."""
@@ -50,20 +96,12 @@ class NominalAero:
         self.n_rotors = vehicle.n_rotors
         self.A_nom = vehicle.A_nom.copy()
         self.A_true = self.A_nom
-        self.kernel_kind = _k.AERO_NOMINAL
+        self.kernel_kind = AERO_NOMINAL
         """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
         self.kernel_model = np.ascontiguousarray(self.A_nom, dtype=np.float64)
 
     def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Body wrench at the CoM.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (6,) output buffer.
-
-        Returns:
-            (6,) ``[f_B [N]; m_B [N·m]]``.
-        """
+        """Body wrench ``A_nom u`` at the CoM, ``[f_B [N]; m_B [N·m]]`` (6,), for inputs ``u_hz2`` (n,) [Hz²]."""
         return np.matmul(self.A_nom, u_hz2, out=out)
 
     def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -74,7 +112,82 @@ class NominalAero:
         return out
 
 
-class InterferenceAero:
+class _CompiledAero:
+    """What the interaction models share: the body wrench and the efficiencies from their compiled kernels."""
+
+    n_rotors: int
+    kernel_model: np.ndarray
+
+    def __init__(self, wrench_kernel, efficiency_kernel) -> None:
+        self._wrench_kernel = wrench_kernel
+        self._efficiency_kernel = efficiency_kernel
+
+    def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Per-rotor efficiencies: the thrust of each rotor over its isolated thrust (see the model's docs).
+
+        Args:
+            u_hz2: (n,) rotor inputs [Hz²].
+            out: optional (n,) output buffer.
+
+        Returns:
+            (n,) the efficiencies (a fresh array unless ``out`` is given).
+        """
+        eta = np.empty(self.n_rotors) if out is None else out
+        self._efficiency_kernel(np.asarray(u_hz2, dtype=np.float64), self.kernel_model, eta)
+        return eta
+
+    def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """True body wrench at the CoM.
+
+        Args:
+            u_hz2: (n,) rotor inputs [Hz²].
+            out: optional (6,) output buffer.
+
+        Returns:
+            (6,) ``[f_B [N]; m_B [N·m]]``.
+        """
+        if out is None:
+            out = np.empty(6)
+        self._wrench_kernel(np.asarray(u_hz2, dtype=np.float64), self.kernel_model, out)
+        return out
+
+
+class WakeAero(_CompiledAero):
+    """The rotor-wake truth model (module docstring), optionally with per-rotor manufacturing errors.
+
+    Args:
+        vehicle: the vehicle (positions, axes, spins, c_f, c_tau).
+        params: the model's parameters (``thrust_gain``, ``reverse_gain``, ``ingest_gain``, ``counter_gain``,
+            ``aim_exponent``, ``frame_yaw_deg``, ``eta_min``, ``eta_max`` and the manufacturing errors).
+    """
+
+    def __init__(self, vehicle: VehicleParams, params: AeroParams | None = None) -> None:
+        super().__init__(wake_wrench, wake_efficiency)
+        p = params or AeroParams()
+        n = vehicle.n_rotors
+        self.params = p
+        self.n_rotors = n
+        axes, gains = _manufactured_axes_and_gains(vehicle.axes_B, p)
+        yaw = math.radians(p.frame_yaw_deg)
+        Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0.0], [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+        axes = axes @ Rz.T
+        self.positions_B = vehicle.positions_B.copy()
+        self.axes_B = axes
+        """(n, 3) the rotor axes: manufactured (tilt errors), then turned by ``frame_yaw_deg`` about body z."""
+        self.gains = gains
+        """(n,) the manufactured thrust gains (ones without gain errors)."""
+        self.A_nom = vehicle.A_nom.copy()
+        self.A_true = wrench_map(self.positions_B, axes, vehicle.spins, vehicle.c_f, vehicle.c_tau) * gains[None, :]
+        """(6, n) map of the manufactured rotors; the truth is ``A_true (kappa eta_rev eta * u)``."""
+        self.pair_weights = wake_pair_weights(self.positions_B, axes, p.ingest_gain, p.counter_gain, p.aim_exponent)
+        """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` for the sign blocks (u_i < 0, u_j < 0) = (b // 2, b % 2)."""
+        self._model = pack_wake(self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max)
+        self.kernel_kind = AERO_WAKE
+        """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
+        self.kernel_model = self._model
+
+
+class InterferenceAero(_CompiledAero):
     """SPEC §7 slipstream-interference truth model, optionally with per-rotor manufacturing errors.
 
     Args:
@@ -83,6 +196,7 @@ class InterferenceAero:
     """
 
     def __init__(self, vehicle: VehicleParams, params: AeroParams | None = None) -> None:
+        super().__init__(interference_wrench, interference_efficiency)
         p = params or AeroParams()
         n = vehicle.n_rotors
         self.params = p
@@ -120,55 +234,25 @@ class InterferenceAero:
         self._neg_eta_gain = float(-p.gamma / (p.advance_ratio_ref * diameter))
         self._A_kappa = p.kappa0 * self.A_true
         self._eta_lo, self._eta_hi = float(p.eta_min), float(p.eta_max)
-        self._model = _k.pack_interference(
+        self._model = pack_interference(
             self._K2, self._v_coef, self._A_kappa, self._neg_eta_gain, self._eta_lo, self._eta_hi, _N_FLOOR
         )
-        self.kernel_kind = _k.AERO_INTERFERENCE
+        self.kernel_kind = AERO_INTERFERENCE
         """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim._kernels.actuate`)."""
         self.kernel_model = self._model
 
-    def efficiency(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Per-rotor efficiencies eta_i of SPEC §7.
 
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (n,) output buffer.
-
-        Returns:
-            (n,) eta (a fresh array unless ``out`` is given).
-        """
-        eta = np.empty(self.n_rotors)
-        _k.interference_efficiency(np.asarray(u_hz2, dtype=np.float64), self._model, eta)
-        if out is None:
-            return eta
-        out[:] = eta
-        return out
-
-    def wrench_B(self, u_hz2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """True body wrench at the CoM.
-
-        Args:
-            u_hz2: (n,) rotor inputs [Hz²].
-            out: optional (6,) output buffer.
-
-        Returns:
-            (6,) ``[f_B [N]; m_B [N·m]]``.
-        """
-        if out is None:
-            out = np.empty(6)
-        _k.interference_wrench(np.asarray(u_hz2, dtype=np.float64), self._model, out)
-        return out
-
-
-TruthAero = InterferenceAero | NominalAero
+TruthAero = WakeAero | InterferenceAero | NominalAero
 
 
 def make_aero(vehicle: VehicleParams, params: AeroParams | None = None) -> TruthAero:
-    """The truth model named by ``params.model`` for ``vehicle``."""
+    """The truth model named by ``params.model`` for ``vehicle`` (default: the calibrated rotor-wake model)."""
     p = params or AeroParams()
     if p.model == "nominal":
         return NominalAero(vehicle)
-    return InterferenceAero(vehicle, p)
+    if p.model in ("spec7", "interference"):
+        return InterferenceAero(vehicle, p)
+    return WakeAero(vehicle, p)
 
 
 def hover_equilibrium(
@@ -270,3 +354,176 @@ def _manufactured_axes_and_gains(axes_B: np.ndarray, p: AeroParams) -> tuple[np.
             lateral = math.cos(azimuth_draw[i]) * e1 + math.sin(azimuth_draw[i]) * e2
             axes[i] = math.cos(tilt) * axes_B[i] + math.sin(tilt) * lateral
     return axes, gains
+
+
+def pack_interference(K2, v_coef, A_kappa, neg_eta_gain: float, eta_lo: float, eta_hi: float, n_floor: float):
+    """The (n + 8, 2n) array the interference kernels read (one argument instead of seven).
+
+    Rows ``0:n``: the inflow matrix ``K2`` (n, 2n); rows ``n:n+6``, columns ``0:n``: ``A_kappa`` (6, n);
+    row ``n+6``, columns ``0:n``: ``v_coef``; row ``n+7``: ``neg_eta_gain, eta_lo, eta_hi, n_floor``.
+    """
+    n = v_coef.shape[0]
+    model = np.zeros((n + 8, max(2 * n, 4)))
+    model[0:n, 0 : 2 * n] = K2
+    model[n : n + 6, 0:n] = A_kappa
+    model[n + 6, 0:n] = v_coef
+    model[n + 7, 0:4] = (neg_eta_gain, eta_lo, eta_hi, n_floor)
+    return model
+
+
+@jit
+def interference_efficiency(u, model, eta) -> None:
+    """Rotor efficiencies of SPEC §7 (:class:`omnirotor.sim.aero.InterferenceAero`), written into ``eta``.
+
+    ``n_i = max(sqrt|u_i|, n_floor)``, ``b = [min(s v, 0); max(s v, 0)]`` with ``s_j v_j = u_j / n_j v_coef_j``,
+    ``eta_i = clip(1 + neg_eta_gain (K2 b)_i (u_i / n_i) / n_i², eta_lo, eta_hi)`` (NaN propagates).
+
+    Args:
+        u: (n,) inputs [Hz²].
+        model: the packed model of :func:`pack_interference`.
+        eta: (n,) output.
+    """
+    n = u.shape[0]
+    v_coef = model[n + 6]
+    neg_eta_gain, eta_lo, eta_hi, n_floor = model[n + 7, 0], model[n + 7, 1], model[n + 7, 2], model[n + 7, 3]
+    b = np.empty(2 * n)
+    for j in range(n):
+        nj = math.sqrt(abs(u[j]))
+        if nj < n_floor:
+            nj = n_floor
+        t = (u[j] / nj) * v_coef[j]
+        b[j] = t if (t < 0.0 or t != t) else 0.0
+        b[n + j] = t if (t > 0.0 or t != t) else 0.0
+    for i in range(n):
+        acc = 0.0
+        for j in range(2 * n):
+            acc += model[i, j] * b[j]
+        ni = math.sqrt(abs(u[i]))
+        if ni < n_floor:
+            ni = n_floor
+        e = acc * ((u[i] / ni) / (ni * ni))
+        e = e * neg_eta_gain
+        e = e + 1.0
+        if e > eta_hi:
+            e = eta_hi
+        if e < eta_lo:
+            e = eta_lo
+        eta[i] = e
+
+
+@jit
+def interference_wrench(u, model, out) -> None:
+    """True body wrench ``A_kappa (eta * u)`` of SPEC §7 into ``out`` (6,) (model: :func:`pack_interference`)."""
+    n = u.shape[0]
+    eta = np.empty(n)
+    interference_efficiency(u, model, eta)
+    for r in range(6):
+        acc = 0.0
+        for j in range(n):
+            acc += model[n + r, j] * (eta[j] * u[j])
+        out[r] = acc
+
+
+EDGE_ON_COS = 0.05
+"""``|c_ij|`` below which a wake passes rotor i edge-on (within 3 deg of its disk plane) rather than entering
+its intake or outlet [A; of 0.05 and 0.25, the one with the lower cross-validated error, docs/fidelity.md]."""
+
+
+def wake_pair_geometry(positions_B: np.ndarray, axes_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Aim, side and distance ratio of every ordered rotor pair, for the four sign blocks.
+
+    Args:
+        positions_B: (n, 3) rotor positions [m].
+        axes_B: (n, 3) unit thrust axes.
+
+    Returns:
+        ``aim`` (4, n, n): ``a_ij = d_j . e_ji``; ``side`` (4, n, n): ``c_ij = d_i . e_ji``; ``closeness`` (n, n):
+        ``L0 / L_ij`` (0 on the diagonal). Block ``b`` holds ``u_i < 0`` iff ``b // 2`` and ``u_j < 0`` iff
+        ``b % 2``, with ``d = -sign(u) z``.
+    """
+    n = positions_B.shape[0]
+    diff = positions_B[:, None, :] - positions_B[None, :, :]  # [i, j] = p_i - p_j
+    dist = np.linalg.norm(diff, axis=2)
+    off = ~np.eye(n, dtype=bool)
+    e = np.zeros_like(diff)
+    e[off] = diff[off] / dist[off][:, None]
+    closeness = np.zeros((n, n))
+    closeness[off] = dist[off].min() / dist[off]
+    aim = np.empty((4, n, n))
+    side = np.empty((4, n, n))
+    for b in range(4):
+        s_i = -1.0 if b // 2 else 1.0
+        s_j = -1.0 if b % 2 else 1.0
+        aim[b] = np.einsum("ijc,jc->ij", e, -s_j * axes_B)
+        side[b] = np.einsum("ijc,ic->ij", e, -s_i * axes_B)
+    return aim, side, closeness
+
+
+def wake_pair_weights(
+    positions_B: np.ndarray, axes_B: np.ndarray, ingest_gain: float, counter_gain: float, aim_exponent: float
+) -> np.ndarray:
+    """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` of the rotor-wake model (module docstring)."""
+    aim, side, closeness = wake_pair_geometry(positions_B, axes_B)
+    gain = np.where(side > EDGE_ON_COS, ingest_gain, np.where(side < -EDGE_ON_COS, counter_gain, 0.0))
+    gain = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (ingest_gain + counter_gain), gain)
+    reach = np.where(aim > 0.0, np.abs(aim), 0.0) ** aim_exponent * (aim > 0.0)
+    return gain * reach * closeness[None]
+
+
+def pack_wake(pair_weights: np.ndarray, A_kappa: np.ndarray, reverse_gain: float, eta_lo: float, eta_hi: float):
+    """The (4n + 7, n) array the wake kernels read.
+
+    Rows ``b n : (b+1) n``: the pair weights of sign block ``b`` (:func:`wake_pair_weights`); rows
+    ``4n : 4n+6``: ``A_kappa`` (6, n); row ``4n+6``: ``reverse_gain, eta_lo, eta_hi, n_floor``.
+    """
+    n = A_kappa.shape[1]
+    model = np.zeros((4 * n + 7, max(n, 4)))
+    model[0 : 4 * n, 0:n] = pair_weights.reshape(4 * n, n)
+    model[4 * n : 4 * n + 6, 0:n] = A_kappa
+    model[4 * n + 6, 0:4] = (reverse_gain, eta_lo, eta_hi, _N_FLOOR)
+    return model
+
+
+@jit
+def _wake_factor(u, model, i: int) -> float:
+    """Thrust factor ``eta_i (1 + reverse_gain [u_i < 0])`` of rotor i (module docstring); NaN propagates."""
+    n = u.shape[0]
+    rev, eta_lo, eta_hi, n_floor = model[4 * n + 6, 0], model[4 * n + 6, 1], model[4 * n + 6, 2], model[4 * n + 6, 3]
+    ui = u[i]
+    ni = math.sqrt(abs(ui))
+    if ni < n_floor:
+        ni = n_floor
+    row = i + (2 * n if ui < 0.0 else 0)
+    acc = 0.0
+    for j in range(n):
+        uj = u[j]
+        acc += model[row + (n if uj < 0.0 else 0), j] * math.sqrt(abs(uj))
+    e = 1.0 - acc / ni
+    if e > eta_hi:
+        e = eta_hi
+    if e < eta_lo:
+        e = eta_lo
+    if ui != ui:
+        e = ui
+    if ui < 0.0:
+        e = e * (1.0 + rev)
+    return e
+
+
+@jit
+def wake_efficiency(u, model, eta) -> None:
+    """Per-rotor thrust factors of the rotor-wake model into ``eta`` (n,) (model: :func:`pack_wake`)."""
+    for i in range(u.shape[0]):
+        eta[i] = _wake_factor(u, model, i)
+
+
+@jit
+def wake_wrench(u, model, out) -> None:
+    """True body wrench ``A_kappa (factor * u)`` of the rotor-wake model into ``out`` (6,) (:func:`pack_wake`)."""
+    n = u.shape[0]
+    for r in range(6):
+        out[r] = 0.0
+    for i in range(n):
+        t = _wake_factor(u, model, i) * u[i]
+        for r in range(6):
+            out[r] += model[4 * n + r, i] * t

@@ -8,7 +8,7 @@ project, documented on its field. A simulator TOML file has one table per block:
     [rotors]
     tau_m = 0.025
     [aero]
-    model = "interference"      # or "nominal"
+    model = "wake"              # or "spec7" (alias "interference"), "nominal"
     [sensors]
     mocap_rate_hz = 100.0
     [scene]
@@ -34,8 +34,9 @@ __all__ = [
     "AERO_MODELS",
 ]
 
-AERO_MODELS = ("interference", "nominal")
-"""Names of the truth aerodynamic models: SPEC §7 slipstream interference, or exactly ``A_nom u``."""
+AERO_MODELS = ("wake", "spec7", "interference", "nominal")
+"""Names of the truth aerodynamic models: the calibrated rotor-wake model, SPEC §7 slipstream interference
+(``"spec7"``, also named ``"interference"``), or exactly ``A_nom u``."""
 
 
 def _check_nonneg(name: str, *values: float) -> None:
@@ -72,25 +73,47 @@ class RotorDynamicsParams:
 
 @dataclasses.dataclass(frozen=True)
 class AeroParams:
-    """Truth aerodynamics: the slipstream-interference model of SPEC §7, or the nominal map.
+    """Truth aerodynamics: the rotor-wake model (default), SPEC §7's slipstream interference, or the nominal map.
+
+    The rotor-wake defaults were fitted by ``omnirotor calibrate-truth`` to the authors' 39 real flight hover
+    points with the force-stand ratios of SPEC §3.5 as a prior (``docs/fidelity.md``: figures, sources,
+    cross-validation); see :mod:`omnirotor.sim.aero`.
 
     Attributes:
-        model: "interference" (SPEC §7) or "nominal" (exactly ``A_nom u``).
-        kappa0: isolated-rotor thrust gain over the nominal c_f (SPEC §7: 1.18).
-        gamma: inflow sensitivity of the propeller law (SPEC §7: 4.0).
+        model: "wake" (calibrated rotor-wake model), "spec7" or "interference" (SPEC §7), or "nominal"
+            (exactly ``A_nom u``).
+        thrust_gain: wake model: isolated-rotor thrust over the nominal ``c_f |u|`` [-] (fitted; prior: the
+            force-stand ratios 1.14-1.27 of SPEC §3.5).
+        reverse_gain: wake model: relative thrust change of a rotor turning in reverse [-] (fitted; 0 = a
+            symmetric bidirectional propeller).
+        ingest_gain: wake model: efficiency lost per unit ``reach n_j / n_i`` when j's wake enters i's intake
+            [-] (fitted; momentum theory: > 0, like a rotor in climb).
+        counter_gain: wake model: the same when j's wake meets i's outlet [-] (fitted; < 0 is a gain).
+        aim_exponent: wake model: ``m`` of the reach ``max(a_ij, 0)^m``, the wake's angular spread [-]
+            (fitted; large = a narrow jet).
+        frame_yaw_deg: wake model: yaw of the rotors' frame about body z relative to the measured body frame
+            [deg] (fitted; a linear effect, absorbed by any identified map).
+        kappa0: SPEC §7: isolated-rotor thrust gain over the nominal c_f (1.18).
+        gamma: SPEC §7: inflow sensitivity of the propeller law (4.0).
         rho: air density [kg/m³].
         rotor_radius: propeller radius R [m]; 0 takes half the vehicle's ``propeller_diameter``.
         advance_ratio_ref: J0 of the linear propeller law ``eta = 1 - gamma V / (J0 n D)``.
         jet_spread: beta, growth of the jet radius with distance ``b(s) = R/sqrt(2) + beta s``.
-        eta_min: lower clip of the efficiency.
-        eta_max: upper clip of the efficiency.
+        eta_min: lower clip of the efficiency (both interaction models) [A: 0.3].
+        eta_max: upper clip of the efficiency [A: 1.7].
         gain_error_std: standard deviation of a per-rotor relative thrust-gain error (0 = none) [A].
         tilt_error_std_deg: standard deviation of a per-rotor axis tilt error [deg] (0 = none) [A].
         error_seed: seed of the manufacturing errors (a property of the airframe, so independent of the
             simulator's noise seed).
     """
 
-    model: str = "interference"
+    model: str = "wake"
+    thrust_gain: float = 1.23956
+    reverse_gain: float = 0.00774719
+    ingest_gain: float = 0.356999
+    counter_gain: float = -0.166377
+    aim_exponent: float = 0.63276
+    frame_yaw_deg: float = -3.09879
     kappa0: float = 1.18
     gamma: float = 4.0
     rho: float = 1.225
@@ -106,9 +129,15 @@ class AeroParams:
     def __post_init__(self) -> None:
         if self.model not in AERO_MODELS:
             raise InputError(f"aero.model must be one of {', '.join(AERO_MODELS)}, got {self.model!r}")
-        for label in ("kappa0", "rho", "advance_ratio_ref"):
+        for label in ("kappa0", "rho", "advance_ratio_ref", "thrust_gain"):
             check_positive(f"aero.{label}", getattr(self, label))
         _check_nonneg("aero.gamma", self.gamma)
+        for label in ("ingest_gain", "counter_gain", "frame_yaw_deg"):
+            check_finite(f"aero.{label}", getattr(self, label))
+        _check_nonneg("aero.aim_exponent", self.aim_exponent)
+        check_finite("aero.reverse_gain", self.reverse_gain)
+        if self.reverse_gain <= -1.0:
+            raise InputError(f"aero.reverse_gain must be > -1, got {self.reverse_gain}")
         _check_nonneg("aero.rotor_radius", self.rotor_radius)
         _check_nonneg("aero.jet_spread", self.jet_spread)
         _check_nonneg("aero.gain_error_std", self.gain_error_std)

@@ -1,0 +1,430 @@
+"""Calibration of the rotor-wake truth model on real hover data, with its cross-validation (SPEC §3.5, §7.1).
+
+In hover the rotors hold the weight: the measured body force of point j is ``f_j = R_j^T m g e3`` (SPEC §3.1)
+and the measured inputs ``u_j`` are known. The truth model of :mod:`omnirotor.sim.aero` predicts ``f(u_j)``;
+the fit minimises ``sum_j |f(u_j) - f_j|²`` over the six parameters of :data:`FIT_PARAMETERS`, each inside
+physical bounds (:data:`BOUNDS`), by bounded nonlinear least squares from a neutral start
+(:data:`NEUTRAL_START`, plus a fixed grid of starting yaws and ingestion gains). The force-stand ratios of SPEC
+§3.5 (R1, R6 and the mixed-direction regions, relative to R1) enter as a soft prior
+(:func:`stand_prior_residual`): fitted on the flight points alone, the model predicts the upside-down robot 8 %
+below upright, where the stand measured it 3 % above.
+The region labels are used only to *group* points for the leave-one-region-out cross-validation and the
+per-region report; the model never sees them.
+
+The report compares, over the same points: the nominal map ``A_nom u``; the nominal map times one best
+constant; SPEC §7's model; the calibrated rotor-wake model; the identified global map and the per-region maps
+(SPEC §3.2, the paper's QP). The cross-validation refits the model without one region (and without one point)
+and scores the points left out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from omnirotor.errors import InputError
+from omnirotor.identification import HoverData, IdentificationParams, assign_regions, identify
+from omnirotor.regions import Partition, load_partition
+from omnirotor.sim.aero import make_aero
+from omnirotor.sim.params import AeroParams
+from omnirotor.vehicle import VehicleParams
+
+__all__ = [
+    "FIT_PARAMETERS",
+    "BOUNDS",
+    "NEUTRAL_START",
+    "CalibrationResult",
+    "model_forces",
+    "fit_wake",
+    "cross_validate",
+    "calibrate",
+    "write_truth_toml",
+    "plot_measured_vs_predicted",
+    "report_markdown",
+]
+
+FIT_PARAMETERS = ("thrust_gain", "reverse_gain", "ingest_gain", "counter_gain", "aim_exponent", "frame_yaw_deg")
+"""The fitted parameters of the rotor-wake model (:class:`omnirotor.sim.params.AeroParams`)."""
+
+BOUNDS = {
+    "thrust_gain": (0.8, 1.6),  # isolated rotor: c_f of SPEC §1.2 within -20 % .. +60 %
+    "reverse_gain": (-0.3, 0.3),  # a bidirectional propeller within 30 % of symmetric
+    "ingest_gain": (0.0, 3.0),  # momentum theory: ingesting a wake never adds thrust
+    "counter_gain": (-3.0, 3.0),
+    "aim_exponent": (0.0, 8.0),  # from a wide wake (0) to a narrow jet (8: half power at 33 deg off axis)
+    "frame_yaw_deg": (-10.0, 10.0),
+}
+"""Physical bounds of each fitted parameter (units of :class:`AeroParams`)."""
+
+NEUTRAL_START = {
+    "thrust_gain": 1.15,
+    "reverse_gain": 0.0,
+    "ingest_gain": 0.0,
+    "counter_gain": 0.0,
+    "aim_exponent": 1.0,
+    "frame_yaw_deg": 0.0,
+}
+"""Where every fit starts unless told otherwise: no interaction, a symmetric propeller, the mean ratio of SPEC
+§3.5. The same start for the full fit and every cross-validation refit, so no refit starts at an optimum that
+has seen the points it is scored on."""
+
+
+_YAW_STARTS_DEG = (-5.0, 5.0)
+"""Further starting yaws of every fit [deg] (with the neutral 0)."""
+_INGEST_STARTS = (0.0, 0.5)
+"""Starting ingestion gains of every fit [-]."""
+
+
+STAND_RATIOS = {"R1": (1.14, 1.14), "R6": (1.17, 1.17), "mixed": (1.22, 1.27)}
+"""|measured force| / |A_nom u| on the authors' force stand (SPEC §3.5): R1 upright, R6 upside down (every rotor
+reversed), the mixed-direction regions R2-R5 and R7-R10. A stand blocks part of the flow, so only the ratios
+*relative to R1* are used, as a soft prior of the fit (:func:`stand_prior_residual`)."""
+STAND_PRIOR_WEIGHT_N = 20.0
+"""Weight of the stand prior [N per unit of relative ratio]: a 1 % miss costs like a 0.2 N force residual [A]."""
+_REGION_CENTRES_DEG = {
+    "R1": (0.0, 90.0),
+    "R6": (0.0, -90.0),
+    "R2": (0.0, 30.0),
+    "R3": (-90.0, 30.0),
+    "R4": (90.0, 30.0),
+    "R5": (180.0, 30.0),
+    "R7": (0.0, -30.0),
+    "R8": (-90.0, -30.0),
+    "R9": (90.0, -30.0),
+    "R10": (180.0, -30.0),
+}
+"""(azimuth, elevation) [deg] of each region's centre, the up direction R^T e3 in the body frame (SPEC §3.3)."""
+
+
+def stand_ratios(vehicle: VehicleParams, params: AeroParams) -> dict[str, float]:
+    """Model |f| / |A_nom u| at each region's centre, with the nominal allocation of the weight [A: the stand's u]."""
+    aero = make_aero(vehicle, params)
+    pinv = np.linalg.pinv(vehicle.A_nom)
+    out = {}
+    for name, (az, el) in _REGION_CENTRES_DEG.items():
+        a, e = math.radians(az), math.radians(el)
+        w = np.zeros(6)
+        w[:3] = vehicle.weight * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+        u = pinv @ w
+        out[name] = float(np.linalg.norm(aero.wrench_B(u)[:3]) / np.linalg.norm(vehicle.A_nom[:3] @ u))
+    return out
+
+
+def stand_prior_residual(vehicle: VehicleParams, params: AeroParams) -> np.ndarray:
+    """Weighted misses [N] of the model's stand ratios relative to R1 (zero inside the mixed regions' range)."""
+    r = stand_ratios(vehicle, params)
+    ref = STAND_RATIOS["R1"][0]
+    res = []
+    for name, value in r.items():
+        if name == "R1":
+            continue
+        lo, hi = STAND_RATIOS.get(name, STAND_RATIOS["mixed"])
+        rel = value / r["R1"]
+        res.append(min(rel - lo / ref, 0.0) + max(rel - hi / ref, 0.0))
+    return STAND_PRIOR_WEIGHT_N * np.array(res)
+
+
+def model_forces(vehicle: VehicleParams, params: AeroParams, u_hz2: np.ndarray) -> np.ndarray:
+    """(N, 3) body force [N] of the truth model ``params.model`` at each row of ``u_hz2`` [Hz²]."""
+    aero = make_aero(vehicle, params)
+    out = np.empty((u_hz2.shape[0], 3))
+    w = np.empty(6)
+    for k in range(u_hz2.shape[0]):
+        aero.wrench_B(u_hz2[k], out=w)
+        out[k] = w[:3]
+    return out
+
+
+def _rms(residual: np.ndarray) -> float:
+    """RMS over points of the residual norm [N]."""
+    return float(math.sqrt(np.mean(np.sum(residual * residual, axis=1)))) if residual.size else float("nan")
+
+
+def _with(params: AeroParams, x: np.ndarray, names: Sequence[str]) -> AeroParams:
+    return dataclasses.replace(params, model="wake", **{k: float(v) for k, v in zip(names, x, strict=True)})
+
+
+def fit_wake(
+    vehicle: VehicleParams,
+    data: HoverData,
+    start: AeroParams | None = None,
+    names: Sequence[str] = FIT_PARAMETERS,
+    from_start: bool = False,
+    stand_prior: bool = True,
+) -> AeroParams:
+    """Fit the rotor-wake parameters ``names`` to hover data (bounded least squares on the force residual).
+
+    Args:
+        vehicle: the vehicle.
+        data: hover points (inputs and measured body wrench).
+        start: the parameters that keep every parameter not fitted; the fitted ones start at
+            :data:`NEUTRAL_START` unless ``from_start`` is True.
+        names: which parameters to fit (a subset of :data:`FIT_PARAMETERS`).
+        from_start: start the fitted parameters at their values in ``start``.
+        stand_prior: add the force-stand prior (:func:`stand_prior_residual`) to the force residuals.
+
+    Returns:
+        The fitted parameters (``model = "wake"``).
+
+    Raises:
+        InputError: fewer points than parameters, or an unknown parameter name.
+    """
+    p0 = dataclasses.replace(start or AeroParams(), model="wake")
+    unknown = [n for n in names if n not in BOUNDS]
+    if unknown:
+        raise InputError(f"cannot fit {', '.join(unknown)}: not a rotor-wake parameter")
+    if 3 * data.n_points < len(names):
+        raise InputError(f"{data.n_points} hover point(s) cannot fix {len(names)} parameters")
+    lo = np.array([BOUNDS[n][0] for n in names])
+    hi = np.array([BOUNDS[n][1] for n in names])
+    x0 = np.array([getattr(p0, n) if from_start else NEUTRAL_START[n] for n in names], dtype=float)
+    x0 = np.clip(x0, lo, hi)
+    f_meas = data.w_B[:, :3]
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        p = _with(p0, x, names)
+        r = (model_forces(vehicle, p, data.u_hz2) - f_meas).ravel()
+        return np.concatenate([r, stand_prior_residual(vehicle, p)]) if stand_prior else r
+
+    # The cost is multimodal (yaw, and the trade between the thrust gain and the ingestion): start also from
+    # a fixed grid of yaws and ingestion gains, keep the best optimum.
+    starts = [x0]
+    if not from_start:
+        for yaw, ingest in itertools.product((0.0, *_YAW_STARTS_DEG), _INGEST_STARTS):
+            x = x0.copy()
+            for name, v in (("frame_yaw_deg", yaw), ("ingest_gain", ingest)):
+                if name in names:
+                    x[list(names).index(name)] = v
+            if not any(np.array_equal(x, y) for y in starts):
+                starts.append(x)
+    best = min((least_squares(residual, x, bounds=(lo, hi), x_scale="jac") for x in starts), key=lambda s: s.cost)
+    return _with(p0, best.x, names)
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationResult:
+    """Everything ``omnirotor calibrate-truth`` reports.
+
+    Attributes:
+        params: the calibrated rotor-wake parameters.
+        regions: region of each point.
+        table: model name -> {"all": RMS over every point [N], region -> RMS over its points [N]}.
+        best_constant: the one gain ``k`` that best scales ``A_nom u`` onto the data.
+        cv_region: region -> force RMS [N] on that region's points of the model fitted without them.
+        cv_region_params: region -> the parameters fitted without it.
+        cv_point_rms: force RMS [N] of each point predicted by the model fitted without that point, over all.
+        forces: model name -> (N, 3) predicted body forces [N] ("measured" holds the data).
+        stand: region -> the calibrated model's stand ratio scaled to the stand's R1 (:func:`stand_ratios`).
+    """
+
+    params: AeroParams
+    regions: tuple[str, ...]
+    table: dict[str, dict[str, float]]
+    best_constant: float
+    cv_region: dict[str, float]
+    cv_region_params: dict[str, AeroParams]
+    cv_point_rms: float
+    forces: dict[str, np.ndarray]
+    stand: dict[str, float]
+
+
+def _by_region(residual: np.ndarray, regions: Sequence[str]) -> dict[str, float]:
+    reg = np.asarray(regions)
+    row = {"all": _rms(residual)}
+    for r in sorted(set(regions)):
+        row[r] = _rms(residual[reg == r])
+    return row
+
+
+def cross_validate(
+    vehicle: VehicleParams,
+    data: HoverData,
+    regions: Sequence[str],
+    start: AeroParams | None = None,
+    leave_one_point: bool = True,
+    stand_prior: bool = True,
+) -> tuple[dict[str, float], dict[str, AeroParams], float]:
+    """Leave-one-region-out and leave-one-point-out force RMS of the rotor-wake fit.
+
+    Args:
+        vehicle: the vehicle.
+        data: hover points.
+        regions: region of each point (groups of the leave-one-region-out split).
+        start: starting parameters of every refit.
+        leave_one_point: also run the leave-one-point-out refits (one per point).
+        stand_prior: fit with the force-stand prior.
+
+    Returns:
+        ``(rms per held-out region [N], parameters fitted without each region, leave-one-point-out RMS [N]
+        or NaN when not run)``.
+    """
+    reg = np.asarray(regions)
+    f_meas = data.w_B[:, :3]
+    cv, cv_params = {}, {}
+    for r in sorted(set(regions)):
+        held = reg == r
+        if held.all():
+            continue
+        p = fit_wake(vehicle, data.subset(~held), start, stand_prior=stand_prior)
+        cv_params[r] = p
+        cv[r] = _rms(model_forces(vehicle, p, data.u_hz2[held]) - f_meas[held])
+    loo = float("nan")
+    if leave_one_point:
+        sq = []
+        for j in range(data.n_points):
+            keep = np.ones(data.n_points, dtype=bool)
+            keep[j] = False
+            p = fit_wake(vehicle, data.subset(keep), start, stand_prior=stand_prior)
+            e = model_forces(vehicle, p, data.u_hz2[j : j + 1])[0] - f_meas[j]
+            sq.append(float(e @ e))
+        loo = float(math.sqrt(np.mean(sq)))
+    return cv, cv_params, loo
+
+
+def calibrate(
+    vehicle: VehicleParams,
+    data: HoverData,
+    partition: Partition | None = None,
+    start: AeroParams | None = None,
+    leave_one_point: bool = True,
+    stand_prior: bool = True,
+) -> CalibrationResult:
+    """Fit the rotor-wake model and compute the report's table and cross-validation.
+
+    Args:
+        vehicle: the vehicle.
+        data: hover points with measured wrenches.
+        partition: the regions (for grouping and the per-region maps); default the paper's.
+        start: starting parameters; default the project's defaults.
+        leave_one_point: run the leave-one-point-out refits too.
+        stand_prior: fit with the force-stand prior (:data:`STAND_RATIOS`).
+
+    Returns:
+        The :class:`CalibrationResult`.
+    """
+    part = partition or load_partition("paper")
+    regions = tuple(assign_regions(data, part))
+    f_meas = data.w_B[:, :3]
+    params = fit_wake(vehicle, data, start, stand_prior=stand_prior)
+    f_nom = data.u_hz2 @ vehicle.A_nom[:3].T
+    k = float(np.sum(f_nom * f_meas) / np.sum(f_nom * f_nom))
+    forces = {
+        "measured": f_meas,
+        "nominal": f_nom,
+        "nominal x best constant": k * f_nom,
+        "SPEC §7 model": model_forces(vehicle, AeroParams(model="spec7"), data.u_hz2),
+        "rotor-wake model (calibrated)": model_forces(vehicle, params, data.u_hz2),
+    }
+    maps = identify(data, vehicle, IdentificationParams(), part)
+    if maps.global_ is not None:
+        forces["identified global map"] = data.u_hz2 @ maps.global_.A[:3].T
+    per_region = np.full_like(f_meas, np.nan)
+    for r, entry in maps.regions.items():
+        sel = np.asarray(regions) == r
+        per_region[sel] = data.u_hz2[sel] @ entry.A[:3].T
+    if not np.isnan(per_region).any():
+        forces["identified per-region maps"] = per_region
+    table = {name: _by_region(f - f_meas, regions) for name, f in forces.items() if name != "measured"}
+    cv, cv_params, loo = cross_validate(vehicle, data, regions, start, leave_one_point, stand_prior)
+    ratios = stand_ratios(vehicle, params)
+    stand = {r: STAND_RATIOS["R1"][0] * v / ratios["R1"] for r, v in ratios.items()}
+    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces, stand)
+
+
+def write_truth_toml(path: str | Path, params: AeroParams) -> None:
+    """Write a simulator TOML (``[aero]`` table, :func:`omnirotor.sim.params.load_sim_params`) atomically."""
+    p = Path(path)
+    lines = ["# Rotor-wake truth model calibrated by `omnirotor calibrate-truth` (docs/fidelity.md).", "[aero]"]
+    lines.append('model = "wake"')
+    lines += [f"{n} = {getattr(params, n):.6g}" for n in FIT_PARAMETERS]
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(p)
+
+
+def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> None:
+    """PNG: per region, the measured body force against the calibrated and SPEC §7 predictions, point by point."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    regions = sorted(set(result.regions))
+    reg = np.asarray(result.regions)
+    fig, axes = plt.subplots(2, len(regions), figsize=(4.2 * len(regions), 6.4), squeeze=False, sharey="row")
+    colours = ("tab:blue", "tab:orange", "tab:green")
+    wake = result.forces["rotor-wake model (calibrated)"]
+    spec = result.forces["SPEC §7 model"]
+    meas = result.forces["measured"]
+    for col, r in enumerate(regions):
+        idx = np.flatnonzero(reg == r)
+        x = np.arange(idx.size)
+        top, bottom = axes[0][col], axes[1][col]
+        for c, (label, colour) in enumerate(zip(("f_x", "f_y", "f_z"), colours, strict=True)):
+            top.plot(x, meas[idx, c], "o", color=colour, ms=5, label=f"{label} measured")
+            top.plot(x, wake[idx, c], "x", color=colour, ms=7, mew=1.6, label=f"{label} rotor-wake")
+            bottom.plot(x, meas[idx, c] - wake[idx, c], "x-", color=colour, ms=6, lw=0.8, label=f"{label} rotor-wake")
+            bottom.plot(x, meas[idx, c] - spec[idx, c], "_:", color=colour, ms=9, lw=0.8, label=f"{label} SPEC §7")
+        rms_w = result.table["rotor-wake model (calibrated)"][r]
+        rms_s = result.table["SPEC §7 model"][r]
+        top.set_title(f"{r}: RMS rotor-wake {rms_w:.2f} N, SPEC §7 {rms_s:.2f} N", fontsize=9)
+        bottom.axhline(0.0, color="k", lw=0.6)
+        bottom.set_xlabel("hover point")
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("body force [N]")
+    axes[1][0].set_ylabel("measured - predicted [N]")
+    axes[0][-1].legend(fontsize=6, ncol=2, loc="center right")
+    axes[1][-1].legend(fontsize=6, ncol=2, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def report_markdown(result: CalibrationResult) -> str:
+    """The calibration report: parameters, the comparison table and the cross-validation (Markdown)."""
+    regions = sorted(set(result.regions))
+    head = "| model | all points | " + " | ".join(regions) + " |"
+    sep = "|---|---|" + "---|" * len(regions)
+    rows = [head, sep]
+    for name, row in result.table.items():
+        label = f"nominal x best constant ({result.best_constant:.3f})" if name == "nominal x best constant" else name
+        rows.append(f"| {label} | {row['all']:.3f} | " + " | ".join(f"{row[r]:.3f}" for r in regions) + " |")
+    p = result.params
+    par = "\n".join(f"| `{n}` | {getattr(p, n):.4g} | {BOUNDS[n][0]:g} .. {BOUNDS[n][1]:g} |" for n in FIT_PARAMETERS)
+    cv_rows = "\n".join(
+        f"| {r} | {result.cv_region[r]:.3f} | {result.table['rotor-wake model (calibrated)'][r]:.3f} | "
+        + ", ".join(f"{getattr(result.cv_region_params[r], n):.3g}" for n in FIT_PARAMETERS)
+        + " |"
+        for r in sorted(result.cv_region)
+    )
+    loo = "not run" if math.isnan(result.cv_point_rms) else f"{result.cv_point_rms:.3f} N"
+    return (
+        "# Truth-model calibration\n\n"
+        f"{len(result.regions)} hover points; force RMS [N] of each model against the measured body force:\n\n"
+        + "\n".join(rows)
+        + "\n\nCalibrated rotor-wake parameters (bounds from physics, `omnirotor.sim.aero_calibration.BOUNDS`):\n\n"
+        "| parameter | value | bounds |\n|---|---|---|\n" + par + "\n\n"
+        "Leave-one-region-out cross-validation (fitted without the region, scored on it):\n\n"
+        "| held-out region | CV RMS [N] | in-sample RMS [N] | parameters without it ("
+        + ", ".join(FIT_PARAMETERS)
+        + ") |\n|---|---|---|---|\n"
+        + cv_rows
+        + f"\n\nLeave-one-point-out RMS over all points: {loo}.\n\n"
+        "Force-stand ratio |f| / |A_nom u| at each region's centre (model scaled to the stand's R1; stand: SPEC §3.5, "
+        "R1 1.14, R6 1.17, mixed-direction regions 1.22-1.27):\n\n"
+        "| "
+        + " | ".join(result.stand)
+        + " |\n|"
+        + "---|" * len(result.stand)
+        + "\n| "
+        + " | ".join(f"{v:.3f}" for v in result.stand.values())
+        + " |\n\n"
+        "![measured vs predicted](measured-vs-predicted.png)\n"
+    )
