@@ -12,8 +12,9 @@ solved by the active-set solver DAQP on scaled variables ``x = a / 1e-5`` with a
 ``ρ ‖x − x_nom‖²`` (ρ = 1e-8, SPEC §3.2 recipe) that keeps the almost unweighted torque rows at nominal.
 :func:`solve_map_lsq` solves the same problem with SciPy's bounded least squares, as an independent oracle.
 
-Hover data come from the authors' MATLAB files (``U``, ``Z``, ``W`` fields; see the shared data README) or
-from a CSV of hover points (format in :func:`load_csv`). The region of a point follows from the direction
+Hover data come from the authors' MATLAB files (``U``, ``Z``, ``W`` fields; see the shared data README),
+from a CSV of hover points (format in :func:`load_csv`) or from a PX4 flight log (``.ulg``, hover windows found
+automatically by :mod:`omnirotor.px4.windows`). The region of a point follows from the direction
 of its body-frame force (SPEC §3.3), unless the caller names it.
 """
 
@@ -282,7 +283,11 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
 
 
 def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> HoverData:
-    """Read hover points from files (``.mat`` or ``.csv``) and folders (their ``.mat`` and ``.csv`` files)."""
+    """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
+
+    A PX4 flight log (``.ulg``) gives one point per automatically found steady hover window
+    (:func:`omnirotor.px4.windows.load_ulog`).
+    """
     files: list[Path] = []
     for item in paths:
         p = Path(item)
@@ -291,9 +296,9 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
         except OSError:  # e.g. a name too long: check_input_file says so
             is_dir = False
         if is_dir:
-            found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv"))
+            found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv", ".ulg"))
             if not found:
-                raise InputError(f"{p}: folder holds no .mat or .csv hover data")
+                raise InputError(f"{p}: folder holds no .mat, .csv or .ulg hover data")
             files.extend(check_input_file(q) for q in found)
         else:
             files.append(check_input_file(p))
@@ -305,8 +310,12 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
             parts.append(load_mat(f, vehicle.n_rotors))
         elif f.suffix.lower() == ".csv":
             parts.append(load_csv(f, vehicle))
+        elif f.suffix.lower() == ".ulg":
+            from omnirotor.px4.windows import load_ulog  # pyulog only when a ULog is read
+
+            parts.append(load_ulog(f, vehicle))
         else:
-            raise InputError(f"{f}: unknown data format (expected .mat or .csv)")
+            raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
     return HoverData.concatenate(parts)
 

@@ -33,6 +33,7 @@ __all__ = [
     "RotorParams",
     "VehicleParams",
     "load_vehicle",
+    "vehicle_spec",
     "preset_names",
     "ForceEnvelope",
     "force_envelope",
@@ -233,14 +234,35 @@ def preset_names() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml"))
 
 
-def load_vehicle(spec: str | Path = "omnirotor") -> VehicleParams:
-    """Load a vehicle from a preset name or a TOML file path.
+OVERLAY_SEP = "::"
+"""Separates a PX4 vehicle source from its TOML overlay in one vehicle spec string (see :func:`vehicle_spec`)."""
+
+
+def vehicle_spec(vehicle: str, overlay: str | Path | None = None) -> str:
+    """One spec string for ``vehicle`` with an optional overlay (``--vehicle V --vehicle-overlay F``)."""
+    return str(vehicle) if overlay is None else f"{vehicle}{OVERLAY_SEP}{overlay}"
+
+
+def load_vehicle(spec: str | Path = "omnirotor", overlay: str | Path | None = None) -> VehicleParams:
+    """Load a vehicle from a preset name, a TOML file, a PX4 airframe file or a PX4 ULog.
+
+    A PX4 source (an airframe file with ``param set-default CA_...`` lines, or a ``.ulg`` log with its ``CA_*``
+    parameters) gives the rotor geometry; mass, inertia, c_f, c_tau and the speed limits come from ``overlay``
+    (a TOML file of vehicle keys without rotors) and otherwise from stated defaults, which are said on stderr
+    once per process (:mod:`omnirotor.px4.airframe`). ``spec`` may carry the overlay itself as
+    ``"SOURCE::OVERLAY"`` (:func:`vehicle_spec`), so that one string passes through run options.
 
     Raises:
         InputError: unknown preset, unreadable file, unknown key or non-physical value.
     """
     text = str(spec)
+    if OVERLAY_SEP in text:
+        if overlay is not None:
+            raise InputError(f"vehicle {text!r}: an overlay is given twice")
+        text, overlay = text.split(OVERLAY_SEP, 1)
     if text in preset_names():
+        if overlay is not None:
+            raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
         path = resources.files("omnirotor") / "presets" / "vehicles" / f"{text}.toml"
         data = load_toml(Path(str(path)))
         where = f"preset {text}"
@@ -248,6 +270,10 @@ def load_vehicle(spec: str | Path = "omnirotor") -> VehicleParams:
         p = Path(text)
         if not p.suffix and not os.path.exists(p):
             raise InputError(f"unknown vehicle preset {text!r}; presets: {', '.join(preset_names())}")
+        if _is_px4_source(p):
+            return _load_px4_vehicle(str(p), None if overlay is None else str(overlay), _stamp(p), _stamp(overlay))
+        if overlay is not None:
+            raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
         data = load_toml(p)
         where = str(p)
     rotors = data.pop("rotor", None)
@@ -256,6 +282,44 @@ def load_vehicle(spec: str | Path = "omnirotor") -> VehicleParams:
     parsed = tuple(from_mapping(RotorParams, r, f"{where} rotor {i + 1}") for i, r in enumerate(rotors))
     data.setdefault("name", Path(text).stem)
     return from_mapping(VehicleParams, {**data, "rotors": parsed}, where)
+
+
+def _is_px4_source(p: Path) -> bool:
+    if p.suffix.lower() == ".ulg":
+        return True
+    if p.suffix.lower() == ".toml" or not p.is_file():
+        return False
+    from omnirotor.px4.airframe import is_airframe_file
+
+    return is_airframe_file(p)
+
+
+def _stamp(path: str | Path | None) -> int:
+    """Modification time [ns] of a file (0 when absent): part of the cache key of :func:`_load_px4_vehicle`."""
+    try:
+        return Path(path).stat().st_mtime_ns if path is not None else 0
+    except OSError:
+        return 0
+
+
+@functools.lru_cache(maxsize=16)
+def _load_px4_vehicle(path: str, overlay: str | None, _mtime: int, _overlay_mtime: int) -> VehicleParams:
+    """A vehicle from a PX4 airframe file or ULog; says the assumed values on stderr (once per file version)."""
+    import sys
+
+    from omnirotor.px4.airframe import load_overlay, read_airframe_params, vehicle_from_px4_params
+
+    p = Path(path)
+    if p.suffix.lower() == ".ulg":
+        from omnirotor.px4.flight import read_ulog_params
+
+        params = read_ulog_params(p)
+    else:
+        params = read_airframe_params(p)
+    vehicle, assumed = vehicle_from_px4_params(params, p.name, str(p), load_overlay(overlay))
+    if assumed:
+        print(f"omnirotor: vehicle {p.name}: PX4 does not store these, assumed: {'; '.join(assumed)}", file=sys.stderr)
+    return vehicle
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

@@ -57,11 +57,17 @@ def summary(maps: WrenchMapSet) -> dict:
 
 @app.command("identify")
 def identify_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Hover data: .mat or .csv files, or folders of them.")],
+    data: Annotated[list[Path], typer.Argument(help="Hover data: .mat, .csv or PX4 .ulg files, or folders of them.")],
     delta: Annotated[str, typer.Option(help="Bound on each entry's change from nominal (units of A).")] = "3e-5",
     region: Annotated[str | None, typer.Option(help="Put every point of this call in region Rk.")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the wrench-map JSON here.")] = None,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[
+        str | None,
+        typer.Option(help="Preset, vehicle TOML, PX4 airframe or ULog (default: a ULog's own, else omnirotor)."),
+    ] = None,
+    vehicle_overlay: Annotated[
+        Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
+    ] = None,
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
     weights: Annotated[str | None, typer.Option(help="Row weights fx,fy,fz,mx,my,mz.")] = None,
     torque: Annotated[
@@ -81,7 +87,13 @@ def identify_cmd(
     if not (math.isfinite(delta_value) and delta_value > 0):
         raise InputError(f"--delta must be a finite number > 0, got {delta}")
     replacing = out is not None and check_output_file(out, "--out")
-    veh = load_vehicle(vehicle)
+    if vehicle is None:  # a PX4 log carries its own rotor geometry
+        vehicle = next((str(d) for d in data if d.suffix.lower() == ".ulg"), "omnirotor")
+        if vehicle.endswith((".ulg", ".ULG")):
+            from omnirotor.px4.flight import check_flight_log
+
+            check_flight_log(vehicle)  # name missing attitude or rotor speeds before missing geometry
+    veh = load_vehicle(vehicle, vehicle_overlay)
     part = load_partition(partition)
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh)

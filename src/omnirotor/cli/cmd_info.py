@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -10,13 +11,13 @@ from omnirotor.cli import app
 from omnirotor.safe_io import dumps_json
 
 
-def vehicle_report(spec: str, n_directions: int = 400) -> dict:
+def vehicle_report(spec: str, n_directions: int = 400, overlay: Path | None = None) -> dict:
     """Properties of a vehicle's nominal wrench map, as plain data (the JSON of ``omnirotor info``)."""
     import numpy as np
 
     from omnirotor.vehicle import force_envelope, load_vehicle
 
-    v = load_vehicle(spec)
+    v = load_vehicle(spec, overlay)
     A = v.A_nom
     sv = np.linalg.svd(A, compute_uv=False)
     rank = int(np.sum(sv > 1e-9 * sv[0]))
@@ -43,7 +44,10 @@ def vehicle_report(spec: str, n_directions: int = 400) -> dict:
 
 @app.command()
 def info(
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help="Preset, vehicle TOML, PX4 airframe file or ULog.")] = "omnirotor",
+    vehicle_overlay: Annotated[
+        Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     directions: Annotated[int, typer.Option(min=20, max=20000, help="Directions sampled for the envelope.")] = 400,
 ) -> None:
@@ -51,7 +55,7 @@ def info(
     from rich.console import Console
     from rich.table import Table
 
-    rep = vehicle_report(vehicle, directions)
+    rep = vehicle_report(vehicle, directions, vehicle_overlay)
     if as_json:
         print(dumps_json(rep))  # a non-finite number is written as null
         return

@@ -49,6 +49,13 @@ def run(
         typer.Option("--set", help="Controller parameter override key=value (repeatable), e.g. observer.cutoff_hz=5."),
     ] = None,
     video: Annotated[str | None, typer.Option(help="Film the run into this MP4 file (offscreen rendering).")] = None,
+    ulog: Annotated[
+        Path | None, typer.Option(help="Write the flight as a PX4 ULog (Flight Review, PlotJuggler, identify).")
+    ] = None,
+    mcap: Annotated[Path | None, typer.Option(help="Write the flight as MCAP with Foxglove schemas.")] = None,
+    vehicle_overlay: Annotated[
+        Path | None, typer.Option(help="TOML of what a PX4 vehicle does not store (mass, inertia, c_f, ...).")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fly TASK in the simulator with the interaction controller; print its metrics."""
@@ -66,6 +73,16 @@ def run(
         raise InputError(f"--video {video}: expected a .mp4 file name")
     if video is not None and check_output_file(video, "--video"):
         note(f"--video {video}: the existing file will be replaced")
+    for flag, target, suffix in (("--ulog", ulog, ".ulg"), ("--mcap", mcap, ".mcap")):
+        if target is not None and (target.suffix.lower() != suffix or target.is_dir()):
+            raise InputError(f"{flag} {target}: expected a {suffix} file name")
+        if target is not None and check_output_file(target, flag):
+            note(f"{flag} {target}: the existing file will be replaced")
+    if vehicle_overlay is not None:
+        from omnirotor.vehicle import load_vehicle, vehicle_spec
+
+        vehicle = vehicle_spec(vehicle, vehicle_overlay)
+        load_vehicle(vehicle)  # validate the vehicle and its overlay before flying
     if blend not in ("hard", "smooth"):
         raise InputError(f"--blend must be hard or smooth, got {blend!r}")
     options = ExperimentOptions(
@@ -97,23 +114,26 @@ def run(
         make_dir(out, "--out")
     route_mujoco_log(out)  # MuJoCo's log goes under --out, or nowhere
     try:
-        rep = _fly(task, map_mode, options)
+        result = _fly(task, map_mode, options)
     except InputError:
         if new_folder and not any(out.iterdir()):
             out.rmdir()  # bad input found while setting up the run: leave nothing behind
         raise
+    rep = result.summary()
     if out is not None:
         from omnirotor.safe_io import write_json_atomic
 
         write_json_atomic(out / f"{task}-{map_mode}.json", rep)
+    if ulog is not None or mcap is not None:
+        _export(result, options, ulog, mcap)
     if as_json:
         print(dumps_json(rep))
         return
     _print_table(task, rep)
 
 
-def _fly(task: str, map_mode: str, options) -> dict:
-    """Run the task under a progress bar on stderr; returns its summary."""
+def _fly(task: str, map_mode: str, options):
+    """Run the task under a progress bar on stderr; returns its result."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -131,7 +151,23 @@ def _fly(task: str, map_mode: str, options) -> dict:
     ) as bar:
         bar_id = bar.add_task(task, total=1.0)
         result = run_task(task, options, progress=lambda frac: bar.update(bar_id, completed=frac))
-    return result.summary()
+    return result
+
+
+def _export(result, options, ulog: Path | None, mcap: Path | None) -> None:
+    """Write the run as ULog and/or MCAP (omnirotor.px4.run_export)."""
+    from omnirotor.px4.mcap_export import write_run_mcap
+    from omnirotor.px4.run_export import run_signals, write_run_ulog
+    from omnirotor.vehicle import load_vehicle
+
+    vehicle = load_vehicle(options.vehicle)
+    signals = run_signals(result.controller_log, result.truth_log, rate_hz=100.0)
+    if ulog is not None:
+        write_run_ulog(ulog, signals, vehicle, task=result.task)
+    if mcap is not None:
+        scenario = getattr(result, "scenario", None)
+        scene = scenario.scene if scenario is not None else "free"
+        write_run_mcap(mcap, signals, vehicle, scene, options.sim_params().scene)
 
 
 def _print_table(task: str, rep: dict) -> None:
