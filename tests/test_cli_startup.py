@@ -24,7 +24,17 @@ print(json.dumps({"code": code, "text": out.getvalue(), "modules": sorted(sys.mo
 """
 
 
-@pytest.mark.parametrize("args", [["--help"], ["identify", "--help"], ["run", "--help"], ["campaign", "--help"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--help"],
+        ["identify", "--help"],
+        ["run", "--help"],
+        ["campaign", "--help"],
+        ["regions", "--help"],
+        ["study", "points-per-region", "--help"],
+    ],
+)
 def test_help_imports_no_heavy_module(args: list[str]) -> None:
     import json
 

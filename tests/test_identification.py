@@ -231,5 +231,5 @@ def test_bad_files(tmp_path):
         load_hover_data([tmp_path / "missing.mat"], VEHICLE)
     empty = tmp_path / "empty_dir"
     empty.mkdir()
-    with pytest.raises(InputError, match="no .mat or .csv"):
+    with pytest.raises(InputError, match=r"folder holds no \.mat, \.csv or \.ulg hover data"):
         load_hover_data([empty], VEHICLE)

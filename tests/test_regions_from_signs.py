@@ -1,6 +1,7 @@
 """Regions from the hover sign pattern (issue 15, item 2): allocation, partition, file, CLI."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -137,3 +138,34 @@ def test_cli_bad_input(tmp_path, capsys, args, needle):
     err = capsys.readouterr().err
     assert code == 2 and needle in err and err.count("\n") == 1
     assert not out.exists() and not (tmp_path / "f.png").exists()
+
+
+def test_cli_refuses_unsafe_destinations_before_any_work(tmp_path, capsys):
+    target = tmp_path / "target.toml"
+    target.write_text("kept\n")
+    link = tmp_path / "link.toml"
+    link.symlink_to(target)
+    folder = tmp_path / "folder.toml"
+    folder.mkdir()
+    cases = [
+        (["--out", str(link)], "symbolic link"),
+        (["--out", str(folder)], "folder"),
+        (["--out", str(tmp_path / "r.toml"), "--figure", str(tmp_path / "r.jpg")], ".png"),
+    ]
+    for extra, needle in cases:
+        code = main(["regions", "--from-signs", "--step", "10", *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and needle in err and err.count("\n") == 1, (extra, err)
+    assert target.read_text() == "kept\n" and link.is_symlink()
+    assert not (tmp_path / "r.toml").exists() and not (tmp_path / "r.jpg").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.toml", "link.toml", "target.toml"]  # no temp files
+
+
+def test_cli_replacing_a_file_says_so(tmp_path, capsys):
+    out = tmp_path / "r.toml"
+    out.write_text("old\n")
+    code = main(["regions", "--from-signs", "--step", "10", "--out", str(out), "--json"])
+    cap = capsys.readouterr()
+    assert code == 0 and load_partition(out).name == "r"
+    assert "--out" in cap.err and "replaced" in cap.err and cap.err.count("\n") == 1
+    assert json.loads(cap.out)["out"] == str(out)

@@ -91,3 +91,20 @@ def test_study_cli_bad_input(tmp_path, capsys, args, needle):
     err = capsys.readouterr().err
     assert code == 2 and needle in err and err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["points-per-region", "partitions", "torque-rows"])
+def test_study_cli_refuses_a_file_as_out_folder(tmp_path, capsys, command):
+    out = tmp_path / "study"
+    out.write_text("kept\n")
+    code = main(["study", command, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "not a folder" in err and err.count("\n") == 1
+    assert out.read_text() == "kept\n"
+
+
+def test_noise_names_in_the_help_are_the_noise_levels():
+    from omnirotor.cli.cmd_study import NOISE_NAMES
+    from omnirotor.studies.hover_pool import NOISE_LEVELS
+
+    assert NOISE_NAMES == ", ".join(NOISE_LEVELS)

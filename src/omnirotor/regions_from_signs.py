@@ -42,6 +42,7 @@ from scipy.optimize import lsq_linear
 from omnirotor.config import check_positive
 from omnirotor.errors import InputError
 from omnirotor.regions import Partition, partition_from_dict
+from omnirotor.safe_io import write_text_atomic
 from omnirotor.vehicle import VehicleParams, fibonacci_sphere
 
 __all__ = [
@@ -298,8 +299,12 @@ def mismatch_fraction(
     return miss, areas, int(np.unique(local).size)
 
 
-def write_partition_toml(path: str | Path, result: SignPartition, vehicle: VehicleParams) -> None:
-    """Write the partition as a regions TOML (``presets/regions/paper.toml``'s format) atomically."""
+def write_partition_toml(path: str | Path, result: SignPartition, vehicle: VehicleParams, label: str = "") -> None:
+    """Write the partition as a regions TOML (``presets/regions/paper.toml``'s format) atomically.
+
+    The file is written by :func:`omnirotor.safe_io.write_text_atomic`: a folder, device, FIFO or symbolic link
+    at ``path`` is refused with an :class:`InputError` naming ``label`` (an option such as ``--out``).
+    """
     n = vehicle.n_rotors
     lines = [
         f"# Regions from the hover sign pattern of vehicle {vehicle.name!r} (omnirotor regions --from-signs).",
@@ -321,14 +326,7 @@ def write_partition_toml(path: str | Path, result: SignPartition, vehicle: Vehic
             f"elevation_deg = [{r.elevation_deg[0]:g}, {r.elevation_deg[1]:g}]",
             "",
         ]
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"--out {p}: is a folder")
-    if not p.parent.exists():
-        raise InputError(f"--out {p}: folder {p.parent} does not exist")
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text("\n".join(lines))
-    tmp.replace(p)
+    write_text_atomic(path, "\n".join(lines), label)
 
 
 def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str | Path, n: int = 15000) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -10,14 +9,7 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
-from omnirotor.regions import load_partition
-from omnirotor.regions_from_signs import (
-    mismatch_fraction,
-    partition_from_signs,
-    plot_sign_partition,
-    write_partition_toml,
-)
-from omnirotor.vehicle import load_vehicle
+from omnirotor.safe_io import atomic_path, check_output_file, dumps_json, note
 
 
 @app.command("regions")
@@ -37,24 +29,39 @@ def regions_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Regions from rotor sign patterns (--from-signs), or how well a partition follows them."""
-    veh = load_vehicle(vehicle)
     if not from_signs:
         if out is not None or figure is not None:
             raise InputError("--out and --figure need --from-signs")
+    elif out is None:
+        raise InputError("--from-signs needs --out FILE.toml")
+    if figure is not None and figure.suffix.lower() != ".png":
+        raise InputError(f"--figure {figure}: expected a .png file name")
+    replacing = {
+        flag: p is not None and check_output_file(p, flag) for flag, p in (("--out", out), ("--figure", figure))
+    }
+
+    from omnirotor.regions import load_partition
+    from omnirotor.regions_from_signs import mismatch_fraction, partition_from_signs
+    from omnirotor.vehicle import load_vehicle
+
+    veh = load_vehicle(vehicle)
+    if not from_signs:
         part = load_partition(partition)
         miss, areas, n_pat = mismatch_fraction(veh, part)
         rep = {"partition": part.name, "regions": len(areas), "local_patterns": n_pat, "mismatch_frac": miss}
-        print(json.dumps(rep, indent=1) if as_json else _line(rep))
+        print(dumps_json(rep) if as_json else _line(rep))
         return
-    if out is None:
-        raise InputError("--from-signs needs --out FILE.toml")
-    for p, what in ((out, "--out"), (figure, "--figure")):
-        if p is not None and (p.is_dir() or not p.parent.exists()):
-            raise InputError(f"{what} {p}: is a folder or its folder does not exist")
+
+    from omnirotor.regions_from_signs import plot_sign_partition, write_partition_toml
+
     result = partition_from_signs(veh, bands=bands, min_area_frac=min_area_frac, step_deg=step, name=out.stem)
-    write_partition_toml(out, result, veh)
+    write_partition_toml(out, result, veh, label="--out")
     if figure is not None:
-        plot_sign_partition(result, veh, figure)
+        with atomic_path(figure, "--figure") as tmp:
+            plot_sign_partition(result, veh, tmp)
+    for flag, p in (("--out", out), ("--figure", figure)):
+        if replacing[flag]:
+            note(f"{flag} {p}: replaced the existing file")
     rep = {
         "partition": result.partition.name,
         "regions": len(result.partition.regions),
@@ -63,7 +70,7 @@ def regions_cmd(
         "band_edges_deg": list(result.band_edges_deg),
         "out": str(out),
     }
-    print(json.dumps(rep, indent=1) if as_json else _line(rep))
+    print(dumps_json(rep) if as_json else _line(rep))
 
 
 def _line(rep: dict) -> str:

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
-from omnirotor.regions import load_partition
-from omnirotor.studies.hover_pool import NOISE_LEVELS
-from omnirotor.vehicle import load_vehicle
+from omnirotor.safe_io import atomic_path, check_output_dir, dumps_json, make_dir, write_json_atomic
+
+NOISE_NAMES = "low, medium, high"
+"""The noise levels named in the options' help (:data:`omnirotor.studies.hover_pool.NOISE_LEVELS`)."""
 
 study_app = typer.Typer(
     help="Studies beyond the paper; each writes a JSON and a figure into --out.", no_args_is_help=True
@@ -21,12 +20,13 @@ study_app = typer.Typer(
 app.add_typer(study_app, name="study")
 
 
-def _out_dir(out: Path) -> Path:
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: is a file, not a folder")
-    if not out.parent.exists():
-        raise InputError(f"--out {out}: folder {out.parent} does not exist")
-    return out
+def _noise_level(name: str):
+    """The :class:`~omnirotor.studies.hover_pool.HoverNoise` named by ``--noise``."""
+    from omnirotor.studies.hover_pool import NOISE_LEVELS
+
+    if name not in NOISE_LEVELS:
+        raise InputError(f"--noise must be one of {', '.join(NOISE_LEVELS)}, got {name!r}")
+    return NOISE_LEVELS[name]
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -41,9 +41,7 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
 def points_per_region_cmd(
     out: Annotated[Path, typer.Option(help="Folder for points-per-region.json and .png.")],
     counts: Annotated[str, typer.Option(help="Points per region, comma separated.")] = "3,4,5,6,8,10,12,15,20,25,30",
-    noise: Annotated[str, typer.Option(help=f"Noise levels, comma separated ({', '.join(NOISE_LEVELS)}).")] = (
-        "low,medium,high"
-    ),
+    noise: Annotated[str, typer.Option(help=f"Noise levels, comma separated ({NOISE_NAMES}).")] = "low,medium,high",
     reps: Annotated[int, typer.Option(help="Seeded repetitions per (count, noise).")] = 40,
     validation: Annotated[int, typer.Option(help="Validation attitudes.")] = 300,
     workers: Annotated[int, typer.Option(help="Processes.")] = 2,
@@ -52,10 +50,11 @@ def points_per_region_cmd(
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
 ) -> None:
     """Validation error of the identified maps against hover points per region and hover noise."""
+    from omnirotor.regions import load_partition
     from omnirotor.studies.points_per_region import plot_points_per_region, points_per_region_study
-    from omnirotor.wrench_maps import write_json_atomic
+    from omnirotor.vehicle import load_vehicle
 
-    out = _out_dir(out)
+    check_output_dir(out, "--out")
     result = points_per_region_study(
         load_vehicle(vehicle),
         counts=_ints(counts, "--counts"),
@@ -66,9 +65,10 @@ def points_per_region_cmd(
         workers=workers,
         partition=load_partition(partition),
     )
-    out.mkdir(exist_ok=True)
-    write_json_atomic(out / "points-per-region.json", result)
-    plot_points_per_region(result, out / "points-per-region.png")
+    make_dir(out, "--out")
+    write_json_atomic(out / "points-per-region.json", result, "--out")
+    with atomic_path(out / "points-per-region.png", "--out") as tmp:
+        plot_points_per_region(result, tmp)
     for name, res in result["results"].items():
         cells = ", ".join(f"{k}: {v['mean']:.3f}" for k, v in res.items())
         print(f"noise {name}: validation force residual RMS [N] by points per region: {cells}")
@@ -83,7 +83,7 @@ def partitions_cmd(
     ] = None,  # noqa: B008
     total: Annotated[int, typer.Option(help="Hover points in total per identification.")] = 150,
     reps: Annotated[int, typer.Option(help="Seeded repetitions.")] = 10,
-    noise: Annotated[str, typer.Option(help=f"Noise level ({', '.join(NOISE_LEVELS)}).")] = "medium",
+    noise: Annotated[str, typer.Option(help=f"Noise level ({NOISE_NAMES}).")] = "medium",
     validation: Annotated[int, typer.Option(help="Validation attitudes.")] = 300,
     sliding: Annotated[bool, typer.Option("--sliding/--no-sliding", help="Fly one sliding run per partition.")] = True,
     full_sliding: Annotated[
@@ -93,10 +93,12 @@ def partitions_cmd(
     vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
 ) -> None:
     """Compare partitions at equal total hover points: residual, hover bias, sliding (closed loop)."""
+    from omnirotor.regions import load_partition
     from omnirotor.studies.partitions import compare_partitions, plot_comparison, write_json
+    from omnirotor.vehicle import load_vehicle
 
-    if noise not in NOISE_LEVELS:
-        raise InputError(f"--noise must be one of {', '.join(NOISE_LEVELS)}, got {noise!r}")
+    noise_level = _noise_level(noise)
+    check_output_dir(out, "--out")
     names = partition or ["paper"]
     parts = {}
     for spec in names:
@@ -105,20 +107,20 @@ def partitions_cmd(
         if key in parts:
             raise InputError(f"--partition {spec}: named twice")
         parts[key] = p
-    out = _out_dir(out)
     result = compare_partitions(
         load_vehicle(vehicle),
         parts,
         total_points=total,
         reps=reps,
-        noise=NOISE_LEVELS[noise],
+        noise=noise_level,
         n_validation=validation,
         seed=seed,
         sliding=sliding,
         sliding_quick=not full_sliding,
     )
-    out.mkdir(exist_ok=True)
-    plot_comparison(result, out / "partitions.png")
+    make_dir(out, "--out")
+    with atomic_path(out / "partitions.png", "--out") as tmp:
+        plot_comparison(result, tmp)
     write_json(result, out / "partitions.json")
     for name, e in result["partitions"].items():
         line = (
@@ -130,7 +132,7 @@ def partitions_cmd(
             s = e["sliding"]
             line += f", sliding contact {100 * s['contact_fraction']:.0f} %, {s['map_switches']} map switches"
         print(line)
-    print(json.dumps(result["nominal"]))
+    print(dumps_json(result["nominal"], indent=None))
 
 
 @study_app.command("torque-rows")
@@ -141,13 +143,18 @@ def torque_rows_cmd(
     vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
 ) -> None:
     """Torque rows from an attitude-sweep flight against hover-only maps (closed loop, paper Fig. 3 moments)."""
-    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
-    from omnirotor.wrench_maps import write_json_atomic
+    import numpy as np
 
-    out = _out_dir(out)
+    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
+    from omnirotor.vehicle import load_vehicle
+
+    check_output_dir(out, "--out")
+    load_vehicle(vehicle)  # a bad vehicle is one line before the folder is made
+    make_dir(out, "--out")
     result = torque_rows_study(out, quick=quick, seed=seed, vehicle_name=vehicle)
-    write_json_atomic(out / "torque-rows.json", result)
-    plot_torque_rows(result, out / "torque-rows.png")
+    write_json_atomic(out / "torque-rows.json", result, "--out")
+    with atomic_path(out / "torque-rows.png", "--out") as tmp:
+        plot_torque_rows(result, tmp)
     for r, e in result["torque_rows"].items():
         print(
             f"{r}: mean |A2 entry - truth| nominal {e['entry_abs_error_nominal_mean']:.2e}, identified "
