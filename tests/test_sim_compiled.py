@@ -17,7 +17,7 @@ import numpy as np
 from omnirotor._jit import monotonic_ns
 from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate, frame_size
 from omnirotor.sim import SimParams, Simulator
-from omnirotor.sim.model import EE_ROD_GEOM, EE_TIP_GEOM, ROD_RADIUS
+from omnirotor.sim.model import EE_ROD_GEOM, EE_TIP_GEOM, ROD_RADIUS, TOOL_BODY
 from omnirotor.so3 import exp_so3
 from omnirotor.vehicle import load_vehicle
 
@@ -68,7 +68,10 @@ def test_compiled_step_equals_the_step_run_from_python():
 
 
 def _contact_wrench_by_contact_force(sim: Simulator, p_E_W: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Oracle: the environment's force on the EE geoms and its moment about ``p_E_W``, contact by contact."""
+    """Oracle: the environment's force on the EE geoms and its moment about ``p_E_W``, contact by contact.
+
+    The robot's geoms are those of the bodies whose root is the vehicle body (the vehicle and its tool).
+    """
     m, d = sim.model, sim.data
     body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "vehicle")
     ee = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (EE_TIP_GEOM, EE_ROD_GEOM)}
@@ -76,7 +79,8 @@ def _contact_wrench_by_contact_force(sim: Simulator, p_E_W: np.ndarray) -> tuple
     f6 = np.zeros(6)
     for c in range(d.ncon):
         g1, g2 = d.contact.geom1[c], d.contact.geom2[c]
-        r1, r2 = m.geom_bodyid[g1] == body, m.geom_bodyid[g2] == body
+        # the robot's geoms: the vehicle body's and its child tool body's (the compliant tool's rod and tip)
+        r1, r2 = m.body_rootid[m.geom_bodyid[g1]] == body, m.body_rootid[m.geom_bodyid[g2]] == body
         if r1 == r2 or (g1 if r1 else g2) not in ee:
             continue
         touching = True
@@ -94,6 +98,8 @@ def test_contact_sensors_give_the_summed_contact_wrench_with_several_contacts():
     _pressed_on_wall(sim)
     m, d = sim.model, sim.data
     ee = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in (EE_TIP_GEOM, EE_ROD_GEOM)}
+    # the default (compliant) tool: the EE geoms sit on the vehicle's child body, not on the vehicle body
+    assert {int(m.geom_bodyid[g]) for g in ee} == {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, TOOL_BODY)}
     row = np.zeros(40)
     cmd = RotorCommand(0.0, sim.hover_speeds_hz())
     most, both = 0, False
