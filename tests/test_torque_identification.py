@@ -106,16 +106,6 @@ def test_identify_torque_cli_bad_flight_log_exits_2(tmp_path, capsys, flight_dat
     assert code == 2 and "not a flight log" in err and err.count("\n") == 1 and not out.exists()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "the compliant tool's body (sim/model.py) adds its moment of inertia (10 g at 0.5 m: 0.0025 kg m^2) on top "
-        "of the vehicle file's 0.0113 kg m^2 about the two axes across the tool, while the fit's rigid-body model "
-        "uses the file's J: the identified rows' mean entry error is 2.37e-6 against the nominal's 2.29e-6 (limit "
-        "0.6x). Measured: rigid tool 0.58e-6 (ratio 0.26); compliant tool with J + the tool's inertia in the fit "
-        "0.55e-6 (0.24); compliant tool whose inertia is taken from the body's, as its mass is, 0.65e-6 (0.28)"
-    ),
-)
 def test_shortened_sweep_flight_identifies_torque_rows_nearer_the_truth(vehicle, tmp_path):
     from omnirotor.experiments.closed_loop import run_task
     from omnirotor.experiments.tasks import ExperimentOptions

@@ -12,8 +12,8 @@ given explicitly (the geoms carry no mass), and by default a compliant tool. Its
   ``SceneParams.tool_compliant`` the rod and the tip sit on a child body ``ee_tool`` joined to the vehicle at
   its CoM by a slide along the tool axis and two hinges across it (spring-dampers: the paper's vibration-
   damping coupling, §5.3). The tool's mass, taken from the body's, sits at that pivot with the moment of inertia
-  of that mass at the tip, so the vehicle's mass and CoM stay those of its file. Its joints follow the free
-  joint in ``qpos``.
+  of that mass at the tip, also taken from the body's, so the vehicle's mass, CoM and (tool locked) inertia stay
+  those of its file. Its joints follow the free joint in ``qpos``.
 
 Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone.
 
@@ -145,6 +145,38 @@ def _tool_joints(d: np.ndarray, arm: float, params: SceneParams) -> list[str]:
     return out
 
 
+def _tool_inertia(vehicle: VehicleParams, params: SceneParams) -> np.ndarray:
+    """(3, 3) inertia of the compliant tool about the vehicle's CoM, body axes [kg·m²]: ``tool_mass`` at the tip."""
+    p_E = vehicle.p_E_B_array
+    length = float(np.linalg.norm(p_E))
+    d = p_E / length
+    i_perp = params.tool_mass * length * length
+    i_ax = 0.4 * params.tool_mass * TIP_RADIUS**2
+    return i_perp * (np.eye(3) - np.outer(d, d)) + i_ax * np.outer(d, d)
+
+
+def _body_inertial(vehicle: VehicleParams, params: SceneParams, mass: float, compliant: bool) -> str:
+    """The vehicle body's ``<inertial>``: the file's inertia, less the compliant tool's (its own body carries it).
+
+    The tool's inertia is taken from the body's as its mass is, so that the vehicle with its tool locked has
+    the inertia of its file (what the controller and the torque identification's rigid-body model assume).
+
+    Raises:
+        InputError: when the remainder is not a physical inertia (the tool too heavy or too long).
+    """
+    if not compliant:
+        return f'<inertial pos="0 0 0" mass="{mass:.9g}" diaginertia="{_fmt(vehicle.inertia_diag)}"/>'
+    J = vehicle.inertia - _tool_inertia(vehicle, params)
+    ev = np.linalg.eigvalsh(J)
+    if ev[0] <= 0.0 or 2.0 * ev[-1] > ev.sum() * (1.0 + 0.02):
+        raise InputError(
+            f"scene.tool_mass ({params.tool_mass} kg) at the tip: the tool's inertia leaves the body a non-physical"
+            f" inertia (principal moments {ev.tolist()})"
+        )
+    full = (J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2])
+    return f'<inertial pos="0 0 0" mass="{mass:.9g}" fullinertia="{_fmt(full)}"/>'
+
+
 def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str], str]:
     """The EE site (on the body) and the tool: a Ø16 mm rod ending in a Ø16 mm tip sphere (SPEC §5.2's peg).
 
@@ -184,9 +216,7 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
     # Lumped tool: its mass sits at the pivot (the vehicle's CoM, so that the vehicle's CoM stays the body
     # origin and gravity loads no hinge) with the moment of inertia about the pivot of that mass at the tip.
     m = params.tool_mass
-    i_perp = m * length * length
-    i_ax = 0.4 * m * TIP_RADIUS**2
-    inertia = i_perp * (np.eye(3) - np.outer(d, d)) + i_ax * np.outer(d, d)
+    inertia = _tool_inertia(vehicle, params)
     full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2])
     inner = _tool_joints(d, length, params)
     inner.append(f'<inertial pos="0 0 0" mass="{m:.9g}" fullinertia="{_fmt(full)}"/>')
@@ -229,12 +259,12 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     """
     solref = f"{params.contact_timeconst:.9g} {params.contact_dampratio:.9g}"
     friction = f"{params.friction:.9g} 0.005 0.0001"
-    J = vehicle.inertia_diag
     floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
     ee, tool = _ee_elements(vehicle, params)
     mass = vehicle.mass - (params.tool_mass if tool else 0.0)
     if mass <= 0.5 * vehicle.mass:
         raise InputError(f"scene.tool_mass ({params.tool_mass} kg) must be below half the vehicle's mass")
+    inertial = _body_inertial(vehicle, params, mass, bool(tool))
     body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + ee + ([tool] if tool else []))
     return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
   <compiler angle="radian" autolimits="true" balanceinertia="true"/>
@@ -268,7 +298,7 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     {scene_geoms_xml(scene, params)}
     <body name="{BODY_NAME}" pos="0 0 1">
       <freejoint name="root"/>
-      <inertial pos="0 0 0" mass="{mass:.9g}" diaginertia="{_fmt(J)}"/>
+      {inertial}
       {body}
     </body>
   </worldbody>

@@ -236,8 +236,9 @@ class SceneParams:
         tool_compliant: mount the tool (rod and tip) on the vehicle through a compliant coupling (paper §5.3: "a
             coupling between the EE and body ... to reduce vibrations"); False: the tool is part of the rigid body.
         tool_mass: moving mass of the tool, lumped at the tip [kg] [A: 10 g, a 3D-printed tip (~5 g) plus the
-            effective mass of a Ø16 mm carbon tube at its tip (~1/4 of its ~25 g)]; taken from the body's mass so
-            that the vehicle weighs what the vehicle file says.
+            effective mass of a Ø16 mm carbon tube at its tip (~1/4 of its ~25 g)]; taken from the body's mass, and
+            its moment of inertia from the body's inertia, so that the vehicle weighs what the vehicle file says
+            and has its inertia with the tool locked.
         tool_axial_stiffness: stiffness of the coupling along the tool axis [N/m] [A: 4000, elastomer isolators
             that a 3 N push compresses by 0.75 mm].
         tool_bending_stiffness: rotational stiffness of the coupling and the rod across the tool axis [N·m/rad]
