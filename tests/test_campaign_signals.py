@@ -25,7 +25,11 @@ START_TIMEOUT_S = 300  # the first run may compile the kernels
 EXIT_TIMEOUT_S = 60
 
 
-MANY_RUNS = "200"  # more than finish before the signal
+# Far more runs than can finish before the signal, even when this process is starved: the campaign runs in a
+# session of its own, which the kernel's autogroup scheduling gives a CPU share of its own, so under load it
+# can run at full speed while this process waits. 200 runs (about 7 s on 2 cores) could finish first in the
+# full suite under load (the campaign then exited 0 before the Ctrl-C); 3000 take about 100 s.
+MANY_RUNS = "3000"
 
 
 def campaign_argv(tmp_path, out, *extra):
@@ -113,6 +117,7 @@ def test_ctrl_c_exits_130_keeps_results_and_a_second_campaign_is_refused(tmp_pat
     err = capsys.readouterr().err
     assert code == 2 and "another campaign" in err and len(err.strip().splitlines()) == 1
     assert (out / "campaign.json").read_bytes() == before
+    assert proc.poll() is None, "the campaign ended before the Ctrl-C: the test's premise needs more runs"
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in a terminal reaches the whole process group
     _, stderr = proc.communicate(timeout=EXIT_TIMEOUT_S)
     assert proc.returncode == 130
