@@ -16,6 +16,7 @@ A kind without a driver fails the suite, so a new kind of block cannot escape it
 
 from __future__ import annotations
 
+import abc
 import math
 from pathlib import Path
 
@@ -73,20 +74,24 @@ def _poison(arr: np.ndarray) -> np.ndarray:
 # -- drivers: make a block, random inputs, one step (returns the outputs), the inputs with a NaN -----------------
 
 
-class _Driver:
+class _Driver(abc.ABC):
     """How to drive the blocks of one kind through their public methods."""
 
+    @abc.abstractmethod
     def make(self, cls):
-        raise NotImplementedError
+        """A block of class ``cls`` with test parameters."""
 
+    @abc.abstractmethod
     def inputs(self, rng, k: int) -> tuple:
-        raise NotImplementedError
+        """Random inputs of step ``k``."""
 
+    @abc.abstractmethod
     def step(self, block, inputs) -> tuple:
-        raise NotImplementedError
+        """One step of ``block``; returns its outputs."""
 
+    @abc.abstractmethod
     def poisoned(self, inputs) -> tuple:
-        raise NotImplementedError
+        """``inputs`` with a NaN."""
 
     def flagged(self, block) -> int:
         return int(block.state["n_nonfinite"][0])

@@ -463,7 +463,7 @@ def _snapshot(folder: Path) -> dict[str, tuple]:
 
 
 class _Timeout(Exception):
-    pass
+    """A probe ran past its alarm."""
 
 
 @contextlib.contextmanager

@@ -92,7 +92,6 @@ class Block(Protocol):
 
     def reset(self) -> None:
         """Return the state to its initial value (parameters are kept)."""
-        ...
 
 
 T = TypeVar("T")
