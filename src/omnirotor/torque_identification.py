@@ -35,6 +35,7 @@ Flight-log CSV (``omnirotor run identify-dynamic`` writes it, ``omnirotor identi
 
 one row per sample at a constant rate (the gyro and the measured, signed rotor speeds), ``region`` the
 region of the attitude at that sample (else every sample goes to the global map only), ``#`` comment lines.
+A PX4 ULog of the flight serves as well (:func:`load_flight_ulog`).
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ from scipy.signal import butter, filtfilt
 from omnirotor.config import check_positive
 from omnirotor.errors import InputError
 from omnirotor.identification import HoverData, IdentificationParams, read_csv_rows, solve_map
+from omnirotor.regions import Partition
+from omnirotor.safe_io import note
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import MapEntry, WrenchMapSet
 
@@ -59,6 +62,8 @@ __all__ = [
     "TorqueFit",
     "TORQUE_WEIGHTS",
     "load_flight_csv",
+    "load_flight_ulog",
+    "ULOG_MAX_RATE_HZ",
     "write_flight_csv",
     "zero_phase_derivative",
     "moment_samples",
@@ -304,11 +309,82 @@ def merge_torque_rows(
     return dataclasses.replace(maps, regions=regions, global_=g), fits
 
 
+ULOG_MAX_RATE_HZ = 1000.0
+"""A ULog's flight is resampled at its gyro's median rate, at most this [Hz]."""
+
+
+def _on_grid(s_t: np.ndarray, s_x: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Linear interpolation of the samples ``(s_t, s_x)`` (along axis 0) at the times ``t``."""
+    x = s_x.reshape(s_x.shape[0], -1)
+    return np.column_stack([np.interp(t, s_t, x[:, j]) for j in range(x.shape[1])])
+
+
+def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partition) -> tuple[FlightLog, list[str]]:
+    """A flight log from a PX4 ULog (:func:`omnirotor.px4.flight.read_flight`: our frames and units).
+
+    The gyro (``sensor_combined``, else ``vehicle_angular_velocity``) and the signed rotor speeds (``esc_status``,
+    else ``actuator_motors`` mapped by the vehicle's ``omega_max_hz``) are resampled linearly onto one grid at
+    the gyro's median rate (at most :data:`ULOG_MAX_RATE_HZ`), over the span where both exist and the vehicle
+    is airborne (``vehicle_land_detected``; the whole span when the log has no such topic). Each sample's
+    region is that of the nearest logged attitude (``vehicle_attitude``, the estimate) in ``partition``.
+
+    Returns:
+        The log and what was chosen or assumed, one line each (the CLI says them on stderr).
+
+    Raises:
+        InputError: not a ULog, no attitude, rotor speeds or gyro, or no airborne span.
+    """
+    from omnirotor.px4.flight import read_flight
+
+    p = Path(path)
+    f = read_flight(p, vehicle.n_rotors, vehicle.omega_max_hz)
+    if f.omega_B is None:
+        raise InputError(f"{p}: no gyro (neither sensor_combined nor vehicle_angular_velocity)")
+    t_lo = max(f.omega_B.t[0], f.omega_hz.t[0])
+    t_hi = min(f.omega_B.t[-1], f.omega_hz.t[-1])
+    span = "gyro and rotor speeds"
+    if f.landed is not None:
+        airborne = f.landed.t[f.landed.x < 0.5]
+        if airborne.size == 0:
+            raise InputError(f"{p}: the vehicle never left the ground (vehicle_land_detected)")
+        t_lo, t_hi = max(t_lo, airborne[0]), min(t_hi, airborne[-1])
+        span = "airborne"
+    rate_hz = min(ULOG_MAX_RATE_HZ, 1.0 / float(np.median(np.diff(f.omega_B.t))))
+    n = int(math.floor((t_hi - t_lo) * rate_hz)) + 1
+    if not (math.isfinite(rate_hz) and n >= 3):
+        raise InputError(f"{p}: no {span} span with gyro and rotor speeds to fit torque rows from")
+    t = t_lo + np.arange(n) / rate_hz
+    gyro_B = _on_grid(f.omega_B.t, f.omega_B.x, t)
+    rotor_hz = _on_grid(f.omega_hz.t, f.omega_hz.x, t)
+    i_att = np.clip(np.searchsorted(f.R_WB.t, t), 0, f.R_WB.t.size - 1)
+    i_prev = np.clip(i_att - 1, 0, None)
+    i_att = np.where(np.abs(f.R_WB.t[i_prev] - t) < np.abs(f.R_WB.t[i_att] - t), i_prev, i_att)
+    names = {i: partition.name_of_attitude(f.R_WB.x[i]) for i in np.unique(i_att)}
+    region = tuple(names[i] for i in i_att)
+    notes = [
+        f"{p.name}: torque flight {t[-1] - t[0]:.1f} s ({span}), gyro and rotor speeds ({f.speed_source}) "
+        f"resampled at {rate_hz:g} Hz; regions from vehicle_attitude"
+    ]
+    try:
+        return FlightLog(t, gyro_B, rotor_hz, region), notes
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from None
+
+
 def flight_torque_rows(
-    maps: WrenchMapSet, flight_csv: str | Path, vehicle: VehicleParams, delta: float | None = None
+    maps: WrenchMapSet, flight: str | Path, vehicle: VehicleParams, delta: float | None = None
 ) -> tuple[WrenchMapSet, dict[str, TorqueFit]]:
-    """Read a flight-log CSV and replace the torque rows of ``maps`` by its fit (``omnirotor identify --torque``)."""
+    """Read a flight log and replace the torque rows of ``maps`` by its fit (``omnirotor identify --torque``).
+
+    ``flight`` is a flight-log CSV (module docstring) or a PX4 ULog (``.ulg``, :func:`load_flight_ulog`; what it
+    chose is said on stderr).
+    """
     params = TorqueIdParams(delta=delta) if delta is not None else TorqueIdParams()
-    log = load_flight_csv(flight_csv, vehicle)
+    if Path(flight).suffix.lower() == ".ulg":
+        log, notes = load_flight_ulog(flight, vehicle, maps.partition)
+        for line in notes:
+            note(line)
+    else:
+        log = load_flight_csv(flight, vehicle)
     u, m, region = moment_samples(log, vehicle, params)
     return merge_torque_rows(maps, u, m, region, params)

@@ -71,7 +71,7 @@ def identify_cmd(
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
     weights: Annotated[str | None, typer.Option(help="Row weights fx,fy,fz,mx,my,mz.")] = None,
     torque: Annotated[
-        Path | None, typer.Option(help="Flight-log CSV (run identify-dynamic): fit the torque rows from it.")
+        Path | None, typer.Option(help="Flight log (CSV of run identify-dynamic, or PX4 .ulg): fit torque rows.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
