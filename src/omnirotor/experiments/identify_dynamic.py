@@ -29,9 +29,8 @@ from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
 from omnirotor.experiments.closed_loop import TaskOptions, register_task, run_closed_loop, run_log
 from omnirotor.experiments.faults import plant_simulator
-from omnirotor.experiments.metrics import error_stats
 from omnirotor.experiments.scenarios import body_to_ee_waypoint
-from omnirotor.experiments.tasks import ExperimentOptions, ExperimentResult
+from omnirotor.experiments.tasks import ExperimentOptions, ExperimentResult, base_metrics
 from omnirotor.messages import FRAME_GYRO_B, FRAME_ROTOR_HZ, FRAME_T
 from omnirotor.regions import load_partition
 from omnirotor.sim import default_start_pose, scene_anchors
@@ -170,25 +169,14 @@ def identify_dynamic(options: TaskOptions, progress=None) -> ExperimentResult:
     R_true = truth_log.group("R_WB")[:n].reshape(-1, 3, 3)
     region = tuple(partition.name_of_attitude(R) for R in R_true)
     flight = FlightLog(tap.t[:n].copy(), tap.gyro[:n].copy(), tap.rotor[:n].copy(), region)
-    rms, mx = error_stats(log, log.t >= 1.0)
     tilt = np.degrees(np.arccos(np.clip(R_true[:, 2, 2], -1, 1)))
-    m = {
-        "task": "identify-dynamic",
-        "seed": opts.seed,
-        "quick": opts.quick,
-        "duration_s": duration,
-        "samples": int(n),
-        "map": opts.map_mode,
-        "samples_per_region": {r: region.count(r) for r in proto.regions},
-        "ee_rms_error": rms,
-        "ee_max_error": mx,
-        "omega_B_max_rad_s": float(np.abs(flight.gyro_B).max()),
-        "tilt_max_deg": float(tilt.max()),
-        "rotor_speed_min_abs_hz": float(np.abs(flight.rotor_hz).min()),
-        "controller_step_us_median": float(np.median(truth_log.group("controller_step_us"))),
-        "steps_flagged": int(np.count_nonzero(log.status.astype(int))),
-        "success": bool(np.count_nonzero(log.status.astype(int)) == 0),
-    }
+    m = base_metrics("identify-dynamic", opts, log, duration, truth_log.group("controller_step_us"))
+    m["samples"] = int(n)
+    m["samples_per_region"] = {r: region.count(r) for r in proto.regions}
+    m["omega_B_max_rad_s"] = float(np.abs(flight.gyro_B).max())
+    m["tilt_max_deg"] = float(tilt.max())
+    m["rotor_speed_min_abs_hz"] = float(np.abs(flight.rotor_hz).min())
+    m["success"] = bool(m["steps_flagged"] == 0)
     if opts.out_dir is not None:
         path = Path(opts.out_dir) / "flight.csv"
         write_flight_csv(path, flight)

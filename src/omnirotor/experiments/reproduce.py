@@ -12,6 +12,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import dataclasses
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -57,6 +58,19 @@ def run_one(task: str, options: ExperimentOptions) -> tuple[str, dict, dict | No
     if samples is not None:
         samples = {r: np.asarray(v).tolist() for r, v in samples.items()}
     return f"{task}/{options.map_mode}", result.summary(), samples
+
+
+def _run_in_worker(task: str, options: ExperimentOptions) -> tuple[tuple[str, dict, dict | None], list]:
+    """:func:`run_one` in a pool worker, its warnings recorded instead of printed by the worker.
+
+    Returns:
+        ``run_one``'s result and the warnings as ``(category, message)`` pairs, which the parent warns again
+        (the CLI reduces them to one line; a worker writing to the terminal would interleave noise).
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_one(task, options)
+    return result, [(w.category, str(w.message)) for w in caught]
 
 
 def reproduce(
@@ -117,9 +131,11 @@ def reproduce(
     n_workers = workers or min(4, os.cpu_count() or 1)
     samples: dict[str, dict] = {}
     with cf.ProcessPoolExecutor(max_workers=n_workers) as pool:
-        futures = {pool.submit(run_one, task, opts): (task, opts.map_mode) for task, opts in jobs}
+        futures = {pool.submit(_run_in_worker, task, opts): (task, opts.map_mode) for task, opts in jobs}
         for fut in cf.as_completed(futures):
-            key, m, s = fut.result()
+            (key, m, s), caught = fut.result()
+            for category, message in caught:
+                warnings.warn(f"{key}: {message}", category, stacklevel=1)
             metrics[key] = m
             if s is not None:
                 samples[key.split("/")[1]] = {r: np.asarray(v) for r, v in s.items()}

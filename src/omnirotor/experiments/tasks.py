@@ -57,7 +57,15 @@ from omnirotor.so3 import project_to_SO3
 from omnirotor.vehicle import VehicleParams, load_vehicle
 from omnirotor.wrench_maps import WrenchMapSet, load_wrench_maps
 
-__all__ = ["ExperimentOptions", "ExperimentResult", "MAP_MODES", "HoverProtocol", "CONTACT_TASKS", "HOVER_TASKS"]
+__all__ = [
+    "ExperimentOptions",
+    "ExperimentResult",
+    "MAP_MODES",
+    "HoverProtocol",
+    "CONTACT_TASKS",
+    "HOVER_TASKS",
+    "base_metrics",
+]
 
 MAP_MODES = ("nominal", "global", "piecewise")
 CONTACT_TASKS = ("point-contact", "point-contact-tilted", "sliding", "peg-in-hole")
@@ -206,7 +214,8 @@ def _fly(
     return ctl_log, truth_log, names
 
 
-def _base(task: str, opts: ExperimentOptions, log: RunLog, duration_s: float, step_us: np.ndarray) -> dict:
+def base_metrics(task: str, opts: ExperimentOptions, log: RunLog, duration_s: float, step_us: np.ndarray) -> dict:
+    """The metrics every task reports: its options, EE errors after settling, step time, flags, safety."""
     rms, mx = error_stats(log, log.t >= min(SETTLE_S, 0.5 * duration_s))  # short runs: their second half
     flags = log.status.astype(int)
     return {
@@ -253,7 +262,7 @@ def _run_contact(task: str, opts: TaskOptions, progress) -> ExperimentResult:
         vehicle, opts, scenario.scene, scenario.admittance, traj, duration, progress, zero=True
     )
     log = run_log(ctl_log, truth_log)
-    m = _base(task, opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics(task, opts, log, duration, truth_log.group("controller_step_us"))
     m["observer_zeroed"] = True if opts.zero_observer is None else opts.zero_observer
     phase = log.window(*scenario.contact_phase)
     m["contact_phase_s"] = list(scenario.contact_phase)
@@ -388,7 +397,7 @@ def identify_flights(options: TaskOptions, progress=None) -> ExperimentResult:
         Rs.append(project_to_SO3(R_est[mask].mean(axis=0)))
         speeds.append(rotor[mask].mean(axis=0))
         names.append(name)
-    m = _base("identify-flights", opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics("identify-flights", opts, log, duration, truth_log.group("controller_step_us"))
     m["points"] = {r: names.count(r) for r in proto.regions}
     m["success"] = bool(len(names) == len(attitudes) and all(np.all(np.isfinite(s)) for s in speeds))
     if opts.out_dir is not None:
@@ -415,7 +424,7 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
     opts, vehicle, proto, log, ctl_log, truth_log, windows, duration, _ = _hover_run(
         options, progress, 2, "validation_per_region"
     )
-    m = _base("hover-validation", opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics("hover-validation", opts, log, duration, truth_log.group("controller_step_us"))
     regions = {}
     samples = {}
     for r in proto.regions:
@@ -426,11 +435,16 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
         if not mask.any():
             continue
         f, mo = log.f_ext_hat_W[mask], log.m_ext_hat_B[mask]
+        # one mean per attitude: their spread is what a map can change (the samples' spread adds the noise)
+        f_att = np.array([log.f_ext_hat_W[w].mean(axis=0) for name, w in windows if name == r])
+        m_att = np.array([log.m_ext_hat_B[w].mean(axis=0) for name, w in windows if name == r])
         regions[r] = {
             "force_W_mean_N": f.mean(axis=0).tolist(),
             "force_W_std_N": f.std(axis=0).tolist(),
+            "force_W_std_over_attitudes_N": f_att.std(axis=0).tolist(),
             "moment_B_mean_Nm": mo.mean(axis=0).tolist(),
             "moment_B_std_Nm": mo.std(axis=0).tolist(),
+            "moment_B_std_over_attitudes_Nm": m_att.std(axis=0).tolist(),
             "attitudes": sum(1 for name, _ in windows if name == r),
         }
         samples[r] = f[:: max(1, f.shape[0] // 400)]
@@ -471,7 +485,7 @@ def hover(options: TaskOptions, progress=None) -> ExperimentResult:
         metrics_from_s=min(SETTLE_S, 0.5 * duration),
     )
     m = TaskResult.summary(result)
-    m.update(_base("hover", opts, run_log(ctl_log, truth_log), duration, truth_log.group("controller_step_us")))
+    m.update(base_metrics("hover", opts, run_log(ctl_log, truth_log), duration, truth_log.group("controller_step_us")))
     m["success"] = bool(max(m["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) <= HOVER_SUCCESS_CM)
     result.metrics = m
     return result

@@ -1,0 +1,18 @@
+"""``reproduce``'s pool workers record their warnings for the parent instead of printing them (issue 14)."""
+
+import warnings
+
+from omnirotor.experiments import reproduce as rp
+
+
+def test_worker_records_warnings_and_prints_nothing(monkeypatch, capfd):
+    def noisy(task, options):
+        warnings.warn("overflow encountered in multiply", RuntimeWarning, stacklevel=1)
+        return f"{task}/nominal", {"ok": True}, None
+
+    monkeypatch.setattr(rp, "run_one", noisy)
+    result, caught = rp._run_in_worker("hover", None)
+    out, err = capfd.readouterr()
+    assert result == ("hover/nominal", {"ok": True}, None)
+    assert caught == [(RuntimeWarning, "overflow encountered in multiply")]
+    assert out == "" and err == ""
