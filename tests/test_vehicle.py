@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from omnirotor.errors import InputError
-from omnirotor.vehicle import force_envelope, load_vehicle, max_zero_torque_force, preset_names
+from omnirotor.vehicle import (
+    force_envelope,
+    load_vehicle,
+    max_zero_torque_force,
+    preset_names,
+    zero_moment_force_basis,
+)
 
 # SPEC §1.2, printed to 5 significant digits.
 A_SPEC = np.array(
@@ -75,6 +81,10 @@ def test_quadrotor_cannot_push_sideways_but_lifts():
     env = force_envelope(v, n_directions=60, refine=False)
     assert env.min_N == pytest.approx(0.0, abs=1e-9)
     up = max_zero_torque_force(v, [0, 0, 1])
+    # the envelope samples the thrust axis itself: its maximum is the full thrust, not 0 N
+    assert env.max_N == pytest.approx(up, rel=1e-6)
+    assert zero_moment_force_basis(v.A_nom).shape == (3, 1)
+    assert zero_moment_force_basis(load_vehicle().A_nom).shape == (3, 3)
     assert up == pytest.approx(4 * v.c_f * v.omega_max_hz**2, rel=1e-6)
     assert max_zero_torque_force(v, [1, 0, 0]) == pytest.approx(0.0, abs=1e-9)
     u = v.hover_input()

@@ -37,6 +37,7 @@ __all__ = [
     "preset_names",
     "ForceEnvelope",
     "force_envelope",
+    "zero_moment_force_basis",
     "max_zero_torque_force",
     "fibonacci_sphere",
 ]
@@ -373,6 +374,19 @@ def max_zero_torque_force(vehicle: VehicleParams, d_B: np.ndarray) -> float:
     return _max_force_along(vehicle.A_nom, d / np.linalg.norm(d), vehicle.u_min, vehicle.u_max)
 
 
+def zero_moment_force_basis(A: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """(3, k) orthonormal basis of the forces a map ``A`` (6, n) makes with zero moment, rotor bounds aside.
+
+    ``k = 3`` for a fully actuated vehicle; a quadrotor's is its thrust axis (``k = 1``).
+    """
+    _, s2, Vt2 = np.linalg.svd(A[3:])
+    null = Vt2[int(np.sum(s2 > rtol * max(s2[0], 1e-300))) :].T  # inputs that make no moment
+    if null.shape[1] == 0:
+        return np.zeros((3, 0))
+    U, s1, _ = np.linalg.svd(A[:3] @ null, full_matrices=False)
+    return U[:, : int(np.sum(s1 > rtol * max(s1[0], 1e-300)))] if s1.size else np.zeros((3, 0))
+
+
 def force_envelope(vehicle: VehicleParams, n_directions: int = 400, refine: bool = True) -> ForceEnvelope:
     """Largest zero-moment force along directions of the body frame, by linear programming.
 
@@ -386,6 +400,12 @@ def force_envelope(vehicle: VehicleParams, n_directions: int = 400, refine: bool
     """
     A, lo, hi = vehicle.A_nom, vehicle.u_min, vehicle.u_max
     D = fibonacci_sphere(n_directions)
+    basis = zero_moment_force_basis(A)
+    if basis.shape[1] == 1:  # e.g. a quadrotor: only along its thrust axis; the sphere's samples miss it
+        D = np.vstack([D, basis.T, -basis.T])
+    elif basis.shape[1] == 2:  # a plane of directions: sample its circle too
+        phi = np.linspace(0.0, 2.0 * math.pi, 72, endpoint=False)
+        D = np.vstack([D, (basis @ np.vstack([np.cos(phi), np.sin(phi)])).T])
     F = np.array([_max_force_along(A, d, lo, hi) for d in D])
     if refine:
         extra_d, extra_f = [], []
