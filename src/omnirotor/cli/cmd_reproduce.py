@@ -22,8 +22,15 @@ def reproduce(
     seed: Annotated[int, typer.Option(help="Base seed.")] = 0,
     estimator: Annotated[str, typer.Option(help="State estimator: ukf (paper) or bypass (faster).")] = "ukf",
     workers: Annotated[int | None, typer.Option(min=1, max=64, help="Processes for the independent runs.")] = None,
+    seeds: Annotated[
+        int, typer.Option(min=1, max=1000, help="Repeat for this many seeds (seed, seed+1, ...); goals per seed.")
+    ] = 1,
 ) -> None:
-    """Identification flights, identification, hover validation, point contact, sliding, peg-in-hole; report."""
+    """Identification flights, identification, hover validation, point contact, sliding, peg-in-hole; report.
+
+    With ``--seeds N`` the whole campaign runs once per seed (``OUT/seed-S/``) and the claims' goals are checked
+    on every seed: ``OUT/claims-seeds.md``, ``.json`` and ``.png``.
+    """
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -31,8 +38,8 @@ def reproduce(
     from omnirotor.experiments.reproduce import reproduce as run_all
 
     check_output_dir(out, "--out")
-    if not 0 <= seed <= MAX_SEED:
-        raise InputError("--seed must be an integer in [0, 2^63 - 1]")
+    if not 0 <= seed <= MAX_SEED - seeds:
+        raise InputError("--seed (+ --seeds) must be an integer in [0, 2^63 - 1]")
     if estimator not in ("ukf", "bypass"):
         raise InputError(f"--estimator must be ukf or bypass, got {estimator!r}")
     con = Console(stderr=True)
@@ -44,15 +51,25 @@ def reproduce(
         console=con,
     ) as bar:
         tid = bar.add_task("starting", total=1.0)
-        metrics = run_all(
-            out,
-            quick=quick,
-            seed=seed,
-            estimator=estimator,
-            workers=workers,
-            progress=lambda stage, frac: bar.update(tid, completed=frac, description=stage),
-        )
+
+        def on_progress(stage: str, frac: float) -> None:
+            bar.update(tid, completed=frac, description=stage)
+
+        if seeds > 1:
+            from omnirotor.experiments.claim_seeds import reproduce_seeds
+
+            goals = reproduce_seeds(
+                out, seeds, quick=quick, seed=seed, estimator=estimator, workers=workers, progress=on_progress
+            )
+        else:
+            metrics = run_all(out, quick=quick, seed=seed, estimator=estimator, workers=workers, progress=on_progress)
     c = Console()
+    if seeds > 1:
+        for g in goals:
+            verdict = "met" if g["met"] else "not met"
+            c.print(f"[bold]{verdict:>8}[/bold]  {g['passes']:>3} of {len(g['seeds'])} seeds  {g['text']}")
+        c.print(f"report: {out / 'claims-seeds.md'}")
+        return
     for cl in claims(metrics):
         c.print(f"[bold]{cl['verdict']:>15}[/bold]  {cl['claim']}\n                 {cl['measured']}")
     c.print(f"report: {out / 'report.md'}")
