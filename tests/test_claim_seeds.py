@@ -73,7 +73,10 @@ def test_cli_seeds_runs_each_seed_and_writes_the_report(tmp_path, monkeypatch, c
     assert g["sliding_nominal_loses"]["passes"] == 2 and g["sliding_nominal_loses"]["need"] == 3
     assert "2 of 3 seeds" in text and "not met" in text
     assert (out / "claims-seeds.png").stat().st_size > 10_000
-    assert "| **no** | 2 of 3 (need 3)" in (out / "claims-seeds.md").read_text()
+    md = (out / "claims-seeds.md").read_text()
+    assert "| **no** | 2 of 3 (need 3)" in md
+    row = next(line for line in md.splitlines() if "piecewise maps' " in line)
+    assert row.replace("\\|", "").count("|") == 5  # |f_z| in the text is escaped: still four cells
 
 
 def test_cli_seeds_refuses_bad_counts(tmp_path, capsys):

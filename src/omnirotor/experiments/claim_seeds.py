@@ -169,8 +169,9 @@ def write_seeds_report(path: Path, goals: list[dict], quick: bool) -> Path:
     lines += ["", "| goal | met | passes | values per seed |", "|---|---|---|---|"]
     for g in goals:
         vals = ", ".join(f"{_fmt(v)}{'✓' if p else '✗'}" for v, p in zip(g["values"], g["passed"], strict=True))
+        text = g["text"].replace("|", "\\|")  # a bar inside a cell ends it in Markdown
         lines.append(
-            f"| {g['text']} | **{'yes' if g['met'] else 'no'}** | {g['passes']} of {len(g['seeds'])} "
+            f"| {text} | **{'yes' if g['met'] else 'no'}** | {g['passes']} of {len(g['seeds'])} "
             f"(need {g['need']}) | {vals} [{g['unit']}] |"
         )
     lines += ["", f"Seeds: {', '.join(str(s) for s in goals[0]['seeds'])}." if goals else "", ""]
