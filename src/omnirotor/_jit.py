@@ -42,6 +42,7 @@ from numba.extending import intrinsic
 
 __all__ = [
     "jit",
+    "jit_inline",
     "DependencyCache",
     "source_closure",
     "R9_from_quat_into",
@@ -139,10 +140,27 @@ def _leaf(signature: str):
     return numba.njit(signature, cache=True, fastmath=False, error_model="numpy")
 
 
+_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
 def jit(fn):
     """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
     d = _njit(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d._cache = DependencyCache(d.py_func)
+    return d
+
+
+def jit_inline(fn):
+    """:func:`jit`, with the body inlined into every compiled caller (numba's ``inline="always"``).
+
+    For a few large functions that take or return the controller's tuple of some thirty arrays: a call passes
+    each array's fields as separate machine arguments (and counts its references), which costs more than the
+    body it calls; inlined, the arrays stay where they are. Each caller compiles the body again, so use it only
+    where a benchmark shows the gain.
+    """
+    d = _njit_inline(fn)
+    if isinstance(d, Dispatcher):
         d._cache = DependencyCache(d.py_func)
     return d
 

@@ -35,7 +35,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit
+from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit, jit_inline
 from omnirotor.blocks import compiled_step
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
@@ -188,7 +188,7 @@ def store_addresses(args: tuple) -> None:
     args[0]["arrays"][0] = address_table(_arrays(args))
 
 
-@jit
+@jit_inline
 def _args_of(state):
     """``kernel_args`` rebuilt from the state's ``arrays`` (the order of :func:`_arrays`)."""
     t = state[0].arrays
@@ -271,7 +271,7 @@ def _finish_held(st, rot, bits: int, row) -> None:
         write_log_row(row, st, rot)
 
 
-@jit
+@jit_inline
 def step_begin(args, frame, row) -> int:
     """Everything of a period before the allocation QP (module docstring).
 
@@ -350,7 +350,7 @@ def step_begin(args, frame, row) -> int:
     return alloc
 
 
-@jit
+@jit_inline
 def step_end(args, solved: bool, row) -> int:
     """Everything of a period after the allocation QP (module docstring).
 
