@@ -143,11 +143,28 @@ def _leaf(signature: str):
 _njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 
+def _typed_without_literals(d: Dispatcher) -> None:
+    """Make compiled callers of ``d`` type their constant arguments by their plain types (``int64``, ...).
+
+    numba types a constant argument of a call between compiled functions as a literal (``Literal[int](16)``)
+    and compiles the callee once per distinct value: a helper called with ten different constant offsets was
+    compiled ten times on a fresh machine. Typed as plain values, one compiled version serves every call (the
+    machine code of each caller still sees the constants once the callee is inlined into it).
+    """
+    base = d.get_call_template
+
+    def get_call_template(args, kws):
+        return base(tuple(types.unliteral(a) for a in args), {k: types.unliteral(v) for k, v in kws.items()})
+
+    d.get_call_template = get_call_template
+
+
 def jit(fn):
     """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
     d = _njit(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
         d._cache = DependencyCache(d.py_func)
+        _typed_without_literals(d)
     return d
 
 
