@@ -228,7 +228,7 @@ def _take_estimate(c, e) -> bool:
     return finite
 
 
-@jit
+@jit_inline
 def _put(row, k: int, v) -> int:
     """Copy the 1-D array ``v`` into ``row[k:]``; the next free index."""
     for i in range(v.shape[0]):
@@ -236,7 +236,7 @@ def _put(row, k: int, v) -> int:
     return k + v.shape[0]
 
 
-@jit
+@jit_inline
 def _put_pose(row, k: int, p, v, a, R, w, b) -> int:
     """Copy three 3-vectors, a 3 x 3 matrix (row-major) and two 3-vectors into ``row[k:]``; the next index."""
     k = _put(row, _put(row, _put(row, k, p), v), a)
