@@ -14,7 +14,7 @@ rounds. One round of a tree, in one process:
   task's first ``--sliding-s`` seconds (quick scenario), real-time factor by wall and by CPU time
   (``workloads.run_sliding``); the simulator differs between commits, so
 * ``sliding_<kind>_ctl_us``: the controller's step inside that compiled loop (median), which the simulator
-  does not change.
+  does not change; ``sliding_<kind>_plant_us``: the simulator's step there.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ for kind in ("ukf", "bypass"):
     out[f"sliding_{kind}_rtf"] = r["rtf"]
     out[f"sliding_{kind}_rtf_cpu"] = r["rtf_cpu"]
     out[f"sliding_{kind}_ctl_us"] = r["controller_step_us_median"]
+    out[f"sliding_{kind}_plant_us"] = r["plant_step_us_median"]
 print(json.dumps(out))
 """
 

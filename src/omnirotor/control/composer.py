@@ -404,7 +404,7 @@ def step_end(args, solved: bool, row) -> int:
     return bits
 
 
-@jit
+@jit_inline
 def controller_step(args, frame, row) -> int:
     """One control period (module docstring): the packed ``frame`` in, the command in ``rot.omega_cmd_hz``.
 
