@@ -4,7 +4,8 @@
 the CLI in a subprocess (the source tree of this checkout on ``PYTHONPATH``), so it measures what a user
 waits for, interpreter start-up included.
 
-* ``cli_help_s``: median wall time of ``omnirotor --help`` and of ``omnirotor identify --help``.
+* ``cli_help_s``: median wall time of ``omnirotor --help`` and of ``omnirotor identify --help`` (the larger;
+  ``*_cpu_s_median``: their CPU times).
 * ``first_run_compile_s``: wall time of a short hover run with an empty numba cache (``NUMBA_CACHE_DIR`` set to
   a fresh temporary folder) minus the same run again with the cache it left behind: the compilation a fresh
   machine pays once (``first_run_compile_cpu_s``: the same in CPU time, steadier on a loaded machine).
@@ -55,13 +56,23 @@ def _cli(args: tuple[str, ...], env: dict[str, str]) -> float:
 
 
 def measure_cli_help(repeats: int) -> dict:
-    """Median and all wall times [s] of ``omnirotor --help`` and ``omnirotor identify --help``."""
+    """Median and all wall times [s] of ``omnirotor --help`` and ``omnirotor identify --help``, interleaved.
+
+    Also the median CPU time (user + system) of each, which the load of a shared machine disturbs less.
+    """
     env = _env()
     out = {}
-    for key, args in (("help", ("--help",)), ("identify_help", ("identify", "--help"))):
+    cases = (("help", ("--help",)), ("identify_help", ("identify", "--help")))
+    for _, args in cases:
         _cli(args, env)  # warm the OS file cache and Python's bytecode cache
-        walls = [_cli(args, env) for _ in range(repeats)]
+    times: dict[str, list[tuple[float, float]]] = {key: [] for key, _ in cases}
+    for _ in range(repeats):
+        for key, args in cases:
+            times[key].append(_cli_times(args, env))
+    for key, _ in cases:
+        walls = [w for w, _ in times[key]]
         out[f"{key}_s_median"] = statistics.median(walls)
+        out[f"{key}_cpu_s_median"] = statistics.median(c for _, c in times[key])
         out[f"{key}_s"] = walls
     out["cli_help_s"] = max(out["help_s_median"], out["identify_help_s_median"])
     return out

@@ -4,7 +4,9 @@ Every kernel is compiled with :data:`jit`: ``nopython``, ``cache=True`` (machine
 ``__pycache__`` folder next to the module, so only the first import on a machine compiles), ``fastmath=False``
 (IEEE arithmetic in the order written, so a kernel reproduces the NumPy / Python float reference it replaces to
 the last bit or within a rounding) and NumPy's error model (a division by zero gives inf or NaN as in NumPy;
-it never raises inside the loop). Kernels are compiled lazily, on their first call.
+it never raises inside the loop). Kernels are compiled lazily, on their first call. Small helpers called with
+constant arguments (which numba compiles once per constant value) and a few large functions that take the
+controller's tuple of arrays are inlined into their compiled callers instead (:func:`jit_inline`).
 
 Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, coverage).
 
@@ -42,6 +44,7 @@ from numba.extending import intrinsic
 
 __all__ = [
     "jit",
+    "jit_inline",
     "DependencyCache",
     "source_closure",
     "R9_from_quat_into",
@@ -139,10 +142,28 @@ def _leaf(signature: str):
     return numba.njit(signature, cache=True, fastmath=False, error_model="numpy")
 
 
+_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
 def jit(fn):
     """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
     d = _njit(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d._cache = DependencyCache(d.py_func)
+    return d
+
+
+def jit_inline(fn):
+    """:func:`jit`, with the body inlined into every compiled caller (numba's ``inline="always"``).
+
+    For a few large functions that take or return the controller's tuple of some thirty arrays (a call passes
+    each array's fields as separate machine arguments and counts its references, which costs more than the
+    body it calls; inlined, the arrays stay where they are), and for small helpers called with constant
+    arguments (numba would compile one version per constant value, as literal types, and call it). Each
+    caller compiles the body again, so use it only where a benchmark shows the gain.
+    """
+    d = _njit_inline(fn)
+    if isinstance(d, Dispatcher):
         d._cache = DependencyCache(d.py_func)
     return d
 
@@ -204,7 +225,7 @@ def monotonic_ns(ts) -> int:
     return ts[0] * _NS_PER_S + ts[1]
 
 
-@jit
+@jit_inline
 def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
     """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
 

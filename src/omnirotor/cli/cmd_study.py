@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from omnirotor.cli import app
+from omnirotor.cli import CommandGroup, app
 from omnirotor.errors import InputError
 from omnirotor.safe_io import atomic_path, check_output_dir, dumps_json, make_dir, write_json_atomic
 
@@ -15,7 +15,7 @@ NOISE_NAMES = "low, medium, high"
 """The noise levels named in the options' help (:data:`omnirotor.studies.hover_pool.NOISE_LEVELS`)."""
 
 study_app = typer.Typer(
-    help="Studies beyond the paper; each writes a JSON and a figure into --out.", no_args_is_help=True
+    cls=CommandGroup, help="Studies beyond the paper; each writes a JSON and a figure into --out.", no_args_is_help=True
 )
 app.add_typer(study_app, name="study")
 

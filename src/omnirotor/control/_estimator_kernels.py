@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 
-from omnirotor._jit import R9_from_quat_into, jit
+from omnirotor._jit import R9_from_quat_into, jit, jit_inline
 
 N_ERR = 15
 """Error-state dimension: dp, dv, dtheta, db_a, db_g."""
@@ -184,7 +184,7 @@ def views(mem):
     )
 
 
-@jit
+@jit_inline
 def _work2(wk, o: int, rows: int, cols: int):
     """The (rows, cols) work array at ``wk[o:]`` (a view)."""
     return wk[o : o + rows * cols].reshape(rows, cols)
@@ -517,7 +517,7 @@ def _copy2(src, dst) -> None:
             dst[i, j] = src[i, j]
 
 
-@jit
+@jit_inline
 def _mul33_at(A, oA: int, B, oB: int, out, o: int) -> None:
     """``out[o:o+9] = A[oA:oA+9] B[oB:oB+9]``: 3 x 3 matrices, row-major (out must not overlap A or B)."""
     for i in range(3):

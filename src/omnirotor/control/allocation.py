@@ -54,7 +54,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit, jit_inline
 from omnirotor.blocks import register, state_array
 from omnirotor.config import check_positive
 from omnirotor.control import _qp
@@ -211,7 +211,7 @@ def alloc_set_map(r, ar, A) -> None:
             H[j, i] = acc
 
 
-@jit
+@jit_inline
 def _prepare(r, ar, w_ref, R, A) -> int:
     """Body-frame reference and ``f = G w_B``.
 
@@ -242,7 +242,7 @@ def _prepare(r, ar, w_ref, R, A) -> int:
     return 0
 
 
-@jit
+@jit_inline
 def alloc_begin(r, ar, w_ref, R, A) -> int:
     """Everything of an allocation before the QP (module docstring).
 
@@ -271,7 +271,7 @@ def alloc_begin(r, ar, w_ref, R, A) -> int:
     return BEGIN_SOLVE_NEW_MAP if new_map else BEGIN_SOLVE
 
 
-@jit
+@jit_inline
 def _finish(r, ar, x) -> int:
     """Clip the scaled ``x`` to the bounds, scale it to u [Hz²] (also the new safe input); 1 if saturated."""
     n = x.shape[0]
@@ -292,7 +292,7 @@ def _finish(r, ar, x) -> int:
     return saturated
 
 
-@jit
+@jit_inline
 def alloc_end(r, ar, solved: bool) -> None:
     """Everything after the QP, once for every solver: the inputs ``ar.u_hz2`` and ``saturated``.
 
@@ -678,7 +678,7 @@ class Allocator:
         return True
 
 
-@jit
+@jit_inline
 def boxqp_solve_arrays(ar, max_iter: int) -> int:
     """The compiled QP (:func:`omnirotor.control._qp.boxqp_solve`) on the allocator's arrays; its code."""
     return _qp.boxqp_solve(ar.H, ar.f, ar.lo, ar.hi, ar.x, ar.active, ar.work, max_iter)

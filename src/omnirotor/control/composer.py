@@ -35,7 +35,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit
+from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit, jit_inline
 from omnirotor.blocks import compiled_step
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
@@ -188,7 +188,7 @@ def store_addresses(args: tuple) -> None:
     args[0]["arrays"][0] = address_table(_arrays(args))
 
 
-@jit
+@jit_inline
 def _args_of(state):
     """``kernel_args`` rebuilt from the state's ``arrays`` (the order of :func:`_arrays`)."""
     t = state[0].arrays
@@ -228,7 +228,7 @@ def _take_estimate(c, e) -> bool:
     return finite
 
 
-@jit
+@jit_inline
 def _put(row, k: int, v) -> int:
     """Copy the 1-D array ``v`` into ``row[k:]``; the next free index."""
     for i in range(v.shape[0]):
@@ -236,7 +236,7 @@ def _put(row, k: int, v) -> int:
     return k + v.shape[0]
 
 
-@jit
+@jit_inline
 def _put_pose(row, k: int, p, v, a, R, w, b) -> int:
     """Copy three 3-vectors, a 3 x 3 matrix (row-major) and two 3-vectors into ``row[k:]``; the next index."""
     k = _put(row, _put(row, _put(row, k, p), v), a)
@@ -271,7 +271,7 @@ def _finish_held(st, rot, bits: int, row) -> None:
         write_log_row(row, st, rot)
 
 
-@jit
+@jit_inline
 def step_begin(args, frame, row) -> int:
     """Everything of a period before the allocation QP (module docstring).
 
@@ -350,7 +350,7 @@ def step_begin(args, frame, row) -> int:
     return alloc
 
 
-@jit
+@jit_inline
 def step_end(args, solved: bool, row) -> int:
     """Everything of a period after the allocation QP (module docstring).
 
@@ -404,7 +404,7 @@ def step_end(args, solved: bool, row) -> int:
     return bits
 
 
-@jit
+@jit_inline
 def controller_step(args, frame, row) -> int:
     """One control period (module docstring): the packed ``frame`` in, the command in ``rot.omega_cmd_hz``.
 
