@@ -57,6 +57,7 @@ from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEst
 from omnirotor.control.maps import MapParams, MapScheduler
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
+from omnirotor.control.supervisor import SupervisorParams, reset_supervisor
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_size
@@ -99,7 +100,8 @@ def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noq
     EE reference (pose, velocity, acceleration, world-frame angular velocity and acceleration);
     ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the observer's interaction estimate;
     ``w_ref`` the pose controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the
-    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command.
+    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's
+    cause bits (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
     rotors = tuple(str(i + 1) for i in range(n_rotors))
     return [
@@ -121,6 +123,7 @@ def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noq
         ("pose_err", tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in _XYZ)),
         ("u_hz2", rotors),
         ("omega_cmd_hz", rotors),
+        ("frame_reject", 1),
     ]
 
 
@@ -135,6 +138,7 @@ class ControllerParams:
         observer: wrench observer (SPEC §4.3).
         admittance: admittance filter (SPEC §4.4, §5.1); default the free-flight set.
         estimator: state estimator (SPEC §4.5).
+        supervisor: the sensor-frame supervision (:mod:`omnirotor.control.supervisor`).
         dt: control period [s] (1 kHz, SPEC §4).
         log_capacity: rows preallocated for the log [steps].
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
@@ -148,6 +152,7 @@ class ControllerParams:
     observer: ObserverParams = dataclasses.field(default_factory=ObserverParams)
     admittance: AdmittanceParams = dataclasses.field(default_factory=AdmittanceParams)
     estimator: EstimatorParams = dataclasses.field(default_factory=EstimatorParams)
+    supervisor: SupervisorParams = dataclasses.field(default_factory=SupervisorParams)
     dt: float = 1e-3
     log_capacity: int = 120_000
     observer_input: str = "measured"
@@ -169,7 +174,7 @@ def load_controller_params(
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
     The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
-    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]`` whose keys are the
+    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]`` whose keys are the
     fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
 
@@ -187,7 +192,7 @@ def load_controller_params(
 
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
-_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(32))
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(64))
 
 
 class InteractionController:
@@ -228,6 +233,7 @@ class InteractionController:
         self._omega_lo = float(vehicle.omega_min_hz)
         self._omega_hi = float(vehicle.omega_max_hz)
         self._n = n
+        self._rotor_shape = (n,)
         self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
         self.desired_ee = ReferenceSample(state["desired_ee"])
         self.compliant_ee = ReferenceSample(state["compliant_ee"])
@@ -363,6 +369,20 @@ class InteractionController:
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
         self._build_kernel_args()
+        packed = frame.packed
+        if packed is None or packed.shape != self._frame_buf.shape:
+            packed = self._frame_buf
+            try:
+                frame.pack_into(packed)
+            except ValueError as exc:
+                raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+        kind = int(self._own["estimator"])
+        reset_supervisor(
+            self.state["supervisor"], self.params.supervisor, packed, dt=self._dt,
+            acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
+            omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
+            check_mocap=kind == _c.EST_UKF,
+        )  # fmt: skip
 
     def hold_command(self, t: float | None = None) -> RotorCommand:
         """The last safe command (after :meth:`reset`: the initial frame's speeds), e.g. for the first period.
@@ -385,6 +405,9 @@ class InteractionController:
         """
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
+        hz = frame.rotor_hz
+        if not (isinstance(hz, np.ndarray) and hz.shape == self._rotor_shape) and np.shape(hz) != self._rotor_shape:
+            raise InputError(f"frame.rotor_hz has shape {np.shape(hz)}; the vehicle has {self._n} rotors")
         packed = frame.packed
         if packed is None or packed.shape != self._frame_buf.shape:
             packed = self._frame_buf

@@ -26,8 +26,10 @@ Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s
   undisturbed hover in ``tests/test_faults.py``); not told, the allocation keeps asking the dead rotor for
   thrust, the others saturate and the vehicle sags ~15 cm to a new equilibrium (the pose loop has no
   integrator), every command still within the limits.
-* :class:`SensorCorruption`: NaN, inf, or an added spike in one signal of the frame (accelerometer,
-  gyroscope, rotor speeds, motion capture, bypass state) over a window.
+* :class:`SensorCorruption`: NaN, inf, an added spike or a set value in one signal of the frame
+  (accelerometer, gyroscope, rotor speeds, motion-capture position or quaternion, bypass position, velocity
+  or attitude, the frame's time stamp) over a window. The controller's frame supervision
+  (:mod:`omnirotor.control.supervisor`) rejects them, flagged ``FRAME_REJECTED`` with the cause logged.
 * :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"
   profile, applied as the simulator's external wrench (the gust owns the external wrench while it blows and
   clears it after).
@@ -141,8 +143,9 @@ class SensorCorruption:
         signal: one of :data:`CORRUPTIBLE_SIGNALS`.
         t_start_s: start [s].
         duration_s: length [s] (one control period for a single bad sample).
-        kind: "nan", "inf" or "spike" (``magnitude`` added to every component).
-        magnitude: the spike, in the signal's unit (m/s², rad/s, Hz, m; for "state": m on the position).
+        kind: "nan", "inf", "spike" (``magnitude`` added to every component) or "set" (``magnitude`` replaces it).
+        magnitude: the spike or value, in the signal's unit (m/s², rad/s, Hz, m, s; for "state": m on the
+            position; "state_v": m/s; "state_R" and "mocap_q": none).
         component: only this component (0-based) of the signal; None for all of them.
     """
 
