@@ -57,7 +57,7 @@ from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEst
 from omnirotor.control.maps import MapParams, MapScheduler
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
-from omnirotor.control.supervisor import SupervisorParams, reset_supervisor
+from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_size
@@ -287,6 +287,12 @@ class InteractionController:
     def _estimator_compiled(self) -> bool:
         est = self.estimator
         return est is self._kernel_estimator and bool(getattr(est, "initialised", False))
+
+    @property
+    def frame_causes(self) -> dict[str, int]:
+        """Frames since :meth:`reset` with each cause of the frame supervision (:mod:`omnirotor.control.supervisor`)."""
+        counts = self.state[0]["supervisor"]["counts"]
+        return {name: int(counts[i]) for i, (name, _) in enumerate(CAUSES)}
 
     @property
     def kernel_command(self) -> np.ndarray:

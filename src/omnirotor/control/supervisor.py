@@ -347,12 +347,19 @@ def _dist3(x, ox: int, y, oy: int) -> float:
 
 
 @jit
+def _drop_mocap(clean) -> None:
+    """No sample in ``clean`` (its entries zeroed, as a frame without one is packed)."""
+    for i in range(FRAME_MOCAP_NEW, FRAME_MOCAP_Q_WB + 4):
+        clean[i] = 0.0
+
+
+@jit
 def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     """The motion-capture checks; a rejected sample is dropped from ``clean``. Cause bits, plus ``ACT_REINIT``."""
     if clean[FRAME_MOCAP_NEW] == 0.0:
         return 0
     if time_bad:  # its time stamp is as suspect as the frame's
-        clean[FRAME_MOCAP_NEW] = 0.0
+        _drop_mocap(clean)
         return 0
     tc = clean[FRAME_T]
     mt = clean[FRAME_MOCAP_T] + sv.offset_s
@@ -361,14 +368,14 @@ def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     qn = math.sqrt(clean[Q] ** 2 + clean[Q + 1] ** 2 + clean[Q + 2] ** 2 + clean[Q + 3] ** 2)
     finite = math.isfinite(mt + clean[P] + clean[P + 1] + clean[P + 2])
     if not (finite and abs(qn - 1.0) <= sv.quat_norm_tol and mt <= tc + 0.5 * sv.dt_nom):
-        clean[FRAME_MOCAP_NEW] = 0.0
+        _drop_mocap(clean)
         sv.prev_ok = 0
         return CAUSE_MOCAP
     if sv.check_mocap == 0:
         return 0
     since = tc - sv.t_mocap_ok
     if _dist3(clean, P, estimate, 0) > sv.pos_jump_m + sv.max_speed_mps * since:
-        clean[FRAME_MOCAP_NEW] = 0.0  # farther than the vehicle can have moved since the last accepted sample
+        _drop_mocap(clean)  # farther than the vehicle can have flown since the last accepted sample
         return CAUSE_MOCAP_JUMP
     if sv.reinit != 0 or since > sv.dropout_reinit_s:
         # Re-initialise from two consecutive samples that agree; the first one waits (not fused).
