@@ -6,10 +6,11 @@ that fails a check is *rejected*: its cause is a bit of ``cause`` (the ``CAUSE_*
 in the controller log's ``frame_reject`` column and counted per cause in ``counts``), the command of that
 period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by what the controller predicts:
 
-* **time** (``CAUSE_TIME``): not finite, not increasing, or a step forward longer than ``max_clock_step_s``
-  from the last accepted time. The frame gets the last accepted time plus one period and its motion-capture
-  sample is dropped (its time stamp is suspect too). A clock that really stepped (``clock_settle_frames``
-  rejected frames in a row, each within ``(0, max_clock_step_s]`` of the one before) is accepted: from then on
+* **time** (``CAUSE_TIME``): not finite, or a step from the last accepted time outside
+  ``[min_clock_step_s, max_clock_step_s]`` (a repeated or backward time, a jump forward). The frame gets the
+  last accepted time plus one period and its motion-capture sample is dropped (its time stamp is suspect
+  too). A clock that really stepped (after the frame that jumped, ``clock_settle_frames`` rejected frames in
+  a row, each a step within those bounds after the one before) is accepted: from then on
   an offset maps the plant's clock onto the controller's, whose time (and so the trajectory's) stays
   continuous (``CAUSE_CLOCK_RESET``), and the estimator re-initialises from motion capture;
 * **IMU** (``CAUSE_IMU``): non-finite, or beyond the sensor ranges (the estimator's ``acc_range``,
@@ -141,9 +142,11 @@ class SupervisorParams:
     Attributes:
         rotor_margin: a measured rotor speed may exceed the vehicle's limits by this fraction of the larger
             limit's magnitude (rotor overshoot, speed-sensor noise) before it is rejected.
+        min_clock_step_s: the shortest accepted step of the frame time [s] (a tenth of a 1 kHz period: a
+            repeated time stamp is rejected even when arithmetic left it a rounding above the last one).
         max_clock_step_s: the longest accepted step of the frame time [s] (50 periods at 1 kHz).
-        clock_settle_frames: rejected frames in a row, each a normal step after the one before, after which the
-            plant's clock is taken as having stepped (and the offset re-anchored).
+        clock_settle_frames: rejected frames in a row after the one that jumped, each a normal step after the
+            one before, after which the plant's clock is taken as having stepped (and the offset re-anchored).
         pos_jump_m: position jump accepted on top of the speed bound [m] (motion-capture noise, latency).
         max_speed_mps: speed bound used for the position-jump checks [m/s].
         vel_jump_mps: velocity jump accepted on top of the acceleration bound (bypass state) [m/s].
@@ -152,10 +155,14 @@ class SupervisorParams:
         quat_norm_tol: largest ``| |q| - 1 |`` of an accepted motion-capture quaternion.
         dropout_reinit_s: time without an accepted motion-capture sample after which the UKF re-initialises
             its pose from the next good samples [s].
-        bypass_hold_timeout_s: longest time the bypass prediction moves before it is held still [s].
+        bypass_hold_timeout_s: time without an accepted bypass state after which the hold is flagged
+            ``CAUSE_HOLD_TIMEOUT`` and the jump checks give way to the resume check [s].
+        bypass_resume_window_s: after the hold timeout, a state is accepted once the position has moved, over
+            this long of consecutive valid states, as their velocity says (within ``pos_jump_m``) [s].
     """
 
     rotor_margin: float = 0.1
+    min_clock_step_s: float = 1e-4
     max_clock_step_s: float = 0.05
     clock_settle_frames: int = 5
     pos_jump_m: float = 0.05
@@ -166,10 +173,12 @@ class SupervisorParams:
     quat_norm_tol: float = 0.1
     dropout_reinit_s: float = 0.5
     bypass_hold_timeout_s: float = 0.5
+    bypass_resume_window_s: float = 0.05
 
     def __post_init__(self) -> None:
         for name in (
             "rotor_margin",
+            "min_clock_step_s",
             "max_clock_step_s",
             "pos_jump_m",
             "max_speed_mps",
@@ -179,6 +188,7 @@ class SupervisorParams:
             "quat_norm_tol",
             "dropout_reinit_s",
             "bypass_hold_timeout_s",
+            "bypass_resume_window_s",
         ):
             check_positive(f"supervisor {name}", getattr(self, name))
         n = self.clock_settle_frames
@@ -200,6 +210,7 @@ STATE_DTYPE = np.dtype(
         ("gyro_range", _F8),  # [rad/s]
         ("rotor_lo_hz", _F8),  # the rotor limits with the margin [Hz]
         ("rotor_hi_hz", _F8),
+        ("min_step_s", _F8),
         ("max_step_s", _F8),
         ("settle", _I8),
         ("pos_jump_m", _F8),
@@ -225,6 +236,10 @@ STATE_DTYPE = np.dtype(
         ("prev_t", _F8),
         ("state_last", _F8, FRAME_STATE_SIZE),  # the last accepted bypass state
         ("t_state_ok", _F8),  # its controller time [s]
+        ("resume_ok", _I8),  # 1: resume_state holds a valid state after the hold timeout (resume candidate)
+        ("resume_state", _F8, 6),  # its p_W, v_W
+        ("resume_t", _F8),  # its controller time [s]
+        ("resume_window_s", _F8),
     ]
 )
 """The supervisor's record: outputs, parameters and state, by name (a field of the controller's state)."""
@@ -263,11 +278,13 @@ def reset_supervisor(
     rec["dt_nom"] = dt
     rec["acc_range"], rec["gyro_range"] = acc_range, gyro_range
     rec["rotor_lo_hz"], rec["rotor_hi_hz"] = omega_min_hz - margin, omega_max_hz + margin
-    rec["max_step_s"], rec["settle"] = params.max_clock_step_s, params.clock_settle_frames
+    rec["min_step_s"], rec["max_step_s"] = params.min_clock_step_s, params.max_clock_step_s
+    rec["settle"] = params.clock_settle_frames
     rec["pos_jump_m"], rec["max_speed_mps"] = params.pos_jump_m, params.max_speed_mps
     rec["vel_jump_mps"], rec["max_accel_mps2"] = params.vel_jump_mps, params.max_accel_mps2
     rec["rotation_tol"], rec["quat_norm_tol"] = params.rotation_tol, params.quat_norm_tol
     rec["dropout_reinit_s"], rec["hold_timeout_s"] = params.dropout_reinit_s, params.bypass_hold_timeout_s
+    rec["resume_window_s"] = params.bypass_resume_window_s
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
     t = float(frame[FRAME_T])
     rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = t
@@ -300,13 +317,13 @@ def _check_time(sv, frame, clean) -> int:
     tc = t_raw + sv.offset_s
     d = tc - sv.t_last
     cause = 0
-    if d > 0.0 and d <= sv.max_step_s:  # False for NaN
+    if sv.min_step_s <= d <= sv.max_step_s:  # False for NaN
         sv.n_consistent = 0
     else:
         cause = CAUSE_TIME
         tc = sv.t_last + sv.dt_nom
         d_raw = t_raw - sv.t_raw_last
-        if d_raw > 0.0 and d_raw <= sv.max_step_s:
+        if sv.min_step_s <= d_raw <= sv.max_step_s:
             sv.n_consistent += 1
         else:
             sv.n_consistent = 0
@@ -414,6 +431,33 @@ def _proper_rotation(s, o: int, tol: float) -> bool:
 
 
 @jit
+def _resume_check(sv, clean, tc: float) -> int:
+    """After the hold timeout: 0 when the position moved as the velocity says over the resume window."""
+    S = FRAME_STATE
+    r = sv.resume_state
+    if sv.resume_ok == 0:
+        for i in range(6):
+            r[i] = clean[S + i]
+        sv.resume_t = tc
+        sv.resume_ok = 1
+        return CAUSE_STATE_JUMP
+    tau = tc - sv.resume_t
+    if tau < sv.resume_window_s:
+        return CAUSE_STATE_JUMP
+    e2 = 0.0
+    for i in range(3):
+        e = clean[S + i] - r[i] - 0.5 * (clean[S + 3 + i] + r[3 + i]) * tau
+        e2 += e * e
+    if math.sqrt(e2) <= sv.pos_jump_m:
+        sv.resume_ok = 0
+        return 0
+    for i in range(6):
+        r[i] = clean[S + i]
+    sv.resume_t = tc
+    return CAUSE_STATE_JUMP
+
+
+@jit
 def _check_state(sv, clean, time_bad: bool) -> int:
     """The bypass state's checks; a rejected state is replaced by the prediction (module docstring)."""
     if clean[FRAME_HAS_STATE] == 0.0:
@@ -429,7 +473,10 @@ def _check_state(sv, clean, time_bad: bool) -> int:
     cause = 0
     if not (finite and _proper_rotation(clean, S + 9, sv.rotation_tol)):
         cause = CAUSE_STATE
-    elif not time_bad and tau <= sv.hold_timeout_s:
+        sv.resume_ok = 0
+    elif not time_bad and tau > sv.hold_timeout_s:
+        cause = _resume_check(sv, clean, tc)
+    elif not time_bad:
         dp = 0.0
         for i in range(3):
             e = clean[S + i] - last[i] - last[3 + i] * tau
