@@ -27,9 +27,12 @@ period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by wha
   computed from the last good state: in flight a hover-like command) and updates no stateful block, flagged
   ``ESTIMATE_DEGRADED`` (the logged estimate is the last accepted pose, held still). After
   ``bypass_hold_timeout_s`` without an accepted state every period is also flagged ``CAUSE_HOLD_TIMEOUT``: the
-  command stays held (there is nothing better to fly on without a state; a 1 s loss drifts about 0.25 m in
-  hover) but never silently, and the next finite, proper state is accepted without the jump checks and the
-  controller resumes;
+  command stays held (there is nothing better to fly on without a state; a 1 s loss drifts about 0.3 m in
+  hover) but never silently; the jump checks, whose bounds have grown past use, give way to a consistency
+  check: a state is accepted, and the controller resumes, once the positions of consecutive valid states over
+  ``bypass_resume_window_s`` moved as their velocities say (within ``pos_jump_m``). Limitation: a velocity
+  offset that persists (a bias of the bypass state alone) passes the velocity bound once it has grown past the
+  offset (50 ms for 3 m/s) and is then believed;
 * **rotor speeds** (``CAUSE_ROTOR``): a non-finite speed or one beyond the vehicle's limits by more than
   ``rotor_margin`` of the larger limit: the wrench observer takes the last command for that period.
 
