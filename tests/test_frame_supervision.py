@@ -18,8 +18,8 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop
-from omnirotor.experiments.faults import MocapDropout, SensorCorruption, install_faults
+from omnirotor.experiments.closed_loop import TaskOptions
+from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault, glitch_hover
 from omnirotor.messages import (
     FRAME_ACC_B,
     FRAME_GYRO_B,
@@ -35,7 +35,7 @@ from omnirotor.messages import (
     SensorFrame,
     frame_size,
 )
-from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim import Simulator
 from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle()
@@ -209,117 +209,56 @@ def test_a_frame_with_the_wrong_rotor_count_is_refused_on_every_path(solver):
 
 
 def fly(faults, estimator: str, duration: float, seed: int = 1) -> dict:
-    """Hover in the free scene with a fault schedule (the compiled loop); the run's arrays."""
-    params = TaskOptions(estimator=estimator).controller_params(AdmittanceParams.preset("free"))
-    ctl = InteractionController(V, params)
-    sim = install_faults(Simulator(V, "free", SimParams(), seed=seed), faults)
-    p0, R0 = sim.default_start()
-    traj = PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)])
-    clog, tlog = run_closed_loop(sim, ctl, traj, duration)
-    omega = clog.group("omega_cmd_hz").copy()
+    """Hover under a fault schedule (the compiled loop); every command finite and within the limits."""
+    run = glitch_hover(V, estimator, faults, duration, seed)
+    omega = run["omega"]
     assert np.all(np.isfinite(omega))
     assert omega.min() >= V.omega_min_hz and omega.max() <= V.omega_max_hz
-    assert sim.faults.commands_nonfinite == 0 and sim.faults.commands_out_of_limits == 0
-    return {
-        "ctl": ctl,
-        "t": tlog.group("t").copy(),
-        "err": np.linalg.norm(tlog.group("p_W") - p0, axis=1),
-        "status": clog.group("status").astype(int),
-        "cause": clog.group("frame_reject").astype(int),
-    }
+    assert run["sim"].faults.commands_nonfinite == 0 and run["sim"].faults.commands_out_of_limits == 0
+    return run
 
 
-def _single(signal, kind, magnitude=0.0, component=None, frames=1):
-    return (signal, kind, magnitude, component, frames)
-
-
-# Single bad frames (a motion-capture corruption spans one 100 Hz sample: 11 frames); (signal, kind, magnitude,
-# component, frames) and the cause each estimator must report (None: the estimator in use does not read it).
-SINGLE = [
-    (_single("imu_acc", "nan"), sup.CAUSE_IMU, sup.CAUSE_IMU),
-    (_single("imu_gyro", "inf", component=1), sup.CAUSE_IMU, sup.CAUSE_IMU),
-    (_single("imu_acc", "spike", 1e4), sup.CAUSE_IMU, sup.CAUSE_IMU),
-    (_single("rotor_hz", "nan", component=2), sup.CAUSE_ROTOR, sup.CAUSE_ROTOR),
-    (_single("rotor_hz", "set", 5000.0), sup.CAUSE_ROTOR, sup.CAUSE_ROTOR),
-    (_single("rotor_hz", "set", -5000.0, component=5), sup.CAUSE_ROTOR, sup.CAUSE_ROTOR),
-    (_single("time", "spike", 1000.0), sup.CAUSE_TIME, sup.CAUSE_TIME),
-    (_single("time", "spike", -0.5), sup.CAUSE_TIME, sup.CAUSE_TIME),
-    (_single("time", "spike", -DT), sup.CAUSE_TIME, sup.CAUSE_TIME),  # the time repeated
-    (_single("time", "nan"), sup.CAUSE_TIME, sup.CAUSE_TIME),
-    (_single("mocap", "nan", frames=11), sup.CAUSE_MOCAP, sup.CAUSE_MOCAP),
-    (_single("mocap", "spike", 1000.0, frames=11), sup.CAUSE_MOCAP_JUMP, None),
-    (_single("mocap_q", "set", 0.0, frames=11), sup.CAUSE_MOCAP, sup.CAUSE_MOCAP),
-    (_single("mocap_q", "spike", 0.5, component=0, frames=11), sup.CAUSE_MOCAP, sup.CAUSE_MOCAP),
-    (_single("state", "spike", 1000.0), None, sup.CAUSE_STATE_JUMP),
-    (_single("state", "nan"), None, sup.CAUSE_STATE),
-    (_single("state_v", "spike", 3.0, component=0), None, sup.CAUSE_STATE_JUMP),
-    (_single("state_R", "set", 0.0), None, sup.CAUSE_STATE),
-    (_single("state_R", "nan", component=4), None, sup.CAUSE_STATE),
-    (_single("state_R", "spike", 0.3, component=1), None, sup.CAUSE_STATE),
-]
+BIT = dict(sup.CAUSES)
 SLOT_S = 2.5  # one glitch per slot: 2 s to recover, checked over the slot's last 0.5 s
-N_DRAWN = 12  # glitches per run, drawn from SINGLE
+N_DRAWN = 12  # glitches per run, drawn from FRAME_GLITCHES
 
 
 @pytest.mark.parametrize("estimator, seed", [(e, s) for e in ("ukf", "bypass") for s in (14, 114, 214)])
 def test_after_any_single_bad_frame_the_vehicle_is_back_within_5_cm_in_2_s(estimator, seed):
     rng = np.random.default_rng(seed)
-    column = 1 if estimator == "ukf" else 2
-    pool = [case for case in SINGLE if case[column] is not None]
+    column = 6 if estimator == "ukf" else 7  # the cause the estimator in use must report
+    pool = [g for g in FRAME_GLITCHES if g[column] is not None]
     drawn = [pool[i] for i in rng.choice(len(pool), N_DRAWN, replace=False)]
     starts = [1.0 + SLOT_S * i + rng.uniform(0.0, 0.01) for i in range(N_DRAWN)]
-    faults = [
-        SensorCorruption(sig, starts[i], frames * DT, kind, mag, comp)
-        for i, ((sig, kind, mag, comp, frames), *_) in enumerate(drawn)
-    ]
-    run = fly(faults, estimator, 1.0 + SLOT_S * N_DRAWN)
+    run = fly([glitch_fault(g, t0) for g, t0 in zip(drawn, starts, strict=True)], estimator, 1.0 + SLOT_S * N_DRAWN)
     t, err, status, cause = run["t"], run["err"], run["status"], run["cause"]
     assert not np.any(status[t < starts[0]] & REJECTED) and err[t < starts[0]][-500:].max() < TOL_M
-    for i, case in enumerate(drawn):
-        t0, frames = starts[i], case[0][4]
+    rejecting = (cause & sup.REJECTING) > 0
+    assert np.all(status[rejecting] & REJECTED)
+    for i, glitch in enumerate(drawn):
+        t0, frames = starts[i], glitch[5]
         hit = (t >= t0 - DT) & (t < t0 + (frames + 1) * DT)
-        assert np.any(cause[hit] & case[column]), (case, sup.causes_of(int(np.bitwise_or.reduce(cause[hit]))))
-        rejecting = (cause & sup.REJECTING) > 0
-        assert np.all(status[rejecting] & REJECTED)
+        assert np.any(cause[hit] & BIT[glitch[column]]), (glitch, sup.causes_of(int(np.bitwise_or.reduce(cause[hit]))))
         back = (t >= t0 + RECOVER_S) & (t < 1.0 + SLOT_S * (i + 1))
-        assert err[back].max() < TOL_M, (case, err[back].max())
-        assert not np.any(status[back] & (REJECTED | DEGRADED)), case  # and nothing is left flagged
-
-
-BURSTS = [
-    ("imu_acc", "nan", 0.0, None),
-    ("imu_gyro", "spike", 1e3, None),
-    ("rotor_hz", "set", 5000.0, None),
-    ("rotor_hz", "inf", 0.0, 3),
-    ("mocap", "spike", 1000.0, None),
-    ("mocap_q", "set", 0.0, None),
-    ("time", "nan", 0.0, None),
-    ("state", "nan", 0.0, None),
-    ("state_R", "set", 0.0, None),
-    ("state_v", "spike", 3.0, None),
-]
+        assert err[back].max() < TOL_M, (glitch, err[back].max())
+        assert not np.any(status[back] & (REJECTED | DEGRADED)), glitch  # and nothing is left flagged
 
 
 @pytest.mark.parametrize("estimator, seed", [(e, s) for e in ("ukf", "bypass") for s in (24, 124, 224)])
 def test_bursts_are_flagged_with_their_cause_and_never_reach_the_motors(estimator, seed):
     rng = np.random.default_rng(seed)
-    skip = ("state", "state_R", "state_v") if estimator == "ukf" else ("mocap", "mocap_q")
-    pool = [b for b in BURSTS if b[0] not in skip]
-    n = 6
+    column = 6 if estimator == "ukf" else 7
+    pool = [g for g in FRAME_GLITCHES if g[column] is not None]
+    n, slot = 6, 3.5
     drawn = [pool[i] for i in rng.choice(len(pool), n, replace=False)]
     lengths = rng.choice([5, 50, 300, 1000], n)  # frames
-    slot = 3.5
     starts = [1.0 + slot * i for i in range(n)]
-    faults = [
-        SensorCorruption(sig, starts[i], lengths[i] * DT, kind, mag, comp)
-        for i, (sig, kind, mag, comp) in enumerate(drawn)
-    ]
+    faults = [glitch_fault(g[:5] + (int(m),) + g[6:], t0) for g, m, t0 in zip(drawn, lengths, starts, strict=True)]
     run = fly(faults, estimator, 1.0 + slot * n)  # fly() asserts every command finite and within the limits
     t, status, cause = run["t"], run["status"], run["cause"]
-    for i, (sig, *_) in enumerate(drawn):
+    for i, glitch in enumerate(drawn):
         window = (t >= starts[i]) & (t < starts[i] + lengths[i] * DT)
-        assert np.any(status[window] & REJECTED), (sig, lengths[i])
-        assert np.any(cause[window] & sup.REJECTING), (sig, lengths[i])
+        assert np.any(status[window] & REJECTED) and np.any(cause[window] & BIT[glitch[column]]), (glitch, lengths[i])
     # (no recovery bound for bursts: a persistent bypass velocity offset is believed once within the jump bounds)
 
 
