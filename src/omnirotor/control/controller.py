@@ -356,6 +356,9 @@ class InteractionController:
         hz = np.asarray(frame.rotor_hz, dtype=float)
         if hz.shape != (self._n,):
             raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
+        packed = frame.packed
+        if packed is None or packed.shape != self._frame_buf.shape:
+            packed = self._pack(frame)
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
@@ -375,13 +378,6 @@ class InteractionController:
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
         self._build_kernel_args()
-        packed = frame.packed
-        if packed is None or packed.shape != self._frame_buf.shape:
-            packed = self._frame_buf
-            try:
-                frame.pack_into(packed)
-            except ValueError as exc:
-                raise InputError(f"sensor frame of the wrong shape: {exc}") from None
         kind = int(self._own["estimator"])
         reset_supervisor(
             self.state["supervisor"], self.params.supervisor, packed, dt=self._dt,
@@ -416,11 +412,7 @@ class InteractionController:
             raise InputError(f"frame.rotor_hz has shape {np.shape(hz)}; the vehicle has {self._n} rotors")
         packed = frame.packed
         if packed is None or packed.shape != self._frame_buf.shape:
-            packed = self._frame_buf
-            try:
-                frame.pack_into(packed)
-            except ValueError as exc:
-                raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+            packed = self._pack(frame)
         row = self.log.next_row()
         if row is None:
             row = self._no_row
@@ -434,6 +426,18 @@ class InteractionController:
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+
+    def _pack(self, frame: SensorFrame) -> np.ndarray:
+        """The frame packed into the controller's buffer (module docstring of :mod:`omnirotor.messages`).
+
+        Raises:
+            InputError: arrays of the wrong size.
+        """
+        try:
+            frame.pack_into(self._frame_buf)
+        except ValueError as exc:
+            raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+        return self._frame_buf
 
     def _step_slow(self, frame: SensorFrame, packed: np.ndarray, row: np.ndarray) -> int:
         """:meth:`step` through the same composer when it is not one compiled call by address.
