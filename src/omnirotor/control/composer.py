@@ -281,11 +281,12 @@ def _finish_held(st, rot, bits: int, row) -> None:
 
 @jit
 def step_begin(args, frame, row) -> int:
-    """Everything of a period before the allocation QP (module docstring).
+    """Everything of a period before the allocation QP (module docstring), the frame's supervision first.
 
     Returns:
         ``STEP_NO_ESTIMATE`` (nothing updated), ``BEGIN_DONE`` (a non-finite estimate or measured rotor
-        speed: the last safe command is held, flagged, and logged; no stateful block was updated), or the
+        speed, or a rejected bypass state: the last safe command is held, flagged, and logged; no stateful
+        block was updated), or the
         code of :func:`~omnirotor.control.allocation.alloc_begin` (its linear term is then ready, or the
         allocator holds its last input).
     """
