@@ -199,9 +199,13 @@ def test_a_frame_with_the_wrong_rotor_count_is_refused_on_every_path(solver):
     ctl.reset(frame, PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)]))
     ctl.step(sim.step(ctl.hold_command()))
     bad = sim.step(ctl.hold_command())
-    for hz in (bad.rotor_hz[:7].copy(), np.r_[bad.rotor_hz, 0.0], [100.0] * 7):
+    for hz in (bad.rotor_hz[:7].copy(), np.r_[bad.rotor_hz, 0.0], [100.0] * 7, np.array([100.0]), 100.0):
         with pytest.raises(InputError, match="rotor_hz has shape"):
             ctl.step(SensorFrame(bad.t, bad.imu_acc_B, bad.imu_gyro_B, hz, state=bad.state))
+    packed = np.zeros(frame_size(V.n_rotors))
+    bad.pack_into(packed)
+    with pytest.raises(InputError, match="rotor_hz has shape"):  # a packed frame of a 7-rotor vehicle
+        ctl.step(SensorFrame.from_packed(packed[:-1]))
     assert ctl.log.n == 1  # nothing logged, nothing half-done
 
 

@@ -407,9 +407,6 @@ class InteractionController:
         """
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
-        hz = frame.rotor_hz
-        if not (isinstance(hz, np.ndarray) and hz.shape == self._rotor_shape) and np.shape(hz) != self._rotor_shape:
-            raise InputError(f"frame.rotor_hz has shape {np.shape(hz)}; the vehicle has {self._n} rotors")
         packed = frame.packed
         if packed is None or packed.shape != self._frame_buf.shape:
             packed = self._pack(frame)
@@ -430,9 +427,14 @@ class InteractionController:
     def _pack(self, frame: SensorFrame) -> np.ndarray:
         """The frame packed into the controller's buffer (module docstring of :mod:`omnirotor.messages`).
 
+        A frame whose own packed form has the controller's size needs none of this: its rotor speeds are a view
+        of it, so there are as many as the vehicle has rotors.
+
         Raises:
-            InputError: arrays of the wrong size.
+            InputError: arrays of the wrong size (rotor speeds: not one per rotor, not even broadcast).
         """
+        if np.shape(frame.rotor_hz) != self._rotor_shape:
+            raise InputError(f"frame.rotor_hz has shape {np.shape(frame.rotor_hz)}; the vehicle has {self._n} rotors")
         try:
             frame.pack_into(self._frame_buf)
         except ValueError as exc:
