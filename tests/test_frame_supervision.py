@@ -209,6 +209,18 @@ def test_a_frame_with_the_wrong_rotor_count_is_refused_on_every_path(solver):
     assert ctl.log.n == 1  # nothing logged, nothing half-done
 
 
+def test_a_motion_capture_sample_in_the_first_frame_is_checked_against_the_start_pose():
+    sim = Simulator(V, "free", seed=1)
+    ctl = InteractionController(V, ControllerParams())
+    first = sim.reset()
+    p0, R0 = sim.default_start()
+    ctl.reset(first, PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)]))
+    f = sim.step(ctl.hold_command())
+    f = SensorFrame(f.t, f.imu_acc_B, f.imu_gyro_B, f.rotor_hz, True, f.t - 0.005, p0.copy(), np.r_[1.0, 0, 0, 0])
+    cmd = ctl.step(f)
+    assert not cmd.status & REJECTED and ctl.log.group("frame_reject")[0] == 0
+
+
 # -- closed loop: the fuzz ----------------------------------------------------------------------------------------
 
 

@@ -362,6 +362,11 @@ class InteractionController:
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
+        # The estimate the first frame's supervision checks motion capture against: the start's.
+        if isinstance(self.estimator, UKFEstimator):
+            _ek.write_estimate(self.estimator.kernel_mem, self._estimate)
+        elif isinstance(self.estimator, BypassEstimator):
+            self._estimate[:] = self.estimator.state[0]["last"]
         self.observer.reset()
         self.admittance.reset()
         self.pose.reset()
