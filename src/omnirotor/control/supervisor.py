@@ -57,6 +57,7 @@ import numpy as np
 
 from omnirotor._jit import jit
 from omnirotor.config import check_positive
+from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.errors import InputError
 from omnirotor.messages import (
     FRAME_ACC_B,
@@ -385,9 +386,8 @@ def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     mt = clean[FRAME_MOCAP_T] + sv.offset_s
     clean[FRAME_MOCAP_T] = mt
     P, Q = FRAME_MOCAP_P_W, FRAME_MOCAP_Q_WB
-    qn = math.sqrt(clean[Q] ** 2 + clean[Q + 1] ** 2 + clean[Q + 2] ** 2 + clean[Q + 3] ** 2)
-    finite = math.isfinite(mt + clean[P] + clean[P + 1] + clean[P + 2])
-    if not (finite and abs(qn - 1.0) <= sv.quat_norm_tol and mt <= tc + 0.5 * sv.dt_nom):
+    valid = _ek.mocap_sample_valid(clean[P : P + 3], clean[Q : Q + 4], sv.quat_norm_tol)
+    if not (valid and mt <= tc + 0.5 * sv.dt_nom):  # False for a NaN time
         _drop_mocap(clean)
         sv.prev_ok = 0
         return CAUSE_MOCAP
