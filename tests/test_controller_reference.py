@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parent / "reference"))
 
 from record_controller import CASES, EVERY, controller, digest, slide  # noqa: E402
 
-from omnirotor.messages import SensorFrame  # noqa: E402
+from omnirotor.messages import ControlStatus, SensorFrame  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "controller_reference.npz"
 
@@ -44,8 +44,37 @@ def replay(name: str, params=None):
 @pytest.mark.parametrize("name", list(CASES))
 def test_controller_replays_the_recorded_reference_bit_for_bit(name):
     ctl, statuses, regions, ref = replay(name)
-    h, rows = digest(ctl, statuses, regions)
+    width = ref[f"{name}/rows"].shape[1]  # the log's columns when the reference was recorded
+    h, rows = digest(ctl, statuses, regions, width)
+    # The frame supervision's column, added since: a clean run is never flagged.
+    assert list(ctl.log.column_names[width:]) == ["frame_reject"]
+    rejected = ctl.log.group("frame_reject")
+    if not CASES[name][4]:
+        assert not np.any(rejected) and not np.any(np.asarray(statuses) & int(ControlStatus.FRAME_REJECTED))
     # The sampled rows first: a difference there says where (which step, which column).
     np.testing.assert_array_equal(rows, ref[f"{name}/rows"])
     assert h == str(ref[f"{name}/digest"])
     assert ctl.log.n == ref[f"{name}/frames"].shape[0] - 1 and EVERY > 1
+
+
+def test_the_frame_supervision_changed_the_corrupted_case_only_where_it_acts():
+    """The corrupted case was re-digested (same recorded frames) when the frame supervision came (issue 14).
+
+    Its rows before the supervision are kept: up to the first corrupted rotor speeds (1.1 s) every number is
+    the same and the status differs only by ``FRAME_REJECTED`` on the rejected frames (the gyroscope and
+    motion-capture samples were replaced as the estimator did before). From there the observer takes the last
+    command in place of rejected speeds instead of the whole step holding the last command, as before.
+    """
+    name = "ukf_piecewise_corrupted"
+    ref = np.load(DATA)
+    old, new = ref[f"{name}/rows_before_supervision"], ref[f"{name}/rows"]
+    ctl, statuses, regions, _ = replay(name)
+    assert digest(ctl, statuses, regions, new.shape[1])[0] == str(ref[f"{name}/digest"])
+    before = old[:, 0] < 1.1 - 1e-9
+    status_col = 2
+    others = [j for j in range(old.shape[1]) if j != status_col]
+    np.testing.assert_array_equal(new[before][:, others], old[before][:, others])
+    rejected = int(ControlStatus.FRAME_REJECTED)
+    np.testing.assert_array_equal(new[before, status_col].astype(int) & ~rejected, old[before, status_col])
+    assert np.any(new[before, status_col].astype(int) & rejected)
+    assert not np.array_equal(new[~before], old[~before])

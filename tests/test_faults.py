@@ -34,6 +34,7 @@ DEGRADED = int(ControlStatus.ESTIMATE_DEGRADED)
 NONFINITE = int(ControlStatus.NONFINITE_INPUT)
 SATURATED = int(ControlStatus.SATURATED)
 EXCLUDED = int(ControlStatus.ROTOR_EXCLUDED)
+REJECTED = int(ControlStatus.FRAME_REJECTED)
 
 
 def fly(faults=(), estimator="bypass", duration=3.0, trajectory=None, tell=True, plant=None, seed=1):
@@ -155,7 +156,7 @@ CORRUPTIONS = [
     SensorCorruption("imu_acc", 1.0, 0.02, "nan"),
     SensorCorruption("imu_gyro", 1.2, 0.001, "inf"),
     SensorCorruption("rotor_hz", 1.4, 0.01, "nan", component=2),
-    SensorCorruption("mocap", 1.6, 0.05, "spike", 1.0),  # a 1 m jump: the innovation gate rejects it
+    SensorCorruption("mocap", 1.6, 0.05, "spike", 1.0),  # a 1 m jump: the frame supervision rejects it
     SensorCorruption("imu_acc", 1.8, 0.005, "spike", 1e4),  # beyond the accelerometer's range
     SensorCorruption("imu_gyro", 2.0, 0.005, "spike", 1e3),
     SensorCorruption("mocap", 2.2, 0.03, "nan"),
@@ -166,8 +167,9 @@ CORRUPTIONS = [
 def test_nonfinite_and_spiking_sensors_are_rejected_and_flagged(baseline, estimator):
     faults = list(CORRUPTIONS) + ([SensorCorruption("state", 2.6, 0.02, "inf")] if estimator == "bypass" else [])
     run = fly(faults, estimator=estimator)
-    t, flagged = run["t"], (run["status"] & NONFINITE) > 0
-    # the bad samples the estimator or the controller sees are flagged where they happen
+    t, flagged = run["t"], (run["status"] & (NONFINITE | REJECTED)) > 0
+    # the bad samples the estimator or the controller sees are flagged where they happen (the 1 m jump of motion
+    # capture as FRAME_REJECTED by the frame supervision, the others also as NONFINITE_INPUT)
     seen = [f for f in faults if estimator == "ukf" or f.signal in ("rotor_hz", "state")]
     for f in seen:
         w = (t >= f.t_start_s) & (t < f.t_start_s + f.duration_s + 0.011)

@@ -81,6 +81,8 @@ class ControlStatus(enum.IntFlag):
     """The state estimate runs on the IMU alone (motion capture missing or stale)."""
     ROTOR_EXCLUDED = 16
     """The allocation excludes at least one rotor declared failed."""
+    FRAME_REJECTED = 32
+    """The frame supervision rejected a part of the sensor frame (its cause is logged); the prediction replaced it."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

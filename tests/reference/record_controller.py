@@ -84,13 +84,17 @@ def controller(estimator: str, mode: str, blend: str, failed: int, params=None) 
     return ctl
 
 
-def digest(ctl: InteractionController, statuses, regions) -> tuple[str, np.ndarray]:
-    """SHA-256 of the log, statuses, regions and counters; and every ``EVERY``-th log row."""
+def digest(ctl: InteractionController, statuses, regions, width: int | None = None) -> tuple[str, np.ndarray]:
+    """SHA-256 of the log, statuses, regions and counters; and every ``EVERY``-th log row.
+
+    ``width``: only the first ``width`` columns of the log (the layout a reference was recorded with; columns
+    added to the log since are checked by the test itself).
+    """
     a, e = ctl.allocator, ctl.estimator
     counters = np.array(
         [a.n_fallbacks, a.n_nonfinite, int(a.status), a.saturated, e.rejected_inputs, e.degraded], dtype=np.int64
     )
-    log = np.ascontiguousarray(ctl.log.data[: ctl.log.n])
+    log = np.ascontiguousarray(ctl.log.data[: ctl.log.n, :width])
     h = hashlib.sha256()
     for arr in (log, np.asarray(statuses, dtype=np.int64), np.asarray(regions, dtype=np.int64), counters):
         h.update(np.ascontiguousarray(arr).tobytes())

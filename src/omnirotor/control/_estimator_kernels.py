@@ -932,3 +932,48 @@ def ukf_step(
     counters[CNT_LAST_REJECTED] = 1 if rejected else 0
     counters[CNT_DEGRADED] = 1 if result & STEP_DEGRADED else 0
     return result, t
+
+
+@jit
+def ukf_reinit(mem, p_m, q_m, counters, out) -> None:
+    """Re-initialise the pose from a motion-capture sample at the current time (after a time glitch or a dropout).
+
+    The output and the delayed fused state both become the sample's pose at the time of the last step; the
+    velocity and the biases are kept where finite (else zero), the covariance goes back to the initial one,
+    the buffer of IMU samples is emptied and the estimate is no longer degraded. Called by the controller's
+    frame supervision (:mod:`omnirotor.control.supervisor`).
+
+    Args:
+        mem: the estimator's memory.
+        p_m: (3,) measured position [m] (finite).
+        q_m: (4,) measured attitude, wxyz (finite, non-zero; normalised here).
+        counters: (CNT_SIZE,) the counters; ``CNT_REINIT`` counts it.
+        out: (21,) the estimate, rewritten.
+    """
+    x, buf, sbuf, P, W, M, wk = views(mem)
+    S = UKF_S
+    qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
+    for i in range(3):
+        x[S + i] = p_m[i]
+    for i in range(4):
+        x[S + 6 + i] = q_m[i] / qn
+    for i in range(3, 6):
+        if not math.isfinite(x[S + i]):
+            x[S + i] = 0.0
+    for i in range(10, 16):
+        if not math.isfinite(x[S + i]):
+            x[S + i] = 0.0
+    R9_from_quat_into(x[S + 6], x[S + 7], x[S + 8], x[S + 9], x, UKF_RS)
+    for i in range(16):
+        x[UKF_F + i] = x[S + i]
+    for i in range(9):
+        x[UKF_RF + i] = x[UKF_RS + i]
+    x[UKF_T_F] = x[UKF_T]
+    x[UKF_KF] = x[UKF_K]
+    x[UKF_T_ACCEPT] = x[UKF_T]
+    x[UKF_JUST_RESET] = 1.0
+    x[UKF_GATE_FAILS] = 0.0
+    _copy2(M[M_P0], P)
+    counters[CNT_REINIT] += 1
+    counters[CNT_DEGRADED] = 0
+    write_estimate(x, out)

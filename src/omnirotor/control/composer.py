@@ -3,12 +3,16 @@
 One period, the packed sensor frame (:mod:`omnirotor.messages`) in, the rotor command out (the blocks and
 their SPEC sections are in the controller's module docstring)::
 
-    frame ──> estimator ──> (p_W, v_W, a_W, R_WB, omega_B) ──┬──> map scheduler ──> A
+    frame ──> supervisor ──> checked frame ──> estimator ──> (p_W, v_W, a_W, R_WB, omega_B) ──┬──> map scheduler ──> A
                                                             │
     u_obs_hz2 (measured) or u_cmd_hz2 (last command), A ──> observer ──> output (f_ext_W, m_ext_B), filtered
     output ──> EE wrench (f_E_W, m_E_W) ──> admittance ──> xi
     trajectory(t) ──> desired_ee ──(xi)──> compliant_ee ──(p_E_B)──> body_ref
     body_ref, estimate, filtered ──> pose ──> w_ref ──> allocation (A, R_WB) ──> u_hz2 ──> omega_cmd_hz
+
+The supervisor (:mod:`omnirotor.control.supervisor`) checks the frame first: the estimator reads its checked
+copy (rejected parts replaced by the prediction), the observer the last command in place of rejected rotor
+speeds, and after a clock reset or a long dropout the UKF re-initialises from motion capture.
 
 Every block's state is a field of the controller's structured state (:func:`controller_dtype`): the
 composer reads and writes the signals by name (``st.observer.output``, ``st.pose.w_ref``, ``rot.u_cmd_hz2``)
@@ -44,6 +48,7 @@ from omnirotor.control import allocation as _al
 from omnirotor.control import estimator as _est
 from omnirotor.control import observer as _obs
 from omnirotor.control import pose as _pose
+from omnirotor.control import supervisor as _sup
 from omnirotor.control import trajectory as _traj
 from omnirotor.messages import (
     FRAME_ACC_B,
@@ -121,6 +126,7 @@ _BIT_NONFINITE = 2
 _BIT_SATURATED = 4
 _BIT_DEGRADED = 8
 _BIT_EXCLUDED = 16
+_BIT_REJECTED = 32
 
 
 class RotorArrays(NamedTuple):
@@ -170,6 +176,7 @@ def controller_dtype(observer_dtype: np.dtype) -> np.dtype:
             ("body_ref", ref),
             ("allocation", _al.STATE_DTYPE),
             ("bypass", _est.BYPASS_DTYPE),
+            ("supervisor", _sup.STATE_DTYPE),
             ("arrays", _I8, (3 * N_ARRAYS,)),
         ]
     )
@@ -257,7 +264,8 @@ def write_log_row(row, st, rot) -> None:
     k = _put(row, k, st.observer.output)
     k = _put(row, k, st.pose.w_ref)
     k = _put(row, k, st.pose.errors)
-    _put(row, _put(row, k, rot.u_cmd_hz2), rot.omega_cmd_hz)
+    k = _put(row, _put(row, k, rot.u_cmd_hz2), rot.omega_cmd_hz)
+    row[k] = st.supervisor.cause
 
 
 @jit
@@ -273,11 +281,12 @@ def _finish_held(st, rot, bits: int, row) -> None:
 
 @jit_inline
 def step_begin(args, frame, row) -> int:
-    """Everything of a period before the allocation QP (module docstring).
+    """Everything of a period before the allocation QP (module docstring), the frame's supervision first.
 
     Returns:
         ``STEP_NO_ESTIMATE`` (nothing updated), ``BEGIN_DONE`` (a non-finite estimate or measured rotor
-        speed: the last safe command is held, flagged, and logged; no stateful block was updated), or the
+        speed, or a rejected bypass state: the last safe command is held, flagged, and logged; no stateful
+        block was updated), or the
         code of :func:`~omnirotor.control.allocation.alloc_begin` (its linear term is then ready, or the
         allocator holds its last input).
     """
@@ -287,34 +296,51 @@ def step_begin(args, frame, row) -> int:
     n = frame.shape[0] - FRAME_ROTOR_HZ
     rotor_hz = frame[FRAME_ROTOR_HZ:]
     e = rot.estimate
+    # 0. the frame's supervision: the estimator reads the checked frame f (e still holds the last estimate)
+    sv = st.supervisor
+    act = _sup.supervise(sv, frame, e)
+    cause = sv.cause
+    f = sv.clean
     # 1. the state estimate
     kind = c.estimator
     if kind == EST_UKF:
         code, _ = _ek.ukf_step(
-            est.mem, frame[FRAME_GYRO_B : FRAME_GYRO_B + 3], frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_T],
-            frame[FRAME_MOCAP_NEW] != 0.0, frame[FRAME_MOCAP_T], frame[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3],
-            frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c.compensate != 0, e, est.counters,
+            est.mem, f[FRAME_GYRO_B : FRAME_GYRO_B + 3], f[FRAME_ACC_B : FRAME_ACC_B + 3], f[FRAME_T],
+            f[FRAME_MOCAP_NEW] != 0.0, f[FRAME_MOCAP_T], f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3],
+            f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c.compensate != 0, e, est.counters,
         )  # fmt: skip
+        if act & _sup.ACT_REINIT:
+            _ek.ukf_reinit(
+                est.mem, f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4],
+                est.counters, e,
+            )  # fmt: skip
+            code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
-        code = _est.bypass_step(frame, st.bypass, e)
+        code = _est.bypass_step(f, st.bypass, e)
         if code == _est.BYPASS_NO_STATE:
             return STEP_NO_ESTIMATE
     else:
         code = c.given_code
     bits = 0
+    if cause & _sup.REJECTING:
+        bits |= _BIT_REJECTED
+    if cause & _sup.INVALID_VALUE:
+        bits |= _BIT_NONFINITE
+    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP | _sup.CAUSE_HOLD_TIMEOUT):
+        bits |= _BIT_DEGRADED  # the bypass runs on the prediction
     if code & _ek.STEP_DEGRADED:
         bits |= _BIT_DEGRADED
     if code & _ek.STEP_REJECTED:
         bits |= _BIT_NONFINITE
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
-    t = frame[FRAME_T] - c.t0
+    t = f[FRAME_T] - c.t0
     dt = c.dt
     c.t = t
     p, v, a, w = e[0:3], e[3:6], e[6:9], e[18:21]
     R = e[9:18].reshape(3, 3)
     finite = _take_estimate(c, e)
-    measured = c.measured != 0
+    measured = c.measured != 0 and (cause & _sup.CAUSE_ROTOR) == 0  # rejected speeds: the last command
     if measured:
         for i in range(n):
             rot.u_obs_hz2[i] = abs(rotor_hz[i]) * rotor_hz[i]
@@ -326,6 +352,8 @@ def step_begin(args, frame, row) -> int:
         if finite:
             _mk.schedule_select(sch.schedule, R, sch.maps, sch.out, sch.weights, sch.state)
         c.region = _mk.region_of(sch.state)
+    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP):  # no state to act on: hold, as below
+        finite = False
     if not finite:  # no stateful block is updated: hold the last safe command
         _finish_held(st, rot, bits | _BIT_NONFINITE, row)
         return BEGIN_DONE

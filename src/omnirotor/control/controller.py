@@ -57,6 +57,7 @@ from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEst
 from omnirotor.control.maps import MapParams, MapScheduler
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
+from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
 from omnirotor.errors import InputError
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_size
@@ -99,7 +100,8 @@ def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noq
     EE reference (pose, velocity, acceleration, world-frame angular velocity and acceleration);
     ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the observer's interaction estimate;
     ``w_ref`` the pose controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the
-    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command.
+    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's
+    cause bits (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
     rotors = tuple(str(i + 1) for i in range(n_rotors))
     return [
@@ -121,6 +123,7 @@ def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noq
         ("pose_err", tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in _XYZ)),
         ("u_hz2", rotors),
         ("omega_cmd_hz", rotors),
+        ("frame_reject", 1),
     ]
 
 
@@ -135,6 +138,7 @@ class ControllerParams:
         observer: wrench observer (SPEC §4.3).
         admittance: admittance filter (SPEC §4.4, §5.1); default the free-flight set.
         estimator: state estimator (SPEC §4.5).
+        supervisor: the sensor-frame supervision (:mod:`omnirotor.control.supervisor`).
         dt: control period [s] (1 kHz, SPEC §4).
         log_capacity: rows preallocated for the log [steps].
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
@@ -148,6 +152,7 @@ class ControllerParams:
     observer: ObserverParams = dataclasses.field(default_factory=ObserverParams)
     admittance: AdmittanceParams = dataclasses.field(default_factory=AdmittanceParams)
     estimator: EstimatorParams = dataclasses.field(default_factory=EstimatorParams)
+    supervisor: SupervisorParams = dataclasses.field(default_factory=SupervisorParams)
     dt: float = 1e-3
     log_capacity: int = 120_000
     observer_input: str = "measured"
@@ -169,7 +174,7 @@ def load_controller_params(
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
     The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
-    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]`` whose keys are the
+    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]`` whose keys are the
     fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
 
@@ -187,7 +192,7 @@ def load_controller_params(
 
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
-_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(32))
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(64))
 
 
 class InteractionController:
@@ -228,6 +233,7 @@ class InteractionController:
         self._omega_lo = float(vehicle.omega_min_hz)
         self._omega_hi = float(vehicle.omega_max_hz)
         self._n = n
+        self._rotor_shape = (n,)
         self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
         self.desired_ee = ReferenceSample(state["desired_ee"])
         self.compliant_ee = ReferenceSample(state["compliant_ee"])
@@ -281,6 +287,12 @@ class InteractionController:
     def _estimator_compiled(self) -> bool:
         est = self.estimator
         return est is self._kernel_estimator and bool(getattr(est, "initialised", False))
+
+    @property
+    def frame_causes(self) -> dict[str, int]:
+        """Frames since :meth:`reset` with each cause of the frame supervision (:mod:`omnirotor.control.supervisor`)."""
+        counts = self.state[0]["supervisor"]["counts"]
+        return {name: int(counts[i]) for i, (name, _) in enumerate(CAUSES)}
 
     @property
     def kernel_command(self) -> np.ndarray:
@@ -344,9 +356,17 @@ class InteractionController:
         hz = np.asarray(frame.rotor_hz, dtype=float)
         if hz.shape != (self._n,):
             raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
+        packed = frame.packed
+        if packed is None or packed.shape != self._frame_buf.shape:
+            packed = self._pack(frame)
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
+        # The estimate the first frame's supervision checks motion capture against: the start's.
+        if isinstance(self.estimator, UKFEstimator):
+            _ek.write_estimate(self.estimator.kernel_mem, self._estimate)
+        elif isinstance(self.estimator, BypassEstimator):
+            self._estimate[:] = self.estimator.state[0]["last"]
         self.observer.reset()
         self.admittance.reset()
         self.pose.reset()
@@ -363,6 +383,13 @@ class InteractionController:
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
         self._build_kernel_args()
+        kind = int(self._own["estimator"])
+        reset_supervisor(
+            self.state["supervisor"], self.params.supervisor, packed, dt=self._dt,
+            acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
+            omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
+            check_mocap=kind == _c.EST_UKF,
+        )  # fmt: skip
 
     def hold_command(self, t: float | None = None) -> RotorCommand:
         """The last safe command (after :meth:`reset`: the initial frame's speeds), e.g. for the first period.
@@ -387,11 +414,7 @@ class InteractionController:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
         packed = frame.packed
         if packed is None or packed.shape != self._frame_buf.shape:
-            packed = self._frame_buf
-            try:
-                frame.pack_into(packed)
-            except ValueError as exc:
-                raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+            packed = self._pack(frame)
         row = self.log.next_row()
         if row is None:
             row = self._no_row
@@ -405,6 +428,23 @@ class InteractionController:
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+
+    def _pack(self, frame: SensorFrame) -> np.ndarray:
+        """The frame packed into the controller's buffer (module docstring of :mod:`omnirotor.messages`).
+
+        A frame whose own packed form has the controller's size needs none of this: its rotor speeds are a view
+        of it, so there are as many as the vehicle has rotors.
+
+        Raises:
+            InputError: arrays of the wrong size (rotor speeds: not one per rotor, not even broadcast).
+        """
+        if np.shape(frame.rotor_hz) != self._rotor_shape:
+            raise InputError(f"frame.rotor_hz has shape {np.shape(frame.rotor_hz)}; the vehicle has {self._n} rotors")
+        try:
+            frame.pack_into(self._frame_buf)
+        except ValueError as exc:
+            raise InputError(f"sensor frame of the wrong shape: {exc}") from None
+        return self._frame_buf
 
     def _step_slow(self, frame: SensorFrame, packed: np.ndarray, row: np.ndarray) -> int:
         """:meth:`step` through the same composer when it is not one compiled call by address.

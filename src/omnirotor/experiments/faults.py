@@ -26,8 +26,10 @@ Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s
   undisturbed hover in ``tests/test_faults.py``); not told, the allocation keeps asking the dead rotor for
   thrust, the others saturate and the vehicle sags ~15 cm to a new equilibrium (the pose loop has no
   integrator), every command still within the limits.
-* :class:`SensorCorruption`: NaN, inf, or an added spike in one signal of the frame (accelerometer,
-  gyroscope, rotor speeds, motion capture, bypass state) over a window.
+* :class:`SensorCorruption`: NaN, inf, an added spike or a set value in one signal of the frame
+  (accelerometer, gyroscope, rotor speeds, motion-capture position or quaternion, bypass position, velocity
+  or attitude, the frame's time stamp) over a window. The controller's frame supervision
+  (:mod:`omnirotor.control.supervisor`) rejects them, flagged ``FRAME_REJECTED`` with the cause logged.
 * :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"
   profile, applied as the simulator's external wrench (the gust owns the external wrench while it blows and
   clears it after).
@@ -72,6 +74,9 @@ __all__ = [
     "CORRUPTIBLE_SIGNALS",
     "CORRUPTION_KINDS",
     "GUST_PROFILES",
+    "FRAME_GLITCHES",
+    "glitch_fault",
+    "glitch_hover",
 ]
 
 CORRUPTIBLE_SIGNALS = SIGNALS
@@ -141,8 +146,9 @@ class SensorCorruption:
         signal: one of :data:`CORRUPTIBLE_SIGNALS`.
         t_start_s: start [s].
         duration_s: length [s] (one control period for a single bad sample).
-        kind: "nan", "inf" or "spike" (``magnitude`` added to every component).
-        magnitude: the spike, in the signal's unit (m/s², rad/s, Hz, m; for "state": m on the position).
+        kind: "nan", "inf", "spike" (``magnitude`` added to every component) or "set" (``magnitude`` replaces it).
+        magnitude: the spike or value, in the signal's unit (m/s², rad/s, Hz, m, s; for "state": m on the
+            position; "state_v": m/s; "state_R" and "mocap_q": none).
         component: only this component (0-based) of the signal; None for all of them.
     """
 
@@ -368,3 +374,80 @@ def unreachable_reference(
     return PoseTrajectory(
         [Waypoint(0.0, p0, R0), Waypoint(t_start_s, p0, R0), Waypoint(t1, p1, R1), Waypoint(t1 + hold_s, p1, R1)]
     )
+
+
+# -- sensor glitches: the catalogue the frame supervision is tried on ------------------------------------------
+
+FrameGlitch = tuple[str, str, str, float, "int | None", int, str | None, str | None]
+"""``(label, signal, kind, magnitude, component, frames, cause with the UKF, cause with the bypass)``: a
+:class:`SensorCorruption` of ``frames`` control periods and the supervision cause (a name of
+:data:`omnirotor.control.supervisor.CAUSES`) each estimator must report (None: it does not read that signal)."""
+
+FRAME_GLITCHES: tuple[FrameGlitch, ...] = (
+    ("accelerometer NaN", "imu_acc", "nan", 0.0, None, 1, "imu", "imu"),
+    ("gyroscope inf (one axis)", "imu_gyro", "inf", 0.0, 1, 1, "imu", "imu"),
+    ("accelerometer 1e4 m/s² (beyond range)", "imu_acc", "spike", 1e4, None, 1, "imu", "imu"),
+    ("rotor speed NaN (one rotor)", "rotor_hz", "nan", 0.0, 2, 1, "rotor", "rotor"),
+    ("rotor speeds 5000 Hz", "rotor_hz", "set", 5000.0, None, 1, "rotor", "rotor"),
+    ("rotor speed -5000 Hz (one rotor)", "rotor_hz", "set", -5000.0, 5, 1, "rotor", "rotor"),
+    ("time +1000 s", "time", "spike", 1000.0, None, 1, "time", "time"),
+    ("time -0.5 s", "time", "spike", -0.5, None, 1, "time", "time"),
+    ("time repeated", "time", "spike", -1e-3, None, 1, "time", "time"),
+    ("time NaN", "time", "nan", 0.0, None, 1, "time", "time"),
+    ("motion capture NaN", "mocap", "nan", 0.0, None, 11, "mocap", "mocap"),
+    ("motion capture 1 km away", "mocap", "spike", 1000.0, None, 11, "mocap_jump", None),
+    ("motion-capture quaternion zero", "mocap_q", "set", 0.0, None, 11, "mocap", "mocap"),
+    ("motion-capture quaternion not unit", "mocap_q", "spike", 0.5, 0, 11, "mocap", "mocap"),
+    ("state position 1 km away", "state", "spike", 1000.0, None, 1, None, "state_jump"),
+    ("state NaN", "state", "nan", 0.0, None, 1, None, "state"),
+    ("state velocity jump 3 m/s", "state_v", "spike", 3.0, 0, 1, None, "state_jump"),
+    ("state attitude zeros", "state_R", "set", 0.0, None, 1, None, "state"),
+    ("state attitude NaN (one entry)", "state_R", "nan", 0.0, 4, 1, None, "state"),
+    ("state attitude not orthogonal", "state_R", "spike", 0.3, 1, 1, None, "state"),
+)
+"""Single bad frames (a motion-capture glitch spans one 100 Hz sample: 11 periods) a real robot sees."""
+
+
+def glitch_fault(glitch: FrameGlitch, t_start_s: float, dt: float = 1e-3) -> SensorCorruption:
+    """The :class:`SensorCorruption` of a glitch (a row of :data:`FRAME_GLITCHES`) from ``t_start_s``; period ``dt``."""
+    _, signal, kind, magnitude, component, frames, *_ = glitch
+    return SensorCorruption(signal, t_start_s, frames * dt, kind, magnitude, component)
+
+
+def glitch_hover(vehicle: VehicleParams, estimator: str, faults, duration_s: float, seed: int = 1) -> dict:
+    """Hover in the free scene under ``faults`` (e.g. :func:`glitch_fault` of sensor glitches).
+
+    The compiled closed loop, free-flight admittance; the frame supervision's doing is in the returned logs.
+
+    Args:
+        vehicle: the vehicle (plant and controller).
+        estimator: "ukf" or "bypass".
+        faults: the fault schedule.
+        duration_s: length of the run [s].
+        seed: the simulator's noise seed.
+
+    Returns:
+        ``t`` (k,) [s], ``err`` (k,) distance of the body from its hover reference [m], ``status`` and
+        ``cause`` (k,) the controller's status and frame-supervision bits, ``omega`` (k, n) the commands [Hz],
+        ``sim`` (its fault schedule counted the commands) and ``ctl``.
+    """
+    from omnirotor.control.admittance import AdmittanceParams
+    from omnirotor.control.controller import InteractionController
+    from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+    from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop
+
+    params = TaskOptions(estimator=estimator).controller_params(AdmittanceParams.preset("free"))
+    ctl = InteractionController(vehicle, params)
+    sim = install_faults(Simulator(vehicle, "free", SimParams(), seed=seed), faults)
+    p0, R0 = sim.default_start()
+    traj = PoseTrajectory([Waypoint(0.0, p0 + R0 @ vehicle.p_E_B_array, R0)])
+    clog, tlog = run_closed_loop(sim, ctl, traj, duration_s)
+    return {
+        "t": tlog.group("t").copy(),
+        "err": np.linalg.norm(tlog.group("p_W") - p0, axis=1),
+        "status": clog.group("status").astype(np.int64),
+        "cause": clog.group("frame_reject").astype(np.int64),
+        "omega": clog.group("omega_cmd_hz").copy(),
+        "sim": sim,
+        "ctl": ctl,
+    }

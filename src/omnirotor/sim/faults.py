@@ -10,8 +10,8 @@ so a run with faults takes the same compiled loop as one without. Per control pe
    tau))`` or a step of the peak), and clear it when they stop;
 3. after the step, :func:`faults_frame` edits the new frame (its time ``t'``): a motion-capture dropout
    ``[t_start, t_end)`` removes the sample delivered in it and any sample taken in it (and the bypass state
-   with ``drop_state``); a corruption puts NaN, inf or an added spike into one signal (all components, or
-   one), in the order of the schedule.
+   with ``drop_state``); a corruption puts NaN, inf, an added spike or a set value into one signal (all
+   components, or one), in the order of the schedule.
 
 Telling the controller that a rotor failed is not the plant's business: the schedule gives the steps at
 which it is due (:meth:`FaultSchedule.notice_steps`) and calls :attr:`FaultSchedule.notify` at them from the
@@ -64,12 +64,14 @@ MAX_FAULTS = 32
 MAX_EVENTS = 4 * MAX_FAULTS + 64
 """Onsets and ends the event log has room for (gusts may start and stop several times)."""
 ROTOR_FAILURE, MOCAP_DROPOUT, CORRUPTION, GUST = 1, 2, 3, 4
-SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state")
-"""Signals of the frame a corruption can hit (their codes are their indices)."""
-CORRUPTIONS = ("nan", "inf", "spike")
+SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state", "time", "mocap_q", "state_v", "state_R")
+"""Signals of the frame a corruption can hit (their codes are their indices): "mocap" is the position (and the
+quaternion for nan/inf), "state" the bypass state's position, "time" the frame's time stamp, "mocap_q" the
+quaternion, "state_v" the bypass velocity and "state_R" its attitude matrix (row-major)."""
+CORRUPTIONS = ("nan", "inf", "spike", "set")
 PROFILES = ("1-cos", "step")
-_SIG_ACC, _SIG_GYRO, _SIG_ROTOR, _SIG_MOCAP, _SIG_STATE = range(5)
-_NAN, _INF, _SPIKE = range(3)
+_SIG_ACC, _SIG_GYRO, _SIG_ROTOR, _SIG_MOCAP, _SIG_STATE, _SIG_TIME, _SIG_MOCAP_Q, _SIG_STATE_V, _SIG_STATE_R = range(9)
+_NAN, _INF, _SPIKE, _SET = range(4)
 _STEP_PROFILE = 1
 _TIME_TOL_S = 1e-12
 """A fault due at ``t_start`` starts at the first period whose time is within this of it."""
@@ -219,6 +221,8 @@ def _bad(values, f) -> None:
             values[j] = math.nan
         elif f["corruption"] == _INF:
             values[j] = math.inf
+        elif f["corruption"] == _SET:
+            values[j] = f["magnitude"]
         else:
             values[j] += f["magnitude"]
 
@@ -267,10 +271,18 @@ def faults_frame(st, frame) -> None:
         elif sig == _SIG_MOCAP:
             if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
                 _bad(frame[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], c)
-                if c["corruption"] != _SPIKE:
+                if c["corruption"] == _NAN or c["corruption"] == _INF:
                     _bad(frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c)
-        elif frame[FRAME_HAS_STATE] != 0.0:  # the bypass state's position
-            _bad(frame[FRAME_STATE : FRAME_STATE + 3], c)
+        elif sig == _SIG_MOCAP_Q:
+            if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
+                _bad(frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c)
+        elif sig == _SIG_TIME:  # a clock step (spike) moves the motion-capture stamp of the same clock too
+            _bad(frame[FRAME_T : FRAME_T + 1], c)
+            if c["corruption"] == _SPIKE and frame[FRAME_MOCAP_NEW] != 0.0:
+                frame[FRAME_MOCAP_T] += c["magnitude"]
+        elif frame[FRAME_HAS_STATE] != 0.0:  # the bypass state's position, velocity or attitude
+            o = FRAME_STATE + (3 if sig == _SIG_STATE_V else (9 if sig == _SIG_STATE_R else 0))
+            _bad(frame[o : o + (9 if sig == _SIG_STATE_R else 3)], c)
 
 
 @register("faults", "schedule")

@@ -1,0 +1,550 @@
+"""Sensor-frame supervision: the first stage of the controller's 1 kHz step (issue 14; SPEC §4.5).
+
+Every packed frame (:mod:`omnirotor.messages`) is checked before the estimator reads it, and the checked copy
+(:attr:`STATE_DTYPE` field ``clean``: the frame without its rotor speeds) is what the estimator gets. A part
+that fails a check is *rejected*: its cause is a bit of ``cause`` (the ``CAUSE_*`` constants, logged per step
+in the controller log's ``frame_reject`` column and counted per cause in ``counts``), the command of that
+period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by what the controller predicts:
+
+* **time** (``CAUSE_TIME``): not finite, or a step from the last accepted time outside
+  ``[min_clock_step_s, max_clock_step_s]`` (a repeated or backward time, a jump forward). The frame gets the
+  last accepted time plus one period and its motion-capture sample is dropped (its time stamp is suspect
+  too). A clock that really stepped (after the frame that jumped, ``clock_settle_frames`` rejected frames in
+  a row, each a step within those bounds after the one before) is accepted: from then on
+  an offset maps the plant's clock onto the controller's, whose time (and so the trajectory's) stays
+  continuous (``CAUSE_CLOCK_RESET``), and the estimator re-initialises from motion capture;
+* **IMU** (``CAUSE_IMU``): non-finite, or beyond the sensor ranges (the estimator's ``acc_range``,
+  ``gyro_range``): the last good sample;
+* **motion capture** (``CAUSE_MOCAP``): a non-finite time, position or quaternion, a quaternion norm more than
+  ``quat_norm_tol`` from 1, a sample taken after the frame; or (``CAUSE_MOCAP_JUMP``, UKF only) a position
+  farther from the last estimate than ``pos_jump_m + max_speed_mps * (time since the last accepted sample)``,
+  farther than the vehicle can have flown. The sample is dropped: the UKF runs its prediction (IMU only) for
+  that period;
+* **bypass state** (``CAUSE_STATE``): non-finite, ``R_WB`` not a proper rotation (``|R^T R - I|`` or
+  ``|det R - 1|`` beyond ``rotation_tol``), or (``CAUSE_STATE_JUMP``) a position or velocity jump from the
+  last accepted state beyond ``pos_jump_m + max_speed_mps tau`` or ``vel_jump_mps + max_accel_mps2 tau``
+  (``tau`` the time since it). With no state to act on, the controller holds its last safe command (the one
+  computed from the last good state: in flight a hover-like command) and updates no stateful block, flagged
+  ``ESTIMATE_DEGRADED`` (the logged estimate is the last accepted pose, held still). After
+  ``bypass_hold_timeout_s`` without an accepted state every period is also flagged ``CAUSE_HOLD_TIMEOUT``: the
+  command stays held (there is nothing better to fly on without a state; a 1 s loss drifts about 0.3 m in
+  hover) but never silently; the jump checks, whose bounds have grown past use, give way to a consistency
+  check: a state is accepted, and the controller resumes, once the positions of consecutive valid states over
+  ``bypass_resume_window_s`` moved as their velocities say (within ``pos_jump_m``). Limitation: a velocity
+  offset that persists (a bias of the bypass state alone) passes the velocity bound once it has grown past the
+  offset (50 ms for 3 m/s) and is then believed;
+* **rotor speeds** (``CAUSE_ROTOR``): a non-finite speed or one beyond the vehicle's limits by more than
+  ``rotor_margin`` of the larger limit: the wrench observer takes the last command for that period.
+
+Re-initialisation (UKF): after a clock reset, or when no motion-capture sample was accepted for
+``dropout_reinit_s``, the estimator's pose is taken from the next two consecutive valid motion-capture samples
+that agree with each other and pass the jump check (``CAUSE_REINIT`` in the period it happens; :func:`ukf_reinit
+<omnirotor.control._estimator_kernels.ukf_reinit>`), so that a run recovers instead of staying degraded.
+
+Shapes (frame length, rotor count) are checked in Python at the API boundary,
+:meth:`InteractionController.step <omnirotor.control.controller.InteractionController.step>`.
+
+A clean frame is copied unchanged (its time offset is exactly 0): supervision does not change a clean run's
+numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from omnirotor._jit import jit
+from omnirotor.config import check_positive
+from omnirotor.control import _estimator_kernels as _ek
+from omnirotor.errors import InputError
+from omnirotor.messages import (
+    FRAME_ACC_B,
+    FRAME_GYRO_B,
+    FRAME_HAS_STATE,
+    FRAME_MOCAP_NEW,
+    FRAME_MOCAP_P_W,
+    FRAME_MOCAP_Q_WB,
+    FRAME_MOCAP_T,
+    FRAME_ROTOR_HZ,
+    FRAME_STATE,
+    FRAME_STATE_SIZE,
+    FRAME_T,
+)
+
+__all__ = [
+    "SupervisorParams",
+    "STATE_DTYPE",
+    "CAUSES",
+    "CAUSE_TIME",
+    "CAUSE_IMU",
+    "CAUSE_MOCAP",
+    "CAUSE_MOCAP_JUMP",
+    "CAUSE_STATE",
+    "CAUSE_STATE_JUMP",
+    "CAUSE_ROTOR",
+    "CAUSE_HOLD_TIMEOUT",
+    "CAUSE_CLOCK_RESET",
+    "CAUSE_REINIT",
+    "REJECTING",
+    "supervise",
+    "reset_supervisor",
+    "causes_of",
+]
+
+CAUSE_TIME = 1
+"""The frame's time was not finite, not increasing, or jumped forward."""
+CAUSE_IMU = 2
+"""The IMU sample was not finite or beyond the sensor ranges."""
+CAUSE_MOCAP = 4
+"""The motion-capture sample was not finite, its quaternion not of unit norm, or taken after the frame."""
+CAUSE_MOCAP_JUMP = 8
+"""The motion-capture position jumped away from the estimate."""
+CAUSE_STATE = 16
+"""The bypass state was not finite or its attitude not a proper rotation."""
+CAUSE_STATE_JUMP = 32
+"""The bypass state's position or velocity jumped."""
+CAUSE_ROTOR = 64
+"""A measured rotor speed was not finite or beyond the limits plus the margin."""
+CAUSE_HOLD_TIMEOUT = 128
+"""The bypass prediction has run for longer than the hold timeout: it is held still."""
+CAUSE_CLOCK_RESET = 256
+"""The plant's clock stepped and was accepted: an offset now maps it onto the controller's time."""
+CAUSE_REINIT = 512
+"""The estimator re-initialised its pose from motion capture (after a clock reset or a long dropout)."""
+
+CAUSES = (
+    ("time", CAUSE_TIME),
+    ("imu", CAUSE_IMU),
+    ("mocap", CAUSE_MOCAP),
+    ("mocap_jump", CAUSE_MOCAP_JUMP),
+    ("state", CAUSE_STATE),
+    ("state_jump", CAUSE_STATE_JUMP),
+    ("rotor", CAUSE_ROTOR),
+    ("hold_timeout", CAUSE_HOLD_TIMEOUT),
+    ("clock_reset", CAUSE_CLOCK_RESET),
+    ("reinit", CAUSE_REINIT),
+)
+"""Name and bit of every cause, in bit order (``counts`` has one entry per cause, in this order)."""
+N_CAUSES = len(CAUSES)
+
+REJECTING = CAUSE_TIME | CAUSE_IMU | CAUSE_MOCAP | CAUSE_MOCAP_JUMP | CAUSE_STATE | CAUSE_STATE_JUMP | CAUSE_ROTOR
+"""The causes that reject a part of the frame (``ControlStatus.FRAME_REJECTED``); the others only inform."""
+INVALID_VALUE = CAUSE_IMU | CAUSE_MOCAP | CAUSE_STATE | CAUSE_ROTOR
+"""The causes that are a non-finite or out-of-range value (also ``ControlStatus.NONFINITE_INPUT``)."""
+
+# What the estimator should do after supervision (the return value's upper bits, below the cause bits).
+ACT_REINIT = 1 << 20
+"""Return flag of :func:`supervise`: re-initialise the UKF's pose from ``clean``'s motion-capture sample."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SupervisorParams:
+    """Limits of the frame supervision (module docstring); the ``[supervisor]`` section of the controller TOML.
+
+    Attributes:
+        rotor_margin: a measured rotor speed may exceed the vehicle's limits by this fraction of the larger
+            limit's magnitude (rotor overshoot, speed-sensor noise) before it is rejected.
+        min_clock_step_s: the shortest accepted step of the frame time [s] (a tenth of a 1 kHz period: a
+            repeated time stamp is rejected even when arithmetic left it a rounding above the last one).
+        max_clock_step_s: the longest accepted step of the frame time [s] (50 periods at 1 kHz).
+        clock_settle_frames: rejected frames in a row after the one that jumped, each a normal step after the
+            one before, after which the plant's clock is taken as having stepped (and the offset re-anchored).
+        pos_jump_m: position jump accepted on top of the speed bound [m] (motion-capture noise, latency).
+        max_speed_mps: speed bound used for the position-jump checks [m/s].
+        vel_jump_mps: velocity jump accepted on top of the acceleration bound (bypass state) [m/s].
+        max_accel_mps2: acceleration bound used for the velocity-jump check [m/s²].
+        rotation_tol: largest entry of ``R^T R - I`` and ``|det R - 1|`` of an accepted attitude matrix.
+        quat_norm_tol: largest ``| |q| - 1 |`` of an accepted motion-capture quaternion.
+        dropout_reinit_s: time without an accepted motion-capture sample after which the UKF re-initialises
+            its pose from the next good samples [s].
+        bypass_hold_timeout_s: time without an accepted bypass state after which the hold is flagged
+            ``CAUSE_HOLD_TIMEOUT`` and the jump checks give way to the resume check [s].
+        bypass_resume_window_s: after the hold timeout, a state is accepted once the position has moved, over
+            this long of consecutive valid states, as their velocity says (within ``pos_jump_m``) [s].
+    """
+
+    rotor_margin: float = 0.1
+    min_clock_step_s: float = 1e-4
+    max_clock_step_s: float = 0.05
+    clock_settle_frames: int = 5
+    pos_jump_m: float = 0.05
+    max_speed_mps: float = 5.0
+    vel_jump_mps: float = 0.5
+    max_accel_mps2: float = 50.0
+    rotation_tol: float = 0.01
+    quat_norm_tol: float = 0.1
+    dropout_reinit_s: float = 0.5
+    bypass_hold_timeout_s: float = 0.5
+    bypass_resume_window_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in (
+            "rotor_margin",
+            "min_clock_step_s",
+            "max_clock_step_s",
+            "pos_jump_m",
+            "max_speed_mps",
+            "vel_jump_mps",
+            "max_accel_mps2",
+            "rotation_tol",
+            "quat_norm_tol",
+            "dropout_reinit_s",
+            "bypass_hold_timeout_s",
+            "bypass_resume_window_s",
+        ):
+            check_positive(f"supervisor {name}", getattr(self, name))
+        n = self.clock_settle_frames
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(f"supervisor clock_settle_frames must be an integer >= 1, got {n!r}")
+
+
+_F8, _I8 = np.float64, np.int64
+STATE_DTYPE = np.dtype(
+    [
+        # outputs
+        ("clean", _F8, FRAME_ROTOR_HZ),  # the checked frame without its rotor speeds (what the estimator reads)
+        ("cause", _I8),  # CAUSE_* bits of this frame
+        ("counts", _I8, N_CAUSES),  # frames with each cause (CAUSES order)
+        ("n_rejected", _I8),  # frames with a rejecting cause
+        # parameters
+        ("dt_nom", _F8),  # the control period [s]
+        ("acc_range", _F8),  # [m/s²]
+        ("gyro_range", _F8),  # [rad/s]
+        ("rotor_lo_hz", _F8),  # the rotor limits with the margin [Hz]
+        ("rotor_hi_hz", _F8),
+        ("min_step_s", _F8),
+        ("max_step_s", _F8),
+        ("settle", _I8),
+        ("pos_jump_m", _F8),
+        ("max_speed_mps", _F8),
+        ("vel_jump_mps", _F8),
+        ("max_accel_mps2", _F8),
+        ("rotation_tol", _F8),
+        ("quat_norm_tol", _F8),
+        ("dropout_reinit_s", _F8),
+        ("hold_timeout_s", _F8),
+        ("check_state", _I8),  # 1: the estimator reads the bypass state (check and predict it)
+        ("check_mocap", _I8),  # 1: the estimator reads motion capture (jump check, re-init)
+        # state
+        ("t_last", _F8),  # the controller's time of the last frame [s]
+        ("t_raw_last", _F8),  # the plant's time of the last frame with a finite time [s]
+        ("offset_s", _F8),  # controller time = plant time + offset [s]
+        ("n_consistent", _I8),  # rejected frames in a row, each a normal step after the one before
+        ("imu_last", _F8, 6),  # the last good IMU sample: acc_B, gyro_B
+        ("t_mocap_ok", _F8),  # controller time of the last accepted motion-capture sample [s]
+        ("reinit", _I8),  # 1: re-initialise from the next good samples
+        ("prev_ok", _I8),  # 1: prev_p_W holds the last valid sample (re-init candidate)
+        ("prev_p_W", _F8, 3),
+        ("prev_t", _F8),
+        ("state_last", _F8, FRAME_STATE_SIZE),  # the last accepted bypass state
+        ("t_state_ok", _F8),  # its controller time [s]
+        ("resume_ok", _I8),  # 1: resume_state holds a valid state after the hold timeout (resume candidate)
+        ("resume_state", _F8, 6),  # its p_W, v_W
+        ("resume_t", _F8),  # its controller time [s]
+        ("resume_window_s", _F8),
+    ]
+)
+"""The supervisor's record: outputs, parameters and state, by name (a field of the controller's state)."""
+
+
+def reset_supervisor(
+    state: np.ndarray,
+    params: SupervisorParams,
+    frame: np.ndarray,
+    *,
+    dt: float,
+    acc_range: float,
+    gyro_range: float,
+    omega_min_hz: float,
+    omega_max_hz: float,
+    check_state: bool,
+    check_mocap: bool,
+) -> None:
+    """Set the parameters and start from the reset frame (packed); counters cleared.
+
+    Args:
+        state: the supervisor's ``(1,)`` record array (:data:`STATE_DTYPE`), e.g. ``controller.state["supervisor"]``.
+        params: the limits.
+        frame: the packed reset frame (``frame_size(n)``).
+        dt: control period [s].
+        acc_range: accelerometer full scale [m/s²].
+        gyro_range: gyroscope full scale [rad/s].
+        omega_min_hz: the vehicle's lower rotor-speed limit [Hz].
+        omega_max_hz: its upper limit [Hz].
+        check_state: the estimator reads the bypass state.
+        check_mocap: the estimator reads motion capture.
+    """
+    state[:] = np.zeros(1, STATE_DTYPE)
+    rec = state[0]
+    margin = params.rotor_margin * max(abs(omega_min_hz), abs(omega_max_hz))
+    rec["dt_nom"] = dt
+    rec["acc_range"], rec["gyro_range"] = acc_range, gyro_range
+    rec["rotor_lo_hz"], rec["rotor_hi_hz"] = omega_min_hz - margin, omega_max_hz + margin
+    rec["min_step_s"], rec["max_step_s"] = params.min_clock_step_s, params.max_clock_step_s
+    rec["settle"] = params.clock_settle_frames
+    rec["pos_jump_m"], rec["max_speed_mps"] = params.pos_jump_m, params.max_speed_mps
+    rec["vel_jump_mps"], rec["max_accel_mps2"] = params.vel_jump_mps, params.max_accel_mps2
+    rec["rotation_tol"], rec["quat_norm_tol"] = params.rotation_tol, params.quat_norm_tol
+    rec["dropout_reinit_s"], rec["hold_timeout_s"] = params.dropout_reinit_s, params.bypass_hold_timeout_s
+    rec["resume_window_s"] = params.bypass_resume_window_s
+    rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
+    t = float(frame[FRAME_T])
+    rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = t
+    rec["clean"] = frame[:FRAME_ROTOR_HZ]
+    imu = np.r_[frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_GYRO_B : FRAME_GYRO_B + 3]]
+    rec["imu_last"] = imu if np.all(np.isfinite(imu)) else 0.0
+    state = frame[FRAME_STATE : FRAME_STATE + FRAME_STATE_SIZE]
+    if frame[FRAME_HAS_STATE] != 0.0 and np.all(np.isfinite(state)):
+        rec["state_last"] = state
+
+
+def causes_of(cause: int) -> list[str]:
+    """The names of the causes in ``cause`` (bits), in bit order."""
+    return [name for name, bit in CAUSES if cause & bit]
+
+
+@jit
+def _count(sv, cause: int) -> None:
+    for i in range(sv.counts.shape[0]):
+        if cause & (1 << i):
+            sv.counts[i] += 1
+    if cause & REJECTING:
+        sv.n_rejected += 1
+
+
+@jit
+def _check_time(sv, frame, clean) -> int:
+    """The time check (module docstring); writes the controller's time into ``clean``; the cause bits."""
+    t_raw = frame[FRAME_T]
+    tc = t_raw + sv.offset_s
+    d = tc - sv.t_last
+    cause = 0
+    if sv.min_step_s <= d <= sv.max_step_s:  # False for NaN
+        sv.n_consistent = 0
+    else:
+        cause = CAUSE_TIME
+        tc = sv.t_last + sv.dt_nom
+        d_raw = t_raw - sv.t_raw_last
+        if sv.min_step_s <= d_raw <= sv.max_step_s:
+            sv.n_consistent += 1
+        else:
+            sv.n_consistent = 0
+        if sv.n_consistent >= sv.settle:  # the plant's clock stepped: follow it from here, continuously
+            sv.offset_s = tc - t_raw
+            sv.n_consistent = 0
+            sv.reinit = sv.check_mocap
+            cause |= CAUSE_CLOCK_RESET
+    if math.isfinite(t_raw):
+        sv.t_raw_last = t_raw
+    sv.t_last = tc
+    clean[FRAME_T] = tc
+    return cause
+
+
+@jit
+def _check_imu(sv, clean) -> int:
+    ok = True
+    for i in range(3):
+        a, g = clean[FRAME_ACC_B + i], clean[FRAME_GYRO_B + i]
+        if not (abs(a) <= sv.acc_range and abs(g) <= sv.gyro_range):  # False for NaN
+            ok = False
+    if ok:
+        for i in range(3):
+            sv.imu_last[i] = clean[FRAME_ACC_B + i]
+            sv.imu_last[3 + i] = clean[FRAME_GYRO_B + i]
+        return 0
+    for i in range(3):
+        clean[FRAME_ACC_B + i] = sv.imu_last[i]
+        clean[FRAME_GYRO_B + i] = sv.imu_last[3 + i]
+    return CAUSE_IMU
+
+
+@jit
+def _dist3(x, ox: int, y, oy: int) -> float:
+    d0, d1, d2 = x[ox] - y[oy], x[ox + 1] - y[oy + 1], x[ox + 2] - y[oy + 2]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@jit
+def _drop_mocap(clean) -> None:
+    """No sample in ``clean`` (its entries zeroed, as a frame without one is packed)."""
+    for i in range(FRAME_MOCAP_NEW, FRAME_MOCAP_Q_WB + 4):
+        clean[i] = 0.0
+
+
+@jit
+def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
+    """The motion-capture checks; a rejected sample is dropped from ``clean``. Cause bits, plus ``ACT_REINIT``."""
+    if clean[FRAME_MOCAP_NEW] == 0.0:
+        return 0
+    if time_bad:  # its time stamp is as suspect as the frame's
+        _drop_mocap(clean)
+        return 0
+    tc = clean[FRAME_T]
+    mt = clean[FRAME_MOCAP_T] + sv.offset_s
+    clean[FRAME_MOCAP_T] = mt
+    P, Q = FRAME_MOCAP_P_W, FRAME_MOCAP_Q_WB
+    valid = _ek.mocap_sample_valid(clean[P : P + 3], clean[Q : Q + 4], sv.quat_norm_tol)
+    if not (valid and mt <= tc + 0.5 * sv.dt_nom):  # False for a NaN time
+        _drop_mocap(clean)
+        sv.prev_ok = 0
+        return CAUSE_MOCAP
+    if sv.check_mocap == 0:
+        return 0
+    since = tc - sv.t_mocap_ok
+    if _dist3(clean, P, estimate, 0) > sv.pos_jump_m + sv.max_speed_mps * since:
+        _drop_mocap(clean)  # farther than the vehicle can have flown since the last accepted sample
+        return CAUSE_MOCAP_JUMP
+    if sv.reinit != 0 or since > sv.dropout_reinit_s:
+        # Re-initialise from two consecutive samples that agree; the first one waits (not fused).
+        agree = sv.prev_ok != 0 and _dist3(clean, P, sv.prev_p_W, 0) <= sv.pos_jump_m + sv.max_speed_mps * (
+            mt - sv.prev_t
+        )
+        for i in range(3):
+            sv.prev_p_W[i] = clean[P + i]
+        sv.prev_t = mt
+        sv.prev_ok = 1
+        clean[FRAME_MOCAP_NEW] = 0.0
+        if not agree:
+            return 0
+        sv.reinit = 0
+        sv.prev_ok = 0
+        sv.t_mocap_ok = tc
+        return CAUSE_REINIT | ACT_REINIT
+    sv.t_mocap_ok = tc
+    return 0
+
+
+@jit
+def _proper_rotation(s, o: int, tol: float) -> bool:
+    """True if the row-major 3 x 3 ``s[o:o+9]`` has ``|R^T R - I|`` entries and ``|det R - 1|`` within ``tol``."""
+    for i in range(3):
+        for j in range(i, 3):
+            dot = s[o + i] * s[o + j] + s[o + 3 + i] * s[o + 3 + j] + s[o + 6 + i] * s[o + 6 + j]
+            if not abs(dot - (1.0 if i == j else 0.0)) <= tol:
+                return False
+    det = (
+        s[o] * (s[o + 4] * s[o + 8] - s[o + 5] * s[o + 7])
+        - s[o + 1] * (s[o + 3] * s[o + 8] - s[o + 5] * s[o + 6])
+        + s[o + 2] * (s[o + 3] * s[o + 7] - s[o + 4] * s[o + 6])
+    )
+    return abs(det - 1.0) <= tol
+
+
+@jit
+def _resume_check(sv, clean, tc: float) -> int:
+    """After the hold timeout: 0 when the position moved as the velocity says over the resume window."""
+    S = FRAME_STATE
+    r = sv.resume_state
+    if sv.resume_ok == 0:
+        for i in range(6):
+            r[i] = clean[S + i]
+        sv.resume_t = tc
+        sv.resume_ok = 1
+        return CAUSE_STATE_JUMP
+    tau = tc - sv.resume_t
+    if tau < sv.resume_window_s:
+        return CAUSE_STATE_JUMP
+    e2 = 0.0
+    for i in range(3):
+        e = clean[S + i] - r[i] - 0.5 * (clean[S + 3 + i] + r[3 + i]) * tau
+        e2 += e * e
+    if math.sqrt(e2) <= sv.pos_jump_m:
+        sv.resume_ok = 0
+        return 0
+    for i in range(6):
+        r[i] = clean[S + i]
+    sv.resume_t = tc
+    return CAUSE_STATE_JUMP
+
+
+@jit
+def _check_state(sv, clean, time_bad: bool) -> int:
+    """The bypass state's checks; a rejected state is replaced by the prediction (module docstring)."""
+    if clean[FRAME_HAS_STATE] == 0.0:
+        return 0  # missing: the bypass estimator holds its last state, flagged degraded
+    S = FRAME_STATE
+    tc = clean[FRAME_T]
+    tau = tc - sv.t_state_ok
+    last = sv.state_last
+    finite = True
+    for i in range(FRAME_STATE_SIZE):
+        if not math.isfinite(clean[S + i]):
+            finite = False
+    cause = 0
+    if not (finite and _proper_rotation(clean, S + 9, sv.rotation_tol)):
+        cause = CAUSE_STATE
+        sv.resume_ok = 0
+    elif not time_bad and tau > sv.hold_timeout_s:
+        cause = _resume_check(sv, clean, tc)
+    elif not time_bad:
+        dp = 0.0
+        for i in range(3):
+            e = clean[S + i] - last[i] - last[3 + i] * tau
+            dp += e * e
+        dv = _dist3(clean, S + 3, last, 3)
+        if math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau or dv > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
+            cause = CAUSE_STATE_JUMP
+    if cause == 0 and not time_bad:
+        for i in range(FRAME_STATE_SIZE):
+            last[i] = clean[S + i]
+        sv.t_state_ok = tc
+        return 0
+    if cause == 0:
+        return 0  # a good state in a frame of bad time: used, not kept as the reference
+    # The prediction: the last accepted pose, held still.
+    if tau > sv.hold_timeout_s:
+        cause |= CAUSE_HOLD_TIMEOUT
+    for i in range(3):
+        clean[S + i] = last[i]
+        clean[S + 3 + i] = 0.0
+        clean[S + 6 + i] = 0.0
+        clean[S + 18 + i] = 0.0
+    for i in range(9):
+        clean[S + 9 + i] = last[9 + i]
+    return cause
+
+
+@jit
+def _check_rotors(sv, frame) -> int:
+    lo, hi = sv.rotor_lo_hz, sv.rotor_hi_hz
+    for i in range(FRAME_ROTOR_HZ, frame.shape[0]):
+        w = frame[i]
+        if not (lo <= w <= hi):  # False for NaN
+            return CAUSE_ROTOR
+    return 0
+
+
+@jit
+def supervise(sv, frame, estimate) -> int:
+    """Check one packed frame (module docstring): ``sv.clean`` gets the checked frame, ``sv.cause`` the causes.
+
+    Args:
+        sv: the supervisor's record (:data:`STATE_DTYPE`), updated.
+        frame: the packed frame as received (not modified).
+        estimate: (21,) the estimate of the previous period (p_W first), the prediction motion capture is
+            checked against.
+
+    Returns:
+        The cause bits, plus ``ACT_REINIT`` when the UKF is to re-initialise from ``sv.clean``'s
+        motion-capture position and quaternion (which then stays dropped from the normal fusion).
+    """
+    clean = sv.clean
+    for i in range(FRAME_ROTOR_HZ):
+        clean[i] = frame[i]
+    cause = _check_time(sv, frame, clean)
+    time_bad = (cause & CAUSE_TIME) != 0
+    cause |= _check_imu(sv, clean)
+    cause |= _check_mocap(sv, clean, estimate, time_bad)
+    if sv.check_mocap != 0 and clean[FRAME_T] - sv.t_mocap_ok > sv.dropout_reinit_s:
+        sv.reinit = 1
+    if sv.check_state != 0:
+        cause |= _check_state(sv, clean, time_bad)
+    cause |= _check_rotors(sv, frame)
+    code = cause & (ACT_REINIT - 1)
+    sv.cause = code
+    if code != 0:
+        _count(sv, code)
+    return cause

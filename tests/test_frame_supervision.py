@@ -1,0 +1,339 @@
+"""Sensor-frame supervision (issue 14 item 1, :mod:`omnirotor.control.supervisor`).
+
+Each check is shown on the supervision kernel with a crafted frame (its cause, nothing else, and a clean frame
+never flagged); then closed-loop hovers (UKF and bypass, the compiled loop) take seeded random draws of the
+glitches a real robot sees, injected by the simulator's fault schedule: after any single bad frame the vehicle
+is back within 5 cm of its reference within 2 s, bursts are flagged with their cause, and no corruption ever
+gives a non-finite or out-of-limit command.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.control import supervisor as sup
+from omnirotor.control.admittance import AdmittanceParams
+from omnirotor.control.controller import ControllerParams, InteractionController
+from omnirotor.control.estimator import EstimatorParams
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import TaskOptions
+from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault, glitch_hover
+from omnirotor.messages import (
+    FRAME_ACC_B,
+    FRAME_GYRO_B,
+    FRAME_HAS_STATE,
+    FRAME_MOCAP_NEW,
+    FRAME_MOCAP_P_W,
+    FRAME_MOCAP_Q_WB,
+    FRAME_MOCAP_T,
+    FRAME_ROTOR_HZ,
+    FRAME_STATE,
+    FRAME_T,
+    ControlStatus,
+    SensorFrame,
+    frame_size,
+)
+from omnirotor.sim import Simulator
+from omnirotor.vehicle import load_vehicle
+
+V = load_vehicle()
+REJECTED = int(ControlStatus.FRAME_REJECTED)
+DEGRADED = int(ControlStatus.ESTIMATE_DEGRADED)
+DT = 1e-3
+TOL_M = 0.05  # the issue's bound: back within 5 cm of the reference ...
+RECOVER_S = 2.0  # ... within 2 s
+
+
+# -- the checks, one by one, on the kernel ------------------------------------------------------------------------
+
+
+def clean_frame(t: float = 1.0) -> np.ndarray:
+    """A plausible packed frame at rest in hover: IMU, a motion-capture sample, a bypass state, hover speeds."""
+    f = np.zeros(frame_size(V.n_rotors))
+    f[FRAME_T] = t
+    f[FRAME_ACC_B + 2] = 9.81
+    f[FRAME_MOCAP_NEW], f[FRAME_MOCAP_T] = 1.0, t - 0.005
+    f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3] = (0.0, 0.0, 1.5)
+    f[FRAME_MOCAP_Q_WB] = 1.0
+    f[FRAME_HAS_STATE] = 1.0
+    f[FRAME_STATE + 2] = 1.5
+    f[FRAME_STATE + 9 : FRAME_STATE + 18] = np.eye(3).ravel()
+    u = V.hover_input()
+    f[FRAME_ROTOR_HZ:] = np.sign(u) * np.sqrt(np.abs(u))
+    return f
+
+
+def supervisor(check_state: bool, check_mocap: bool, params=None):
+    """A supervisor record reset on a clean frame at t = 1 s; the estimate it checks against (at rest)."""
+    state = np.zeros(1, sup.STATE_DTYPE)
+    est = EstimatorParams()
+    sup.reset_supervisor(
+        state, params or sup.SupervisorParams(), clean_frame(1.0), dt=DT, acc_range=est.acc_range,
+        gyro_range=est.gyro_range, omega_min_hz=V.omega_min_hz, omega_max_hz=V.omega_max_hz,
+        check_state=check_state, check_mocap=check_mocap,
+    )  # fmt: skip
+    estimate = np.zeros(21)
+    estimate[2] = 1.5
+    estimate[9:18] = np.eye(3).ravel()
+    return state, estimate
+
+
+def _set(i, v):
+    def edit(f):
+        f[i] = v
+
+    return edit
+
+
+def _rot_scaled(f):
+    f[FRAME_STATE + 9 : FRAME_STATE + 18] *= 1.2  # orthogonal directions, not unit: not a rotation
+
+
+def _reflection(f):
+    f[FRAME_STATE + 9] = -1.0  # orthonormal, det -1
+
+
+PER_CHECK = [
+    ("time NaN", _set(FRAME_T, math.nan), sup.CAUSE_TIME),
+    ("time repeated", _set(FRAME_T, 1.001), sup.CAUSE_TIME),
+    ("time a rounding above the last", _set(FRAME_T, 1.001 + 1e-15), sup.CAUSE_TIME),
+    ("time back 0.5 s", _set(FRAME_T, 0.501), sup.CAUSE_TIME),
+    ("time +1000 s", _set(FRAME_T, 1001.001), sup.CAUSE_TIME),
+    ("accelerometer NaN", _set(FRAME_ACC_B, math.nan), sup.CAUSE_IMU),
+    ("accelerometer beyond range", _set(FRAME_ACC_B + 1, 1e4), sup.CAUSE_IMU),
+    ("gyroscope inf", _set(FRAME_GYRO_B + 2, math.inf), sup.CAUSE_IMU),
+    ("mocap position NaN", _set(FRAME_MOCAP_P_W, math.nan), sup.CAUSE_MOCAP),
+    ("mocap time NaN", _set(FRAME_MOCAP_T, math.nan), sup.CAUSE_MOCAP),
+    ("mocap taken after the frame", _set(FRAME_MOCAP_T, 1.1), sup.CAUSE_MOCAP),
+    ("mocap quaternion not unit", _set(FRAME_MOCAP_Q_WB, 1.5), sup.CAUSE_MOCAP),
+    ("mocap quaternion zero", _set(FRAME_MOCAP_Q_WB, 0.0), sup.CAUSE_MOCAP),
+    ("mocap position 1 km away", _set(FRAME_MOCAP_P_W, 1000.0), sup.CAUSE_MOCAP_JUMP),
+    ("mocap position 0.2 m away", _set(FRAME_MOCAP_P_W + 1, 0.2), sup.CAUSE_MOCAP_JUMP),
+    ("state NaN attitude", _set(FRAME_STATE + 12, math.nan), sup.CAUSE_STATE),
+    ("state attitude zeros", lambda f: f.__setitem__(slice(FRAME_STATE + 9, FRAME_STATE + 18), 0.0), sup.CAUSE_STATE),
+    ("state attitude not orthogonal", _rot_scaled, sup.CAUSE_STATE),
+    ("state attitude a reflection", _reflection, sup.CAUSE_STATE),
+    ("state position 1 km away", _set(FRAME_STATE, 1000.0), sup.CAUSE_STATE_JUMP),
+    ("state velocity jump 3 m/s", _set(FRAME_STATE + 4, 3.0), sup.CAUSE_STATE_JUMP),
+    ("rotor 5000 Hz", _set(FRAME_ROTOR_HZ + 3, 5000.0), sup.CAUSE_ROTOR),
+    ("rotor -5000 Hz", _set(FRAME_ROTOR_HZ, -5000.0), sup.CAUSE_ROTOR),
+    ("rotor NaN", _set(FRAME_ROTOR_HZ + 7, math.nan), sup.CAUSE_ROTOR),
+]
+
+
+@pytest.mark.parametrize("name, edit, cause", PER_CHECK, ids=[c[0] for c in PER_CHECK])
+def test_each_check_flags_its_own_cause_and_replaces_the_part(name, edit, cause):
+    state, estimate = supervisor(check_state=True, check_mocap=True)
+    rec = state[0]
+    good = clean_frame(1.001)
+    assert sup.supervise(rec, good, estimate) == 0 and rec["cause"] == 0  # a clean frame is never flagged
+    np.testing.assert_array_equal(rec["clean"], good[:FRAME_ROTOR_HZ])  # and passes unchanged
+    bad = clean_frame(1.002)
+    edit(bad)
+    code = sup.supervise(rec, bad, estimate)
+    assert code == cause and rec["cause"] == cause, sup.causes_of(code)
+    clean = rec["clean"]
+    assert np.all(np.isfinite(clean))  # what the estimator reads is finite
+    if cause == sup.CAUSE_TIME:
+        assert clean[FRAME_T] == pytest.approx(1.002) and clean[FRAME_MOCAP_NEW] == 0.0
+    if cause == sup.CAUSE_IMU:
+        np.testing.assert_array_equal(clean[FRAME_ACC_B : FRAME_GYRO_B + 3], good[FRAME_ACC_B : FRAME_GYRO_B + 3])
+    if cause in (sup.CAUSE_MOCAP, sup.CAUSE_MOCAP_JUMP):
+        assert clean[FRAME_MOCAP_NEW] == 0.0  # dropped: the UKF predicts
+    if cause in (sup.CAUSE_STATE, sup.CAUSE_STATE_JUMP):
+        np.testing.assert_array_equal(clean[FRAME_STATE : FRAME_STATE + 3], good[FRAME_STATE : FRAME_STATE + 3])
+    counts = dict(zip([n for n, _ in sup.CAUSES], rec["counts"], strict=True))
+    assert sum(counts.values()) == 1 and rec["n_rejected"] == 1
+    # the next good frame is accepted again (a single bad frame leaves nothing behind)
+    assert sup.supervise(rec, clean_frame(1.003), estimate) == 0
+
+
+def test_a_clock_that_stepped_is_followed_continuously_and_the_estimator_reinitialised():
+    state, estimate = supervisor(check_state=False, check_mocap=True)
+    rec = state[0]
+    settle = sup.SupervisorParams().clock_settle_frames
+    codes, times = [], []
+    for k in range(1, settle + 4):  # the clock jumped back 0.5 s before the first of these frames
+        f = clean_frame(1.0 + k * DT - 0.5)
+        codes.append(sup.supervise(rec, f, estimate))
+        times.append(rec["clean"][FRAME_T])
+    np.testing.assert_allclose(np.diff(times), DT, rtol=1e-9)  # the controller's time stays continuous
+    assert all(c & sup.CAUSE_TIME for c in codes[: settle + 1])  # the frame that jumped, then `settle` more
+    assert codes[settle] & sup.CAUSE_CLOCK_RESET and not any(c & sup.CAUSE_CLOCK_RESET for c in codes[:settle])
+    # after the reset: motion capture (in the plant's clock) is mapped, and two agreeing samples re-initialise
+    assert codes[settle + 1] == 0 and codes[settle + 2] == sup.CAUSE_REINIT | sup.ACT_REINIT
+    assert rec["clean"][FRAME_MOCAP_T] == pytest.approx(times[settle + 2] - 0.005)
+
+
+def test_rotor_speeds_within_the_margin_pass_and_beyond_it_are_rejected():
+    state, estimate = supervisor(check_state=False, check_mocap=False)
+    rec = state[0]
+    margin = sup.SupervisorParams().rotor_margin * max(abs(V.omega_min_hz), abs(V.omega_max_hz))
+    f = clean_frame(1.001)
+    f[FRAME_ROTOR_HZ] = V.omega_max_hz + 0.9 * margin
+    assert sup.supervise(rec, f, estimate) == 0
+    f = clean_frame(1.002)
+    f[FRAME_ROTOR_HZ] = V.omega_max_hz + 1.1 * margin
+    assert sup.supervise(rec, f, estimate) == sup.CAUSE_ROTOR
+
+
+def test_parameters_are_checked():
+    with pytest.raises(InputError, match="rotor_margin"):
+        sup.SupervisorParams(rotor_margin=-0.1)
+    with pytest.raises(InputError, match="clock_settle_frames"):
+        sup.SupervisorParams(clock_settle_frames=0)
+
+
+# -- the API boundary ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("solver", ["active-set", "daqp"])
+def test_a_frame_with_the_wrong_rotor_count_is_refused_on_every_path(solver):
+    sim = Simulator(V, "free", seed=1)
+    params = TaskOptions(estimator="bypass", solver=solver).controller_params(AdmittanceParams.preset("free"))
+    ctl = InteractionController(V, params)
+    frame = sim.reset()
+    p0, R0 = sim.default_start()
+    ctl.reset(frame, PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)]))
+    ctl.step(sim.step(ctl.hold_command()))
+    bad = sim.step(ctl.hold_command())
+    for hz in (bad.rotor_hz[:7].copy(), np.r_[bad.rotor_hz, 0.0], [100.0] * 7, np.array([100.0]), 100.0):
+        with pytest.raises(InputError, match="rotor_hz has shape"):
+            ctl.step(SensorFrame(bad.t, bad.imu_acc_B, bad.imu_gyro_B, hz, state=bad.state))
+    packed = np.zeros(frame_size(V.n_rotors))
+    bad.pack_into(packed)
+    with pytest.raises(InputError, match="rotor_hz has shape"):  # a packed frame of a 7-rotor vehicle
+        ctl.step(SensorFrame.from_packed(packed[:-1]))
+    assert ctl.log.n == 1  # nothing logged, nothing half-done
+
+
+def test_a_motion_capture_sample_in_the_first_frame_is_checked_against_the_start_pose():
+    sim = Simulator(V, "free", seed=1)
+    ctl = InteractionController(V, ControllerParams())
+    first = sim.reset()
+    p0, R0 = sim.default_start()
+    ctl.reset(first, PoseTrajectory([Waypoint(0.0, p0 + R0 @ V.p_E_B_array, R0)]))
+    f = sim.step(ctl.hold_command())
+    f = SensorFrame(f.t, f.imu_acc_B, f.imu_gyro_B, f.rotor_hz, True, f.t - 0.005, p0.copy(), np.r_[1.0, 0, 0, 0])
+    cmd = ctl.step(f)
+    assert not cmd.status & REJECTED and ctl.log.group("frame_reject")[0] == 0
+
+
+# -- closed loop: the fuzz ----------------------------------------------------------------------------------------
+
+
+def fly(faults, estimator: str, duration: float, seed: int = 1) -> dict:
+    """Hover under a fault schedule (the compiled loop); every command finite and within the limits."""
+    run = glitch_hover(V, estimator, faults, duration, seed)
+    omega = run["omega"]
+    assert np.all(np.isfinite(omega))
+    assert omega.min() >= V.omega_min_hz and omega.max() <= V.omega_max_hz
+    assert run["sim"].faults.commands_nonfinite == 0 and run["sim"].faults.commands_out_of_limits == 0
+    return run
+
+
+BIT = dict(sup.CAUSES)
+SLOT_S = 2.5  # one glitch per slot: 2 s to recover, checked over the slot's last 0.5 s
+N_DRAWN = 12  # glitches per run, drawn from FRAME_GLITCHES
+
+
+@pytest.mark.parametrize("estimator, seed", [(e, s) for e in ("ukf", "bypass") for s in (14, 114, 214)])
+def test_after_any_single_bad_frame_the_vehicle_is_back_within_5_cm_in_2_s(estimator, seed):
+    rng = np.random.default_rng(seed)
+    column = 6 if estimator == "ukf" else 7  # the cause the estimator in use must report
+    pool = [g for g in FRAME_GLITCHES if g[column] is not None]
+    drawn = [pool[i] for i in rng.choice(len(pool), N_DRAWN, replace=False)]
+    starts = [1.0 + SLOT_S * i + rng.uniform(0.0, 0.01) for i in range(N_DRAWN)]
+    run = fly([glitch_fault(g, t0) for g, t0 in zip(drawn, starts, strict=True)], estimator, 1.0 + SLOT_S * N_DRAWN)
+    t, err, status, cause = run["t"], run["err"], run["status"], run["cause"]
+    assert not np.any(status[t < starts[0]] & REJECTED) and err[t < starts[0]][-500:].max() < TOL_M
+    rejecting = (cause & sup.REJECTING) > 0
+    assert np.all(status[rejecting] & REJECTED)
+    for i, glitch in enumerate(drawn):
+        t0, frames = starts[i], glitch[5]
+        hit = (t >= t0 - DT) & (t < t0 + (frames + 1) * DT)
+        assert np.any(cause[hit] & BIT[glitch[column]]), (glitch, sup.causes_of(int(np.bitwise_or.reduce(cause[hit]))))
+        back = (t >= t0 + RECOVER_S) & (t < 1.0 + SLOT_S * (i + 1))
+        assert err[back].max() < TOL_M, (glitch, err[back].max())
+        assert not np.any(status[back] & (REJECTED | DEGRADED)), glitch  # and nothing is left flagged
+
+
+@pytest.mark.parametrize("estimator, seed", [(e, s) for e in ("ukf", "bypass") for s in (24, 124, 224)])
+def test_bursts_are_flagged_with_their_cause_and_never_reach_the_motors(estimator, seed):
+    rng = np.random.default_rng(seed)
+    column = 6 if estimator == "ukf" else 7
+    pool = [g for g in FRAME_GLITCHES if g[column] is not None]
+    n, slot = 6, 3.5
+    drawn = [pool[i] for i in rng.choice(len(pool), n, replace=False)]
+    lengths = rng.choice([5, 50, 300, 1000], n)  # frames
+    starts = [1.0 + slot * i for i in range(n)]
+    faults = [glitch_fault(g[:5] + (int(m),) + g[6:], t0) for g, m, t0 in zip(drawn, lengths, starts, strict=True)]
+    run = fly(faults, estimator, 1.0 + slot * n)  # fly() asserts every command finite and within the limits
+    t, status, cause = run["t"], run["status"], run["cause"]
+    for i, glitch in enumerate(drawn):
+        window = (t >= starts[i]) & (t < starts[i] + lengths[i] * DT)
+        assert np.any(status[window] & REJECTED) and np.any(cause[window] & BIT[glitch[column]]), (glitch, lengths[i])
+    # (no recovery bound for bursts: a persistent bypass velocity offset is believed once within the jump bounds)
+
+
+def test_a_long_state_loss_in_bypass_holds_the_command_flags_the_timeout_and_resumes():
+    timeout = sup.SupervisorParams().bypass_hold_timeout_s
+    run = fly([SensorCorruption("state", 1.0, 1.0, "nan")], "bypass", 4.5)
+    t, status, cause, omega = run["t"], run["status"], run["cause"], run["ctl"].log.group("omega_cmd_hz")
+    lost = (t >= 1.0) & (t < 2.0)
+    assert np.all(status[lost] & DEGRADED) and np.all(cause[lost] & sup.CAUSE_STATE)
+    timed_out = lost & (t > 1.0 + timeout + 2 * DT)
+    assert np.all(cause[timed_out] & sup.CAUSE_HOLD_TIMEOUT) and not np.any(
+        cause[lost & (t < 1.0 + timeout - 2 * DT)] & sup.CAUSE_HOLD_TIMEOUT
+    )
+    np.testing.assert_array_equal(omega[lost], np.broadcast_to(omega[lost][0], omega[lost].shape))  # held
+    assert not np.any(status[t > 2.5] & (REJECTED | DEGRADED))  # resumed with the next good state
+    assert run["err"][t > 2.0 + RECOVER_S].max() < TOL_M
+
+
+@pytest.mark.parametrize("estimator", ["ukf", "bypass"])
+@pytest.mark.parametrize("step_s", [-0.5, 1000.0])
+def test_a_clock_step_is_followed_and_the_run_recovers(estimator, step_s):
+    run = fly([SensorCorruption("time", 1.0, 10.0, "spike", step_s)], estimator, 4.0)
+    t, status, cause = run["t"], run["status"], run["cause"]
+    assert np.any(cause & sup.CAUSE_CLOCK_RESET)
+    assert np.count_nonzero(cause & sup.CAUSE_TIME) == sup.SupervisorParams().clock_settle_frames + 1
+    if estimator == "ukf":
+        assert np.any(cause & sup.CAUSE_REINIT)  # from the next good motion-capture samples
+    after = t > 1.0 + RECOVER_S
+    assert not np.any(status[after] & (REJECTED | DEGRADED))  # not degraded for good
+    assert run["err"][after].max() < TOL_M
+    log_t = run["ctl"].log.group("t")
+    assert np.diff(log_t).max() < 1.5 * DT and np.diff(log_t).min() > 0.5 * DT  # the trajectory time goes on
+
+
+def test_after_a_long_dropout_the_ukf_reinitialises_from_motion_capture():
+    run = fly([MocapDropout(1.0, 1.0)], "ukf", 4.0)
+    t, status, cause = run["t"], run["status"], run["cause"]
+    assert np.count_nonzero(cause & sup.CAUSE_REINIT) == 1 == run["ctl"].frame_causes["reinit"]
+    k = np.flatnonzero(cause & sup.CAUSE_REINIT)[0]
+    assert 2.0 <= t[k] < 2.05 and np.all(status[(t > 1.2) & (t < 2.0)] & DEGRADED)
+    assert not np.any(status[t > t[k]] & DEGRADED)
+    assert run["err"].max() < TOL_M
+
+
+def test_a_clean_contact_run_is_never_flagged():
+    from omnirotor.experiments.closed_loop import run_task
+
+    res = run_task("point-contact", TaskOptions(duration_s=6.0))
+    log = res.controller_log
+    assert log.n > 5000
+    assert not np.any(log.group("frame_reject")) and not np.any(log.group("status").astype(int) & REJECTED)
+
+
+def test_supervisor_parameters_come_from_the_controller_toml(tmp_path):
+    from omnirotor.control.controller import load_controller_params
+
+    (tmp_path / "c.toml").write_text("[supervisor]\nrotor_margin = 0.2\ndropout_reinit_s = 1.5\n")
+    p = load_controller_params(tmp_path / "c.toml")
+    assert p.supervisor.rotor_margin == 0.2 and p.supervisor.dropout_reinit_s == 1.5
+    assert ControllerParams().supervisor == sup.SupervisorParams()
+    with pytest.raises(InputError):
+        load_controller_params(None, ["supervisor.max_clock_step_s=-1"])
