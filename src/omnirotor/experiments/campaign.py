@@ -69,7 +69,10 @@ Ctrl-C stops the runs under way (the results already appended are kept; run the 
 The pool's workers ignore Ctrl-C (the main process stops them) and die with the main process
 (``PR_SET_PDEATHSIG``, and a watchdog thread polling the parent's pid). A run whose summary holds
 non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
-Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor`) or ``ray`` (the optional ``ray``
+Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor` whose workers are forked from this process,
+so they share its imports, and load the compiled kernels on a 10 ms run before their first job:
+:func:`warm_up`; a run's results never depend on which worker flew it, tested against the one-run path) or
+``ray`` (the optional ``ray``
 extra; a local Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor
 installed).
 
@@ -148,6 +151,7 @@ __all__ = [
     "run_options",
     "identify_truth_maps",
     "execute_run",
+    "warm_up",
     "run_campaign",
     "load_results",
     "summarize",
