@@ -23,7 +23,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linprog
 
 from omnirotor.config import check_finite, check_positive, from_mapping, load_toml
 from omnirotor.errors import InputError
@@ -362,6 +361,8 @@ class ForceEnvelope:
 
 
 def _max_force_along(A: np.ndarray, d: np.ndarray, lo: float, hi: float) -> float:
+    from scipy.optimize import linprog  # here: importing scipy.optimize costs every process 0.15-0.3 s
+
     n = A.shape[1]
     # Variables: x = u / hi (scaled to [lo/hi, 1]) and t [N]. Maximise t s.t. A u = [t d; 0].
     c = np.zeros(n + 1)
