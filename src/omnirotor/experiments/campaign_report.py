@@ -237,8 +237,8 @@ def _save(fig, path: Path, tight: bool = True) -> Path:
 
 
 PANEL_MARGINS = {"left": 0.06, "right": 0.985, "bottom": 0.13, "top": 0.92, "wspace": 0.2}
-"""Fixed margins of the two-panel campaign plots: no layout engine, so each is drawn once (a campaign's eight
-plots took as long as a hundred hover runs with constrained layout and tight cropping)."""
+"""Fixed margins of the two-panel campaign plots: no layout engine, so each is drawn once (constrained layout
+and tight cropping drew each twice: the default campaign's eight plots took 5.7 s instead of 3.0 s under load)."""
 
 
 def _draw_success(
