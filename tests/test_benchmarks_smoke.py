@@ -148,6 +148,7 @@ def test_campaign_throughput_counts_every_run_and_reads_the_command_line(tiny):
     assert ct["line"]["wall_s"] < ct["wall_s"]  # the command's own line excludes interpreter start and imports
     su = tiny["startup"]
     assert su["first_run_s"] >= su["kernel_loading_s"] and _positive(su["imports_s"])
+    assert ct["cpu_s"] > 0 and ct["sim_s_per_cpu_s"] == pytest.approx(ct["sim_s"] / ct["cpu_s"])
     assert tiny["campaign_throughput_over_marginal_rtf"] == pytest.approx(
         tiny["campaign_throughput_sim_s_per_s"] / ct["marginal_rtf_one_core"]
     )
