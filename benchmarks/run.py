@@ -60,6 +60,13 @@ GOALS = {
     "closed_loop_rtf_ukf": ("closed loop, sliding task, UKF", 20.0, "min", "× real time"),
     "closed_loop_rtf_fast": ("closed loop, sliding task, bypass estimator", 40.0, "min", "× real time"),
     "rtf_ratio_vs_rotorpy": ("quadrotor hover, RTF ours / RotorPy", 30.0, "min", "×"),
+    "campaign_throughput_over_marginal_rtf": (
+        "`campaign hover --runs 200 --workers 2 --quick` (start-up included) / one run's marginal RTF",
+        1.8,
+        "min",
+        "×",
+    ),
+    "campaign_sliding_speedup_2_workers": ("20 sliding runs: 2 workers over 1 (whole command)", 1.8, "min", "×"),
     "cli_help_s": ("`omnirotor --help` and `omnirotor identify --help` (median, slower of the two)", 0.3, "max", "s"),
     "first_run_compile_s": ("first run on a fresh machine: compilation (cold numba cache)", 60.0, "max", "s"),
 }
@@ -97,6 +104,10 @@ class Config:
         crazyflow_worlds: world counts of crazyflow's batched runs.
         campaign_runs: runs of the ``omnirotor campaign hover --workers 2 --quick`` throughput measurement.
         campaign_duration_s: simulated seconds of each of its runs (None: the hover task's default).
+        sliding_campaign_runs: runs of the ``omnirotor campaign sliding --quick`` campaigns timed with 1 and 2
+            workers (0: skip).
+        sliding_campaign_duration_s: simulated seconds of each of their runs (None: the quick scenario's).
+        sliding_campaign_repeats: pairs of those campaigns (1, 2 workers; then 2, 1; ...).
     """
 
     name: str
@@ -126,6 +137,9 @@ class Config:
     crazyflow_worlds: tuple[int, ...] = ()
     campaign_runs: int = 0
     campaign_duration_s: float | None = None
+    sliding_campaign_runs: int = 0
+    sliding_campaign_duration_s: float | None = None
+    sliding_campaign_repeats: int = 1
 
 
 CONFIGS = {
@@ -156,6 +170,8 @@ CONFIGS = {
         crazyflow_batched_s=2.0,
         crazyflow_worlds=(1000, 10000),
         campaign_runs=200,
+        sliding_campaign_runs=20,
+        sliding_campaign_repeats=2,
     ),
     "quick": Config(
         name="quick",
@@ -184,6 +200,8 @@ CONFIGS = {
         crazyflow_batched_s=1.0,
         crazyflow_worlds=(1000,),
         campaign_runs=20,
+        sliding_campaign_runs=4,
+        sliding_campaign_duration_s=7.0,
     ),
     "tiny": Config(
         name="tiny",
@@ -213,6 +231,8 @@ CONFIGS = {
         crazyflow_worlds=(2,),
         campaign_runs=2,
         campaign_duration_s=0.05,
+        sliding_campaign_runs=2,
+        sliding_campaign_duration_s=0.05,
     ),
 }
 
@@ -579,13 +599,13 @@ TIMED_FAULTS = ("gust_force_N", "gust_duration_s", "mocap_dropout_s", "failed_ro
 not take (``run_closed_loop`` then steps in Python)."""
 
 
-def _campaign_file(duration_s: float | None, drop: tuple[str, ...]) -> str:
-    """The default campaign preset for the hover task, less the parameters ``drop``, as TOML text."""
+def _campaign_file(duration_s: float | None, drop: tuple[str, ...], task: str = "hover") -> str:
+    """The default campaign preset for ``task``, less the parameters ``drop``, as TOML text."""
     import tomllib
     from importlib import resources
 
     data = tomllib.loads((resources.files("omnirotor") / "presets" / "campaigns" / "default.toml").read_text())
-    lines = ['task = "hover"', f"runs = {data.get('runs', 20)}", f"seed = {data.get('seed', 0)}", "[options]"]
+    lines = [f'task = "{task}"', f"runs = {data.get('runs', 20)}", f"seed = {data.get('seed', 0)}", "[options]"]
     options = dict(data.get("options", {}))
     if duration_s is not None:
         options["duration_s"] = duration_s
@@ -595,6 +615,76 @@ def _campaign_file(duration_s: float | None, drop: tuple[str, ...]) -> str:
             lines.append(f"[vary.{name}]")
             lines += [f"{k} = {json.dumps(v)}" for k, v in table.items()]
     return "\n".join(lines) + "\n"
+
+
+def _campaign_command(
+    task: str, runs: int, workers: int, duration_s: float | None, drop: tuple[str, ...], own_file: bool
+) -> dict:
+    """``omnirotor campaign TASK --runs N --workers W --quick`` in a fresh process, timed whole (start-up included).
+
+    ``own_file`` (or a ``duration_s``): the default preset written out less ``drop``, with that duration.
+    Returns ``command`` (as a user types it), ``sim_s``, ``wall_s``, ``cpu_s`` (user + system time of the
+    command's whole process tree: on a shared machine the wall time measures the load as much as the code),
+    ``match`` (of the ``throughput:`` line) and ``records`` (the results file's lines).
+    """
+    import resource
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="omnirotor-bench-campaign-") as tmp:
+        cli = [sys.executable, "-c", "import sys; from omnirotor.cli import main; sys.exit(main())"]
+        cmd = [*cli, "campaign", task, "--runs", str(runs)]
+        cmd += ["--workers", str(workers), "--quick", "--out", str(Path(tmp) / "c")]
+        if own_file or duration_s is not None:
+            f = Path(tmp) / "campaign.toml"
+            f.write_text(_campaign_file(duration_s, drop, task))
+            cmd += ["--campaign", str(f)]
+        ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        tic = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env_with_src(), check=False, timeout=7200)
+        wall = time.perf_counter() - tic
+        ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if proc.returncode != 0:
+            raise RuntimeError(f"campaign failed ({proc.returncode}): {proc.stderr.strip()[-300:]}")
+        m = THROUGHPUT_RE.search(proc.stdout)
+        if m is None:
+            raise RuntimeError(f"campaign printed no throughput line: {proc.stdout.strip()[-300:]}")
+        records = [json.loads(x) for x in (Path(tmp) / "c" / "results.jsonl").read_text().splitlines() if x]
+    command = " ".join(["omnirotor", *cmd[len(cli) :]]).replace(tmp, "TMP")
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    sim_s = float(m.group(1))
+    return {"command": command, "sim_s": sim_s, "wall_s": wall, "cpu_s": cpu, "match": m, "records": records}
+
+
+def measure_sliding_workers(cfg: Config) -> dict | None:
+    """``omnirotor campaign sliding --runs N --quick`` with 1 and 2 workers, alternating; the speedup of 2 over 1.
+
+    Each campaign is a fresh process timed whole (start-up, summary and plots included), the default preset.
+    """
+    if cfg.sliding_campaign_runs == 0:
+        return None
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    cpus: dict[int, list[float]] = {1: [], 2: []}
+    sim_s = 0.0
+    command = ""
+    for rep in range(cfg.sliding_campaign_repeats):
+        for workers in (1, 2) if rep % 2 == 0 else (2, 1):
+            c = _campaign_command(
+                "sliding", cfg.sliding_campaign_runs, workers, cfg.sliding_campaign_duration_s, (), False
+            )
+            walls[workers].append(c["wall_s"])
+            cpus[workers].append(c["cpu_s"])
+            sim_s, command = c["sim_s"], c["command"]
+    w1, w2 = _median(walls[1]), _median(walls[2])
+    return {
+        "command": command.replace("--workers 2", "--workers W"),
+        "runs": cfg.sliding_campaign_runs,
+        "sim_s": sim_s,
+        "wall_s": {"1": walls[1], "2": walls[2]},
+        "wall_median_s": {"1": w1, "2": w2},
+        "cpu_s": {"1": cpus[1], "2": cpus[2]},  # the process tree's; CPU / wall < 2 with 2 workers: a busy machine
+        "sim_s_per_s": {"1": sim_s / w1, "2": sim_s / w2},
+        "speedup_2_workers": w1 / w2,
+    }
 
 
 def measure_campaign_throughput(cfg: Config, marginal_rtf: float, without_faults: bool = False) -> dict | None:
@@ -608,35 +698,20 @@ def measure_campaign_throughput(cfg: Config, marginal_rtf: float, without_faults
     """
     if cfg.campaign_runs == 0:
         return None
-    import tempfile
-
-    with tempfile.TemporaryDirectory(prefix="omnirotor-bench-campaign-") as tmp:
-        cli = [sys.executable, "-c", "import sys; from omnirotor.cli import main; sys.exit(main())"]
-        cmd = [*cli, "campaign", "hover", "--runs", str(cfg.campaign_runs)]
-        cmd += ["--workers", "2", "--quick", "--out", str(Path(tmp) / "c")]
-        if without_faults or cfg.campaign_duration_s is not None:
-            f = Path(tmp) / "campaign.toml"
-            f.write_text(_campaign_file(cfg.campaign_duration_s, TIMED_FAULTS if without_faults else ()))
-            cmd += ["--campaign", str(f)]
-        tic = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env_with_src(), check=False, timeout=7200)
-        wall = time.perf_counter() - tic
-        if proc.returncode != 0:
-            raise RuntimeError(f"campaign failed ({proc.returncode}): {proc.stderr.strip()[-300:]}")
-        m = THROUGHPUT_RE.search(proc.stdout)
-        if m is None:
-            raise RuntimeError(f"campaign printed no throughput line: {proc.stdout.strip()[-300:]}")
-        records = [json.loads(x) for x in (Path(tmp) / "c" / "results.jsonl").read_text().splitlines() if x]
-    sim_s = float(m.group(1))
+    drop = TIMED_FAULTS if without_faults else ()
+    c = _campaign_command("hover", cfg.campaign_runs, 2, cfg.campaign_duration_s, drop, without_faults)
+    sim_s, wall, m, records = c["sim_s"], c["wall_s"], c["match"], c["records"]
     run_walls = [r["elapsed_s"] for r in records]
     return {
-        "command": " ".join(["omnirotor", *cmd[len(cli) :]]).replace(tmp, "TMP"),
+        "command": c["command"],
         "campaign": "default preset less timed faults" if without_faults else "default preset",
         "runs": cfg.campaign_runs,
         "workers": 2,
         "sim_s": sim_s,
         "wall_s": wall,
         "sim_s_per_s": sim_s / wall,
+        "cpu_s": c["cpu_s"],
+        "sim_s_per_cpu_s": sim_s / c["cpu_s"],
         "line": {"sim_s": sim_s, "wall_s": float(m.group(2)), "sim_s_per_s": float(m.group(3))},
         "runs_ok": sum(r["status"] == "ok" for r in records),
         "runs_with_timed_faults": sum(any(r["params"].get(k) for k in TIMED_FAULTS) for r in records),
@@ -779,6 +854,11 @@ def collect(
     note("campaign throughput without timed faults (compiled loop)")
     out["campaign_throughput_no_faults"] = measure_campaign_throughput(cfg, marginal, without_faults=True)
     out["campaign_throughput_sim_s_per_s"] = camp["sim_s_per_s"] if camp else None
+    out["campaign_throughput_over_marginal_rtf"] = camp["ratio_to_marginal_rtf"] if camp else None
+    note(f"sliding campaigns, {cfg.sliding_campaign_runs} runs, 1 and 2 workers")
+    sl = measure_sliding_workers(cfg)
+    out["campaign_sliding_workers"] = sl
+    out["campaign_sliding_speedup_2_workers"] = sl["speedup_2_workers"] if sl else None
     note("start-up of a campaign worker: imports, kernel loading, set-up")
     out["startup"] = measure_startup()
 
@@ -1090,10 +1170,11 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
         trow = [
             ["command", *both(lambda c: f"`{c['command']}`")],
             [
-                "runs ok; with a timed fault (Python loop)",
+                "runs ok; with a timed fault (a schedule in the compiled step)",
                 *both(lambda c: f"{c['runs_ok']}; {c['runs_with_timed_faults']}"),
             ],
             ["simulated / wall, whole command [s]", *both(lambda c: f"{_f(c['sim_s'])} / {_f(c['wall_s'], 2)}")],
+            ["CPU of the whole command (all processes) [s]", *both(lambda c: _f(c["cpu_s"], 2))],
             ["**throughput**, start-up included [sim. s per wall s]", *both(lambda c: f"**{_f(c['sim_s_per_s'])}**")],
             ["the command's own throughput line", *both(lambda c: _f(c["line"]["sim_s_per_s"]))],
             ["throughput / marginal RTF of one run (goal ≥ 1.8)", *both(lambda c: f"{c['ratio_to_marginal_rtf']:.2f}")],
@@ -1107,6 +1188,16 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
                 ["one run's set-up (simulator, controller, logs) [s]", _f(su["setup_s"], 3), ""],
                 ["stepping, wall per simulated second [s]", _f(su["stepping_s_per_sim_s"], 4), ""],
             ]
+        sl = r.get("campaign_sliding_workers")
+        if sl:
+            trow.append(
+                [
+                    f"{sl['runs']} sliding runs (`{sl['command']}`): 2 workers over 1, whole command (goal ≥ 1.8)",
+                    f"{sl['speedup_2_workers']:.2f}× ({_f(sl['wall_median_s']['1'], 1)} s → "
+                    f"{_f(sl['wall_median_s']['2'], 1)} s)",
+                    "",
+                ]
+            )
         tables.append(
             (
                 "Campaign throughput (2 workers) and where a worker's time goes",

@@ -42,6 +42,8 @@ TOP_KEYS = (
     "rotorpy_rtf_sweep",
     "crazyflow",
     "campaign_throughput_sim_s_per_s",
+    "campaign_throughput_over_marginal_rtf",
+    "campaign_sliding_speedup_2_workers",
     "machine",
     "date",
     "git_commit",
@@ -146,6 +148,20 @@ def test_campaign_throughput_counts_every_run_and_reads_the_command_line(tiny):
     assert ct["line"]["wall_s"] < ct["wall_s"]  # the command's own line excludes interpreter start and imports
     su = tiny["startup"]
     assert su["first_run_s"] >= su["kernel_loading_s"] and _positive(su["imports_s"])
+    assert ct["cpu_s"] > 0 and ct["sim_s_per_cpu_s"] == pytest.approx(ct["sim_s"] / ct["cpu_s"])
+    assert tiny["campaign_throughput_over_marginal_rtf"] == pytest.approx(
+        tiny["campaign_throughput_sim_s_per_s"] / ct["marginal_rtf_one_core"]
+    )
+
+
+def test_sliding_campaigns_one_and_two_workers_give_the_speedup(tiny):
+    cfg = bench.CONFIGS["tiny"]
+    sl = tiny["campaign_sliding_workers"]
+    assert len(sl["wall_s"]["1"]) == len(sl["wall_s"]["2"]) == cfg.sliding_campaign_repeats
+    assert sl["sim_s"] == pytest.approx(cfg.sliding_campaign_runs * cfg.sliding_campaign_duration_s, abs=0.05)
+    w1, w2 = sl["wall_median_s"]["1"], sl["wall_median_s"]["2"]
+    assert tiny["campaign_sliding_speedup_2_workers"] == pytest.approx(w1 / w2)
+    assert "campaign sliding" in sl["command"] and "--workers W" in sl["command"]
 
 
 def test_crazyflow_in_its_own_venv_tiny():

@@ -79,3 +79,37 @@ def test_video_recorder_discards_on_error(gl, tmp_path):
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError):
         VideoRecorder(sim, path, width=65, height=48)
+
+
+def test_stepped_model_has_small_textures_and_steps_as_the_rendered_one():
+    import mujoco
+
+    from omnirotor.sim.model import TEXTURE_PX, build_mjcf
+
+    sim = Simulator(load_vehicle("omnirotor"), scene="wall")
+    small, full = sim.model, sim.render_model
+    assert sim.render_model is full  # compiled once
+    assert sorted(full.tex_width) == sorted(TEXTURE_PX) and max(small.tex_width) == 2
+    sizes = ("ngeom", "nbody", "nq", "nsensordata", "nmat")
+    assert [getattr(small, k) for k in sizes] == [getattr(full, k) for k in sizes]
+    # the textures change nothing simulated: the same pushes give the same trajectory, bit for bit, falling onto
+    # the floor and bouncing on it
+    p = SimParams()
+    models = [
+        mujoco.MjModel.from_xml_string(build_mjcf(sim.vehicle, "wall", p.scene, p.dt / p.substeps, textures=t))
+        for t in (False, True)
+    ]
+    datas = [mujoco.MjData(m) for m in models]
+    body = mujoco.mj_name2id(models[0], mujoco.mjtObj.mjOBJ_BODY, "vehicle")
+    contacts = []
+    for m, d in zip(models, datas, strict=True):
+        d.qpos[:3] = sim.data.qpos[:3]
+        d.qpos[3:7] = sim.data.qpos[3:7]
+        n = 0
+        for k in range(900):
+            d.xfrc_applied[body, :3] = (0.0, 3.0 * np.sin(0.01 * k), 0.0)
+            mujoco.mj_step(m, d)
+            n += d.ncon
+        contacts.append(n)
+    assert contacts[0] == contacts[1] > 0
+    assert np.array_equal(datas[0].qpos, datas[1].qpos) and np.array_equal(datas[0].sensordata, datas[1].sensordata)

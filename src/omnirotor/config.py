@@ -9,6 +9,7 @@ dotted ``key=value`` overrides given on the command line. Validation lives in ea
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -90,6 +91,12 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints`` of a dataclass, evaluated once per class (a campaign run builds hundreds)."""
+    return typing.get_type_hints(cls)
+
+
 def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     """Build the frozen dataclass ``cls`` from a mapping, rejecting unknown keys.
 
@@ -102,7 +109,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     Returns:
         The dataclass instance; its ``__post_init__`` has validated it.
     """
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     prefix = f"{where}: " if where else ""
     if not isinstance(data, Mapping):
@@ -144,7 +151,7 @@ def _set_path(obj: Any, path: list[str], value: Any, full: str) -> Any:
     if path[0] not in names:
         raise InputError(f"override {full}: unknown key {path[0]!r}; allowed: {', '.join(sorted(names))}")
     if len(path) == 1:
-        tp = typing.get_type_hints(type(obj))[path[0]]
+        tp = _type_hints(type(obj))[path[0]]
         return dataclasses.replace(obj, **{path[0]: _convert(value, tp, full)})
     child = getattr(obj, path[0])
     return dataclasses.replace(obj, **{path[0]: _set_path(child, path[1:], value, full)})

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import daqp
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from omnirotor.config import check_positive, parse_float
 from omnirotor.errors import InputError
@@ -384,6 +383,8 @@ def solve_map(
 
 def solve_map_lsq(data: HoverData, A_nom: np.ndarray, params: IdentificationParams) -> np.ndarray:
     """The same problem as :func:`solve_map`, solved by SciPy's bounded least squares (the test oracle)."""
+    from scipy.optimize import lsq_linear  # here: every campaign and run imports this module, few need SciPy's
+
     _check_enough(data, "identification")
     Ubar, wbar, Wd = _stacked(data, params.weights)
     s = params.scale

@@ -23,7 +23,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linprog
 
 from omnirotor.config import check_finite, check_positive, from_mapping, load_toml
 from omnirotor.errors import InputError
@@ -265,8 +264,7 @@ def load_vehicle(spec: str | Path = "omnirotor", overlay: str | Path | None = No
         if overlay is not None:
             raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
         path = resources.files("omnirotor") / "presets" / "vehicles" / f"{text}.toml"
-        data = load_toml(Path(str(path)))
-        where = f"preset {text}"
+        return _load_toml_vehicle(text, str(path), f"preset {text}", 0)
     else:
         p = Path(text)
         if not p.suffix and not os.path.exists(p):
@@ -275,8 +273,16 @@ def load_vehicle(spec: str | Path = "omnirotor", overlay: str | Path | None = No
             return _load_px4_vehicle(str(p), None if overlay is None else str(overlay), _stamp(p), _stamp(overlay))
         if overlay is not None:
             raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
-        data = load_toml(p)
-        where = str(p)
+        return _load_toml_vehicle(text, str(p), str(p), _stamp(p))
+
+
+@functools.lru_cache(maxsize=16)
+def _load_toml_vehicle(text: str, path: str, where: str, _mtime: int) -> VehicleParams:
+    """A vehicle from a TOML file, parsed once per file version (a campaign worker loads it for every run).
+
+    The vehicle is a frozen dataclass; its cached arrays are shared by the callers, which only read them.
+    """
+    data = load_toml(Path(path))
     rotors = data.pop("rotor", None)
     if not isinstance(rotors, list) or not rotors:
         raise InputError(f"{where}: needs [[rotor]] tables")
@@ -356,6 +362,8 @@ class ForceEnvelope:
 
 
 def _max_force_along(A: np.ndarray, d: np.ndarray, lo: float, hi: float) -> float:
+    from scipy.optimize import linprog  # here: importing scipy.optimize costs every process 0.15-0.3 s
+
     n = A.shape[1]
     # Variables: x = u / hi (scaled to [lo/hi, 1]) and t [N]. Maximise t s.t. A u = [t d; 0].
     c = np.zeros(n + 1)

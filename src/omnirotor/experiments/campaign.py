@@ -69,7 +69,10 @@ Ctrl-C stops the runs under way (the results already appended are kept; run the 
 The pool's workers ignore Ctrl-C (the main process stops them) and die with the main process
 (``PR_SET_PDEATHSIG``, and a watchdog thread polling the parent's pid). A run whose summary holds
 non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
-Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor`) or ``ray`` (the optional ``ray``
+Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor` whose workers are forked from this process,
+so they share its imports, and load the compiled kernels on a 10 ms run before their first job:
+:func:`warm_up`; a run's results never depend on which worker flew it, tested against the one-run path) or
+``ray`` (the optional ``ray``
 extra; a local Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor
 installed).
 
@@ -129,6 +132,7 @@ from omnirotor.experiments.campaign_spec import (
     run_options,
 )
 from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.limits import MIN_DURATION_S
 from omnirotor.safe_io import append_bytes, load_json, make_dir, note, route_mujoco_log, write_json_atomic
 
 __all__ = [
@@ -147,6 +151,7 @@ __all__ = [
     "run_options",
     "identify_truth_maps",
     "execute_run",
+    "warm_up",
     "run_campaign",
     "load_results",
     "summarize",
@@ -219,7 +224,9 @@ def execute_run(job: RunJob) -> dict:
         options = job.options
         with (
             warnings.catch_warnings(record=True) as caught,
-            tempfile.TemporaryDirectory(prefix="omnirotor-campaign-") as tmp,
+            tempfile.TemporaryDirectory(prefix="omnirotor-campaign-")
+            if job.identify_truth
+            else contextlib.nullcontext() as tmp,
         ):
             warnings.simplefilter("always")
             if job.identify_truth:
@@ -360,16 +367,41 @@ def _die_with_parent(parent_pid: int, close_fds: tuple[int, ...] = ()) -> None:
     threading.Thread(target=watch, name="omnirotor-parent-watch", daemon=True).start()
 
 
+def warm_up(job: RunJob) -> None:
+    """Load what runs like ``job`` use (the compiled kernels from numba's cache, lazily imported modules).
+
+    Flies ``job`` for the shortest duration allowed, without identification or maps (their kernels are the
+    same) and discards the record. A run's results never depend on this: every run builds its plant and
+    controller afresh from its own seed. A failure here is left for the real run to report.
+    """
+    options = dataclasses.replace(job.options, duration_s=MIN_DURATION_S)
+    if job.identify_truth:
+        options = dataclasses.replace(options, map_mode="nominal", maps=None)
+    with contextlib.suppress(Exception):
+        execute_run(dataclasses.replace(job, options=options, identify_truth=False))
+
+
+def _start_worker(parent_pid: int, close_fds: tuple[int, ...], warm: RunJob | None) -> None:
+    """Pool-worker initializer: :func:`_die_with_parent`, then :func:`warm_up` while the pool is being filled."""
+    _die_with_parent(parent_pid, close_fds)
+    if warm is not None:
+        warm_up(warm)
+
+
 def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
-    """Yield records as the runs finish, on a process pool (one worker: in this process, in order)."""
+    """Yield records as the runs finish, on a process pool (one worker: in this process, in order).
+
+    The workers are forked from this process (its imports are theirs) and warm up (:func:`warm_up`) in
+    parallel before their first run.
+    """
     if workers == 1:
         for job in jobs:
             yield execute_run(job)
         return
     pool = cf.ProcessPoolExecutor(
         max_workers=workers,
-        initializer=_die_with_parent,
-        initargs=(os.getpid(), (lock_fd,) if lock_fd is not None else ()),
+        initializer=_start_worker,
+        initargs=(os.getpid(), (lock_fd,) if lock_fd is not None else (), jobs[0]),
     )
     finished = False
     try:

@@ -230,10 +230,15 @@ def _plt():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig, path: Path, tight: bool = True) -> Path:
     from omnirotor.experiments.figures import save_figure
 
-    return save_figure(fig, path)
+    return save_figure(fig, path, tight=tight)
+
+
+PANEL_MARGINS = {"left": 0.06, "right": 0.985, "bottom": 0.13, "top": 0.92, "wspace": 0.2}
+"""Fixed margins of the two-panel campaign plots: no layout engine, so each is drawn once (constrained layout
+and tight cropping drew each twice: the default campaign's eight plots took 5.7 s instead of 3.0 s under load)."""
 
 
 def _draw_success(
@@ -300,7 +305,7 @@ def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path) 
     ok = [r for r in records if r.get("status") == "ok"]
     paths = []
     for name, _ in spec.vary:
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw=PANEL_MARGINS)
         _draw_success(a1, binned_success(ok, name, spec.bins))
         a1.set_xlabel(_unit(name))
         a1.set_title(f"{spec.task}: success against {name}")
@@ -309,7 +314,7 @@ def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path) 
         a2.set_title(f"{spec.key_metric} of each run")
         if a2.has_data():
             a2.legend(fontsize=8)
-        paths.append(_save(fig, Path(out_dir) / f"success-vs-{name.replace('.', '_')}.png"))
+        paths.append(_save(fig, Path(out_dir) / f"success-vs-{name.replace('.', '_')}.png", tight=False))
     return paths
 
 

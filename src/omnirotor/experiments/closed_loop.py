@@ -336,6 +336,16 @@ class TaskResult:
 
     def summary(self) -> dict:
         """The JSON of ``omnirotor run``: EE errors (SPEC §6), options and the controller step time."""
+        log = run_log(self.controller_log, self.truth_log)
+        return self.summary_of(log, error_stats(log, log.t >= self.metrics_from_s))
+
+    def summary_of(self, log: RunLog, errors: tuple[dict, dict]) -> dict:
+        """:meth:`summary` from the run's :func:`run_log` and its EE errors, computed once by the caller.
+
+        Args:
+            log: the run's signals (:func:`run_log`).
+            errors: ``error_stats`` of ``log`` from ``metrics_from_s`` (the RMS and max EE errors).
+        """
         out = {
             "task": self.task,
             "solver": self.options.solver,
@@ -344,10 +354,7 @@ class TaskResult:
             "seed": self.options.seed,
             "duration_s": self.duration_s,
         }
-        log = run_log(self.controller_log, self.truth_log)
-        rms, mx = error_stats(log, log.t >= self.metrics_from_s)
-        out["ee_rms_error"] = rms
-        out["ee_max_error"] = mx
+        out["ee_rms_error"], out["ee_max_error"] = errors
         keep = log.t >= self.metrics_from_s
         out["f_ext_hat_W_mean_N"] = log.f_ext_hat_W[keep].mean(axis=0).tolist()
         out["m_ext_hat_B_mean_Nm"] = log.m_ext_hat_B[keep].mean(axis=0).tolist()

@@ -214,9 +214,25 @@ def _fly(
     return ctl_log, truth_log, names
 
 
-def base_metrics(task: str, opts: ExperimentOptions, log: RunLog, duration_s: float, step_us: np.ndarray) -> dict:
-    """The metrics every task reports: its options, EE errors after settling, step time, flags, safety."""
-    rms, mx = error_stats(log, log.t >= min(SETTLE_S, 0.5 * duration_s))  # short runs: their second half
+def _metrics_from(duration_s: float) -> float:
+    """Time from which a run's EE errors count [s]: after settling; short runs, their second half."""
+    return min(SETTLE_S, 0.5 * duration_s)
+
+
+def base_metrics(
+    task: str,
+    opts: ExperimentOptions,
+    log: RunLog,
+    duration_s: float,
+    step_us: np.ndarray,
+    vehicle: VehicleParams,
+    errors: tuple[dict, dict] | None = None,
+) -> dict:
+    """The metrics every task reports: its options, EE errors after settling, step time, flags, safety.
+
+    ``errors``: the EE errors from :func:`_metrics_from` if computed already.
+    """
+    rms, mx = errors if errors is not None else error_stats(log, log.t >= _metrics_from(duration_s))
     flags = log.status.astype(int)
     return {
         "task": task,
@@ -234,7 +250,7 @@ def base_metrics(task: str, opts: ExperimentOptions, log: RunLog, duration_s: fl
         "controller_step_us_median": float(np.median(step_us)),
         "steps_flagged": int(np.count_nonzero(flags)),
         "map_switches": int(np.count_nonzero(np.diff(log.region))),
-        "safety": safety_stats(log.omega_hz, log.status, load_vehicle(opts.vehicle)),
+        "safety": safety_stats(log.omega_hz, log.status, vehicle),
     }
 
 
@@ -262,7 +278,7 @@ def _run_contact(task: str, opts: TaskOptions, progress) -> ExperimentResult:
         vehicle, opts, scenario.scene, scenario.admittance, traj, duration, progress, zero=True
     )
     log = run_log(ctl_log, truth_log)
-    m = base_metrics(task, opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics(task, opts, log, duration, truth_log.group("controller_step_us"), vehicle)
     m["observer_zeroed"] = True if opts.zero_observer is None else opts.zero_observer
     phase = log.window(*scenario.contact_phase)
     m["contact_phase_s"] = list(scenario.contact_phase)
@@ -397,7 +413,7 @@ def identify_flights(options: TaskOptions, progress=None) -> ExperimentResult:
         Rs.append(project_to_SO3(R_est[mask].mean(axis=0)))
         speeds.append(rotor[mask].mean(axis=0))
         names.append(name)
-    m = base_metrics("identify-flights", opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics("identify-flights", opts, log, duration, truth_log.group("controller_step_us"), vehicle)
     m["points"] = {r: names.count(r) for r in proto.regions}
     m["success"] = bool(len(names) == len(attitudes) and all(np.all(np.isfinite(s)) for s in speeds))
     if opts.out_dir is not None:
@@ -424,7 +440,7 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
     opts, vehicle, proto, log, ctl_log, truth_log, windows, duration, _ = _hover_run(
         options, progress, 2, "validation_per_region"
     )
-    m = base_metrics("hover-validation", opts, log, duration, truth_log.group("controller_step_us"))
+    m = base_metrics("hover-validation", opts, log, duration, truth_log.group("controller_step_us"), vehicle)
     regions = {}
     samples = {}
     for r in proto.regions:
@@ -482,10 +498,12 @@ def hover(options: TaskOptions, progress=None) -> ExperimentResult:
         duration_s=duration,
         controller_log=ctl_log,
         truth_log=truth_log,
-        metrics_from_s=min(SETTLE_S, 0.5 * duration),
+        metrics_from_s=_metrics_from(duration),
     )
-    m = TaskResult.summary(result)
-    m.update(base_metrics("hover", opts, run_log(ctl_log, truth_log), duration, truth_log.group("controller_step_us")))
+    log = run_log(ctl_log, truth_log)
+    errors = error_stats(log, log.t >= result.metrics_from_s)  # once, for both parts of the summary
+    m = result.summary_of(log, errors)
+    m.update(base_metrics("hover", opts, log, duration, truth_log.group("controller_step_us"), vehicle, errors))
     m["success"] = bool(max(m["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) <= HOVER_SUCCESS_CM)
     result.metrics = m
     return result

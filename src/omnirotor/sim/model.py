@@ -245,7 +245,13 @@ def _ee_sensors(body_xml: str) -> str:
     return "\n    ".join(out)
 
 
-def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep: float) -> str:
+TEXTURE_PX = (256, 512)
+"""Sizes of the sky and floor textures of a model built for rendering [px]. A model only stepped gets 2 px
+ones (:func:`build_mjcf` ``textures=False``): generating the full ones was 85 % of compiling the free scene,
+and textures change nothing a simulation computes."""
+
+
+def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep: float, textures: bool = True) -> str:
     """The MJCF text of ``vehicle`` in ``scene``.
 
     Args:
@@ -253,10 +259,13 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
         scene: one of :data:`omnirotor.sim.scenes.SCENES`.
         params: scene geometry and contact properties.
         timestep: physics time step [s].
+        textures: full-size textures (:data:`TEXTURE_PX`) for rendering; False: 2 px ones (same bodies, geoms
+            and materials: the same simulation).
 
     Returns:
         The MJCF XML as a string.
     """
+    sky, grid = TEXTURE_PX if textures else (2, 2)
     solref = f"{params.contact_timeconst:.9g} {params.contact_dampratio:.9g}"
     friction = f"{params.friction:.9g} 0.005 0.0001"
     floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
@@ -278,9 +287,9 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
   </visual>
   <asset>
     <texture name="sky" type="skybox" builtin="gradient" rgb1="0.75 0.82 0.90" rgb2="0.98 0.98 1.0"
-      width="256" height="256"/>
+      width="{sky}" height="{sky}"/>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.86 0.86 0.84" rgb2="0.76 0.76 0.74"
-      width="512" height="512" mark="edge" markrgb="0.6 0.6 0.6"/>
+      width="{grid}" height="{grid}" mark="edge" markrgb="0.6 0.6 0.6"/>
     <material name="grid" texture="grid" texrepeat="8 8" reflectance="0.05"/>
   </asset>
   <default>

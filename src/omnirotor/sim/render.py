@@ -98,7 +98,7 @@ def render_frame(
         (height, width, 3) uint8 image.
     """
     _check_size(width, height)
-    renderer = _make_renderer(sim.model, width, height)
+    renderer = _make_renderer(sim.render_model, width, height)
     try:
         renderer.update_scene(sim.data, camera=camera or default_camera(sim))
         return renderer.render().copy()
@@ -175,7 +175,7 @@ class VideoRecorder:
         except OSError as exc:
             raise InputError(f"{self.path}: cannot create its folder ({exc.strerror})") from None
         self._tmp = self.path.with_name(f".{self.path.stem}.{os.getpid()}.tmp.mp4")
-        self._renderer = _make_renderer(sim.model, width, height)
+        self._renderer = _make_renderer(sim.render_model, width, height)
         self._camera = default_camera(sim)
         self._next_t = sim.t
         self._period = 1.0 / self.fps

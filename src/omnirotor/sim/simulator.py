@@ -94,7 +94,7 @@ class Simulator:
         scene: the :class:`~omnirotor.sim.scenes.SceneAnchors` of the loaded scene (surface point, outward
             normal, pipe or hole geometry), world frame.
         scene_name: the scene's name.
-        model: the ``mujoco.MjModel`` (for rendering).
+        model: the ``mujoco.MjModel`` stepped (textures of 2 px; render with :attr:`render_model`).
         data: the ``mujoco.MjData``.
         aero: the truth aerodynamics; ``aero.wrench_B(u_hz2)`` gives the (6,) body wrench.
         rotors: the rotor speed states (:class:`~omnirotor.sim.rotors.RotorBank`).
@@ -132,8 +132,9 @@ class Simulator:
         p = self.params
         self.dt = p.dt
         self.substeps = p.substeps
-        xml = build_mjcf(vehicle, scene, p.scene, p.dt / p.substeps)
+        xml = build_mjcf(vehicle, scene, p.scene, p.dt / p.substeps, textures=False)  # see render_model
         self.model = mujoco.MjModel.from_xml_string(xml)
+        self._render_model: mujoco.MjModel | None = None
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BODY_NAME)
@@ -205,6 +206,19 @@ class Simulator:
         self.reset()
 
     # ------------------------------------------------------------------------------------------------
+    @property
+    def render_model(self) -> mujoco.MjModel:
+        """The model to render :attr:`data` with: :attr:`model` with full-size textures (compiled on first use).
+
+        The simulated model carries 2-pixel textures (:func:`~omnirotor.sim.model.build_mjcf`): generating the
+        full ones took most of a run's model compilation. Both have the same bodies, geoms and materials.
+        """
+        if self._render_model is None:
+            p = self.params
+            xml = build_mjcf(self.vehicle, self.scene_name, p.scene, p.dt / p.substeps)
+            self._render_model = mujoco.MjModel.from_xml_string(xml)
+        return self._render_model
+
     @property
     def t(self) -> float:
         """Simulation time [s]."""
