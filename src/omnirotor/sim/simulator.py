@@ -166,7 +166,7 @@ class Simulator:
         self._rec = np.zeros(1, _step.SIM_DTYPE)
         rec = self._rec
         self.aero = make_aero(vehicle, p.aero)
-        self.rotors = RotorBank(vehicle, p.rotors, p.dt)
+        self.rotors = RotorBank(vehicle, p.rotors, p.dt, seed=self.seed)
         self.rotors.adopt(rec["rotor_par"], rec["rotors"])
         self.sensors = Sensors(
             p.sensors, vehicle.gravity, p.dt, vehicle.n_rotors, state_mode, self.seed, rec["sensors"]
@@ -357,7 +357,7 @@ class Simulator:
     def _apply_wrench(self, recompute_rotors: bool) -> None:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
         if recompute_rotors:
-            self.aero.wrench_B(self.rotors.u_hz2, out=self._w_B)
+            self.aero.wrench_B(self.rotors.u_eff_hz2, out=self._w_B)
         _step.apply_wrench(self._pose, self._w_B, self._ext[0], self._xfrc)
 
     # ------------------------------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 
 One control period (:func:`sim_step`, the step of :meth:`omnirotor.sim.simulator.Simulator.step`): the
 fault schedule (:mod:`omnirotor.sim.faults`) checks the command, stops failed rotors and sets the gusts; then
-``substeps`` x (``mj_Euler``; on the last one the rotors (:func:`omnirotor.sim.rotors.rotor_step`) and the
-truth aerodynamics (:func:`aero_wrench`) give the new rotor wrench ``w_B``; :func:`apply_wrench` puts it and
+``substeps`` x (``mj_Euler``; on the last one the rotors (:func:`omnirotor.sim.rotors.rotor_step`: speeds,
+reversals, thrust fluctuation) and the truth aerodynamics (:func:`aero_wrench` of the fluctuating inputs
+``u_eff_hz2``) give the new rotor wrench ``w_B``; :func:`apply_wrench` puts it and
 the external wrench into ``xfrc_applied``; ``mj_forward``), then :func:`observe` at the new time: the sensors
 (:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts, corruptions), the
 truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`) adds the EE contact
@@ -224,7 +225,7 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         mj_Euler(m, d)
         if i == substeps - 1:
             rotors.rotor_step(s["rotor_par"], s["rotors"], cmd)
-            aero_wrench(s["aero"], s["rotors"]["u_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
+            aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
         apply_wrench(pose, w_B, ext, xfrc)
         mj_forward(m, d)
     observe(sim, k + 1, dt, frame, row)
