@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from omnirotor.messages import FRAME_ACC_B, FRAME_GYRO_B, frame_size
-from omnirotor.sim import SimParams, Simulator, prng
+from omnirotor.sim import AirflowParams, SimParams, Simulator, prng
+from omnirotor.sim.airflow import AirflowForce
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.sensors import STATE_NONE, Sensors, mocap_step, sense
 from omnirotor.vehicle import load_vehicle
@@ -70,6 +71,25 @@ def test_thrust_fluctuation_variance_and_spectrum():
     # The rotors fluctuate independently.
     c = np.corrcoef(x.T)
     assert np.max(np.abs(c[~np.eye(N, dtype=bool)])) < 0.1
+
+
+def test_airflow_force_variance_and_spectrum():
+    sigma, fc = 1.5, 1.0
+    b = AirflowForce(AirflowParams(force_std=sigma, corner_hz=fc), DT, seed=2)
+    steps = 400_000
+    f = np.empty((steps, 3))
+    for k in range(steps):
+        b.step()
+        f[k] = b.f_W
+    f = f[5000:]
+    # ~2300 correlation times: the variance is known to ~3 %.
+    assert np.all(np.abs(f.std(axis=0) / sigma - 1.0) < 0.1)
+    assert abs(np.sqrt(np.mean(f * f)) / sigma - 1.0) < 0.06
+    lag = int(round(1 / (2 * math.pi * fc) / DT))
+    rho = np.mean(f[lag:] * f[:-lag]) / np.mean(f * f)
+    assert abs(rho - math.exp(-1.0)) < 0.05
+    b.reset()
+    assert np.all(b.f_W == 0.0)
 
 
 def test_no_fluctuation_when_off():

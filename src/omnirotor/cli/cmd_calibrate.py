@@ -53,11 +53,17 @@ def calibrate_truth_cmd(
 
 @app.command("calibrate-disturbances")
 def calibrate_disturbances_cmd(
-    out: Annotated[Path, typer.Option(help="Write the calibrated [rotors] value here (simulator TOML).")],
+    out: Annotated[
+        Path, typer.Option(help="Write the calibrated [rotors] and [airflow] values here (simulator TOML).")
+    ],
     report: Annotated[Path, typer.Option(help="Folder for report.md, result.json and the prediction's runs.")],
     grid: Annotated[
-        str, typer.Option(help="Comma-separated values of rotors.thrust_noise_rel flown on the calibration row.")
-    ] = "0,0.05,0.1,0.2,0.3",
+        str | None,
+        typer.Option(
+            help="Pairs thrust_noise_rel:force_std [-:N] flown on the calibration row, comma-separated "
+            "(default: 0, 0.1, 0.2 x 0, 1.5, 3 N)."
+        ),
+    ] = None,
     quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,
     seed: Annotated[int, typer.Option(help="Seed of every run.")] = 0,
     workers: Annotated[int, typer.Option(min=1, max=64, help="Processes.")] = 2,
@@ -65,9 +71,10 @@ def calibrate_disturbances_cmd(
         Path | None, typer.Option(help="Also put the report into this Markdown file, between its markers.")
     ] = None,
 ) -> None:
-    """Calibrate the rotors' thrust fluctuation on Table 1's straight point-contact row; predict the other rows."""
+    """Calibrate the disturbances on Table 1's straight point-contact row; predict the other rows."""
     from omnirotor.config import parse_float
     from omnirotor.experiments.disturbance_calibration import (
+        DEFAULT_GRID,
         calibrate_disturbances,
         report_markdown,
         save_json,
@@ -84,7 +91,14 @@ def calibrate_disturbances_cmd(
         raise InputError(f"--doc {doc}: no such file")
     if not 0 <= seed <= MAX_SEED:
         raise InputError("--seed must be an integer in [0, 2^63 - 1]")
-    values = [parse_float(v, "--grid") for v in grid.split(",") if v.strip()]
+    values = list(DEFAULT_GRID)
+    if grid is not None:
+        values = []
+        for pair in grid.split(","):
+            parts = pair.split(":")
+            if len(parts) != 2:
+                raise InputError(f"--grid: {pair.strip()!r} is not a pair thrust_noise_rel:force_std")
+            values.append((parse_float(parts[0], "--grid"), parse_float(parts[1], "--grid")))
     check_output_dir(report, "--report")
     result = calibrate_disturbances(
         report, values, quick=quick, seed=seed, workers=workers, progress=lambda line: sys.stderr.write(line + "\n")

@@ -28,6 +28,7 @@ __all__ = [
     "RotorDynamicsParams",
     "AeroParams",
     "SensorParams",
+    "AirflowParams",
     "SceneParams",
     "SimParams",
     "load_sim_params",
@@ -237,6 +238,25 @@ class SensorParams:
 
 
 @dataclasses.dataclass(frozen=True)
+class AirflowParams:
+    """The vehicle's recirculating wake as a random force at the CoM (:mod:`omnirotor.sim.airflow`).
+
+    Attributes:
+        force_std: standard deviation of each world axis of the force [N] (calibrated on Table 1's straight
+            point-contact row by ``omnirotor calibrate-disturbances``; docs/fidelity.md).
+        corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
+            ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
+    """
+
+    force_std: float = 0.0
+    corner_hz: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check_nonneg("airflow.force_std", self.force_std)
+        check_positive("airflow.corner_hz", self.corner_hz)
+
+
+@dataclasses.dataclass(frozen=True)
 class SceneParams:
     """Geometry and contact properties of every scene (SPEC §5.2), world frame [m].
 
@@ -362,6 +382,7 @@ class SimParams:
         rotors: rotor speed loop.
         aero: truth aerodynamics.
         sensors: sensor models.
+        airflow: the recirculating wake's force.
         scene: scene geometry and contact properties.
     """
 
@@ -371,6 +392,7 @@ class SimParams:
     rotors: RotorDynamicsParams = dataclasses.field(default_factory=RotorDynamicsParams)
     aero: AeroParams = dataclasses.field(default_factory=AeroParams)
     sensors: SensorParams = dataclasses.field(default_factory=SensorParams)
+    airflow: AirflowParams = dataclasses.field(default_factory=AirflowParams)
     scene: SceneParams = dataclasses.field(default_factory=SceneParams)
 
     def __post_init__(self) -> None:
