@@ -68,9 +68,10 @@ class RotorDynamicsParams:
         reversal_stop_hz: speed below which a rotor braking towards the other direction is at rest [Hz]
             [A: 10 Hz = 600 rpm, about where a sensorless ESC loses the back-EMF of a 14-pole motor].
         thrust_noise_rel: standard deviation of each rotor's relative thrust and torque fluctuation [-]
-            (calibrated on Table 1's straight point-contact row by ``omnirotor calibrate-disturbances``;
-            docs/fidelity.md). Propeller thrust measured on stands fluctuates by a few percent RMS, more in the
-            wakes of neighbouring rotors.
+            (calibrated on Table 1's straight point-contact row by ``omnirotor calibrate-disturbances``, with
+            the airflow's force: 0, because it adds the rotors' lever-arm moments and so pitch errors the row
+            does not show; docs/fidelity.md). Propeller thrust measured on stands fluctuates by a few percent
+            RMS, more in the wakes of neighbouring rotors.
         thrust_noise_corner_hz: corner frequency of the fluctuation's first-order spectrum [Hz] [A: 5 Hz:
             wake meandering at a Strouhal number ~0.15 of the rotor's induced speed (~6 m/s at hover) over its
             diameter (0.2 m); faster blade-passage loads are filtered by the airframe's mass].
@@ -243,12 +244,13 @@ class AirflowParams:
 
     Attributes:
         force_std: standard deviation of each world axis of the force [N] (calibrated on Table 1's straight
-            point-contact row by ``omnirotor calibrate-disturbances``; docs/fidelity.md).
+            point-contact row by ``omnirotor calibrate-disturbances``: 1.92 N, full protocols; docs/fidelity.md,
+            docs/data/disturbance-calibration.json).
         corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
             ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
     """
 
-    force_std: float = 0.0
+    force_std: float = 1.92
     corner_hz: float = 1.0
 
     def __post_init__(self) -> None:
@@ -405,6 +407,22 @@ class SimParams:
             raise InputError(
                 "scene.contact_timeconst must be at least two physics steps (dt / substeps) for stable contact"
             )
+
+    def undisturbed(self) -> SimParams:
+        """These parameters without the disturbances (docs/fidelity.md).
+
+        No thrust fluctuation, no recirculation force, no IMU vibration, no motion-capture jitter; the rotor
+        reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the controller on a clean plant (``omnirotor run
+        --no-disturbances``); docs/fidelity.md.
+        """
+        return dataclasses.replace(
+            self,
+            rotors=dataclasses.replace(self.rotors, thrust_noise_rel=0.0),
+            airflow=dataclasses.replace(self.airflow, force_std=0.0),
+            sensors=dataclasses.replace(
+                self.sensors, imu_vib_acc_amp=0.0, imu_vib_gyro_amp=0.0, mocap_latency_jitter_s=0.0
+            ),
+        )
 
 
 def load_sim_params(path: str | Path) -> SimParams:

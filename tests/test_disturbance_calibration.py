@@ -1,0 +1,111 @@
+"""The disturbances' calibration on one row of Table 1 and the recorded prediction of the other five (issue 12).
+
+The fitting steps are checked on synthetic data; the recorded result (``docs/data/disturbance-calibration.json``,
+written by ``omnirotor calibrate-disturbances``) must agree with the simulator's defaults, with the paper's
+Table 1, with its own figures and with the section of docs/fidelity.md generated from it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from omnirotor.experiments import disturbance_calibration as dc
+from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
+from omnirotor.sim import SimParams, load_sim_params
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORD = ROOT / "docs" / "data" / "disturbance-calibration.json"
+
+
+def test_log_ratio_is_zero_at_the_paper_values():
+    paper = dict(zip(AXES, PAPER_TABLE1[dc.CALIBRATION_ROW]["rms"], strict=True))
+    assert dc.log_ratio(paper) == pytest.approx(0.0, abs=1e-12)
+    doubled = {k: 2 * v for k, v in paper.items()}
+    assert dc.log_ratio(doubled) == pytest.approx(math.log(2.0))
+
+
+def test_cell_model_and_best_pair_recover_a_known_answer():
+    rng = np.random.default_rng(0)
+    coef = rng.uniform(0.01, 1.0, (6, 3))
+    grid = [(a, b) for a in (0.0, 0.1, 0.2) for b in (0.0, 1.5, 3.0)]
+    g = np.array(grid)
+    rms = np.sqrt(coef[:, 0] + np.outer(g[:, 0] ** 2, coef[:, 1]) + np.outer(g[:, 1] ** 2, coef[:, 2]))
+    fitted = dc.fit_cell_model(grid, rms)
+    np.testing.assert_allclose(fitted, coef, rtol=1e-8)
+    target = (0.13, 2.1)  # the paper's cells generated from a pair: the search must find it
+    paper = np.sqrt(coef[:, 0] + coef[:, 1] * target[0] ** 2 + coef[:, 2] * target[1] ** 2)
+    found = dc.best_pair(fitted, paper, (0.2, 3.0), n=401)
+    assert found == pytest.approx(target, abs=0.002)
+
+
+def test_toml_round_trip(tmp_path):
+    path = tmp_path / "d.toml"
+    dc.write_toml(path, (0.07, 1.25))
+    p = load_sim_params(path)
+    assert p.rotors.thrust_noise_rel == 0.07 and p.airflow.force_std == 1.25
+
+
+def test_replace_section(tmp_path):
+    doc = tmp_path / "x.md"
+    doc.write_text("# title\n\ntext\n")
+    dc.replace_section(doc, "first\n")
+    dc.replace_section(doc, "second\n")
+    body = doc.read_text()
+    assert body.count(dc.DOC_BEGIN) == 1 and "second" in body and "first" not in body and body.startswith("# title")
+
+
+def _recorded() -> dc.CalibrationResult:
+    d = json.loads(RECORD.read_text())
+    return dc.CalibrationResult(
+        grid=tuple(tuple(g) for g in d["grid"]),
+        grid_log_ratio=tuple(d["grid_log_ratio"]),
+        value=tuple(d["value"]),
+        calibration_cells=tuple(dc.Cell(**c) for c in d["calibration_cells"]),
+        cells=tuple(dc.Cell(**c) for c in d["cells"]),
+        quick=d["quick"],
+        seed=d["seed"],
+    ), d
+
+
+def test_recorded_calibration_is_the_default_and_the_documented_one():
+    res, d = _recorded()
+    assert d["median_ratio"] == pytest.approx(0.7116, abs=1e-4) and d["n_within"] == 17  # the figures reported
+    defaults = SimParams()
+    assert (defaults.rotors.thrust_noise_rel, defaults.airflow.force_std) == tuple(res.value)
+    assert d["parameters"] == list(dc.PARAMETERS) and d["calibration_row"] == dc.CALIBRATION_ROW
+    # The 30 predicted cells are the five other rows against the paper's values, none of them the calibration row.
+    assert len(res.cells) == 30 and {c.row for c in res.cells} == set(dc.PREDICTED_ROWS)
+    for c in res.cells + res.calibration_cells:
+        assert c.paper == PAPER_TABLE1[c.row]["rms"][AXES.index(c.axis)]
+    assert d["median_ratio"] == pytest.approx(res.median_ratio) and d["n_within"] == res.n_within
+    fidelity = (ROOT / "docs" / "fidelity.md").read_text()
+    assert dc.report_markdown(res) in fidelity  # the doc's section is the generated report
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="full protocols, seed 0: median ratio 0.71 (in band) but 17 of 30 cells within [0.5, 2]; x is 0.2-0.4 "
+    "of the paper's in every row but piecewise sliding, roll and yaw 2-3x in the point-contact and peg rows "
+    "(docs/fidelity.md)",
+)
+def test_recorded_prediction_reaches_the_goal():
+    res, _ = _recorded()
+    assert dc.RATIO_BAND[0] <= res.median_ratio <= dc.RATIO_BAND[1]
+    assert res.n_within >= 20
+
+
+@pytest.mark.parametrize("grid", ["0.1", "0.1:x", "0:0,0.1:0", "-0.1:0,0:1,0.1:1"])
+def test_cli_rejects_a_bad_grid(tmp_path, capsys, grid):
+    from omnirotor.cli import main
+
+    code = main(
+        ["calibrate-disturbances", "--out", str(tmp_path / "d.toml"), "--report", str(tmp_path / "r"), "--grid", grid]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "grid" in err
+    assert not (tmp_path / "d.toml").exists() and not (tmp_path / "r").exists()
