@@ -412,8 +412,8 @@ class SimParams:
         """These parameters without the disturbances (docs/fidelity.md).
 
         No thrust fluctuation, no recirculation force, no IMU vibration, no motion-capture jitter; the rotor
-        reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the controller on a clean plant (``omnirotor run
-        --no-disturbances``); docs/fidelity.md.
+        reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the
+        controller on a clean plant (``omnirotor run --no-disturbances``).
         """
         return dataclasses.replace(
             self,
