@@ -100,15 +100,19 @@ def test_no_fluctuation_when_off():
     assert np.array_equal(b.u_eff_hz2, b.u_hz2)
 
 
+def _step_through_zero(bank: RotorBank, steps: int = 400) -> np.ndarray:
+    """Rotor 0's speeds [Hz] for a command from +60 Hz to -60 Hz."""
+    bank.reset(np.full(N, 60.0))
+    w = np.empty(steps)
+    for k in range(steps):
+        bank.step(np.full(N, -60.0))
+        w[k] = bank.omega_hz[0]
+    return w
+
+
 def test_reversal_delay_seen_in_a_step_through_zero():
     delay_s, stop_hz = 0.03, 10.0
-    b = _bank(reversal_delay_s=delay_s, reversal_stop_hz=stop_hz, thrust_noise_rel=0.0)
-    b.reset(np.full(N, 60.0))
-    w = []
-    for _ in range(400):
-        b.step(np.full(N, -60.0))
-        w.append(b.omega_hz[0])
-    w = np.array(w)
+    w = _step_through_zero(_bank(reversal_delay_s=delay_s, reversal_stop_hz=stop_hz, thrust_noise_rel=0.0))
     at_rest = np.flatnonzero(w == 0.0)
     assert at_rest.size == round(delay_s / DT) + 1  # the stopping step and the delay
     assert np.all(np.diff(at_rest) == 1)
@@ -116,13 +120,7 @@ def test_reversal_delay_seen_in_a_step_through_zero():
     assert np.all(w[: at_rest[0]] > 0.0) and np.all(w[at_rest[-1] + 1 :] < 0.0)  # one crossing
     assert w[-1] == pytest.approx(-60.0, rel=1e-3)
     # Without the reversal model the speed passes through zero with the lag alone, 30 ms earlier at -30 Hz.
-    smooth = _bank(reversal_delay_s=0.0, thrust_noise_rel=0.0)
-    smooth.reset(np.full(N, 60.0))
-    ws = []
-    for _ in range(400):
-        smooth.step(np.full(N, -60.0))
-        ws.append(smooth.omega_hz[0])
-    ws = np.array(ws)
+    ws = _step_through_zero(_bank(reversal_delay_s=0.0, thrust_noise_rel=0.0))
     assert not np.any(ws == 0.0)
     k_rev, k_smooth = np.argmax(w < -30.0), np.argmax(ws < -30.0)
     tau = SimParams().rotors.tau_m

@@ -295,14 +295,14 @@ def write_toml(path: str | Path, value: Sequence[float]) -> None:
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def replace_section(doc: str | Path, text: str) -> None:
-    """Put ``text`` between the markers of ``doc`` (appended with the markers when they are absent)."""
+def replace_section(doc: str | Path, text: str, begin: str = DOC_BEGIN, end: str = DOC_END) -> None:
+    """Put ``text`` between the markers ``begin`` and ``end`` of ``doc`` (appended with them when absent)."""
     p = Path(doc)
     body = p.read_text()
-    block = f"{DOC_BEGIN}\n{text}{DOC_END}"
-    if DOC_BEGIN in body and DOC_END in body:
-        head, rest = body.split(DOC_BEGIN, 1)
-        tail = rest.split(DOC_END, 1)[1]
+    block = f"{begin}\n{text}{end}"
+    if begin in body and end in body:
+        head, rest = body.split(begin, 1)
+        tail = rest.split(end, 1)[1]
         body = head + block + tail
     else:
         body = body.rstrip("\n") + "\n\n" + block + "\n"

@@ -16,8 +16,6 @@ the simulator's compiled step (:mod:`omnirotor.sim.step`) calls once per control
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from omnirotor._jit import jit
@@ -44,7 +42,7 @@ def airflow_step(par, st) -> None:
     decay = par["decay"]
     f = st["f_W"]
     for j in range(3):
-        f[j] = decay * f[j] + drive * prng.next_normal(st)
+        f[j] = prng.gauss_markov_next(f[j], decay, drive, st)
 
 
 @register("airflow", "recirculation")
@@ -64,11 +62,9 @@ class AirflowForce:
     def __init__(self, params: AirflowParams, dt: float, seed: int = 0) -> None:
         self.params = params
         self.seed = int(seed)
-        decay = math.exp(-2.0 * math.pi * params.corner_hz * dt)
         self.par = np.zeros(1, PARAMS_DTYPE)
         """(1,) the :data:`PARAMS_DTYPE` record of the compiled step."""
-        self.par["decay"] = decay
-        self.par["drive"] = params.force_std * math.sqrt(1.0 - decay * decay)
+        self.par["decay"], self.par["drive"] = prng.gauss_markov_coefficients(params.force_std, params.corner_hz, dt)
         self.state = np.zeros(1, STATE_DTYPE)
         """(1,) the :data:`STATE_DTYPE` record (or the simulator's field it was moved into)."""
         self.reset()

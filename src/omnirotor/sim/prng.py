@@ -20,7 +20,7 @@ import numpy as np
 
 from omnirotor._jit import jit
 
-__all__ = ["seed_state", "next_u64", "next_uniform", "next_normal"]
+__all__ = ["seed_state", "next_u64", "next_uniform", "next_normal", "gauss_markov_coefficients", "gauss_markov_next"]
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -57,3 +57,20 @@ def next_normal(rec) -> float:
     u1 = 1.0 - next_uniform(rec)  # (0, 1]: log is finite
     u2 = next_uniform(rec)
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(_TWO_PI * u2)
+
+
+def gauss_markov_coefficients(std: float, corner_hz: float, dt: float) -> tuple[float, float]:
+    """``(decay, drive)`` of a first-order Gauss-Markov process sampled every ``dt`` [s].
+
+    ``x = decay x + drive n`` (n standard normal) has the stationary standard deviation ``std`` and the
+    first-order spectrum of corner frequency ``corner_hz`` [Hz]: ``decay = exp(-2 pi f_c dt)``,
+    ``drive = std sqrt(1 - decay²)``.
+    """
+    decay = math.exp(-2.0 * math.pi * corner_hz * dt)
+    return decay, std * math.sqrt(1.0 - decay * decay)
+
+
+@jit
+def gauss_markov_next(x: float, decay: float, drive: float, rec) -> float:
+    """The next sample ``decay x + drive n`` of a Gauss-Markov process, n drawn from ``rec["rng"]``."""
+    return decay * x + drive * next_normal(rec)

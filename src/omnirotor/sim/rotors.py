@@ -122,7 +122,7 @@ def rotor_step(par, st, cmd_hz) -> None:
         u = abs(w) * w
         u_hz2[i] = u
         if drive > 0.0:
-            x[i] = decay * x[i] + drive * prng.next_normal(st)
+            x[i] = prng.gauss_markov_next(x[i], decay, drive, st)
         u_eff[i] = u * (1.0 + x[i])
 
 
@@ -156,15 +156,14 @@ class RotorBank:
         self.n_rotors = n
         self.seed = int(seed)
         self.reversal_steps = int(round(params.reversal_delay_s / dt))
-        decay = math.exp(-2.0 * math.pi * params.thrust_noise_corner_hz * dt)
+        decay, drive = prng.gauss_markov_coefficients(params.thrust_noise_rel, params.thrust_noise_corner_hz, dt)
         self.par = np.zeros(1, PARAMS_DTYPE)
         """(1,) the :data:`PARAMS_DTYPE` record of the compiled step."""
         p = self.par[0]
         p["n_rotors"], p["omega_min_hz"], p["omega_max_hz"] = n, self.omega_min_hz, self.omega_max_hz
         p["alpha"], p["dead_band_hz"] = self.alpha, self.dead_band_hz
         p["reversal_steps"], p["reversal_stop_hz"] = self.reversal_steps, params.reversal_stop_hz
-        p["noise_decay"] = decay
-        p["noise_drive"] = params.thrust_noise_rel * math.sqrt(1.0 - decay * decay)
+        p["noise_decay"], p["noise_drive"] = decay, drive
         self.state = np.zeros(1, STATE_DTYPE)
         """(1,) the :data:`STATE_DTYPE` record (or the simulator's field it was moved into)."""
         self._initial = np.zeros(n)
