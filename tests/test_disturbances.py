@@ -164,6 +164,26 @@ def test_imu_vibration_variance():
     assert np.min(np.abs(peaks - abs(omega[0]))) < 0.2
 
 
+def test_accelerometer_vibration_noise_adds_in_quadrature():
+    p = dataclasses.replace(
+        SimParams().sensors, acc_noise_std=0.1, acc_vib_noise_std=2.0, acc_bias_std=0.0, imu_vib_acc_amp=0.0
+    )
+    s = Sensors(p, V.gravity, DT, N, STATE_NONE, seed=3)
+    s.reset(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    pose = np.r_[0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    frame = np.zeros(frame_size(N))
+    steps = 20_000
+    acc = np.empty((steps, 3))
+    for k in range(steps):
+        s.refill()
+        sense(s.state[0], pose, np.zeros(6), np.zeros(6), np.eye(3).ravel(), np.full(N, 100.0), k, k * DT, frame)
+        acc[k] = frame[FRAME_ACC_B : FRAME_ACC_B + 3]
+    expected = 0.1**2 + 2.0**2
+    assert np.all(np.abs(acc.var(axis=0) / expected - 1.0) < 0.05)  # 20 000 samples: ~1 % standard error
+    c = np.corrcoef(acc[1:, 0], acc[:-1, 0])[0, 1]
+    assert abs(c) < 0.03  # white over the band
+
+
 def test_mocap_latency_jitter_uniform():
     latency, jitter = 0.004, 0.003
     s = _sensors(mocap_latency_s=latency, mocap_latency_jitter_s=jitter, mocap_rate_hz=100.0)

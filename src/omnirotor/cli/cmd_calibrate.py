@@ -54,14 +54,14 @@ def calibrate_truth_cmd(
 @app.command("calibrate-disturbances")
 def calibrate_disturbances_cmd(
     out: Annotated[
-        Path, typer.Option(help="Write the calibrated [rotors] and [airflow] values here (simulator TOML).")
+        Path, typer.Option(help="Write the calibrated [sensors] and [airflow] values here (simulator TOML).")
     ],
     report: Annotated[Path, typer.Option(help="Folder for report.md, result.json and the prediction's runs.")],
     grid: Annotated[
         str | None,
         typer.Option(
-            help="Pairs thrust_noise_rel:force_std [-:N] flown on the calibration row, comma-separated "
-            "(default: 0, 0.1, 0.2 x 0, 1.5, 3 N)."
+            help="Pairs acc_vib_noise_std:force_std [m/s²:N] flown on the calibration row, comma-separated "
+            "(default: 0, 3, 6 m/s² x 0, 1, 2 N)."
         ),
     ] = None,
     quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,
@@ -97,7 +97,7 @@ def calibrate_disturbances_cmd(
         for pair in grid.split(","):
             parts = pair.split(":")
             if len(parts) != 2:
-                raise InputError(f"--grid: {pair.strip()!r} is not a pair thrust_noise_rel:force_std")
+                raise InputError(f"--grid: {pair.strip()!r} is not a pair acc_vib_noise_std:force_std")
             values.append((parse_float(parts[0], "--grid"), parse_float(parts[1], "--grid")))
     check_output_dir(report, "--report")
     result = calibrate_disturbances(

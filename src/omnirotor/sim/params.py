@@ -68,10 +68,10 @@ class RotorDynamicsParams:
         reversal_stop_hz: speed below which a rotor braking towards the other direction is at rest [Hz]
             [A: 10 Hz = 600 rpm, about where a sensorless ESC loses the back-EMF of a 14-pole motor].
         thrust_noise_rel: standard deviation of each rotor's relative thrust and torque fluctuation [-]
-            (calibrated on Table 1's straight point-contact row by ``omnirotor calibrate-disturbances``, with
-            the airflow's force: 0, because it adds the rotors' lever-arm moments and so pitch errors the row
-            does not show; docs/fidelity.md). Propeller thrust measured on stands fluctuates by a few percent
-            RMS, more in the wakes of neighbouring rotors.
+            [A: 0, off: calibrated on Table 1's straight point-contact row together with the recirculation force
+            it came out at 0, because it brings the rotors' lever-arm moments and so pitch errors the row does not
+            show; docs/fidelity.md]. Propeller thrust measured on stands fluctuates by a few percent RMS, more in
+            the wakes of neighbouring rotors.
         thrust_noise_corner_hz: corner frequency of the fluctuation's first-order spectrum [Hz] [A: 5 Hz:
             wake meandering at a Strouhal number ~0.15 of the rotor's induced speed (~6 m/s at hover) over its
             diameter (0.2 m); faster blade-passage loads are filtered by the airframe's mass].
@@ -197,6 +197,11 @@ class SensorParams:
         state_acc_noise_std: noise of ``state.a_W`` [m/s²].
         state_att_noise_std: noise of ``state.R_WB``, per axis of a small body rotation [rad].
         state_omega_noise_std: noise of ``state.omega_B`` [rad/s].
+        acc_vib_noise_std: broadband accelerometer noise from the airframe's vibration [m/s²], added (in
+            quadrature) to ``acc_noise_std``: the rotors' harmonics above the sensor's bandwidth, folded over the
+            1 kHz samples by aliasing, arrive as noise across the whole band (calibrated on Table 1's straight
+            point-contact row by ``omnirotor calibrate-disturbances``: 4.42 m/s²; docs/fidelity.md). A few m/s²
+            RMS is what an accelerometer rigidly mounted on a multirotor frame reads.
         imu_vib_acc_amp: amplitude of one rotor's once-per-revolution vibration at the accelerometer, when
             the rotor turns at ``imu_vib_ref_hz`` [m/s²]; it grows with the square of the speed (an imbalance
             force), along a direction drawn per rotor and run [A: 0.8 m/s²: with eight rotors about
@@ -223,6 +228,7 @@ class SensorParams:
     state_acc_noise_std: float = 0.05
     state_att_noise_std: float = 2e-3
     state_omega_noise_std: float = 2e-3
+    acc_vib_noise_std: float = 4.42
     imu_vib_acc_amp: float = 0.8
     imu_vib_gyro_amp: float = 0.02
     imu_vib_ref_hz: float = 100.0
@@ -244,13 +250,13 @@ class AirflowParams:
 
     Attributes:
         force_std: standard deviation of each world axis of the force [N] (calibrated on Table 1's straight
-            point-contact row by ``omnirotor calibrate-disturbances``: 1.92 N, full protocols; docs/fidelity.md,
-            docs/data/disturbance-calibration.json).
+            point-contact row by ``omnirotor calibrate-disturbances``, with ``sensors.acc_vib_noise_std``: 0.53 N,
+            full protocols; docs/fidelity.md, docs/data/disturbance-calibration.json).
         corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
             ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
     """
 
-    force_std: float = 1.92
+    force_std: float = 0.5333
     corner_hz: float = 1.0
 
     def __post_init__(self) -> None:
@@ -411,7 +417,8 @@ class SimParams:
     def undisturbed(self) -> SimParams:
         """These parameters without the disturbances (docs/fidelity.md).
 
-        No thrust fluctuation, no recirculation force, no IMU vibration, no motion-capture jitter; the rotor
+        No thrust fluctuation, no recirculation force, no IMU vibration (broadband or at the rotor rates), no
+        motion-capture jitter; the rotor
         reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the
         controller on a clean plant (``omnirotor run --no-disturbances``).
         """
@@ -420,7 +427,11 @@ class SimParams:
             rotors=dataclasses.replace(self.rotors, thrust_noise_rel=0.0),
             airflow=dataclasses.replace(self.airflow, force_std=0.0),
             sensors=dataclasses.replace(
-                self.sensors, imu_vib_acc_amp=0.0, imu_vib_gyro_amp=0.0, mocap_latency_jitter_s=0.0
+                self.sensors,
+                acc_vib_noise_std=0.0,
+                imu_vib_acc_amp=0.0,
+                imu_vib_gyro_amp=0.0,
+                mocap_latency_jitter_s=0.0,
             ),
         )
 

@@ -2,7 +2,8 @@
 
 * IMU, every control period: accelerometer specific force ``R^T (p_ddot + g e3)`` plus the lever-arm terms
   ``omega_dot x r + omega x (omega x r)`` of an IMU at ``r`` from the CoM, and gyroscope ``omega_B``; both
-  with a constant bias drawn per run and white noise, plus the rotors' vibration: each rotor adds a
+  with a constant bias drawn per run and white noise (the accelerometer's: its own and the airframe's vibration
+  aliased over the band, ``acc_vib_noise_std``), plus the rotors' vibration: each rotor adds a
   once-per-revolution sinusoid (its phase advancing with its own speed) of amplitude
   ``imu_vib_*_amp (omega / imu_vib_ref_hz)²`` along a direction drawn per rotor and run.
 * Motion capture: the body pose sampled at ``mocap_rate_hz`` (on the first step at or after each sample
@@ -475,7 +476,8 @@ class Imu:
                 d = vib_rng.standard_normal((MAX_ROTORS, 3))
                 r[name] = d / np.linalg.norm(d, axis=1, keepdims=True)
             r["vib_phase"] = vib_rng.uniform(0.0, 2.0 * math.pi, MAX_ROTORS)
-        scale = np.array([p.acc_noise_std] * 3 + [p.gyro_noise_std] * 3)
+        acc_std = math.hypot(p.acc_noise_std, p.acc_vib_noise_std)  # sensor noise and aliased vibration
+        scale = np.array([acc_std] * 3 + [p.gyro_noise_std] * 3)
         self.noise = NoiseStream(noise_rng, scale, 6, self._noise_rec)
 
     def measure(
