@@ -129,6 +129,7 @@ def test_reversal_delay_seen_in_a_step_through_zero():
 
 
 def _sensors(**kw) -> Sensors:
+    kw = {"acc_vib_noise_std": 0.0, **kw}
     p = dataclasses.replace(
         SimParams().sensors, acc_noise_std=0.0, gyro_noise_std=0.0, acc_bias_std=0.0, gyro_bias_std=0.0, **kw
     )
