@@ -28,7 +28,8 @@ def vehicle():
 
 
 def _sim(vehicle, truth="nominal", seed=0):
-    return Simulator(vehicle, "free", SimParams(aero=AeroParams(model=truth)), seed=seed)
+    # The controller on a clean plant (the disturbances: tests/test_disturbances.py).
+    return Simulator(vehicle, "free", SimParams(aero=AeroParams(model=truth)).undisturbed(), seed=seed)
 
 
 def _start_ee(sim, vehicle):
@@ -151,7 +152,7 @@ def test_infeasible_reference_stays_within_rotor_limits(vehicle):
 
 
 def test_hover_task_and_cli(capsys):
-    res = run_task("hover", TaskOptions(estimator="bypass", duration_s=1.5, truth="nominal"))
+    res = run_task("hover", TaskOptions(estimator="bypass", duration_s=1.5, truth="nominal", disturbances=False))
     rep = res.summary()
     for key in ("ee_rms_error", "ee_max_error"):
         assert set(rep[key]) == {"x_cm", "y_cm", "z_cm", "roll_deg", "pitch_deg", "yaw_deg"}
@@ -183,7 +184,10 @@ def test_cli_rejects_bad_input(argv, capsys):
 def test_hover_task_films_the_run(tmp_path):
     path = tmp_path / "hover.mp4"
     try:
-        res = run_task("hover", TaskOptions(estimator="bypass", duration_s=0.2, truth="nominal", video=str(path)))
+        res = run_task(
+            "hover",
+            TaskOptions(estimator="bypass", duration_s=0.2, truth="nominal", video=str(path), disturbances=False),
+        )
     except InputError as exc:  # no offscreen GL on this machine
         if "renderer" in str(exc):
             pytest.skip(str(exc))

@@ -47,7 +47,7 @@ def _slide(sim: Simulator) -> PoseTrajectory:
 
 
 def _setup(estimator: str, mode: str, blend: str = "hard", failed: int | None = None, solver: str = "active-set"):
-    sim = Simulator(V, "pipe", SimParams(), seed=5)
+    sim = Simulator(V, "pipe", SimParams().undisturbed(), seed=5)  # solvers compared on a clean plant
     params = ControllerParams(
         estimator=EstimatorParams(kind=estimator),
         maps=MapParams(mode=mode, blend=blend, blend_width_deg=10.0),

@@ -47,7 +47,7 @@ def _random_rotation(rng):
 
 def _frames(n, seed=0):
     """Frames of a simulated hover with a small move, flown by a bypass controller."""
-    sim = Simulator(V, "free", SimParams(), seed=seed)
+    sim = Simulator(V, "free", SimParams().undisturbed(), seed=seed)
     p, R = sim.default_start()
     p_E = p + R @ V.p_E_B_array
     traj = PoseTrajectory([Waypoint(0.0, p_E, R), Waypoint(n * DT, p_E + [0.04, -0.02, 0.03], rot_z(0.2) @ R)])
@@ -166,7 +166,7 @@ def test_interference_kernel_matches_the_vectorised_spec_formula():
 
 
 def test_truth_row_is_the_ground_truth_in_the_truth_log_layout():
-    sim = Simulator(V, "wall", SimParams(aero=AeroParams(model="nominal")), seed=1)
+    sim = Simulator(V, "wall", SimParams(aero=AeroParams(model="nominal")).undisturbed(), seed=1)
     p0, R0 = sim.default_start()
     n_W = sim.scene.normal_W
     sim.reset(p0 - (sim.params.scene.start_standoff - 0.005) * n_W, R0)

@@ -76,7 +76,7 @@ class ForceOnlyObserver:
 def test_a_new_observer_flies_the_hover_through_the_public_api():
     vehicle = load_vehicle("omnirotor")
     assert block_class("observer", "test-force-only") is ForceOnlyObserver
-    sim = Simulator(vehicle, "free", SimParams(aero=AeroParams(model="nominal")), seed=0)
+    sim = Simulator(vehicle, "free", SimParams(aero=AeroParams(model="nominal")).undisturbed(), seed=0)
     p, R = sim.default_start()
     p_E = p + R @ vehicle.p_E_B_array
     params = ControllerParams(estimator=EstimatorParams(kind="bypass"), observer_kind="test-force-only")

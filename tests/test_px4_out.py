@@ -76,7 +76,7 @@ def identification_flight(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("flight")
     proto = HoverProtocol(regions=("R1",), points_per_region=6, transition_s=2.0, hold_s=3.0)
-    opts = ExperimentOptions(protocol=proto, out_dir=str(out), seed=1)
+    opts = ExperimentOptions(protocol=proto, out_dir=str(out), seed=1, disturbances=False)
     result = run_task("identify-flights", opts)
     vehicle = load_vehicle("omnirotor")
     signals = run_signals(result.controller_log, result.truth_log, rate_hz=100.0)
@@ -216,7 +216,7 @@ def test_px4_omnicopter_hovers_and_holds_30_deg():
         pytest.skip(f"PX4 airframe not found at {OMNICOPTER}")
     vehicle = load_vehicle(str(OMNICOPTER))
     assert vehicle.actuated_dof == 6
-    sim = Simulator(vehicle, "free", SimParams(aero=AeroParams(model="nominal")), seed=0)
+    sim = Simulator(vehicle, "free", SimParams(aero=AeroParams(model="nominal")).undisturbed(), seed=0)
     p, R = sim.default_start()
     R1 = R @ rot_x(math.radians(30.0))
     traj = PoseTrajectory([Waypoint(0.0, p, R), Waypoint(1.0, p, R), Waypoint(3.0, p, R1)])
@@ -241,6 +241,7 @@ def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, caps
     overlay.write_text("mass = 1.8\nomega_max_hz = 240.0\n")
     ulg, mc = tmp_path / "r.ulg", tmp_path / "r.mcap"
     args = ["run", "hover", "--vehicle", str(OMNICOPTER), "--vehicle-overlay", str(overlay), "--duration", "1.5"]
+    args.append("--no-disturbances")  # the clean plant: the hover's precision below checks the flight itself
     assert main([*args, "--ulog", str(ulg), "--mcap", str(mc), "--json"]) == 0
     out = capsys.readouterr()
     rep = json.loads(out.out)

@@ -1,7 +1,7 @@
 """Every block of the simulator follows the block contract (:mod:`omnirotor.blocks`).
 
-Parametrised over the simulator's blocks (rotors, sensors, contact, faults; the aerodynamics are tested with
-their model): each is registered under its kind, has its named state record, and
+Parametrised over the simulator's blocks (rotors, sensors, contact, faults, airflow; the aerodynamics are tested
+with their model): each is registered under its kind, has its named state record, and
 
 * equal seeds and inputs give equal runs (two fresh blocks, bit for bit);
 * its outputs do not alias its inputs, and a step leaves its inputs untouched;
@@ -19,7 +19,8 @@ import pytest
 
 from omnirotor.blocks import Block, block_class
 from omnirotor.messages import frame_size
-from omnirotor.sim import SimParams, Simulator
+from omnirotor.sim import AirflowParams, SimParams, Simulator
+from omnirotor.sim.airflow import AirflowForce
 from omnirotor.sim.contact import SENSOR_SIZE, EeContact
 from omnirotor.sim.faults import FaultSchedule, faults_command
 from omnirotor.sim.rotors import RotorBank
@@ -45,7 +46,8 @@ class Case:
 
 
 def _rotors_make():
-    b = RotorBank(V, SimParams().rotors, DT)
+    p = dataclasses.replace(SimParams().rotors, thrust_noise_rel=0.05, reversal_delay_s=0.02)  # disturbances on
+    b = RotorBank(V, p, DT, seed=11)
     b.reset(np.full(N, 120.0))
     return b
 
@@ -164,12 +166,27 @@ def _faults_nonfinite(b):
     assert b.commands_nonfinite == 2
 
 
+def _airflow_make():
+    return AirflowForce(AirflowParams(force_std=1.0, corner_hz=2.0), DT, seed=11)
+
+
+def _airflow_step(b, x):
+    b.step()
+    return b.state
+
+
+def _airflow_nonfinite(b):
+    b.step()  # it has no input: its force stays finite
+    assert np.all(np.isfinite(b.f_W)) and np.any(b.f_W != 0.0)
+
+
 CASES = [
     Case("rotors", "first-order-lag", _rotors_make, lambda rng, k: {"cmd": rng.uniform(-250, 250, N)},
          lambda b, x: b.step(x["cmd"]) or b.state, _rotors_nonfinite),
     Case("sensors", "imu-mocap", _sensors_make, _sensors_inputs, _sensors_step, _sensors_nonfinite),
     Case("contact", "ee-sensors", _contact_make, _contact_inputs, _contact_step, _contact_nonfinite),
     Case("faults", "schedule", _faults_make, _faults_inputs, _faults_step, _faults_nonfinite),
+    Case("airflow", "recirculation", _airflow_make, lambda rng, k: {}, _airflow_step, _airflow_nonfinite),
 ]  # fmt: skip
 
 
@@ -228,7 +245,7 @@ def test_state_survives_a_reset(case):
 def test_the_simulator_composes_the_blocks_in_its_record():
     sim = Simulator(V, "free", seed=0)
     rec = sim.kernel_state
-    for block in (sim.rotors, sim.sensors, sim.faults):
+    for block in (sim.rotors, sim.sensors, sim.faults, sim.airflow):
         assert np.shares_memory(block.state, rec)
     assert np.shares_memory(sim.contact.par, rec)
     assert not np.shares_memory(sim.packed_frame, rec)

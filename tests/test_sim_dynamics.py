@@ -17,8 +17,11 @@ QUIET = SensorParams(
     **{name: 0.0 for name in SensorParams.__dataclass_fields__ if name.endswith("_std") or name.endswith("_std_hz")}
 )
 # The rigid-body plant: these tests check the rigid body, its contacts and exact equilibria, so the tool is rigid
-# (the compliant tool sags under gravity and lags a push; tests/test_sim_tool.py covers it).
-NOMINAL = SimParams(aero=AeroParams(model="nominal"), sensors=QUIET, scene=SceneParams(tool_compliant=False))
+# (the compliant tool sags under gravity and lags a push; tests/test_sim_tool.py covers it), and the disturbances
+# are off (tests/test_disturbances.py covers them).
+NOMINAL = SimParams(
+    aero=AeroParams(model="nominal"), sensors=QUIET, scene=SceneParams(tool_compliant=False)
+).undisturbed()
 
 
 def run(sim, omega_hz, steps):
@@ -31,7 +34,9 @@ def run(sim, omega_hz, steps):
 
 @pytest.mark.parametrize("substeps", [1, 2])
 def test_free_fall_follows_gravity_and_accelerometer_reads_zero(substeps):
-    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=QUIET, substeps=substeps))
+    sim = Simulator(
+        V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=QUIET, substeps=substeps).undisturbed()
+    )
     p0 = np.array([0.0, 0.0, 2.0])
     sim.reset(p0, rot_x(0.3), omega_hz=np.zeros(8))
     frame = run(sim, np.zeros(8), 400)
@@ -68,7 +73,7 @@ def test_hover_under_nominal_truth_stays_put_and_reads_g_up(R):
 def test_interaction_truth_lifts_the_nominal_hover(model):
     # At the nominal hover speeds either interaction model (the default rotor-wake one, and SPEC §7's) gives
     # more thrust than the nominal map (real data: 1.117 in R1, SPEC §3.5), and the compiled step evaluates it.
-    sim = Simulator(V, "free", SimParams(sensors=QUIET, aero=AeroParams(model=model)))
+    sim = Simulator(V, "free", SimParams(sensors=QUIET, aero=AeroParams(model=model)).undisturbed())
     sim.reset(np.array([0.0, 0.0, 1.5]), np.eye(3))
     run(sim, sim.hover_speeds_hz(np.eye(3)), 5)
     aero = make_aero(V, AeroParams(model=model))

@@ -24,7 +24,7 @@ def hover_frames(sim, steps):
 @pytest.mark.parametrize(("rate", "latency"), [(100.0, 0.004), (120.0, 0.010), (250.0, 0.0)])
 def test_mocap_rate_latency_and_time_stamps(rate, latency):
     sp = dataclasses.replace(QUIET, mocap_rate_hz=rate, mocap_latency_s=latency)
-    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp))
+    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp).undisturbed())
     first = sim.reset()
     assert first.mocap_new  # at rest before t = 0: the pipeline is already full
     assert first.mocap_t <= -latency + 1e-12
@@ -46,7 +46,7 @@ def test_mocap_rate_latency_and_time_stamps(rate, latency):
 
 def test_mocap_sample_carries_the_delayed_pose():
     sp = dataclasses.replace(QUIET, mocap_latency_s=0.02)
-    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp))
+    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp).undisturbed())
     sim.reset()
     sim.set_external_wrench([0.0, 0.0, 3.0], at="com")  # accelerate upwards, so poses differ in time
     cmd = RotorCommand(0.0, sim.hover_speeds_hz())
@@ -60,7 +60,7 @@ def test_mocap_sample_carries_the_delayed_pose():
 
 def test_mocap_noise_level():
     sp = dataclasses.replace(QUIET, mocap_pos_noise_std=1e-3, mocap_att_noise_std=2e-3)
-    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp), seed=5)
+    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp).undisturbed(), seed=5)
     p_true = sim.truth.p_W.copy()
     frames = [f for f in hover_frames(sim, 4000) if f.mocap_new]
     dp = np.array([f.mocap_p_W - p_true for f in frames])
@@ -72,7 +72,7 @@ def test_mocap_noise_level():
 
 def test_imu_bias_and_noise_statistics():
     sp = SensorParams(acc_noise_std=0.1, acc_bias_std=0.05, gyro_noise_std=0.005, gyro_bias_std=0.002)
-    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp), seed=2)
+    sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp).undisturbed(), seed=2)
     frames = hover_frames(sim, 4000)
     acc = np.array([f.imu_acc_B for f in frames]) - [0, 0, V.gravity]  # at rest, upright: true reading +g z
     gyro = np.array([f.imu_gyro_B for f in frames])
@@ -84,7 +84,9 @@ def test_imu_bias_and_noise_statistics():
     a = acc[:, 0] - acc[:, 0].mean()
     assert abs(a[1:] @ a[:-1] / (a @ a)) < 0.06
     # The biases are drawn per seed with the set spread (24 draws of 3 axes).
-    biases = np.array([Simulator(V, "free", SimParams(sensors=sp), seed=s).imu.acc_bias_B for s in range(24)])
+    biases = np.array(
+        [Simulator(V, "free", SimParams(sensors=sp).undisturbed(), seed=s).imu.acc_bias_B for s in range(24)]
+    )
     assert np.std(biases) == pytest.approx(0.05, rel=0.3)
 
 
@@ -94,7 +96,7 @@ def test_imu_lever_arm_terms():
     runs = []
     for offset in ((0.0, 0.0, 0.0), tuple(r)):
         sp = dataclasses.replace(QUIET, imu_offset_B=offset)
-        sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp))
+        sim = Simulator(V, "free", SimParams(aero=AeroParams(model="nominal"), sensors=sp).undisturbed())
         sim.reset()
         sim.set_external_wrench([0.0, 0.0, 0.0], m_W=[0.02, 0.01, 0.0], at="com")
         runs.append((sim, hover_frames(sim, 300)[-1]))
@@ -152,7 +154,7 @@ def test_frames_own_their_arrays():
 
 def test_state_is_exact_truth_without_noise_and_noisy_with_it():
     # a rigid tool: a_W below is the rigid body's (the compliant tool lags the push by ~1e-7 m/s²)
-    sim = Simulator(V, "free", SimParams(sensors=QUIET, scene=SceneParams(tool_compliant=False)), seed=0)
+    sim = Simulator(V, "free", SimParams(sensors=QUIET, scene=SceneParams(tool_compliant=False)).undisturbed(), seed=0)
     sim.set_external_wrench([0.3, 0.0, 0.0], m_W=[0.0, 0.01, 0.0], at="com")
     f = hover_frames(sim, 100)[-1]
     tr = sim.truth
@@ -162,7 +164,7 @@ def test_state_is_exact_truth_without_noise_and_noisy_with_it():
     # a_W is the true CoM acceleration p_ddot, without gravity.
     np.testing.assert_allclose(tr.a_W, (tr.R_WB @ tr.rotor_wrench_B[:3] + [0.3, 0, -V.weight]) / V.mass, atol=1e-9)
 
-    noisy = Simulator(V, "free", SimParams(), seed=0)
+    noisy = Simulator(V, "free", SimParams().undisturbed(), seed=0)
     cmd = RotorCommand(0.0, noisy.hover_speeds_hz())
     errs = []
     for _ in range(500):

@@ -2,7 +2,7 @@
 
 A *block* is one box of the paper's diagram (trajectory, admittance, pose controller, allocation, map
 scheduler, wrench observer, estimator; on the simulator's side rotors, aerodynamics, sensors, contact,
-faults). Each block lives in one module, which owns:
+faults, airflow). Each block lives in one module, which owns:
 
 * its **parameters**: a frozen dataclass read from a TOML table (:func:`omnirotor.config.from_mapping`);
 * its **state**: one NumPy structured array of shape ``(1,)`` whose dtype the module declares
@@ -63,6 +63,7 @@ BLOCK_KINDS = (
     "sensors",
     "contact",
     "faults",
+    "airflow",
 )
 """The kinds of block the composers know, in the order of one period's data flow."""
 

@@ -49,3 +49,66 @@ def calibrate_truth_cmd(
         (report / "report.md").write_text(text)
     write_truth_toml(out, result.params)
     sys.stdout.write(text)
+
+
+@app.command("calibrate-disturbances")
+def calibrate_disturbances_cmd(
+    out: Annotated[
+        Path, typer.Option(help="Write the calibrated [sensors] and [airflow] values here (simulator TOML).")
+    ],
+    report: Annotated[Path, typer.Option(help="Folder for report.md, result.json and the prediction's runs.")],
+    grid: Annotated[
+        str | None,
+        typer.Option(
+            help="Pairs acc_vib_noise_std:force_std [m/s²:N] flown on the calibration row, comma-separated "
+            "(default: 0, 3, 6 m/s² x 0, 1, 2 N)."
+        ),
+    ] = None,
+    quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of every run.")] = 0,
+    workers: Annotated[int, typer.Option(min=1, max=64, help="Processes.")] = 2,
+    doc: Annotated[
+        Path | None, typer.Option(help="Also put the report into this Markdown file, between its markers.")
+    ] = None,
+) -> None:
+    """Calibrate the disturbances on Table 1's straight point-contact row; predict the other rows."""
+    from omnirotor.config import parse_float
+    from omnirotor.experiments.disturbance_calibration import (
+        DEFAULT_GRID,
+        calibrate_disturbances,
+        report_markdown,
+        save_json,
+        write_toml,
+    )
+    from omnirotor.limits import MAX_SEED
+    from omnirotor.safe_io import check_output_dir
+
+    if out.exists() and out.is_dir():
+        raise InputError(f"--out {out}: is a folder")
+    if not out.parent.exists():
+        raise InputError(f"--out {out}: folder {out.parent} does not exist")
+    if doc is not None and not doc.is_file():
+        raise InputError(f"--doc {doc}: no such file")
+    if not 0 <= seed <= MAX_SEED:
+        raise InputError("--seed must be an integer in [0, 2^63 - 1]")
+    values = list(DEFAULT_GRID)
+    if grid is not None:
+        values = []
+        for pair in grid.split(","):
+            parts = pair.split(":")
+            if len(parts) != 2:
+                raise InputError(f"--grid: {pair.strip()!r} is not a pair acc_vib_noise_std:force_std")
+            values.append((parse_float(parts[0], "--grid"), parse_float(parts[1], "--grid")))
+    check_output_dir(report, "--report")
+    result = calibrate_disturbances(
+        report, values, quick=quick, seed=seed, workers=workers, progress=lambda line: sys.stderr.write(line + "\n")
+    )
+    text = report_markdown(result)
+    (report / "disturbances.md").write_text(text)
+    save_json(report / "disturbances.json", result)
+    write_toml(out, result.value)
+    if doc is not None:
+        from omnirotor.experiments.disturbance_calibration import replace_section
+
+        replace_section(doc, text)
+    sys.stdout.write(text)

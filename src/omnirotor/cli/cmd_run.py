@@ -42,6 +42,9 @@ def run(
         float | None, typer.Option(parser=number_option, help="Simulated time [s]; default: the task's.")
     ] = None,
     truth: Annotated[str, typer.Option(help="Truth aerodynamics: wake, spec7 (= interference), nominal.")] = "wake",
+    disturbances: Annotated[
+        bool, typer.Option(help="The simulator's calibrated disturbances (docs/fidelity.md); off: a clean plant.")
+    ] = True,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
     set_: Annotated[
@@ -91,6 +94,7 @@ def run(
         duration_s=duration,
         seed=seed,
         truth=truth,
+        disturbances=disturbances,
         vehicle=vehicle,
         controller_config=config,
         overrides=tuple(set_ or ()),

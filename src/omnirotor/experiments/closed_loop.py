@@ -253,6 +253,8 @@ class TaskOptions:
         controller_config: controller TOML file (see ``load_controller_params``), or None.
         overrides: dotted ``key=value`` overrides of the controller parameters.
         video: MP4 file to film the run into (30 fps, offscreen MuJoCo rendering), or None.
+        disturbances: fly the simulator's disturbances (thrust fluctuation, recirculation force, IMU vibration,
+            motion-capture jitter; docs/fidelity.md); False: :meth:`SimParams.undisturbed`.
     """
 
     solver: str = "active-set"
@@ -264,6 +266,7 @@ class TaskOptions:
     controller_config: str | None = None
     overrides: tuple[str, ...] = ()
     video: str | None = None
+    disturbances: bool = True
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -295,8 +298,9 @@ class TaskOptions:
         return apply_overrides(params, list(self.overrides))
 
     def sim_params(self) -> SimParams:
-        """Simulator parameters with the chosen truth aerodynamics."""
-        return SimParams(aero=AeroParams(model=self.truth))
+        """Simulator parameters with the chosen truth aerodynamics (and without the disturbances if so chosen)."""
+        params = SimParams(aero=AeroParams(model=self.truth))
+        return params if self.disturbances else params.undisturbed()
 
 
 @contextlib.contextmanager

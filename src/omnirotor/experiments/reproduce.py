@@ -80,6 +80,7 @@ def reproduce(
     estimator: str = "ukf",
     workers: int | None = None,
     progress: Callable[[str, float], None] | None = None,
+    sim_overrides: tuple[str, ...] = (),
 ) -> dict:
     """Run the whole campaign; returns the metrics dict (also written to ``out_dir/metrics.json``).
 
@@ -90,11 +91,15 @@ def reproduce(
         estimator: "ukf" (the paper's) or "bypass" (faster).
         workers: processes for the independent runs (default: CPU count, at most 4).
         progress: called with (stage description, fraction of the campaign done).
+        sim_overrides: dotted ``key=value`` simulator overrides applied to every run alike (the calibration of
+            the disturbances, :mod:`omnirotor.experiments.disturbance_calibration`).
     """
     out = make_dir(out_dir, "--out")
     route_mujoco_log(out)  # MuJoCo's log goes under the output folder (the workers inherit it)
     report = progress or (lambda stage, frac: None)
-    base = ExperimentOptions(quick=quick, seed=seed, estimator=estimator, out_dir=str(out))
+    base = ExperimentOptions(
+        quick=quick, seed=seed, estimator=estimator, out_dir=str(out), sim_overrides=tuple(sim_overrides)
+    )
     metrics: dict = {}
     n_total = 2 + len(plan().runs)
     report("identification flights", 0.0)

@@ -21,6 +21,7 @@ from typing import Any  # noqa: E402
 from omnirotor.sim.aero import InterferenceAero, NominalAero, hover_equilibrium, make_aero
 from omnirotor.sim.params import (
     AeroParams,
+    AirflowParams,
     RotorDynamicsParams,
     SceneParams,
     SensorParams,
@@ -44,6 +45,7 @@ __all__ = [
     "RotorDynamicsParams",
     "AeroParams",
     "SensorParams",
+    "AirflowParams",
     "InterferenceAero",
     "NominalAero",
     "make_aero",

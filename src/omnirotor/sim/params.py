@@ -28,6 +28,7 @@ __all__ = [
     "RotorDynamicsParams",
     "AeroParams",
     "SensorParams",
+    "AirflowParams",
     "SceneParams",
     "SimParams",
     "load_sim_params",
@@ -54,21 +55,45 @@ def _check_unit_vector(name: str, v: tuple[float, float, float]) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class RotorDynamicsParams:
-    """First-order rotor speed loop (SPEC §1.4).
+    """First-order rotor speed loop with reversal, and the rotors' thrust fluctuation (SPEC §1.4; docs/fidelity.md).
 
     Attributes:
         tau_m: time constant of the speed loop [s] (SPEC §1.4 [A]: 0.025 s).
         dead_band: when True, a commanded speed with ``|omega| < dead_band_hz`` stops the rotor.
         dead_band_hz: width of the dead band around zero [Hz] (SPEC §1.4: 30 Hz, the MIQP's forbidden band).
+        reversal_delay_s: time a reversing rotor stays stopped before it restarts in the other direction [s]
+            (0 = it passes smoothly through zero) [A: 0.03 s: a sensorless ESC in bidirectional ("3D") mode
+            brakes the motor to rest, aligns the rotor and ramps it open-loop until the back-EMF is readable,
+            a few electrical start-up periods of ~5-10 ms each].
+        reversal_stop_hz: speed below which a rotor braking towards the other direction is at rest [Hz]
+            [A: 10 Hz = 600 rpm, about where a sensorless ESC loses the back-EMF of a 14-pole motor].
+        thrust_noise_rel: standard deviation of each rotor's relative thrust and torque fluctuation [-]
+            [A: 0, off: calibrated on Table 1's straight point-contact row together with the recirculation force
+            it came out at 0, because it brings the rotors' lever-arm moments and so pitch errors the row does not
+            show; docs/fidelity.md]. Propeller thrust measured on stands fluctuates by a few percent RMS, more in
+            the wakes of neighbouring rotors.
+        thrust_noise_corner_hz: corner frequency of the fluctuation's first-order spectrum [Hz] [A: 5 Hz:
+            wake meandering at a Strouhal number ~0.15 of the rotor's induced speed (~6 m/s at hover) over its
+            diameter (0.2 m); faster blade-passage loads are filtered by the airframe's mass].
     """
 
     tau_m: float = 0.025
     dead_band: bool = False
     dead_band_hz: float = 30.0
+    reversal_delay_s: float = 0.03
+    reversal_stop_hz: float = 10.0
+    thrust_noise_rel: float = 0.0
+    thrust_noise_corner_hz: float = 5.0
 
     def __post_init__(self) -> None:
         check_positive("rotors.tau_m", self.tau_m)
         _check_nonneg("rotors.dead_band_hz", self.dead_band_hz)
+        _check_nonneg("rotors.reversal_delay_s", self.reversal_delay_s)
+        _check_nonneg("rotors.reversal_stop_hz", self.reversal_stop_hz)
+        _check_nonneg("rotors.thrust_noise_rel", self.thrust_noise_rel)
+        check_positive("rotors.thrust_noise_corner_hz", self.thrust_noise_corner_hz)
+        if self.thrust_noise_rel > 0.5:
+            raise InputError(f"rotors.thrust_noise_rel must be <= 0.5, got {self.thrust_noise_rel}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,6 +197,20 @@ class SensorParams:
         state_acc_noise_std: noise of ``state.a_W`` [m/s²].
         state_att_noise_std: noise of ``state.R_WB``, per axis of a small body rotation [rad].
         state_omega_noise_std: noise of ``state.omega_B`` [rad/s].
+        acc_vib_noise_std: broadband accelerometer noise from the airframe's vibration [m/s²], added (in
+            quadrature) to ``acc_noise_std``: the rotors' harmonics above the sensor's bandwidth, folded over the
+            1 kHz samples by aliasing, arrive as noise across the whole band (calibrated on Table 1's straight
+            point-contact row by ``omnirotor calibrate-disturbances``: 4.42 m/s²; docs/fidelity.md). A few m/s²
+            RMS is what an accelerometer rigidly mounted on a multirotor frame reads.
+        imu_vib_acc_amp: amplitude of one rotor's once-per-revolution vibration at the accelerometer, when
+            the rotor turns at ``imu_vib_ref_hz`` [m/s²]; it grows with the square of the speed (an imbalance
+            force), along a direction drawn per rotor and run [A: 0.8 m/s²: with eight rotors about
+            0.9 m/s² RMS per axis, within the < 3 m/s² PX4's guidance counts as a well-isolated IMU].
+        imu_vib_gyro_amp: the same at the gyroscope [rad/s] [A: 0.02 rad/s, ~1 deg/s].
+        imu_vib_ref_hz: the reference rotor speed of the two amplitudes [Hz] (about the hover speed).
+        mocap_latency_jitter_s: extra latency of each motion-capture sample, uniform in ``[0, jitter]`` and
+            rounded to the step [s]; samples stay in order (a late one holds back the next, like a TCP/ROS
+            stream) [A: 3 ms, Wi-Fi and ROS scheduling on top of the camera system's fixed delay].
     """
 
     acc_noise_std: float = 0.1
@@ -189,15 +228,40 @@ class SensorParams:
     state_acc_noise_std: float = 0.05
     state_att_noise_std: float = 2e-3
     state_omega_noise_std: float = 2e-3
+    acc_vib_noise_std: float = 4.42
+    imu_vib_acc_amp: float = 0.8
+    imu_vib_gyro_amp: float = 0.02
+    imu_vib_ref_hz: float = 100.0
+    mocap_latency_jitter_s: float = 0.003
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name == "imu_offset_B":
                 check_finite("sensors.imu_offset_B", *self.imu_offset_B)
-            elif f.name in ("mocap_rate_hz",):
+            elif f.name in ("mocap_rate_hz", "imu_vib_ref_hz"):
                 check_positive(f"sensors.{f.name}", getattr(self, f.name))
             else:
                 _check_nonneg(f"sensors.{f.name}", getattr(self, f.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class AirflowParams:
+    """The vehicle's recirculating wake as a random force at the CoM (:mod:`omnirotor.sim.airflow`).
+
+    Attributes:
+        force_std: standard deviation of each world axis of the force [N] (calibrated on Table 1's straight
+            point-contact row by ``omnirotor calibrate-disturbances``, with ``sensors.acc_vib_noise_std``: 0.53 N,
+            full protocols; docs/fidelity.md, docs/data/disturbance-calibration.json).
+        corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
+            ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
+    """
+
+    force_std: float = 0.5333
+    corner_hz: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check_nonneg("airflow.force_std", self.force_std)
+        check_positive("airflow.corner_hz", self.corner_hz)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -326,6 +390,7 @@ class SimParams:
         rotors: rotor speed loop.
         aero: truth aerodynamics.
         sensors: sensor models.
+        airflow: the recirculating wake's force.
         scene: scene geometry and contact properties.
     """
 
@@ -335,6 +400,7 @@ class SimParams:
     rotors: RotorDynamicsParams = dataclasses.field(default_factory=RotorDynamicsParams)
     aero: AeroParams = dataclasses.field(default_factory=AeroParams)
     sensors: SensorParams = dataclasses.field(default_factory=SensorParams)
+    airflow: AirflowParams = dataclasses.field(default_factory=AirflowParams)
     scene: SceneParams = dataclasses.field(default_factory=SceneParams)
 
     def __post_init__(self) -> None:
@@ -347,6 +413,27 @@ class SimParams:
             raise InputError(
                 "scene.contact_timeconst must be at least two physics steps (dt / substeps) for stable contact"
             )
+
+    def undisturbed(self) -> SimParams:
+        """These parameters without the disturbances (docs/fidelity.md).
+
+        No thrust fluctuation, no recirculation force, no IMU vibration (broadband or at the rotor rates), no
+        motion-capture jitter; the rotor
+        reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the
+        controller on a clean plant (``omnirotor run --no-disturbances``).
+        """
+        return dataclasses.replace(
+            self,
+            rotors=dataclasses.replace(self.rotors, thrust_noise_rel=0.0),
+            airflow=dataclasses.replace(self.airflow, force_std=0.0),
+            sensors=dataclasses.replace(
+                self.sensors,
+                acc_vib_noise_std=0.0,
+                imu_vib_acc_amp=0.0,
+                imu_vib_gyro_amp=0.0,
+                mocap_latency_jitter_s=0.0,
+            ),
+        )
 
 
 def load_sim_params(path: str | Path) -> SimParams:

@@ -2,10 +2,14 @@
 
 * IMU, every control period: accelerometer specific force ``R^T (p_ddot + g e3)`` plus the lever-arm terms
   ``omega_dot x r + omega x (omega x r)`` of an IMU at ``r`` from the CoM, and gyroscope ``omega_B``; both
-  with a constant bias drawn per run and white noise.
+  with a constant bias drawn per run and white noise (the accelerometer's: its own and the airframe's vibration
+  aliased over the band, ``acc_vib_noise_std``), plus the rotors' vibration: each rotor adds a
+  once-per-revolution sinusoid (its phase advancing with its own speed) of amplitude
+  ``imu_vib_*_amp (omega / imu_vib_ref_hz)²`` along a direction drawn per rotor and run.
 * Motion capture: the body pose sampled at ``mocap_rate_hz`` (on the first step at or after each sample
   time), with position noise and a small random rotation, delivered ``mocap_latency_s`` later (rounded to
-  the step). The vehicle is at rest before t = 0, so the first frame already carries a sample.
+  the step) plus a jitter uniform in ``[0, mocap_latency_jitter_s]`` per sample (samples stay in order: a late
+  one holds back the next). The vehicle is at rest before t = 0, so the first frame already carries a sample.
 * Rotor speeds: the true speeds plus white noise.
 * Bypass state: ground truth plus white noise (exact truth when the noise levels are zero).
 
@@ -41,6 +45,7 @@ from omnirotor.messages import (
     FRAME_STATE_SIZE,
     FRAME_T,
 )
+from omnirotor.sim import prng
 from omnirotor.sim.params import SensorParams
 from omnirotor.sim.rotors import MAX_ROTORS
 
@@ -81,9 +86,16 @@ IMU_DTYPE = np.dtype(
         ("gyro_bias_B", np.float64, (3,)),
         ("offset_B", np.float64, (3,)),
         ("has_offset", np.bool_),
+        ("dt", np.float64),  # the sampling period [s]
+        ("vib_acc_amp", np.float64),  # one rotor's accelerometer vibration amplitude at vib_ref_hz [m/s²]
+        ("vib_gyro_amp", np.float64),  # the same at the gyroscope [rad/s]
+        ("vib_ref_hz", np.float64),
+        ("vib_dir_acc_B", np.float64, (MAX_ROTORS, 3)),  # unit direction of each rotor's vibration, drawn per run
+        ("vib_dir_gyro_B", np.float64, (MAX_ROTORS, 3)),
+        ("vib_phase", np.float64, (MAX_ROTORS,)),  # each rotor's angle [rad]
     ]
 )
-"""The IMU's parameters and the biases drawn for the run."""
+"""The IMU's parameters, the biases and vibration directions drawn for the run, the rotors' phases."""
 
 MOCAP_DTYPE = np.dtype(
     [
@@ -98,6 +110,8 @@ MOCAP_DTYPE = np.dtype(
         ("p_W", np.float64, (MOCAP_QUEUE_MAX, 3)),
         ("q_WB", np.float64, (MOCAP_QUEUE_MAX, 4)),
         ("sample", np.float64, (8,)),  # the last delivery: t, p_W (3), q_WB (4)
+        ("jitter_steps", np.int64),  # largest extra latency [steps]
+        ("rng", np.uint64),  # the jitter's generator (omnirotor.sim.prng)
     ]
 )
 """The motion capture's queue of samples taken but not yet delivered."""
@@ -211,6 +225,34 @@ def imu_measure_into(imu, R9, a_W, omega_B, omega_dot_B, noise, acc_B, gyro_B) -
 
 
 @jit
+def imu_vibration_add(imu, omega_hz, n: int, acc_B, gyro_B) -> None:
+    """Advance the rotors' phases one period and add their vibration to ``acc_B`` and ``gyro_B`` (3,) in place.
+
+    Rotor ``i`` turning at ``omega_i`` [Hz] adds ``amp (omega_i / ref)² sin(phi_i)`` along its direction, for the
+    accelerometer and the gyroscope; ``phi_i`` advances by ``2 pi omega_i dt`` (the sign of the speed is the
+    sense of rotation).
+    """
+    a_amp, g_amp = imu["vib_acc_amp"], imu["vib_gyro_amp"]
+    if a_amp == 0.0 and g_amp == 0.0:
+        return
+    inv_ref2 = 1.0 / (imu["vib_ref_hz"] * imu["vib_ref_hz"])
+    step = 2.0 * math.pi * imu["dt"]
+    phase, da, dg = imu["vib_phase"], imu["vib_dir_acc_B"], imu["vib_dir_gyro_B"]
+    for i in range(n):
+        w = omega_hz[i]
+        if not math.isfinite(w):
+            continue
+        ph = phase[i] + step * w
+        ph -= 2.0 * math.pi * math.floor(ph / (2.0 * math.pi))
+        phase[i] = ph
+        s = math.sin(ph) * w * w * inv_ref2
+        sa, sg = a_amp * s, g_amp * s
+        for j in range(3):
+            acc_B[j] += sa * da[i, j]
+            gyro_B[j] += sg * dg[i, j]
+
+
+@jit
 def quat_perturb_into(q, dtheta, out) -> None:
     """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``."""
     qw, qx, qy, qz = q[0], q[1], q[2], q[3]
@@ -260,7 +302,10 @@ def mocap_step(moc, noise, k: int, t: float, p, q) -> bool:
         True when a sample was delivered.
     """
     if t >= moc["next_t"] - MOCAP_CLOCK_TOL_S:
-        mocap_push(moc, noise, t, k + moc["latency_steps"], p, q)
+        due = k + moc["latency_steps"]
+        if moc["jitter_steps"] > 0:
+            due += int(prng.next_uniform(moc) * (moc["jitter_steps"] + 1))
+        mocap_push(moc, noise, t, due, p, q)
         moc["next_t"] += moc["period"]
         while moc["next_t"] <= t + MOCAP_CLOCK_TOL_S:  # a rate above the step rate: one sample per step
             moc["next_t"] += moc["period"]
@@ -324,6 +369,10 @@ def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
         sens["imu"], R9, acc[0:3], vel[3:6], acc[3:6], ni["buf"][i_imu],
         frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_GYRO_B : FRAME_GYRO_B + 3],
     )  # fmt: skip
+    imu_vibration_add(
+        sens["imu"], omega_hz, sens["n_rotors"], frame[FRAME_ACC_B : FRAME_ACC_B + 3],
+        frame[FRAME_GYRO_B : FRAME_GYRO_B + 3],
+    )  # fmt: skip
     rot_noise = nr["buf"][i_rot]
     for i in range(sens["n_rotors"]):
         frame[FRAME_ROTOR_HZ + i] = omega_hz[i] + rot_noise[i]
@@ -381,10 +430,16 @@ class Imu:
         gravity: [m/s²].
         rec: (1,) :data:`IMU_DTYPE` record to live in (default: its own).
         noise_rec: (1,) record of its noise block (default: its own).
+        dt: sampling period [s] (advances the rotors' vibration phases).
     """
 
     def __init__(
-        self, params: SensorParams, gravity: float, rec: np.ndarray | None = None, noise_rec: np.ndarray | None = None
+        self,
+        params: SensorParams,
+        gravity: float,
+        rec: np.ndarray | None = None,
+        noise_rec: np.ndarray | None = None,
+        dt: float = 1e-3,
     ) -> None:
         self.params = params
         self.gravity = gravity
@@ -395,6 +450,7 @@ class Imu:
         r["gravity"] = gravity
         r["offset_B"] = params.imu_offset_B
         r["has_offset"] = any(float(x) != 0.0 for x in params.imu_offset_B)
+        r["dt"] = dt
         self.offset_B = np.asarray(params.imu_offset_B, dtype=float)
         self.acc_bias_B = self.rec["acc_bias_B"][0]
         """(3,) the accelerometer bias drawn for the run [m/s²] (a view of the record)."""
@@ -403,12 +459,25 @@ class Imu:
         self.noise: NoiseStream | None = None
         """The white-noise stream (6: accelerometer, gyroscope), set by :meth:`reset`."""
 
-    def reset(self, bias_rng: np.random.Generator, noise_rng: np.random.Generator) -> None:
-        """Draw the constant biases and take over the white-noise generator."""
+    def reset(
+        self,
+        bias_rng: np.random.Generator,
+        noise_rng: np.random.Generator,
+        vib_rng: np.random.Generator | None = None,
+    ) -> None:
+        """Draw the constant biases and the vibration's directions and phases; take over the noise generator."""
         p = self.params
         self.acc_bias_B[:] = p.acc_bias_std * bias_rng.standard_normal(3)
         self.gyro_bias_B[:] = p.gyro_bias_std * bias_rng.standard_normal(3)
-        scale = np.array([p.acc_noise_std] * 3 + [p.gyro_noise_std] * 3)
+        r = self.rec[0]
+        r["vib_acc_amp"], r["vib_gyro_amp"], r["vib_ref_hz"] = p.imu_vib_acc_amp, p.imu_vib_gyro_amp, p.imu_vib_ref_hz
+        if vib_rng is not None:
+            for name in ("vib_dir_acc_B", "vib_dir_gyro_B"):
+                d = vib_rng.standard_normal((MAX_ROTORS, 3))
+                r[name] = d / np.linalg.norm(d, axis=1, keepdims=True)
+            r["vib_phase"] = vib_rng.uniform(0.0, 2.0 * math.pi, MAX_ROTORS)
+        acc_std = math.hypot(p.acc_noise_std, p.acc_vib_noise_std)  # sensor noise and aliased vibration
+        scale = np.array([acc_std] * 3 + [p.gyro_noise_std] * 3)
         self.noise = NoiseStream(noise_rng, scale, 6, self._noise_rec)
 
     def measure(
@@ -480,7 +549,8 @@ class Mocap:
         self.dt = dt
         self.period = 1.0 / params.mocap_rate_hz
         self.latency_steps = int(round(params.mocap_latency_s / dt))
-        cap = int(math.ceil((self.latency_steps + 1) * dt / self.period)) + 2
+        self.jitter_steps = int(round(params.mocap_latency_jitter_s / dt))
+        cap = int(math.ceil((self.latency_steps + self.jitter_steps + 1) * dt / self.period)) + 2
         if cap > MOCAP_QUEUE_MAX:
             raise InputError(
                 f"sensors: motion capture at {params.mocap_rate_hz:g} Hz with {params.mocap_latency_s:g} s latency "
@@ -491,6 +561,7 @@ class Mocap:
         self._noise_rec = noise_rec
         r = self.rec[0]
         r["cap"], r["latency_steps"], r["period"] = cap, self.latency_steps, self.period
+        r["jitter_steps"] = self.jitter_steps
         self.noise: NoiseStream | None = None
         """The measurement-noise stream (6: position, small rotation), set by :meth:`reset`."""
 
@@ -507,13 +578,15 @@ class Mocap:
             np.asarray(q_WB, dtype=np.float64),
         )  # fmt: skip
 
-    def reset(self, rng: np.random.Generator, p_W: np.ndarray, q_WB: np.ndarray) -> None:
+    def reset(self, rng: np.random.Generator, p_W: np.ndarray, q_WB: np.ndarray, seed: int = 0) -> None:
         """Restart at step 0 with the vehicle at rest at ``(p_W, q_WB)`` before t = 0.
 
         The last sample taken at or before ``-latency`` is delivered at step 0; later ones (taken on the step
-        grid at the sample rate) are queued, so every delivery is exactly one latency after its sample.
+        grid at the sample rate) are queued, so every delivery before t = 0 is exactly one latency after its
+        sample; samples from t = 0 on add their jitter, drawn from the generator seeded with ``seed``.
         """
         p = self.params
+        self.rec["rng"] = prng.seed_state(seed, _MOCAP_RNG_STREAM)
         scale = np.array([p.mocap_pos_noise_std] * 3 + [p.mocap_att_noise_std] * 3)
         if self._noise_rec is None:
             self._noise_rec = np.zeros(1, _noise_dtype(6))
@@ -556,19 +629,23 @@ class Mocap:
         return MocapSample(float(s[0]), s[1:4].copy(), s[4:8].copy())
 
 
-_N_STREAMS = 5
+_N_STREAMS = 6
+"""Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state, IMU vibration."""
+_MOCAP_RNG_STREAM = 102
+"""Index of the motion capture's jitter generator among the simulator's streams (:func:`prng.seed_state`)."""
 _CONSTANTS = (
     ("n_rotors", None),
     ("state_mode", None),
     ("imu", "gravity"),
     ("imu", "offset_B"),
     ("imu", "has_offset"),
+    ("imu", "dt"),
     ("mocap", "cap"),
     ("mocap", "latency_steps"),
     ("mocap", "period"),
+    ("mocap", "jitter_steps"),
 )
 """The fields of the record that are parameters (kept by a reset)."""
-"""Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state."""
 
 
 @register("sensors", "imu-mocap")
@@ -606,7 +683,7 @@ class Sensors:
         s = self.state
         s["n_rotors"], s["state_mode"] = n_rotors, state_mode
         self.state_mode = state_mode
-        self.imu = Imu(params, gravity, s["imu"], s["noise_imu"])
+        self.imu = Imu(params, gravity, s["imu"], s["noise_imu"], dt)
         self.mocap = Mocap(params, dt, s["mocap"], s["noise_mocap"])
         self.rotor_noise: NoiseStream | None = None
         self.state_noise: NoiseStream | None = None
@@ -631,8 +708,8 @@ class Sensors:
                 s[a][b] = v
             else:
                 s[a] = v
-        self.imu.reset(streams[0], streams[1])
-        self.mocap.reset(streams[2], *self._pose0)
+        self.imu.reset(streams[0], streams[1], streams[5])
+        self.mocap.reset(streams[2], *self._pose0, seed=self.seed)
         self.rotor_noise = NoiseStream(streams[3], p.rotor_speed_noise_std_hz, self.n_rotors, s["noise_rotor"])
         state_scale = np.repeat(
             [p.state_pos_noise_std, p.state_vel_noise_std, p.state_acc_noise_std, p.state_att_noise_std,

@@ -34,6 +34,7 @@ from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import step as _step
 from omnirotor.sim.aero import make_aero
+from omnirotor.sim.airflow import AirflowForce
 from omnirotor.sim.contact import EeContact, other_contact
 from omnirotor.sim.faults import FaultSchedule
 from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
@@ -98,6 +99,7 @@ class Simulator:
         data: the ``mujoco.MjData``.
         aero: the truth aerodynamics; ``aero.wrench_B(u_hz2)`` gives the (6,) body wrench.
         rotors: the rotor speed states (:class:`~omnirotor.sim.rotors.RotorBank`).
+        airflow: the recirculating wake's force at the CoM (:class:`~omnirotor.sim.airflow.AirflowForce`).
         sensors: the sensors (:class:`~omnirotor.sim.sensors.Sensors`): ``imu`` (its drawn biases:
             ``imu.acc_bias_B``, ``imu.gyro_bias_B``), ``mocap``, the noise streams.
         imu: ``sensors.imu``.
@@ -167,8 +169,10 @@ class Simulator:
         self._rec = np.zeros(1, _step.SIM_DTYPE)
         rec = self._rec
         self.aero = make_aero(vehicle, p.aero)
-        self.rotors = RotorBank(vehicle, p.rotors, p.dt)
+        self.rotors = RotorBank(vehicle, p.rotors, p.dt, seed=self.seed)
         self.rotors.adopt(rec["rotor_par"], rec["rotors"])
+        self.airflow = AirflowForce(p.airflow, p.dt, seed=self.seed)
+        self.airflow.adopt(rec["airflow_par"], rec["airflow"])
         self.sensors = Sensors(
             p.sensors, vehicle.gravity, p.dt, vehicle.n_rotors, state_mode, self.seed, rec["sensors"]
         )
@@ -269,6 +273,7 @@ class Simulator:
             self.rotors.reset(w)
         self.sensors.reset(self._pose[0:3].copy(), self._pose[3:7].copy())
         self.faults.reset()
+        self.airflow.reset()
         self._apply_wrench(recompute_rotors=True)
         mujoco.mj_forward(m, d)
         self.sensors.refill()
@@ -361,6 +366,7 @@ class Simulator:
                 mujoco.mj_Euler(m, d)
                 if i == self._last_substep:
                     self.rotors.step(rotor_cmd)
+                    self.airflow.step()
                 self._apply_wrench(recompute_rotors=i == self._last_substep)
                 mujoco.mj_forward(m, d)
             _step.observe(self._rec, self._k + 1, self.dt, self._frame_buf, self._row)
@@ -371,8 +377,8 @@ class Simulator:
     def _apply_wrench(self, recompute_rotors: bool) -> None:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
         if recompute_rotors:
-            self.aero.wrench_B(self.rotors.u_hz2, out=self._w_B)
-        _step.apply_wrench(self._pose, self._w_B, self._ext[0], self._xfrc)
+            self.aero.wrench_B(self.rotors.u_eff_hz2, out=self._w_B)
+        _step.apply_wrench(self._pose, self._w_B, self._ext[0], self.airflow.f_W, self._xfrc)
 
     # ------------------------------------------------------------------------------------------------
     @property

@@ -2,17 +2,20 @@
 
 One control period (:func:`sim_step`, the step of :meth:`omnirotor.sim.simulator.Simulator.step`): the
 fault schedule (:mod:`omnirotor.sim.faults`) checks the command, stops failed rotors and sets the gusts; then
-``substeps`` x (``mj_Euler``; on the last one the rotors (:func:`omnirotor.sim.rotors.rotor_step`) and the
-truth aerodynamics (:func:`aero_wrench`) give the new rotor wrench ``w_B``; :func:`apply_wrench` puts it and
-the external wrench into ``xfrc_applied``; ``mj_forward``), then :func:`observe` at the new time: the sensors
-(:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts, corruptions), the
-truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`) adds the EE contact
-wrench to it.
+``substeps`` x (``mj_Euler``; on the last one the rotors (:func:`omnirotor.sim.rotors.rotor_step`: speeds,
+reversals, thrust fluctuation) and the truth aerodynamics (:func:`aero_wrench` of the fluctuating inputs
+``u_eff_hz2``) give the new rotor wrench ``w_B``, and the airflow block
+(:func:`omnirotor.sim.airflow.airflow_step`) its force at the CoM; :func:`apply_wrench` puts them and the
+external wrench into ``xfrc_applied``; ``mj_forward``), then :func:`observe` at the new time: the sensors
+(:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts,
+corruptions), the truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`)
+adds the EE contact wrench to it.
 
 Everything the step reads and updates is one record of :data:`SIM_DTYPE`, whose fields are the blocks' own
-records (``rotor_par``, ``rotors``, ``sensors``, ``contact_par``, ``faults``) and the composer's wiring: the addresses
-of MuJoCo's arrays for the vehicle (``mj``), the truth model (``aero``), the external wrench (``ext``) and
-the rotor wrench ``w_B``. MuJoCo's C step functions are called directly (:func:`omnirotor._jit.mujoco_function`).
+records (``rotor_par``, ``rotors``, ``sensors``, ``contact_par``, ``faults``, ``airflow_par``, ``airflow``)
+and the composer's wiring: the addresses of MuJoCo's arrays for the vehicle (``mj``), the truth model
+(``aero``), the external wrench (``ext``) and the rotor wrench ``w_B``. MuJoCo's C step functions are called
+directly (:func:`omnirotor._jit.mujoco_function`).
 
 The truth row (:data:`TRUTH_ROW_SIZE` + n entries; the simulator owns its layout): ``t, p_W (3), v_W (3),
 R_WB (9), omega_B (3), p_E_W (3), contact_force_W (3), contact_moment_W (3), in_contact, rotor_hz (n)``.
@@ -24,7 +27,7 @@ import numpy as np
 
 from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, jit, mujoco_function
 from omnirotor.sim import aero as _aero
-from omnirotor.sim import contact, faults, rotors, sensors
+from omnirotor.sim import airflow, contact, faults, rotors, sensors
 
 __all__ = [
     "SIM_DTYPE",
@@ -82,6 +85,8 @@ SIM_DTYPE = np.dtype(
         ("sensors", sensors.STATE_DTYPE),
         ("contact_par", contact.PARAMS_DTYPE),
         ("faults", faults.STATE_DTYPE),
+        ("airflow_par", airflow.PARAMS_DTYPE),
+        ("airflow", airflow.STATE_DTYPE),
         ("mj", MJ_DTYPE),
         ("aero", AERO_DTYPE),
         ("ext", EXT_DTYPE),
@@ -96,8 +101,10 @@ _ROW_T, _ROW_P, _ROW_V, _ROW_R, _ROW_OMEGA, _ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG 
 
 
 @jit
-def apply_wrench(pose, w_B, ext, xfrc) -> None:
+def apply_wrench(pose, w_B, ext, f_air_W, xfrc) -> None:
     """Rotor wrench ``w_B`` (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
+
+    ``f_air_W`` (3,) is the recirculating airflow's force at the CoM (:mod:`omnirotor.sim.airflow`).
 
     ``R_WB`` is that of the quaternion ``pose[3:7]``; an active external force applied at the EE tip adds its
     moment ``(R p_E_B) x f_W``.
@@ -126,9 +133,9 @@ def apply_wrench(pose, w_B, ext, xfrc) -> None:
             Mx += ry * ez - rz * ey
             My += rz * ex - rx * ez
             Mz += rx * ey - ry * ex
-    xfrc[0] = Fx
-    xfrc[1] = Fy
-    xfrc[2] = Fz
+    xfrc[0] = Fx + f_air_W[0]
+    xfrc[1] = Fy + f_air_W[1]
+    xfrc[2] = Fz + f_air_W[2]
     xfrc[3] = Mx
     xfrc[4] = My
     xfrc[5] = Mz
@@ -224,7 +231,8 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         mj_Euler(m, d)
         if i == substeps - 1:
             rotors.rotor_step(s["rotor_par"], s["rotors"], cmd)
-            aero_wrench(s["aero"], s["rotors"]["u_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
-        apply_wrench(pose, w_B, ext, xfrc)
+            airflow.airflow_step(s["airflow_par"], s["airflow"])
+            aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
+        apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc)
         mj_forward(m, d)
     observe(sim, k + 1, dt, frame, row)
