@@ -47,7 +47,8 @@ def test_band_goals_and_missing_runs():
     per_seed = {0: _metrics(True, fz_nominal=2.6), 1: _metrics(True, underestimate=0.69), 2: _metrics(True)}
     del per_seed[2]["peg-in-hole/nominal"]
     g = _by_name(cs.evaluate_goals(per_seed))
-    assert g["hover_bias_nominal"]["passed"] == [False, True, True] and not g["hover_bias_nominal"]["met"]
+    assert g["hover_bias_nominal"]["passed"] == [False, True, True]
+    assert not g["hover_bias_nominal"]["met"]  # 2 < ceil(0.8 × 3)
     assert g["tilted_underestimate"]["passed"] == [True, False, True]
     assert g["hover_bias_piecewise"]["values"] == [pytest.approx(0.2)] * 3 and g["hover_bias_piecewise"]["met"]
     assert g["peg_depth"]["values"][2] is None and not g["peg_depth"]["met"]  # a missing run never passes

@@ -3,9 +3,9 @@
 One seed's ``reproduce`` gives one verdict per claim, which says little when a claim sits near its threshold
 (the sliding contact loss with the nominal map, for one). Here the whole campaign (identification flights,
 identification, every interaction run) is repeated for seeds ``seed, seed + 1, …``, each into its own folder
-``seed-S/``, and each claim's goal is checked on every seed. A goal is met when it holds in at least
-``need`` of the seeds (all of them, except where the goal itself asks for a count, e.g. "nominal loses
-contact in ≥ 8 of 10").
+``seed-S/``, and each claim's goal is checked on every seed. A goal is met when it holds in at least ``need``
+of the seeds: the optimised maps must keep the sliding contact in every seed (the paper's central result), the
+other goals in 8 of 10, the rule of the ten-seed campaigns of ``tools/claims_over_seeds.py`` (docs/fidelity.md).
 
 The goals are the issue's, stated beside the paper's numbers; each gives the measured value per seed, so a
 goal missed by a little reads differently from one missed by far. Nothing here is tuned: the runs use the
@@ -99,23 +99,23 @@ class Goal:
 
 
 GOALS: tuple[Goal, ...] = (
-    Goal("hover_bias_nominal", "hover: nominal map's mean f_z over regions 1.5–2.5 N (paper ~2 N)", "N",
-         _hover_nominal, 1.5, 2.5),
-    Goal("hover_bias_piecewise", "hover: piecewise maps' |f_z| ≤ 0.3 N in every region", "N", _hover_piecewise,
-         hi=0.3),
-    Goal("sliding_nominal_loses", "sliding to 45°: the nominal map loses contact in ≥ 8 of 10 seeds", "lost",
+    Goal("hover_bias_nominal", "hover: nominal map's mean f_z over regions 1.5–2.5 N (paper ~2 N), ≥ 8 of 10",
+         "N", _hover_nominal, 1.5, 2.5, 0.8),
+    Goal("hover_bias_piecewise", "hover: piecewise maps' |f_z| ≤ 0.3 N in every region, ≥ 8 of 10", "N",
+         _hover_piecewise, hi=0.3, need_fraction=0.8),
+    Goal("sliding_nominal_loses", "sliding to 45°: the nominal map loses contact, ≥ 8 of 10", "lost",
          _lost("nominal"), 1.0, 1.0, 0.8),
-    Goal("sliding_global_keeps", "sliding to 45°: the global map keeps contact in every seed", "lost",
+    Goal("sliding_global_keeps", "sliding to 45°: the global map keeps contact, 10 of 10", "lost",
          _lost("global"), 0.0, 0.0),
-    Goal("sliding_piecewise_keeps", "sliding to 45°: the piecewise maps keep contact in every seed", "lost",
+    Goal("sliding_piecewise_keeps", "sliding to 45°: the piecewise maps keep contact, 10 of 10", "lost",
          _lost("piecewise"), 0.0, 0.0),
     Goal("tilted_underestimate", "30° tilted point contact: the nominal map underestimates the normal force by "
-         "0.7–1.3 N (paper ~1 N)", "N", _underestimate, 0.7, 1.3),
-    Goal("observer_error_point", "straight point contact: observer RMS error against the true force ≤ 0.5 N", "N",
-         _observer_error, hi=0.5),
-    Goal("peg_depth", "peg inserted ≥ 16.5 of 17 cm", "cm", _peg_depth, lo=16.5),
-    Goal("peg_tilt", "peg's roll settles from the 10° approach to 3–7° inserted (paper ~5°)", "deg", _peg_tilt,
-         3.0, 7.0),
+         "0.7–1.3 N (paper ~1 N), ≥ 8 of 10", "N", _underestimate, 0.7, 1.3, 0.8),
+    Goal("observer_error_point", "straight point contact: observer RMS error against the true force ≤ 0.5 N, "
+         "≥ 8 of 10", "N", _observer_error, hi=0.5, need_fraction=0.8),
+    Goal("peg_depth", "peg inserted ≥ 16.5 of 17 cm, ≥ 8 of 10", "cm", _peg_depth, lo=16.5, need_fraction=0.8),
+    Goal("peg_tilt", "peg's roll settles from the 10° approach to 3–7° inserted (paper ~5°), ≥ 8 of 10", "deg",
+         _peg_tilt, 3.0, 7.0, 0.8),
 )  # fmt: skip
 """The issue's goals for the claims (module docstring)."""
 
