@@ -58,17 +58,17 @@ def test_band_goals_and_missing_runs():
 def test_cli_seeds_runs_each_seed_and_writes_the_report(tmp_path, monkeypatch, capsys):
     calls = []
 
-    def fake_reproduce(out, quick, seed, estimator, workers, progress):
-        calls.append((seed, quick, out.name))
+    def fake_reproduce(out, quick, seed, estimator, workers, progress, disturbances):
+        calls.append((seed, quick, out.name, disturbances))
         progress("interaction runs", 0.5)
         return _metrics(lost_nominal=seed != 5)
 
     monkeypatch.setattr(rp, "reproduce", fake_reproduce)
     out = tmp_path / "claims"
-    code = main(["reproduce", "--quick", "--seeds", "3", "--seed", "4", "--out", str(out)])
+    code = main(["reproduce", "--quick", "--no-disturbances", "--seeds", "3", "--seed", "4", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0
-    assert calls == [(4, True, "seed-4"), (5, True, "seed-5"), (6, True, "seed-6")]
+    assert calls == [(4, True, "seed-4", False), (5, True, "seed-5", False), (6, True, "seed-6", False)]
     data = json.loads((out / "claims-seeds.json").read_text())
     g = _by_name(data["goals"])
     assert g["sliding_nominal_loses"]["passes"] == 2 and g["sliding_nominal_loses"]["need"] == 3

@@ -22,6 +22,9 @@ def reproduce(
     seed: Annotated[int, typer.Option(help="Base seed.")] = 0,
     estimator: Annotated[str, typer.Option(help="State estimator: ukf (paper) or bypass (faster).")] = "ukf",
     workers: Annotated[int | None, typer.Option(min=1, max=64, help="Processes for the independent runs.")] = None,
+    disturbances: Annotated[
+        bool, typer.Option(help="The simulator's calibrated disturbances (docs/fidelity.md); off: a clean plant.")
+    ] = True,
     seeds: Annotated[
         int, typer.Option(min=1, max=1000, help="Repeat for this many seeds (seed, seed+1, ...); goals per seed.")
     ] = 1,
@@ -59,10 +62,25 @@ def reproduce(
             from omnirotor.experiments.claim_seeds import reproduce_seeds
 
             goals = reproduce_seeds(
-                out, seeds, quick=quick, seed=seed, estimator=estimator, workers=workers, progress=on_progress
+                out,
+                seeds,
+                quick=quick,
+                seed=seed,
+                estimator=estimator,
+                workers=workers,
+                progress=on_progress,
+                disturbances=disturbances,
             )
         else:
-            metrics = run_all(out, quick=quick, seed=seed, estimator=estimator, workers=workers, progress=on_progress)
+            metrics = run_all(
+                out,
+                quick=quick,
+                seed=seed,
+                estimator=estimator,
+                workers=workers,
+                progress=on_progress,
+                disturbances=disturbances,
+            )
     c = Console()
     if seeds > 1:
         for g in goals:

@@ -225,6 +225,7 @@ def reproduce_seeds(
     estimator: str = "ukf",
     workers: int | None = None,
     progress: Callable[[str, float], None] | None = None,
+    disturbances: bool = True,
 ) -> list[dict]:
     """Run ``reproduce`` for ``seeds`` consecutive seeds and check the goals over them (module docstring).
 
@@ -245,9 +246,10 @@ def reproduce_seeds(
             report(f"seed {s} ({k + 1}/{seeds}): {stage}", (k + frac) / seeds)
 
         per_seed[s] = reproduce(out / f"seed-{s}", quick=quick, seed=s, estimator=estimator, workers=workers,
-                                progress=sub)  # fmt: skip
+                                progress=sub, disturbances=disturbances)  # fmt: skip
     goals = evaluate_goals(per_seed)
-    write_json_atomic(out / "claims-seeds.json", {"quick": quick, "estimator": estimator, "goals": goals})
+    meta = {"quick": quick, "estimator": estimator, "disturbances": disturbances}
+    write_json_atomic(out / "claims-seeds.json", meta | {"goals": goals})
     write_seeds_report(out / "claims-seeds.md", goals, quick)
     plot_goals(goals, out / "claims-seeds.png")
     report("done", 1.0)
