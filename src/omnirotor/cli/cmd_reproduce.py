@@ -58,29 +58,20 @@ def reproduce(
         def on_progress(stage: str, frac: float) -> None:
             bar.update(tid, completed=frac, description=stage)
 
+        common = dict(
+            quick=quick,
+            seed=seed,
+            estimator=estimator,
+            workers=workers,
+            progress=on_progress,
+            disturbances=disturbances,
+        )
         if seeds > 1:
             from omnirotor.experiments.claim_seeds import reproduce_seeds
 
-            goals = reproduce_seeds(
-                out,
-                seeds,
-                quick=quick,
-                seed=seed,
-                estimator=estimator,
-                workers=workers,
-                progress=on_progress,
-                disturbances=disturbances,
-            )
+            goals = reproduce_seeds(out, seeds, **common)
         else:
-            metrics = run_all(
-                out,
-                quick=quick,
-                seed=seed,
-                estimator=estimator,
-                workers=workers,
-                progress=on_progress,
-                disturbances=disturbances,
-            )
+            metrics = run_all(out, **common)
     c = Console()
     if seeds > 1:
         for g in goals:
