@@ -92,6 +92,18 @@ def test_airflow_force_variance_and_spectrum():
     assert np.all(b.f_W == 0.0)
 
 
+def test_airflow_force_scales_with_the_vehicle_weight():
+    params = AirflowParams(force_std=1.5, corner_hz=1.0)
+    ref = AirflowForce(params, DT, seed=2)
+    light = AirflowForce(params, DT, seed=2, weight_N=0.02 * params.ref_weight_N)  # a 30 g quadrotor's share
+    assert AirflowForce(params, DT, seed=2, weight_N=params.ref_weight_N).force_std == ref.force_std == 1.5
+    assert light.force_std == pytest.approx(0.03)
+    for _ in range(2000):  # same generator, same draws: the light vehicle's force is the scaled one
+        ref.step()
+        light.step()
+    np.testing.assert_allclose(light.f_W, 0.02 * ref.f_W, rtol=1e-9)
+
+
 def test_no_fluctuation_when_off():
     b = _bank(thrust_noise_rel=0.0)
     b.reset(np.full(N, 120.0))

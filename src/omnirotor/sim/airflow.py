@@ -5,7 +5,8 @@ large eddies that push the whole airframe (issue 12, item 2; docs/fidelity.md). 
 net effect as a force on the CoM, world frame, each axis an independent first-order Gauss-Markov process of
 standard deviation ``force_std`` [N] and corner frequency ``corner_hz`` [Hz]:
 ``f = decay f + drive n``, ``decay = exp(-2 pi f_c dt)``, ``drive = sigma sqrt(1 - decay²)``, n standard
-normal from the block's own generator (:mod:`omnirotor.sim.prng`, seeded by the simulator's seed).
+normal from the block's own generator (:mod:`omnirotor.sim.prng`, seeded by the simulator's seed). The
+standard deviation scales with the flown vehicle's weight (``AirflowParams.ref_weight_N``).
 Unlike the rotors' thrust fluctuation (:mod:`omnirotor.sim.rotors`), which comes with the moments of the
 rotors' lever arms, this force turns nothing.
 
@@ -50,21 +51,26 @@ class AirflowForce:
     """The recirculation force (module docstring).
 
     Args:
-        params: its standard deviation and corner frequency.
+        params: its standard deviation (at ``params.ref_weight_N``) and corner frequency.
         dt: the period of :meth:`step` [s].
         seed: the simulator's seed (equal seeds, equal runs).
+        weight_N: the flown vehicle's weight [N]: the standard deviation is ``force_std * weight_N /
+            ref_weight_N`` (:class:`~omnirotor.sim.params.AirflowParams`); None: ``ref_weight_N``.
     """
 
     state_dtype = STATE_DTYPE
     params_dtype = PARAMS_DTYPE
     log_fields = ("f_W",)
 
-    def __init__(self, params: AirflowParams, dt: float, seed: int = 0) -> None:
+    def __init__(self, params: AirflowParams, dt: float, seed: int = 0, weight_N: float | None = None) -> None:
         self.params = params
         self.seed = int(seed)
+        scale = 1.0 if weight_N is None else float(weight_N) / params.ref_weight_N
+        self.force_std = params.force_std * scale
+        """Standard deviation of each axis of the force for this vehicle [N]."""
         self.par = np.zeros(1, PARAMS_DTYPE)
         """(1,) the :data:`PARAMS_DTYPE` record of the compiled step."""
-        self.par["decay"], self.par["drive"] = prng.gauss_markov_coefficients(params.force_std, params.corner_hz, dt)
+        self.par["decay"], self.par["drive"] = prng.gauss_markov_coefficients(self.force_std, params.corner_hz, dt)
         self.state = np.zeros(1, STATE_DTYPE)
         """(1,) the :data:`STATE_DTYPE` record (or the simulator's field it was moved into)."""
         self.reset()

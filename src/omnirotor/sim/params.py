@@ -254,14 +254,20 @@ class AirflowParams:
             full protocols; docs/fidelity.md, docs/data/disturbance-calibration.json).
         corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
             ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
+        ref_weight_N: the vehicle weight at which ``force_std`` holds [N] (the Omnirotor's, 1.625 kg × 9.81
+            m/s², on which it was calibrated). The simulator scales the force by the flown vehicle's weight over
+            this [A: the recirculating wake carries the momentum flux of the vehicle's own downwash, which in
+            hover equals its weight]: a 30 g quadrotor gets 1.8 % of it, not a force six times its weight.
     """
 
     force_std: float = 0.5333
     corner_hz: float = 1.0
+    ref_weight_N: float = 15.94125
 
     def __post_init__(self) -> None:
         _check_nonneg("airflow.force_std", self.force_std)
         check_positive("airflow.corner_hz", self.corner_hz)
+        check_positive("airflow.ref_weight_N", self.ref_weight_N)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -171,7 +171,7 @@ class Simulator:
         self.aero = make_aero(vehicle, p.aero)
         self.rotors = RotorBank(vehicle, p.rotors, p.dt, seed=self.seed)
         self.rotors.adopt(rec["rotor_par"], rec["rotors"])
-        self.airflow = AirflowForce(p.airflow, p.dt, seed=self.seed)
+        self.airflow = AirflowForce(p.airflow, p.dt, seed=self.seed, weight_N=vehicle.weight)
         self.airflow.adopt(rec["airflow_par"], rec["airflow"])
         self.sensors = Sensors(
             p.sensors, vehicle.gravity, p.dt, vehicle.n_rotors, state_mode, self.seed, rec["sensors"]
