@@ -313,12 +313,6 @@ ULOG_MAX_RATE_HZ = 1000.0
 """A ULog's flight is resampled at its gyro's median rate, at most this [Hz]."""
 
 
-def _on_grid(s_t: np.ndarray, s_x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Linear interpolation of the samples ``(s_t, s_x)`` (along axis 0) at the times ``t``."""
-    x = s_x.reshape(s_x.shape[0], -1)
-    return np.column_stack([np.interp(t, s_t, x[:, j]) for j in range(x.shape[1])])
-
-
 def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partition) -> tuple[FlightLog, list[str]]:
     """A flight log from a PX4 ULog (:func:`omnirotor.px4.flight.read_flight`: our frames and units).
 
@@ -335,6 +329,7 @@ def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partit
         InputError: not a ULog, no attitude, rotor speeds or gyro, or no airborne span.
     """
     from omnirotor.px4.flight import read_flight
+    from omnirotor.px4.windows import on_grid
 
     p = Path(path)
     f = read_flight(p, vehicle.n_rotors, vehicle.omega_max_hz)
@@ -354,8 +349,8 @@ def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partit
     if not (math.isfinite(rate_hz) and n >= 3):
         raise InputError(f"{p}: no {span} span with gyro and rotor speeds to fit torque rows from")
     t = t_lo + np.arange(n) / rate_hz
-    gyro_B = _on_grid(f.omega_B.t, f.omega_B.x, t)
-    rotor_hz = _on_grid(f.omega_hz.t, f.omega_hz.x, t)
+    gyro_B = on_grid(t, f.omega_B.t, f.omega_B.x)
+    rotor_hz = on_grid(t, f.omega_hz.t, f.omega_hz.x)
     i_att = np.clip(np.searchsorted(f.R_WB.t, t), 0, f.R_WB.t.size - 1)
     i_prev = np.clip(i_att - 1, 0, None)
     i_att = np.where(np.abs(f.R_WB.t[i_prev] - t) < np.abs(f.R_WB.t[i_att] - t), i_prev, i_att)

@@ -45,6 +45,7 @@ __all__ = [
     "hover_points",
     "plot_windows",
     "load_ulog",
+    "on_grid",
 ]
 
 
@@ -139,7 +140,8 @@ def _lowpass(s: Series, cutoff_hz: float, what: str, notes: list[str]) -> np.nda
     return sosfiltfilt(sos, s.x, axis=0, padlen=min(s.t.size - 1, 3 * (2 * sos.shape[0] + 1)))
 
 
-def _on_grid(t: np.ndarray, s_t: np.ndarray, x: np.ndarray) -> np.ndarray:
+def on_grid(t: np.ndarray, s_t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The samples ``x`` (taken at times ``s_t``, along axis 0) linearly interpolated at the times ``t``."""
     x2 = x.reshape(x.shape[0], -1)
     out = np.column_stack([np.interp(t, s_t, x2[:, j]) for j in range(x2.shape[1])])
     return out.reshape((t.size, *x.shape[1:]))
@@ -154,19 +156,19 @@ def _steady_mask(flight: Flight, t: np.ndarray, c: WindowCriteria, omega: np.nda
     ok = np.ones(t.size, dtype=bool)
     if flight.a_W is not None:
         a = _lowpass(flight.a_W, c.cutoff_hz, "acceleration", notes)
-        ok &= np.linalg.norm(_on_grid(t, flight.a_W.t, a), axis=1) < c.accel_max
+        ok &= np.linalg.norm(on_grid(t, flight.a_W.t, a), axis=1) < c.accel_max
     elif flight.v_W is not None and flight.v_W.t.size > 2:
         a = np.gradient(_lowpass(flight.v_W, c.cutoff_hz, "velocity", notes), flight.v_W.t, axis=0)
-        ok &= np.linalg.norm(_on_grid(t, flight.v_W.t, a), axis=1) < c.accel_max
+        ok &= np.linalg.norm(on_grid(t, flight.v_W.t, a), axis=1) < c.accel_max
     else:
         notes.append("no local position in the log: the acceleration criterion was skipped")
     if math.isfinite(c.speed_max):
         if flight.v_W is None:
             raise InputError(f"{flight.name}: a speed limit needs velocity (topic vehicle_local_position missing)")
-        ok &= np.linalg.norm(_on_grid(t, flight.v_W.t, flight.v_W.x), axis=1) < c.speed_max
+        ok &= np.linalg.norm(on_grid(t, flight.v_W.t, flight.v_W.x), axis=1) < c.speed_max
     if flight.omega_B is not None:
         w = _lowpass(flight.omega_B, c.cutoff_hz, "angular rate", notes)
-        ok &= np.linalg.norm(_on_grid(t, flight.omega_B.t, w), axis=1) < c.rate_max
+        ok &= np.linalg.norm(on_grid(t, flight.omega_B.t, w), axis=1) < c.rate_max
     else:
         notes.append("no angular rate in the log: the rate criterion was skipped")
     spin = np.mean(np.abs(omega), axis=1)
@@ -187,8 +189,8 @@ def find_hover_windows(flight: Flight, criteria: WindowCriteria | None = None) -
         return [], notes
     t = np.arange(t_start, t_end, 1.0 / c.grid_hz)
     omega_f = _lowpass(flight.omega_hz, c.cutoff_hz, "rotor speeds", notes)
-    omega = _on_grid(t, flight.omega_hz.t, omega_f)
-    R = _on_grid(t, flight.R_WB.t, flight.R_WB.x)
+    omega = on_grid(t, flight.omega_hz.t, omega_f)
+    R = on_grid(t, flight.R_WB.t, flight.R_WB.x)
     ok = _steady_mask(flight, t, c, omega, notes)
     windows: list[HoverWindow] = []
 
