@@ -30,9 +30,15 @@ period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by wha
   command stays held (there is nothing better to fly on without a state; a 1 s loss drifts about 0.3 m in
   hover) but never silently; the jump checks, whose bounds have grown past use, give way to a consistency
   check: a state is accepted, and the controller resumes, once the positions of consecutive valid states over
-  ``bypass_resume_window_s`` moved as their velocities say (within ``pos_jump_m``). Limitation: a velocity
-  offset that persists (a bias of the bypass state alone) passes the velocity bound once it has grown past the
-  offset (50 ms for 3 m/s) and is then believed;
+  ``bypass_resume_window_s`` moved as their velocities say (within ``pos_jump_m``);
+* **bypass velocity against its positions** (``CAUSE_STATE_VELOCITY``): the velocities of the states that
+  passed the position check, integrated (trapezoids) over the last ``velocity_window_s`` (a window sliding by
+  one period), must move the position as it moved, within ``velocity_tol_m``. Where they do not, the velocity
+  carries an offset of its own (a bias of the bypass state's velocity, which the jump checks let through once
+  their bound has grown past it: a 3 m/s offset after 50 ms, and a controller that believes it flies away by
+  metres). The offset over the window, ``(integral - position change) / window``, is subtracted from the
+  velocity in every period in which the window disagrees, each such frame flagged; a constant offset is
+  removed exactly one window after it began. The check starts afresh after a loss of the state (hold timeout);
 * **rotor speeds** (``CAUSE_ROTOR``): a non-finite speed or one beyond the vehicle's limits by more than
   ``rotor_margin`` of the larger limit: the wrench observer takes the last command for that period.
 
@@ -87,6 +93,7 @@ __all__ = [
     "CAUSE_HOLD_TIMEOUT",
     "CAUSE_CLOCK_RESET",
     "CAUSE_REINIT",
+    "CAUSE_STATE_VELOCITY",
     "REJECTING",
     "supervise",
     "reset_supervisor",
@@ -113,6 +120,8 @@ CAUSE_CLOCK_RESET = 256
 """The plant's clock stepped and was accepted: an offset now maps it onto the controller's time."""
 CAUSE_REINIT = 512
 """The estimator re-initialised its pose from motion capture (after a clock reset or a long dropout)."""
+CAUSE_STATE_VELOCITY = 1024
+"""The bypass velocity disagrees with its positions over the window: its offset is subtracted."""
 
 CAUSES = (
     ("time", CAUSE_TIME),
@@ -125,11 +134,21 @@ CAUSES = (
     ("hold_timeout", CAUSE_HOLD_TIMEOUT),
     ("clock_reset", CAUSE_CLOCK_RESET),
     ("reinit", CAUSE_REINIT),
+    ("state_velocity", CAUSE_STATE_VELOCITY),
 )
 """Name and bit of every cause, in bit order (``counts`` has one entry per cause, in this order)."""
 N_CAUSES = len(CAUSES)
 
-REJECTING = CAUSE_TIME | CAUSE_IMU | CAUSE_MOCAP | CAUSE_MOCAP_JUMP | CAUSE_STATE | CAUSE_STATE_JUMP | CAUSE_ROTOR
+REJECTING = (
+    CAUSE_TIME
+    | CAUSE_IMU
+    | CAUSE_MOCAP
+    | CAUSE_MOCAP_JUMP
+    | CAUSE_STATE
+    | CAUSE_STATE_JUMP
+    | CAUSE_ROTOR
+    | CAUSE_STATE_VELOCITY
+)
 """The causes that reject a part of the frame (``ControlStatus.FRAME_REJECTED``); the others only inform."""
 INVALID_VALUE = CAUSE_IMU | CAUSE_MOCAP | CAUSE_STATE | CAUSE_ROTOR
 """The causes that are a non-finite or out-of-range value (also ``ControlStatus.NONFINITE_INPUT``)."""
@@ -163,6 +182,10 @@ class SupervisorParams:
             ``CAUSE_HOLD_TIMEOUT`` and the jump checks give way to the resume check [s].
         bypass_resume_window_s: after the hold timeout, a state is accepted once the position has moved, over
             this long of consecutive valid states, as their velocity says (within ``pos_jump_m``) [s].
+        velocity_window_s: window over which the bypass velocities are integrated and compared with the
+            position change [s].
+        velocity_tol_m: largest accepted difference between the two over one window [m]; a velocity offset
+            larger than ``velocity_tol_m / velocity_window_s`` (0.15 m/s) is found and removed.
     """
 
     rotor_margin: float = 0.1
@@ -178,6 +201,8 @@ class SupervisorParams:
     dropout_reinit_s: float = 0.5
     bypass_hold_timeout_s: float = 0.5
     bypass_resume_window_s: float = 0.05
+    velocity_window_s: float = 0.05
+    velocity_tol_m: float = 0.0075
 
     def __post_init__(self) -> None:
         for name in (
@@ -193,6 +218,8 @@ class SupervisorParams:
             "dropout_reinit_s",
             "bypass_hold_timeout_s",
             "bypass_resume_window_s",
+            "velocity_window_s",
+            "velocity_tol_m",
         ):
             check_positive(f"supervisor {name}", getattr(self, name))
         n = self.clock_settle_frames
@@ -201,6 +228,8 @@ class SupervisorParams:
 
 
 _F8, _I8 = np.float64, np.int64
+VEL_RING = 256
+"""Length of the ring of states the velocity check keeps (a window of at most 255 periods)."""
 STATE_DTYPE = np.dtype(
     [
         # outputs
@@ -244,6 +273,17 @@ STATE_DTYPE = np.dtype(
         ("resume_state", _F8, 6),  # its p_W, v_W
         ("resume_t", _F8),  # its controller time [s]
         ("resume_window_s", _F8),
+        ("vel_window_s", _F8),
+        ("vel_tol_m", _F8),
+        ("vel_n", _I8),  # states per window (velocity_window_s / dt, at most VEL_RING - 1)
+        ("vel_k", _I8),  # states entered into the ring since the check (re)started
+        ("vel_int_W", _F8, 3),  # the running integral of the received velocities [m]
+        ("vel_prev_W", _F8, 3),  # the last received velocity integrated [m/s]
+        ("vel_t_prev", _F8),  # its controller time [s]
+        ("vel_ring_t", _F8, VEL_RING),  # the last states' controller times [s] ...
+        ("vel_ring_p_W", _F8, (VEL_RING, 3)),  # ... positions [m] ...
+        ("vel_ring_int_W", _F8, (VEL_RING, 3)),  # ... and velocity integrals [m]
+        ("vel_offset_W", _F8, 3),  # the velocity offset subtracted this frame (0: none) [m/s]
     ]
 )
 """The supervisor's record: outputs, parameters and state, by name (a field of the controller's state)."""
@@ -289,6 +329,8 @@ def reset_supervisor(
     rec["rotation_tol"], rec["quat_norm_tol"] = params.rotation_tol, params.quat_norm_tol
     rec["dropout_reinit_s"], rec["hold_timeout_s"] = params.dropout_reinit_s, params.bypass_hold_timeout_s
     rec["resume_window_s"] = params.bypass_resume_window_s
+    rec["vel_window_s"], rec["vel_tol_m"] = params.velocity_window_s, params.velocity_tol_m
+    rec["vel_n"] = min(max(1, round(params.velocity_window_s / dt)), VEL_RING - 1)
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
     t = float(frame[FRAME_T])
     rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = t
@@ -461,6 +503,53 @@ def _resume_check(sv, clean, tc: float) -> int:
 
 
 @jit
+def _check_velocity(sv, clean, tc: float) -> int:
+    """The velocity against the positions (module docstring); subtracts the offset found from ``clean``.
+
+    A ring of the last ``vel_n`` states holds their times, positions and the running integral of the received
+    velocities, so the window slides by one frame each period and the offset follows within one window.
+    """
+    S = FRAME_STATE
+    integral, prev = sv.vel_int_W, sv.vel_prev_W
+    if sv.vel_k == 0:
+        for i in range(3):
+            integral[i], prev[i] = 0.0, clean[S + 3 + i]
+    else:
+        h = 0.5 * (tc - sv.vel_t_prev)
+        for i in range(3):
+            integral[i] += h * (prev[i] + clean[S + 3 + i])
+            prev[i] = clean[S + 3 + i]
+    sv.vel_t_prev = tc
+    size = sv.vel_ring_t.shape[0]
+    j = sv.vel_k % size
+    sv.vel_ring_t[j] = tc
+    for i in range(3):
+        sv.vel_ring_p_W[j, i] = clean[S + i]
+        sv.vel_ring_int_W[j, i] = integral[i]
+    sv.vel_k += 1
+    offset = sv.vel_offset_W
+    biased = 0
+    if sv.vel_k > sv.vel_n:
+        o = (sv.vel_k - 1 - sv.vel_n) % size  # the state one window ago
+        window = tc - sv.vel_ring_t[o]
+        e2 = 0.0
+        for i in range(3):
+            offset[i] = (integral[i] - sv.vel_ring_int_W[o, i]) - (clean[S + i] - sv.vel_ring_p_W[o, i])
+            e2 += offset[i] * offset[i]
+        if window > 0.0 and math.sqrt(e2) > sv.vel_tol_m:
+            biased = 1
+            for i in range(3):
+                offset[i] /= window
+    if biased == 0:
+        for i in range(3):
+            offset[i] = 0.0
+        return 0
+    for i in range(3):
+        clean[S + 3 + i] -= offset[i]
+    return CAUSE_STATE_VELOCITY
+
+
+@jit
 def _check_state(sv, clean, time_bad: bool) -> int:
     """The bypass state's checks; a rejected state is replaced by the prediction (module docstring)."""
     if clean[FRAME_HAS_STATE] == 0.0:
@@ -474,24 +563,29 @@ def _check_state(sv, clean, time_bad: bool) -> int:
         if not math.isfinite(clean[S + i]):
             finite = False
     cause = 0
+    flag = 0  # informs, the state is used (a velocity offset subtracted)
     if not (finite and _proper_rotation(clean, S + 9, sv.rotation_tol)):
         cause = CAUSE_STATE
         sv.resume_ok = 0
     elif not time_bad and tau > sv.hold_timeout_s:
         cause = _resume_check(sv, clean, tc)
+        sv.vel_k = 0  # after a loss the velocity check starts afresh
     elif not time_bad:
         dp = 0.0
         for i in range(3):
             e = clean[S + i] - last[i] - last[3 + i] * tau
             dp += e * e
-        dv = _dist3(clean, S + 3, last, 3)
-        if math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau or dv > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
+        if math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau:
             cause = CAUSE_STATE_JUMP
+        else:
+            flag = _check_velocity(sv, clean, tc)
+            if _dist3(clean, S + 3, last, 3) > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
+                cause = CAUSE_STATE_JUMP
     if cause == 0 and not time_bad:
         for i in range(FRAME_STATE_SIZE):
             last[i] = clean[S + i]
         sv.t_state_ok = tc
-        return 0
+        return flag
     if cause == 0:
         return 0  # a good state in a frame of bad time: used, not kept as the reference
     # The prediction: the last accepted pose, held still.
