@@ -222,3 +222,18 @@ def test_run_bad_input_exits_2(tmp_path, capsys, args, needle):
     code = main([a.format(tmp=tmp_path) for a in args])
     err = capsys.readouterr().err
     assert code == 2 and needle in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_run_keeps_the_configured_map_parameters_and_says_what_its_options_replace(capsys):
+    from omnirotor.experiments.tasks import _controller
+
+    vehicle = load_vehicle()
+    opts = ExperimentOptions(overrides=("maps.blend_width_deg=30",))
+    ctl = _controller(vehicle, opts, "free", False, None)
+    assert ctl.params.maps.blend_width_deg == 30.0  # was silently reset to the default by the run's options
+    assert "note" not in capsys.readouterr().err  # nothing replaced, nothing said
+    opts = ExperimentOptions(overrides=("maps.blend=smooth",))
+    ctl = _controller(vehicle, opts, "free", False, None)
+    assert ctl.params.maps.blend == "hard"  # the run's --blend (its default) wins ...
+    err = capsys.readouterr().err
+    assert "maps.blend = 'smooth'" in err and "--blend 'hard'" in err and err.count("\n") == 1  # ... and says so

@@ -52,6 +52,7 @@ from omnirotor.experiments.scenarios import (
 )
 from omnirotor.identification import write_csv
 from omnirotor.regions import load_partition
+from omnirotor.safe_io import note
 from omnirotor.sim import SimParams, default_start_pose, scene_anchors
 from omnirotor.so3 import project_to_SO3
 from omnirotor.vehicle import VehicleParams, load_vehicle
@@ -184,11 +185,21 @@ class ExperimentResult(TaskResult):
         return self.metrics
 
 
+def _task_map_params(configured: MapParams, opts: ExperimentOptions) -> MapParams:
+    """The controller file's ``[maps]`` with the run's ``--map`` and ``--blend``; a file value replaced is said."""
+    chosen = dataclasses.replace(configured, mode=opts.map_mode, blend=opts.blend)
+    for field, option in (("mode", "--map"), ("blend", "--blend")):
+        given, used = getattr(configured, field), getattr(chosen, field)
+        if given != used and given != getattr(MapParams(), field):
+            note(f"maps.{field} = {given!r} of the controller configuration replaced by {option} {used!r}")
+    return chosen
+
+
 def _controller(
     vehicle: VehicleParams, opts: ExperimentOptions, admittance: str, zero: bool, maps: WrenchMapSet | None
 ) -> InteractionController:
     params = opts.controller_params(AdmittanceParams.preset(admittance))
-    params = dataclasses.replace(params, maps=MapParams(mode=opts.map_mode, blend=opts.blend))
+    params = dataclasses.replace(params, maps=_task_map_params(params.maps, opts))
     zero = zero if opts.zero_observer is None else opts.zero_observer
     if zero and not params.observer.zero_at_start:
         params = dataclasses.replace(params, observer=dataclasses.replace(params.observer, zero_at_start=True))
