@@ -145,3 +145,96 @@ def test_torque_rows_study_shrinks_the_hover_moment_bias(tmp_path):
     )
     plot_torque_rows(r, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 0
+
+
+# -- torque rows per cell (torque rows that vary inside a region) ---------------------------------------------
+
+
+def _maps_with_distinct_regions(vehicle, partition_name="paper"):
+    """Maps whose every region has its own recognisable map (region k: nominal scaled by 1 + k/100)."""
+    from omnirotor.regions import load_partition
+    from omnirotor.wrench_maps import MapEntry, WrenchMapSet
+
+    part = load_partition(partition_name)
+    regions = {n: MapEntry(A=vehicle.A_nom * (1 + k / 100), points=15) for k, n in enumerate(part.names)}
+    return WrenchMapSet(vehicle.name, vehicle.A_nom.copy(), part, regions, global_=MapEntry(A=vehicle.A_nom * 0.9))
+
+
+def test_refine_maps_gives_each_cell_the_map_of_its_region(vehicle):
+    from omnirotor.regions import load_partition
+    from omnirotor.torque_identification import refine_maps
+
+    maps = _maps_with_distinct_regions(vehicle)
+    cells = refine_maps(maps, load_partition("torque-cells"))
+    assert cells.partition.name == "torque-cells" and np.array_equal(cells.global_.A, maps.global_.A)
+    owner = {"R1.c": "R1", "R1.3": "R1", "R3.2": "R3", "R3.low": "R3", "R4.1": "R4", "R2": "R2", "R10": "R10"}
+    for cell, region in owner.items():
+        assert np.array_equal(cells.regions[cell].A, maps.regions[region].A), cell
+
+
+def test_refine_maps_refuses_a_cell_across_two_regions(vehicle):
+    from omnirotor.regions import Partition, Region
+    from omnirotor.torque_identification import refine_maps
+
+    maps = _maps_with_distinct_regions(vehicle)
+    across = Region("X", ((-60.0, -30.0),), (10.0, 50.0))  # R3 ends at -45
+    part = Partition("bad", (across, *maps.partition.regions))
+    with pytest.raises(InputError, match="X .* reaches into regions R2, R3"):
+        refine_maps(maps, part)
+
+
+def test_cells_get_their_own_torque_rows_and_the_smooth_blend_interpolates_them(vehicle):
+    from omnirotor.control.maps import MapParams, MapScheduler
+    from omnirotor.experiments.identify_dynamic import CELL_BASES
+    from omnirotor.experiments.scenarios import _attitude_with_up
+    from omnirotor.regions import load_partition
+    from omnirotor.torque_identification import merge_torque_rows, refine_maps
+
+    rng = np.random.default_rng(3)
+    maps = refine_maps(_maps_with_distinct_regions(vehicle), load_partition("torque-cells"))
+    truth = {c: vehicle.A_nom[3:] * (1 + 0.2 * rng.standard_normal((3, vehicle.n_rotors))) for c in ("R1.c", "R1.2")}
+    u = vehicle.hover_input() + 3000.0 * rng.standard_normal((2000, vehicle.n_rotors))
+    region = ("R1.c",) * 1000 + ("R1.2",) * 1000
+    m = np.vstack([u[:1000] @ truth["R1.c"].T, u[1000:] @ truth["R1.2"].T])
+    fitted, fits = merge_torque_rows(maps, u, m, region, TorqueIdParams())
+    assert set(fits) == {"R1.c", "R1.2", "global"}
+    for cell in truth:  # each cell's rows come from its own samples; its force rows stay the region's
+        other = truth["R1.2" if cell == "R1.c" else "R1.c"]
+        A = fitted.regions[cell].A
+        assert np.abs(A[3:] - truth[cell]).mean() < 0.2 * np.abs(A[3:] - other).mean()
+        assert np.array_equal(A[:3], maps.regions[cell].A[:3])
+    sched = MapScheduler(vehicle, fitted, MapParams(mode="piecewise", blend="smooth"))
+
+    def rows_at(az_deg, el_deg):
+        a, e = np.radians(az_deg), np.radians(el_deg)
+        return sched.select(
+            _attitude_with_up(np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)]), 0.0)
+        )[3:].copy()
+
+    base = CELL_BASES["R1"]["R1.2"]
+    assert np.allclose(rows_at(0.0, 90.0), fitted.regions["R1.c"].A[3:])  # the cap's base: its own rows
+    assert np.allclose(rows_at(*base), fitted.regions["R1.2"].A[3:])
+    mid = rows_at(base[0], 75.0)  # on the border between the two cells: half of each
+    assert np.allclose(mid, 0.5 * (fitted.regions["R1.c"].A[3:] + fitted.regions["R1.2"].A[3:]))
+
+
+def test_identify_torque_partition_cli(vehicle, tmp_path, capsys, flight_data):
+    from omnirotor.wrench_maps import load_wrench_maps
+
+    out = tmp_path / "maps.json"
+    code = main(["identify", str(flight_data), "--torque-partition", "torque-cells", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "--torque-partition needs --torque" in err and err.count("\n") == 1 and not out.exists()
+    rng = np.random.default_rng(4)
+    log = _synthetic_flight(vehicle, vehicle.A_nom[3:] * 1.1, rng, T=6.0)
+    cells = ("R1.c",) * (log.t_s.size // 2) + ("R1.1",) * (log.t_s.size - log.t_s.size // 2)
+    write_flight_csv(tmp_path / "flight.csv", FlightLog(log.t_s, log.gyro_B, log.rotor_hz, cells))
+    args = ["identify", str(flight_data), "--torque", str(tmp_path / "flight.csv"), "--out", str(out)]
+    assert main([*args, "--torque-partition", "torque-cells"]) == 0
+    maps = load_wrench_maps(out)
+    assert maps.partition.name == "torque-cells"
+    assert not np.array_equal(maps.regions["R1.c"].A[3:], maps.regions["R1.3"].A[3:])  # flown vs not flown
+    assert np.array_equal(maps.regions["R1.c"].A[:3], maps.regions["R1.3"].A[:3])  # both: R1's force rows
+    capsys.readouterr()
+    assert main(args) == 0  # the paper's regions: the cells' names fit only the global map, said on stderr
+    assert "R1.1, R1.c (not regions of partition 'paper') fit only the global map" in capsys.readouterr().err
