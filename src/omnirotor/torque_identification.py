@@ -81,6 +81,7 @@ __all__ = [
     "torque_residual_rms",
     "flight_torque_rows",
     "refine_maps",
+    "cell_regions",
 ]
 
 TORQUE_WEIGHTS = (1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0)
@@ -376,17 +377,17 @@ def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partit
         raise InputError(f"{p}: {exc}") from None
 
 
-def refine_maps(maps: WrenchMapSet, cells: Partition) -> WrenchMapSet:
-    """The maps on a finer partition: each cell gets the map of the region of ``maps`` containing its centre.
+def cell_regions(partition: Partition, cells: Partition) -> dict[str, str]:
+    """The region of ``partition`` that holds each cell of ``cells`` (cell name -> region name).
 
     A cell's centre is the middle of its elevation interval and of its first azimuth interval (the pole for a
-    cap that spans every azimuth). The global map is kept. Regions without a map of their own give none.
+    cap that spans every azimuth).
 
     Raises:
-        InputError: a cell that reaches into two regions of ``maps.partition`` (checked at its corners, inset
-            by 0.1°, and centre).
+        InputError: a cell that reaches into two regions (checked at its centre and at the corners of its
+            first azimuth interval, inset by 0.1°).
     """
-    regions = {}
+    out = {}
     for cell in cells.regions:
         (a_lo, a_hi), (e_lo, e_hi) = cell.azimuth_deg[0], cell.elevation_deg
         cap = e_hi >= 90.0 and any(hi - lo >= 360.0 for lo, hi in cell.azimuth_deg)
@@ -396,15 +397,23 @@ def refine_maps(maps: WrenchMapSet, cells: Partition) -> WrenchMapSet:
         for az, el in (centre, *inset):
             a, e = math.radians(az), math.radians(el)
             v = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
-            found.add(maps.partition.name_of_direction(v))
+            found.add(partition.name_of_direction(v))
         if len(found) != 1:
             raise InputError(
                 f"cell {cell.name} of partition {cells.name!r} reaches into regions {', '.join(sorted(found))} "
-                f"of {maps.partition.name!r}; cells must each lie inside one region"
+                f"of {partition.name!r}; cells must each lie inside one region"
             )
-        name = found.pop()
-        if name in maps.regions:
-            regions[cell.name] = maps.regions[name]
+        out[cell.name] = found.pop()
+    return out
+
+
+def refine_maps(maps: WrenchMapSet, cells: Partition) -> WrenchMapSet:
+    """The maps on a finer partition: each cell gets the map of the region of ``maps`` holding it.
+
+    The global map is kept; cells of regions without a map of their own get none (:func:`cell_regions`).
+    """
+    owner = cell_regions(maps.partition, cells)
+    regions = {c: maps.regions[r] for c, r in owner.items() if r in maps.regions}
     return dataclasses.replace(maps, partition=cells, regions=regions)
 
 

@@ -18,7 +18,8 @@ Steps, all in the simulator with its truth aerodynamics (``make_aero(vehicle)``)
    (:func:`omnirotor.torque_identification.refine_maps`);
 5. ``hover-validation`` (closed loop, new attitudes: drawn from the seed, not the identification attitudes nor
    the sweep bases) with the nominal map, the hover-only piecewise maps, the hover + flight piecewise maps and
-   the hover + cell-flight maps blended smoothly (``blend = "smooth"``): the observer's moment estimate in free
+   the same cell flight pooled into one set of torque rows per region (hard switch), and the hover + cell-flight
+   maps blended smoothly (``blend = "smooth"``): the observer's moment estimate in free
    hover, whose mean is its bias and whose spread over the attitudes (``moment_B_std_over_attitudes_Nm``) is
    what one linear map per region cannot remove (paper Fig. 3, moments).
 """
@@ -39,6 +40,7 @@ from omnirotor.regions import load_partition
 from omnirotor.sim.aero import make_aero
 from omnirotor.torque_identification import (
     TorqueIdParams,
+    cell_regions,
     load_flight_csv,
     merge_torque_rows,
     moment_samples,
@@ -133,6 +135,11 @@ def torque_rows_study(
         refine_maps(maps_hover, load_partition(CELL_PARTITION)), u_c, m_c, region_c, params
     )
     maps_cells.save(out / "maps-hover-cells.json")
+    # the same flight, one set of torque rows per region (the cells' samples pooled): what the cells add
+    owner = cell_regions(maps_hover.partition, maps_cells.partition)
+    pooled_region = tuple(owner.get(c, "") for c in region_c)
+    maps_pooled, _ = merge_torque_rows(maps_hover, u_c, m_c, pooled_region, params)
+    maps_pooled.save(out / "maps-hover-cells-pooled.json")
     cells = {
         r: {
             "samples": f.samples,
@@ -145,6 +152,7 @@ def torque_rows_study(
         "nominal": _validation(None, "nominal", quick, seed, v),
         "hover-only": _validation(str(out / "maps-hover.json"), "piecewise", quick, seed, v),
         "hover+flight": _validation(str(out / "maps-hover-flight.json"), "piecewise", quick, seed, v),
+        "hover+cells pooled": _validation(str(out / "maps-hover-cells-pooled.json"), "piecewise", quick, seed, v),
         "hover+cells": _validation(str(out / "maps-hover-cells.json"), "piecewise", quick, seed, v, "smooth"),
     }
     result = {
