@@ -129,22 +129,30 @@ def test_shortened_sweep_flight_identifies_torque_rows_nearer_the_truth(vehicle,
     assert r_fit < 0.2 * r_nom
 
 
-def test_torque_rows_study_shrinks_the_hover_moment_bias(tmp_path):
-    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
+def test_torque_rows_study_shrinks_the_hover_moment_bias_and_the_cells_its_spread(tmp_path):
+    from omnirotor.experiments.tasks import HoverProtocol
+    from omnirotor.studies.torque_rows import plot_hover_moments, plot_torque_rows, torque_rows_study
 
-    r = torque_rows_study(tmp_path, quick=True)
+    validation = HoverProtocol(regions=("R1", "R3"), validation_per_region=5, transition_s=2.0, hold_s=3.0)
+    r = torque_rows_study(tmp_path, quick=True, validation=validation)
     assert set(r["torque_rows"]) == {"R1", "global"}  # the quick sweep flies R1 only
+    assert set(r["cells"]) >= {"R1.c", "R1.1", "R1.2", "R1.3", "R1.4"}  # and its cells
     e = r["torque_rows"]["R1"]
     assert e["truth_moment_residual_rms_Nm"]["identified"] < 0.2 * e["truth_moment_residual_rms_Nm"]["nominal"]
     hv = r["hover_validation_moments"]
     bias = {m: np.abs(hv[m]["R1"]["moment_B_mean_Nm"]).max() for m in hv}
-    assert bias["hover+flight"] < 0.5 * bias["hover-only"]
+    assert bias["hover+flight"] < 0.5 * bias["hover-only"] and bias["hover+cells"] < 0.5 * bias["hover-only"]
+    # the spread over the new attitudes: torque rows per cell, blended, shrink it; one set per region does not
+    spread = {m: np.linalg.norm(hv[m]["R1"]["moment_B_std_over_attitudes_Nm"]) for m in hv}
+    assert spread["hover+cells"] < 0.6 * spread["hover-only"]
+    assert spread["hover+cells"] < 0.6 * spread["hover+flight"]
     # no flight in R3: same map there (the run differs only by what it carries over from R1)
     assert np.allclose(
         hv["hover+flight"]["R3"]["moment_B_mean_Nm"], hv["hover-only"]["R3"]["moment_B_mean_Nm"], atol=1e-3
     )
     plot_torque_rows(r, tmp_path / "fig.png")
-    assert (tmp_path / "fig.png").stat().st_size > 0
+    plot_hover_moments(r, tmp_path / "moments.png")
+    assert (tmp_path / "fig.png").stat().st_size > 0 and (tmp_path / "moments.png").stat().st_size > 0
 
 
 # -- torque rows per cell (torque rows that vary inside a region) ---------------------------------------------

@@ -253,22 +253,35 @@ class _FrameTap:
 @register_task("identify-dynamic")
 def identify_dynamic(options: TaskOptions, progress=None) -> ExperimentResult:
     """Fly the attitude excitation and write ``flight.csv`` into the out folder (module docstring)."""
-    return _identify_dynamic(options, progress, "regions")
+    return fly_sweeps(options, None, progress)
 
 
 @register_task("identify-dynamic-cells")
 def identify_dynamic_cells(options: TaskOptions, progress=None) -> ExperimentResult:
     """The same excitation at the base of every flown cell (:data:`CELL_BASES`); samples labelled by cell."""
-    return _identify_dynamic(options, progress, "cells")
+    return fly_sweeps(options, None, progress, "cells")
 
 
-def _identify_dynamic(options: TaskOptions, progress, layout: str) -> ExperimentResult:
+def fly_sweeps(
+    options: TaskOptions, proto: SweepProtocol | None, progress=None, layout: str = "regions"
+) -> ExperimentResult:
+    """Fly an excitation and write ``flight.csv`` into the out folder (the tasks ``identify-dynamic[-cells]``).
+
+    Args:
+        options: the run's options.
+        proto: the excitation; None: the layout's, quick or full (:meth:`SweepProtocol.for_layout`).
+        progress: progress callback of the loop.
+        layout: "regions" or "cells", when ``proto`` is None.
+    """
+    if proto is not None:
+        layout = proto.layout
     if isinstance(options, ExperimentOptions):
         opts = options
     else:
         opts = ExperimentOptions(**{f.name: getattr(options, f.name) for f in dataclasses.fields(TaskOptions)})
     vehicle = load_vehicle(opts.vehicle)
-    proto = SweepProtocol.quick(layout) if opts.quick else SweepProtocol.for_layout(layout)
+    if proto is None:
+        proto = SweepProtocol.quick(layout) if opts.quick else SweepProtocol.for_layout(layout)
     scene = opts.sim_params().scene
     p_body, _ = default_start_pose(scene_anchors("free", scene), vehicle, scene)
     wps, duration = sweep_waypoints(p_body, vehicle, proto)

@@ -13,15 +13,16 @@ Steps, all in the simulator with its truth aerodynamics (``make_aero(vehicle)``)
    factor ``1 + 0.2 N(0, 1)`` (seeded): the flight's own inputs leave the 2-D null space of the nominal map
    unexcited, so a fit on them alone would not define every entry. The moment residuals on the flight's
    own inputs are reported too;
-4. ``identify-dynamic-cells`` (closed loop, nominal map): the same sweeps at the base of every cell of the
-   ``torque-cells`` partition; torque rows per cell on the hover-only maps refined onto the cells
-   (:func:`omnirotor.torque_identification.refine_maps`);
-5. ``hover-validation`` (closed loop, new attitudes: drawn from the seed, not the identification attitudes nor
-   the sweep bases) with the nominal map, the hover-only piecewise maps, the hover + flight piecewise maps and
-   the same cell flight pooled into one set of torque rows per region (hard switch), and the hover + cell-flight
-   maps blended smoothly (``blend = "smooth"``): the observer's moment estimate in free
-   hover, whose mean is its bias and whose spread over the attitudes (``moment_B_std_over_attitudes_Nm``) is
-   what one linear map per region cannot remove (paper Fig. 3, moments).
+4. ``identify-dynamic-cells`` (closed loop, nominal map, null-space dither): the same sweeps at the base of
+   every cell of the ``torque-cells`` partition; torque rows per cell on the hover-only maps refined onto
+   the cells (:func:`omnirotor.torque_identification.refine_maps`);
+5. ``hover-validation`` (closed loop, new attitudes: drawn from the seed, neither the identification
+   attitudes nor the sweep bases) with the nominal map, the hover-only piecewise maps, the hover + flight
+   piecewise maps, two ablations (the flight of step 2 again with the cells' null-space dither; the cell
+   flight pooled into one set of torque rows per region, hard switch) and the hover + cell-flight maps
+   blended smoothly (``blend = "smooth"``): the observer's moment estimate in free hover, whose mean is its
+   bias and whose spread over the attitudes (``moment_B_std_over_attitudes_Nm``) is how the moment error
+   changes from one attitude to another (paper Fig. 3, moments).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.identify_dynamic import CELL_PARTITION
+from omnirotor.experiments.identify_dynamic import CELL_NULL_DITHER_HZ2, CELL_PARTITION, SweepProtocol, fly_sweeps
 from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
 from omnirotor.identification import identify, load_csv
 from omnirotor.regions import load_partition
@@ -128,6 +129,13 @@ def torque_rows_study(
             },
             "measured_moment_residual_rms_Nm": {"nominal": fit.base_residual_rms_Nm, "identified": fit.residual_rms_Nm},
         }
+    # ablation: the one-base flight with the cells' null-space dither
+    base = SweepProtocol.quick() if quick else SweepProtocol()
+    dithered = dataclasses.replace(base, null_dither_hz2=CELL_NULL_DITHER_HZ2)
+    fly_sweeps(ExperimentOptions(out_dir=str(out / "dither"), **common), dithered)
+    d_flight = load_flight_csv(out / "dither" / "flight.csv", vehicle)
+    maps_dither, _ = merge_torque_rows(maps_hover, *moment_samples(d_flight, vehicle, params), params)
+    maps_dither.save(out / "maps-hover-flight-dither.json")
     run_task("identify-dynamic-cells", ExperimentOptions(out_dir=str(out / "cells"), **common))
     cell_flight = load_flight_csv(out / "cells" / "flight.csv", vehicle)
     u_c, m_c, region_c = moment_samples(cell_flight, vehicle, params)
@@ -152,6 +160,7 @@ def torque_rows_study(
         "nominal": _validation(None, "nominal", quick, seed, v),
         "hover-only": _validation(str(out / "maps-hover.json"), "piecewise", quick, seed, v),
         "hover+flight": _validation(str(out / "maps-hover-flight.json"), "piecewise", quick, seed, v),
+        "hover+flight dither": _validation(str(out / "maps-hover-flight-dither.json"), "piecewise", quick, seed, v),
         "hover+cells pooled": _validation(str(out / "maps-hover-cells-pooled.json"), "piecewise", quick, seed, v),
         "hover+cells": _validation(str(out / "maps-hover-cells.json"), "piecewise", quick, seed, v, "smooth"),
     }
@@ -231,8 +240,18 @@ def plot_hover_moments(result: dict, path: str | Path) -> None:
     hv = result["hover_validation_moments"]
     maps = list(hv)
     regs = sorted({r for m in maps for r in hv[m]})
-    fig, axes = plt.subplots(1, len(regs), figsize=(4.2 * len(regs), 3.8), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(
+        2, len(regs), figsize=(4.4 * len(regs), 6.4), sharey="row", squeeze=False, height_ratios=(3, 2)
+    )
     width = 0.8 / len(maps)
+    for ax, r in zip(axes[1], regs, strict=True):
+        for i, mname in enumerate(maps):
+            if r in hv[mname]:
+                xs = np.arange(3) + (i - (len(maps) - 1) / 2) * width
+                ax.bar(xs, hv[mname][r]["moment_B_std_over_attitudes_Nm"], width, color=f"C{i}")
+        ax.set_xticks(range(3), ["m_x", "m_y", "m_z"])
+        ax.grid(axis="y", alpha=0.3)
+    axes[1][0].set_ylabel("spread over attitudes [N·m]")
     for ax, r in zip(axes[0], regs, strict=True):
         for i, mname in enumerate(maps):
             e = hv[mname].get(r)
