@@ -233,6 +233,9 @@ def test_identify_torque_partition_cli(vehicle, tmp_path, capsys, flight_data):
     code = main(["identify", str(flight_data), "--torque-partition", "torque-cells", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and "--torque-partition needs --torque" in err and err.count("\n") == 1 and not out.exists()
+    code = main(["identify", str(flight_data), "--torque", "f.csv", "--torque-pool", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "--torque-pool needs --torque-partition" in err and not out.exists()
     rng = np.random.default_rng(4)
     log = _synthetic_flight(vehicle, vehicle.A_nom[3:] * 1.1, rng, T=6.0)
     cells = ("R1.c",) * (log.t_s.size // 2) + ("R1.1",) * (log.t_s.size - log.t_s.size // 2)
@@ -243,6 +246,10 @@ def test_identify_torque_partition_cli(vehicle, tmp_path, capsys, flight_data):
     assert maps.partition.name == "torque-cells"
     assert not np.array_equal(maps.regions["R1.c"].A[3:], maps.regions["R1.3"].A[3:])  # flown vs not flown
     assert np.array_equal(maps.regions["R1.c"].A[:3], maps.regions["R1.3"].A[:3])  # both: R1's force rows
+    assert main([*args, "--torque-partition", "torque-cells", "--torque-pool"]) == 0  # R1.c and R1.1 pooled in R1
+    pooled = load_wrench_maps(out)
+    assert pooled.partition.name == "paper" and not np.array_equal(pooled.regions["R1"].A[3:], vehicle.A_nom[3:])
+    assert np.allclose(pooled.regions["R1"].A[3:], maps.regions["R1.c"].A[3:], atol=0.1 * np.abs(vehicle.A_nom).max())
     capsys.readouterr()
     assert main(args) == 0  # the paper's regions: the cells' names fit only the global map, said on stderr
     assert "R1.1, R1.c (not regions of partition 'paper') fit only the global map" in capsys.readouterr().err

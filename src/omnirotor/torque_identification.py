@@ -423,15 +423,22 @@ def flight_torque_rows(
     vehicle: VehicleParams,
     delta: float | None = None,
     cells: Partition | None = None,
+    pool: bool = False,
 ) -> tuple[WrenchMapSet, dict[str, TorqueFit]]:
     """Read a flight log and replace the torque rows of ``maps`` by its fit (``omnirotor identify --torque``).
 
     ``flight`` is a flight-log CSV (module docstring) or a PX4 ULog (``.ulg``, :func:`load_flight_ulog`; what it
-    chose is said on stderr). With ``cells``, the maps are first refined onto those cells (:func:`refine_maps`)
-    and the torque rows are fitted per cell (a CSV must then name the cells, as ``identify-dynamic-cells``
-    writes).
+    chose is said on stderr). With ``cells``, the flight's samples belong to those cells (a CSV names them, as
+    ``identify-dynamic-cells`` writes): the maps are refined onto the cells (:func:`refine_maps`) and the torque
+    rows are fitted per cell, or, with ``pool``, the samples of each cell go to the region of ``maps`` that
+    holds it and the maps keep their partition.
     """
-    if cells is not None:
+    owner: dict[str, str] = {}
+    if cells is not None and pool:
+        owner = cell_regions(maps.partition, cells)
+        if Path(flight).suffix.lower() == ".ulg":
+            owner = {}  # a ULog's samples are labelled with the maps' own regions already
+    elif cells is not None:
         maps = refine_maps(maps, cells)
     params = TorqueIdParams(delta=delta) if delta is not None else TorqueIdParams()
     if Path(flight).suffix.lower() == ".ulg":
@@ -441,6 +448,8 @@ def flight_torque_rows(
     else:
         log = load_flight_csv(flight, vehicle)
     u, m, region = moment_samples(log, vehicle, params)
+    if owner:
+        region = tuple(owner.get(r, r) for r in region)
     unknown = sorted(set(region) - set(maps.partition.names) - {""})
     if unknown:
         note(

@@ -81,6 +81,13 @@ def identify_cmd(
             "--blend smooth."
         ),
     ] = None,
+    torque_pool: Annotated[
+        bool,
+        typer.Option(
+            help="With --torque-partition: pool each cell's samples into its region of --partition (one set of "
+            "torque rows per region, the maps keep --partition)."
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Identify per-region and global wrench maps from hover data (box-constrained weighted QP)."""
@@ -105,6 +112,8 @@ def identify_cmd(
     part = load_partition(partition)
     if torque_partition is not None and torque is None:
         raise InputError("--torque-partition needs --torque FLIGHT (the flight log whose torque rows it fits)")
+    if torque_pool and torque_partition is None:
+        raise InputError("--torque-pool needs --torque-partition (the cells the flight's samples belong to)")
     cells = load_partition(torque_partition) if torque_partition is not None else None
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh)
@@ -113,7 +122,7 @@ def identify_cmd(
     if torque is not None:
         from omnirotor.torque_identification import flight_torque_rows
 
-        maps, torque_fits = flight_torque_rows(maps, torque, veh, delta_value, cells)
+        maps, torque_fits = flight_torque_rows(maps, torque, veh, delta_value, cells, torque_pool)
     if out is not None:
         maps.save(out)
         if replacing:
