@@ -253,3 +253,50 @@ def test_identify_torque_partition_cli(vehicle, tmp_path, capsys, flight_data):
     capsys.readouterr()
     assert main(args) == 0  # the paper's regions: the cells' names fit only the global map, said on stderr
     assert "R1.1, R1.c (not regions of partition 'paper') fit only the global map" in capsys.readouterr().err
+
+
+def test_cells_flight_protocol_and_null_space_dither(vehicle):
+    import dataclasses
+
+    from omnirotor.experiments.identify_dynamic import (
+        CELL_BASES,
+        CELL_NULL_DITHER_HZ2,
+        NullSpaceDither,
+        SweepProtocol,
+    )
+    from omnirotor.messages import RotorCommand
+    from omnirotor.regions import load_partition
+
+    cells = SweepProtocol.for_layout("cells")
+    assert len(cells.bases()) == 11 and cells.null_dither_hz2 == CELL_NULL_DITHER_HZ2
+    assert SweepProtocol.for_layout("regions").null_dither_hz2 == 0.0 and len(SweepProtocol().bases()) == 3
+    assert SweepProtocol.quick("cells").bases() == list(CELL_BASES["R1"].values())
+    part = load_partition("torque-cells")
+    for region in CELL_BASES.values():  # every base lies in its own cell
+        for cell, (az, el) in region.items():
+            a, e = np.radians(az), np.radians(el)
+            assert part.name_of_direction(np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])) == cell
+    with pytest.raises(InputError, match="layout"):
+        SweepProtocol(layout="grid")
+    with pytest.raises(InputError, match="null_dither_hz2"):
+        dataclasses.replace(cells, null_dither_hz2=-1.0)
+
+    class _Sim:  # records what the dither passes on
+        t = 0.0
+
+        def step(self, cmd):
+            self.sent = cmd.omega_hz.copy()
+            return None
+
+    sim = _Sim()
+    dither = NullSpaceDither(sim, vehicle, 6000.0, seed=0)
+    w = np.sign(vehicle.hover_input()) * np.sqrt(np.abs(vehicle.hover_input()))
+    peak = 0.0
+    for t in np.linspace(0.0, 20.0, 401):
+        sim.t = t
+        dither.step(RotorCommand(t, w))
+        added = np.sign(sim.sent) * sim.sent**2 - np.sign(w) * w**2
+        assert np.allclose(added, dither.dither_hz2(t), atol=1e-6 * np.abs(w**2).max())
+        assert np.linalg.norm(vehicle.A_nom @ added) < 1e-9 * np.linalg.norm(vehicle.A_nom) * np.linalg.norm(added)
+        peak = max(peak, np.abs(np.linalg.svd(vehicle.A_nom)[2][6:] @ added).max())
+    assert 3000.0 < peak <= 6000.0 + 1e-6  # each null coordinate peaks near, never above, the amplitude
