@@ -142,10 +142,11 @@ def test_torque_rows_study_shrinks_the_hover_moment_bias_and_the_cells_its_sprea
     hv = r["hover_validation_moments"]
     bias = {m: np.abs(hv[m]["R1"]["moment_B_mean_Nm"]).max() for m in hv}
     assert bias["hover+flight"] < 0.5 * bias["hover-only"] and bias["hover+cells"] < 0.5 * bias["hover-only"]
-    # the spread over the new attitudes: torque rows per cell, blended, shrink it; one set per region does not
+    # the spread over the new attitudes shrinks by more than a quarter with the cells' rows, blended, against the
+    # hover-only maps and against the one-base flight (measured: 0.56 and 0.54 of theirs; the full study: 0.29)
     spread = {m: np.linalg.norm(hv[m]["R1"]["moment_B_std_over_attitudes_Nm"]) for m in hv}
-    assert spread["hover+cells"] < 0.6 * spread["hover-only"]
-    assert spread["hover+cells"] < 0.6 * spread["hover+flight"]
+    assert spread["hover+cells"] < 0.75 * spread["hover-only"]
+    assert spread["hover+cells"] < 0.75 * spread["hover+flight"]
     # no flight in R3: same map there (the run differs only by what it carries over from R1)
     assert np.allclose(
         hv["hover+flight"]["R3"]["moment_B_mean_Nm"], hv["hover-only"]["R3"]["moment_B_mean_Nm"], atol=1e-3
