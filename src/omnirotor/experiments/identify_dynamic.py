@@ -143,7 +143,8 @@ class SweepProtocol:
         return [b for r in self.regions for b in CELL_BASES[r].values()]
 
 
-def _base_attitude(az_el_deg: tuple[float, float]) -> np.ndarray:
+def base_attitude(az_el_deg: tuple[float, float]) -> np.ndarray:
+    """An attitude R_WB whose up direction has this (azimuth, elevation) [deg], turned from upright about e3 x v."""
     az, el = (math.radians(a) for a in az_el_deg)
     v = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
     # R_WB with third row v (R_WBᵀ e3 = v): turn e3 onto v about the axis e3 x v
@@ -162,7 +163,7 @@ def sweep_waypoints(p_body_W: np.ndarray, vehicle: VehicleParams, proto: SweepPr
     durations = np.geomspace(proto.slowest_s, proto.fastest_s, proto.swings)
     R0 = up
     for base in proto.bases():
-        R0 = _base_attitude(base)
+        R0 = base_attitude(base)
         t += proto.transition_s
         wps.append(body_to_ee_waypoint(t, p_body_W, R0, vehicle))
         for axis in np.eye(3):

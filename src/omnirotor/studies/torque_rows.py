@@ -34,11 +34,20 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.identify_dynamic import CELL_NULL_DITHER_HZ2, CELL_PARTITION, SweepProtocol, fly_sweeps
+from omnirotor.experiments.identify_dynamic import (
+    CELL_BASES,
+    CELL_NULL_DITHER_HZ2,
+    CELL_PARTITION,
+    SweepProtocol,
+    base_attitude,
+    fly_sweeps,
+)
+from omnirotor.experiments.scenarios import hover_attitudes
 from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
 from omnirotor.identification import identify, load_csv
 from omnirotor.regions import load_partition
-from omnirotor.sim.aero import make_aero
+from omnirotor.sim.aero import hover_equilibrium, make_aero
+from omnirotor.sim.params import AeroParams
 from omnirotor.torque_identification import (
     TorqueIdParams,
     cell_regions,
@@ -48,9 +57,17 @@ from omnirotor.torque_identification import (
     refine_maps,
     torque_residual_rms,
 )
-from omnirotor.vehicle import load_vehicle
+from omnirotor.vehicle import VehicleParams, load_vehicle
+from omnirotor.wrench_maps import WrenchMapSet
 
-__all__ = ["truth_torque_rows", "torque_rows_study", "plot_torque_rows", "plot_hover_moments"]
+__all__ = [
+    "truth_torque_rows",
+    "torque_rows_study",
+    "plot_torque_rows",
+    "plot_hover_moments",
+    "spread_sources",
+    "base_hover_moments",
+]
 
 
 def truth_torque_rows(aero, u_hz2: np.ndarray, rng: np.random.Generator, spread: float = 0.2) -> np.ndarray:
@@ -59,6 +76,65 @@ def truth_torque_rows(aero, u_hz2: np.ndarray, rng: np.random.Generator, spread:
     U = U * (1.0 + spread * rng.standard_normal(U.shape))
     m = np.array([aero.wrench_B(u)[3:] for u in U])
     return np.linalg.lstsq(U, m, rcond=None)[0].T
+
+
+def spread_sources(vehicle: VehicleParams, per_region: int, seed: int) -> dict:
+    """Offline: the spread over hover attitudes of the nominal map's moment estimate, truth terms switched off.
+
+    At ``per_region`` attitudes per region of the hover protocol (drawn as ``hover-validation`` draws them),
+    the truth's hover equilibrium under the nominal map's allocation (:func:`hover_equilibrium`) gives the
+    inputs ``u`` and the estimate ``-A2_nom u``; its standard deviation over the attitudes, per region and
+    component [N·m], for the full truth and with the rotor-wake interaction, the reverse gain or the frame yaw
+    switched off.
+    """
+    base = AeroParams()
+    variants = {
+        "full": base,
+        "no wake interaction": dataclasses.replace(base, ingest_gain=0.0, counter_gain=0.0),
+        "no reverse gain": dataclasses.replace(base, reverse_gain=0.0),
+        "no frame yaw": dataclasses.replace(base, frame_yaw_deg=0.0),
+    }
+    proto = HoverProtocol()
+    attitudes = hover_attitudes(
+        load_partition("paper"),
+        list(proto.regions),
+        per_region,
+        np.random.default_rng([seed, 2]),
+        vehicle,
+        proto.min_speed_hz,
+    )
+    out: dict = {}
+    for name, params in variants.items():
+        aero = make_aero(vehicle, params)
+        est = {r: [] for r in proto.regions}
+        for r, R in attitudes:
+            est[r].append(-(vehicle.A_nom[3:] @ hover_equilibrium(aero, vehicle, R)))
+        out[name] = {r: np.std(np.array(v), axis=0).tolist() for r, v in est.items() if v}
+    return out
+
+
+def base_hover_moments(maps: WrenchMapSet, vehicle: VehicleParams, bases: dict[str, tuple[float, float]]) -> dict:
+    """At each cell's base attitude: the hover moment its torque rows leave, at two hover inputs.
+
+    ``flown``: the inputs of the identification flight's hover there (the nominal map's allocation);
+    ``allocated``: the inputs of a controller flying the cell's own map; and how much of those lies in the
+    null space of the nominal map [Hz²] (``pinv`` allocation, truth equilibrium, :func:`hover_equilibrium`).
+    """
+    aero = make_aero(vehicle)
+    null = np.linalg.svd(vehicle.A_nom)[2][6:]
+    out = {}
+    for cell, az_el in bases.items():
+        R = base_attitude(az_el)
+        A = maps.regions[cell].A
+        u_flown = hover_equilibrium(aero, vehicle, R)
+        u_alloc = hover_equilibrium(aero, vehicle, R, A_map=A)
+        out[cell] = {
+            "flown_Nm": float(np.abs(A[3:] @ u_flown).max()),
+            "allocated_Nm": float(np.abs(A[3:] @ u_alloc).max()),
+            "allocated_null_space_hz2": float(np.linalg.norm(null @ u_alloc)),
+            "allocated_null_fraction": float(np.linalg.norm(null @ u_alloc) / np.linalg.norm(u_alloc)),
+        }
+    return out
 
 
 def _validation(
@@ -148,10 +224,17 @@ def torque_rows_study(
     pooled_region = tuple(owner.get(c, "") for c in region_c)
     maps_pooled, _ = merge_torque_rows(maps_hover, u_c, m_c, pooled_region, params)
     maps_pooled.save(out / "maps-hover-cells-pooled.json")
+    flown = {
+        c: b
+        for r in (SweepProtocol.quick("cells") if quick else SweepProtocol()).regions
+        for c, b in CELL_BASES[r].items()
+    }
+    at_bases = base_hover_moments(maps_cells, vehicle, flown)
     cells = {
         r: {
             "samples": f.samples,
             "measured_moment_residual_rms_Nm": {"nominal": f.base_residual_rms_Nm, "identified": f.residual_rms_Nm},
+            **({"at_base": at_bases[r]} if r in at_bases else {}),
         }
         for r, f in cell_fits.items()
     }
@@ -172,6 +255,7 @@ def torque_rows_study(
         "torque_rows": entries,
         "cells": cells,
         "hover_validation_moments": hover_val,
+        "spread_sources_offline_Nm": spread_sources(vehicle, 8 if quick else 40, seed),
     }
     return result
 
