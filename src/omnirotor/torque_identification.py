@@ -36,6 +36,15 @@ Flight-log CSV (``omnirotor run identify-dynamic`` writes it, ``omnirotor identi
 one row per sample at a constant rate (the gyro and the measured, signed rotor speeds), ``region`` the
 region of the attitude at that sample (else every sample goes to the global map only), ``#`` comment lines.
 A PX4 ULog of the flight serves as well (:func:`load_flight_ulog`).
+
+Torque rows that vary inside a region (issue 15): one set of torque rows per region cannot follow how the
+truth's moment error changes from one hover attitude to another inside it (the rotor-wake interaction depends
+on the ratios of the rotor speeds, which change with the attitude). :func:`refine_maps` copies the maps onto a
+finer partition of *cells* (each cell takes the map of the region containing its centre, so the force rows
+stay the hover data's), the flight is flown at the base of every cell (``run identify-dynamic-cells``) and
+fitted per cell, and the controller blends the cells' maps with ``blend = "smooth"``
+(:mod:`omnirotor.control.maps`): between two bases the torque rows change smoothly, with no change to the
+compiled map scheduler.
 """
 
 from __future__ import annotations
@@ -71,6 +80,8 @@ __all__ = [
     "merge_torque_rows",
     "torque_residual_rms",
     "flight_torque_rows",
+    "refine_maps",
+    "cell_regions",
 ]
 
 TORQUE_WEIGHTS = (1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0)
@@ -366,14 +377,69 @@ def load_flight_ulog(path: str | Path, vehicle: VehicleParams, partition: Partit
         raise InputError(f"{p}: {exc}") from None
 
 
+def cell_regions(partition: Partition, cells: Partition) -> dict[str, str]:
+    """The region of ``partition`` that holds each cell of ``cells`` (cell name -> region name).
+
+    A cell's centre is the middle of its elevation interval and of its first azimuth interval (the pole for a
+    cap that spans every azimuth).
+
+    Raises:
+        InputError: a cell that reaches into two regions (checked at its centre and at the corners of its
+            first azimuth interval, inset by 0.1°).
+    """
+    out = {}
+    for cell in cells.regions:
+        (a_lo, a_hi), (e_lo, e_hi) = cell.azimuth_deg[0], cell.elevation_deg
+        cap = e_hi >= 90.0 and any(hi - lo >= 360.0 for lo, hi in cell.azimuth_deg)
+        centre = (0.5 * (a_lo + a_hi), 90.0 if cap else 0.5 * (e_lo + e_hi))
+        inset = [(a + s * 0.1, e + t * 0.1) for a, s in ((a_lo, 1), (a_hi, -1)) for e, t in ((e_lo, 1), (e_hi, -1))]
+        found = set()
+        for az, el in (centre, *inset):
+            a, e = math.radians(az), math.radians(el)
+            v = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+            found.add(partition.name_of_direction(v))
+        if len(found) != 1:
+            raise InputError(
+                f"cell {cell.name} of partition {cells.name!r} reaches into regions {', '.join(sorted(found))} "
+                f"of {partition.name!r}; cells must each lie inside one region"
+            )
+        out[cell.name] = found.pop()
+    return out
+
+
+def refine_maps(maps: WrenchMapSet, cells: Partition) -> WrenchMapSet:
+    """The maps on a finer partition: each cell gets the map of the region of ``maps`` holding it.
+
+    The global map is kept; cells of regions without a map of their own get none (:func:`cell_regions`).
+    """
+    owner = cell_regions(maps.partition, cells)
+    regions = {c: maps.regions[r] for c, r in owner.items() if r in maps.regions}
+    return dataclasses.replace(maps, partition=cells, regions=regions)
+
+
 def flight_torque_rows(
-    maps: WrenchMapSet, flight: str | Path, vehicle: VehicleParams, delta: float | None = None
+    maps: WrenchMapSet,
+    flight: str | Path,
+    vehicle: VehicleParams,
+    delta: float | None = None,
+    cells: Partition | None = None,
+    pool: bool = False,
 ) -> tuple[WrenchMapSet, dict[str, TorqueFit]]:
     """Read a flight log and replace the torque rows of ``maps`` by its fit (``omnirotor identify --torque``).
 
     ``flight`` is a flight-log CSV (module docstring) or a PX4 ULog (``.ulg``, :func:`load_flight_ulog`; what it
-    chose is said on stderr).
+    chose is said on stderr). With ``cells``, the flight's samples belong to those cells (a CSV names them, as
+    ``identify-dynamic-cells`` writes): the maps are refined onto the cells (:func:`refine_maps`) and the torque
+    rows are fitted per cell, or, with ``pool``, the samples of each cell go to the region of ``maps`` that
+    holds it and the maps keep their partition.
     """
+    owner: dict[str, str] = {}
+    if cells is not None and pool:
+        owner = cell_regions(maps.partition, cells)
+        if Path(flight).suffix.lower() == ".ulg":
+            owner = {}  # a ULog's samples are labelled with the maps' own regions already
+    elif cells is not None:
+        maps = refine_maps(maps, cells)
     params = TorqueIdParams(delta=delta) if delta is not None else TorqueIdParams()
     if Path(flight).suffix.lower() == ".ulg":
         log, notes = load_flight_ulog(flight, vehicle, maps.partition)
@@ -382,4 +448,12 @@ def flight_torque_rows(
     else:
         log = load_flight_csv(flight, vehicle)
     u, m, region = moment_samples(log, vehicle, params)
+    if owner:
+        region = tuple(owner.get(r, r) for r in region)
+    unknown = sorted(set(region) - set(maps.partition.names) - {""})
+    if unknown:
+        note(
+            f"{Path(flight).name}: samples of {', '.join(unknown)} (not regions of partition "
+            f"{maps.partition.name!r}) fit only the global map"
+        )
     return merge_torque_rows(maps, u, m, region, params)

@@ -73,6 +73,21 @@ def identify_cmd(
     torque: Annotated[
         Path | None, typer.Option(help="Flight log (CSV of run identify-dynamic, or PX4 .ulg): fit torque rows.")
     ] = None,
+    torque_partition: Annotated[
+        str | None,
+        typer.Option(
+            help="Fit the torque rows per cell of this partition (preset, e.g. torque-cells, or TOML); each cell "
+            "keeps the force rows of its region. Fly the cells with run identify-dynamic-cells, the maps with "
+            "--blend smooth."
+        ),
+    ] = None,
+    torque_pool: Annotated[
+        bool,
+        typer.Option(
+            help="With --torque-partition: pool each cell's samples into its region of --partition (one set of "
+            "torque rows per region, the maps keep --partition)."
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Identify per-region and global wrench maps from hover data (box-constrained weighted QP)."""
@@ -95,6 +110,11 @@ def identify_cmd(
             check_flight_log(vehicle)  # name missing attitude or rotor speeds before missing geometry
     veh = load_vehicle(vehicle, vehicle_overlay)
     part = load_partition(partition)
+    if torque_partition is not None and torque is None:
+        raise InputError("--torque-partition needs --torque FLIGHT (the flight log whose torque rows it fits)")
+    if torque_pool and torque_partition is None:
+        raise InputError("--torque-pool needs --torque-partition (the cells the flight's samples belong to)")
+    cells = load_partition(torque_partition) if torque_partition is not None else None
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh)
     maps = identify(hover, veh, params, part, region)
@@ -102,7 +122,7 @@ def identify_cmd(
     if torque is not None:
         from omnirotor.torque_identification import flight_torque_rows
 
-        maps, torque_fits = flight_torque_rows(maps, torque, veh, delta_value)
+        maps, torque_fits = flight_torque_rows(maps, torque, veh, delta_value, cells, torque_pool)
     if out is not None:
         maps.save(out)
         if replacing:

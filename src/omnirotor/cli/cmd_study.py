@@ -141,20 +141,34 @@ def torque_rows_cmd(
     quick: Annotated[bool, typer.Option("--quick", help="Shortened flights (R1 only for the sweeps).")] = False,
     seed: Annotated[int, typer.Option(help="Seed of the flights.")] = 0,
     vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    validation_attitudes: Annotated[
+        int | None, typer.Option(help="Validation attitudes per region (default: the hover protocol's, 5 or 2).")
+    ] = None,
 ) -> None:
-    """Torque rows from an attitude-sweep flight against hover-only maps (closed loop, paper Fig. 3 moments)."""
+    """Torque rows from attitude-sweep flights against hover-only maps (closed loop, paper Fig. 3 moments)."""
+    import dataclasses
+
     import numpy as np
 
-    from omnirotor.studies.torque_rows import plot_torque_rows, torque_rows_study
+    from omnirotor.experiments.tasks import HoverProtocol
+    from omnirotor.studies.torque_rows import plot_hover_moments, plot_torque_rows, torque_rows_study
     from omnirotor.vehicle import load_vehicle
 
     check_output_dir(out, "--out")
     load_vehicle(vehicle)  # a bad vehicle is one line before the folder is made
+    protocol = None
+    if validation_attitudes is not None:
+        if not 2 <= validation_attitudes <= 100:
+            raise InputError(f"--validation-attitudes must be in [2, 100], got {validation_attitudes}")
+        base = HoverProtocol.quick() if quick else HoverProtocol()
+        protocol = dataclasses.replace(base, validation_per_region=validation_attitudes)
     make_dir(out, "--out")
-    result = torque_rows_study(out, quick=quick, seed=seed, vehicle_name=vehicle)
+    result = torque_rows_study(out, quick=quick, seed=seed, vehicle_name=vehicle, validation=protocol)
     write_json_atomic(out / "torque-rows.json", result, "--out")
     with atomic_path(out / "torque-rows.png", "--out") as tmp:
         plot_torque_rows(result, tmp)
+    with atomic_path(out / "torque-moments.png", "--out") as tmp:
+        plot_hover_moments(result, tmp)
     for r, e in result["torque_rows"].items():
         print(
             f"{r}: mean |A2 entry - truth| nominal {e['entry_abs_error_nominal_mean']:.2e}, identified "
@@ -162,7 +176,8 @@ def torque_rows_cmd(
         )
     for mname, regs in result["hover_validation_moments"].items():
         cells = "; ".join(
-            f"{r} mean {np.round(v['moment_B_mean_Nm'], 3).tolist()} std {np.round(v['moment_B_std_Nm'], 3).tolist()}"
+            f"{r} mean {np.round(v['moment_B_mean_Nm'], 3).tolist()} "
+            f"spread over attitudes {np.round(v['moment_B_std_over_attitudes_Nm'], 3).tolist()}"
             for r, v in regs.items()
         )
         print(f"hover moment estimate [N·m], {mname}: {cells}")

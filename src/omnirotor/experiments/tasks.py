@@ -472,6 +472,7 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
             "moment_B_mean_Nm": mo.mean(axis=0).tolist(),
             "moment_B_std_Nm": mo.std(axis=0).tolist(),
             "moment_B_std_over_attitudes_Nm": m_att.std(axis=0).tolist(),
+            "moment_B_per_attitude_Nm": m_att.tolist(),
             "attitudes": sum(1 for name, _ in windows if name == r),
         }
         samples[r] = f[:: max(1, f.shape[0] // 400)]
