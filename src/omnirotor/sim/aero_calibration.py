@@ -2,11 +2,11 @@
 
 In hover the rotors hold the weight: the measured body force of point j is ``f_j = R_j^T m g e3`` (SPEC §3.1)
 and the measured inputs ``u_j`` are known. The truth model of :mod:`omnirotor.sim.aero` predicts ``f(u_j)``;
-the fit minimises ``sum_j |f(u_j) - f_j|²`` over the six parameters of :data:`FIT_PARAMETERS`, each inside
+the fit minimises ``sum_j |f(u_j) - f_j|²`` over the seven parameters of :data:`FIT_PARAMETERS`, each inside
 physical bounds (:data:`BOUNDS`), by bounded nonlinear least squares from a neutral start
 (:data:`NEUTRAL_START`, plus a fixed grid of starting yaws and ingestion gains). The force-stand ratios of SPEC
 §3.5 (R1, R6 and the mixed-direction regions, relative to R1) enter as a soft prior
-(:func:`stand_prior_residual`): fitted on the flight points alone, the model predicts the upside-down robot 8 %
+(:func:`stand_prior_residual`): fitted on the flight points alone, the model predicts the upside-down robot 5 %
 below upright, where the stand measured it 3 % above.
 The region labels are used only to *group* points for the leave-one-region-out cross-validation and the
 per-region report; the model never sees them.
@@ -14,7 +14,9 @@ per-region report; the model never sees them.
 The report compares, over the same points: the nominal map ``A_nom u``; the nominal map times one best
 constant; SPEC §7's model; the calibrated rotor-wake model; the identified global map and the per-region maps
 (SPEC §3.2, the paper's QP). The cross-validation refits the model without one region (and without one point)
-and scores the points left out.
+and scores the points left out. The report also gives the repeat noise floor (:func:`repeat_noise_floor`: how
+much the residual varies between flights of one attitude, which no model of the inputs can follow) and the fit
+with the full three-angle frame rotation (:data:`FRAME_TILT_PARAMETERS`), scored the same way.
 """
 
 from __future__ import annotations
