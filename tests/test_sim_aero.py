@@ -199,3 +199,18 @@ def test_bad_aero_params_raise_input_error():
     for bad in ({"model": "cfd"}, {"kappa0": 0.0}, {"gamma": -1.0}, {"eta_min": 2.0}, {"rho": float("nan")}):
         with pytest.raises(InputError):
             AeroParams(**bad)
+
+
+def test_the_calibrated_wake_model_says_when_it_meets_another_geometry(capsys):
+    from omnirotor.sim import aero as aero_module
+
+    aero_module._SAID_EXTRAPOLATED.clear()
+    make_aero(load_vehicle("omnirotor"))
+    assert capsys.readouterr().err == ""  # the vehicle it was calibrated on
+    quad = load_vehicle("quadrotor")
+    make_aero(quad)
+    make_aero(quad)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "extrapolated to vehicle 'quadrotor'" in err  # said once per vehicle
+    make_aero(quad, AeroParams(model="nominal"))
+    assert capsys.readouterr().err == ""  # its own map: nothing assumed

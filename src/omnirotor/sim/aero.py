@@ -50,6 +50,7 @@ The compiled kernels of both models are here; the simulator's step calls them th
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -157,6 +158,36 @@ class _CompiledAero:
         return out
 
 
+_SAID_EXTRAPOLATED: set[str] = set()
+
+
+@functools.cache
+def _calibration_geometry() -> tuple[np.ndarray, np.ndarray]:
+    """Rotor positions and axes of the vehicle the rotor-wake parameters were calibrated on (the Omnirotor)."""
+    from omnirotor.vehicle import load_vehicle
+
+    v = load_vehicle("omnirotor")
+    return v.positions_B, v.axes_B
+
+
+def _say_if_extrapolated(vehicle: VehicleParams) -> None:
+    """Say on stderr, once per vehicle and process, that the calibrated pair gains meet a geometry of their own."""
+    positions, axes = _calibration_geometry()
+    same = vehicle.positions_B.shape == positions.shape and (
+        np.allclose(vehicle.positions_B, positions, rtol=0.0, atol=1e-6)
+        and np.allclose(vehicle.axes_B, axes, rtol=0.0, atol=1e-6)
+    )
+    if same or vehicle.name in _SAID_EXTRAPOLATED:
+        return
+    _SAID_EXTRAPOLATED.add(vehicle.name)
+    from omnirotor.safe_io import note
+
+    note(
+        f"truth aerodynamics: the rotor-wake model calibrated on the Omnirotor is extrapolated to vehicle "
+        f"{vehicle.name!r}, whose rotor geometry differs (--truth nominal flies its own map)"
+    )
+
+
 class WakeAero(_CompiledAero):
     """The rotor-wake truth model (module docstring), optionally with per-rotor manufacturing errors.
 
@@ -171,6 +202,7 @@ class WakeAero(_CompiledAero):
         super().__init__(wake_wrench, wake_efficiency)
         p = params or AeroParams()
         n = vehicle.n_rotors
+        _say_if_extrapolated(vehicle)
         self.params = p
         self.n_rotors = n
         axes, gains = _manufactured_axes_and_gains(vehicle.axes_B, p)
