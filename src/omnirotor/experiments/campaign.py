@@ -103,6 +103,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.experiments.campaign_pool import BACKENDS
 from omnirotor.experiments.campaign_report import (
     DEFINITION_FILE,
     PLOTS_DIR,
@@ -162,7 +163,6 @@ __all__ = [
     "plot_comparison",
 ]
 
-BACKENDS = ("local", "ray")
 IDENTIFY_REGIONS = ("R1", "R3", "R4")
 IDENTIFY_POINTS_PER_REGION = 8
 """Hover attitudes per region of :func:`identify_truth_maps` (the regions the paper flew)."""
@@ -486,6 +486,8 @@ def run_campaign(
     restart: bool = False,
     progress: Callable[[int, int, dict | None], None] | None = None,
     plots: bool = True,
+    executor: cf.Executor | None = None,
+    run_fn: Callable[[RunJob], dict] = execute_run,
 ) -> dict:
     """Run the runs of a campaign not yet in ``out_dir``, then summarise and plot.
 
@@ -500,6 +502,10 @@ def run_campaign(
         restart: discard the folder's results first (also when its definition differs).
         progress: called with (runs done, runs requested, the record just finished or None).
         plots: write the PNG plots.
+        executor: warm workers to run on instead of a new pool (local backend; the resident pool of
+            :mod:`omnirotor.experiments.campaign_pool`): at most ``workers`` runs at a time, and the plots drawn
+            there too.
+        run_fn: what runs a job on ``executor`` (picklable; the record of :func:`execute_run`).
 
     Returns:
         The summary (also in ``DIR/summary.json``), with ``executed``: the runs this call ran.
@@ -521,21 +527,42 @@ def run_campaign(
         raise InputError(f"--out {out}: exists and is not a folder")
     ray, started = _ray_connect(workers, address) if backend == "ray" else (None, False)
     try:
-        return _run(spec, out, n, backend, workers, ray, restart, progress, plots)
+        return _run(spec, out, n, backend, workers, ray, restart, progress, plots, (executor, run_fn))
     finally:
         if started:
             ray.shutdown()
 
 
-def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool) -> dict:
-    """:func:`run_campaign` once the backend is up."""
+def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool, pool) -> dict:
+    """:func:`run_campaign` once the backend is up (``pool``: its executor and run function)."""
     _prepare_folder(spec, out, restart, check_only=True)  # refuse before writing anything
     make_dir(out, "--out")
     with _folder_lock(out) as lock_fd:
-        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd)
+        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd, pool)
 
 
-def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd) -> dict:
+def _executor_backend(executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int):
+    """Yield records as the runs finish on warm workers, at most ``limit`` at a time, in the order of ``jobs``.
+
+    When stopped early (the command hung up), the runs not yet started are never started.
+    """
+    queue = list(reversed(jobs))
+    pending: set[cf.Future] = set()
+    try:
+        while queue or pending:
+            while queue and len(pending) < limit:
+                pending.add(executor.submit(run_fn, queue.pop()))
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                yield fut.result()
+    finally:
+        for fut in pending:
+            fut.cancel()
+
+
+def _run_locked(
+    spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd, pool
+) -> dict:
     """:func:`_run` holding the folder's lock."""
     _prepare_folder(spec, out, restart)
     route_mujoco_log(out)  # the workers inherit it
@@ -554,8 +581,11 @@ def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bo
             done[i] = rec
     count = len(done)
     report(count, n, None)
+    executor, run_fn = pool
     if jobs:
-        if backend == "local":
+        if backend == "local" and executor is not None:
+            stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers)
+        elif backend == "local":
             stream = _local_backend(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
         else:
             stream = _ray_backend(ray, jobs, workers)
@@ -570,7 +600,7 @@ def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bo
     write_json_atomic(out / SUMMARY_FILE, summary)  # before the plots: a plotting failure never loses it
     if plots:
         try:
-            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR)]
+            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR, executor=executor)]
         except Exception as exc:  # the summary stands; say what went wrong with the plots
             summary["plots_error"] = f"{type(exc).__name__}: {exc}"
             note(f"campaign plots failed ({summary['plots_error'][:200]}); {out / SUMMARY_FILE} is written")
