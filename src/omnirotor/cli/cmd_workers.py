@@ -29,15 +29,16 @@ app.add_typer(workers_app, name="workers")
 def start(
     workers: Annotated[int | None, typer.Option(help="Worker processes (default: the CPU count).")] = None,
     idle_timeout: Annotated[
-        float, typer.Option(parser=number_option, help="Exit after this many seconds without a campaign.")
-    ] = 1800.0,
+        float | None,
+        typer.Option(parser=number_option, help="Exit after this many seconds without a campaign (default 1800)."),
+    ] = None,
 ) -> None:
     """Start this checkout's resident pool in the background and wait until its workers are warm."""
-    from omnirotor.experiments.campaign_pool import start_pool
+    from omnirotor.experiments.campaign_pool import IDLE_TIMEOUT_S, start_pool
 
     n = workers if workers is not None else (os.cpu_count() or 1)
     tic = time.perf_counter()
-    st = start_pool(n, idle_timeout)
+    st = start_pool(n, IDLE_TIMEOUT_S if idle_timeout is None else idle_timeout)
     if st["already"]:
         print(f"resident pool already running: pid {st['pid']}, {st['workers']} workers ({st['state']})")
         return

@@ -544,8 +544,12 @@ def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, pro
 def _executor_backend(executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int):
     """Yield records as the runs finish on warm workers, at most ``limit`` at a time, in the order of ``jobs``.
 
-    When stopped early (the command hung up), the runs not yet started are never started.
+    A ``limit`` of all the executor's workers queues every job at once, so that no worker waits for this process
+    (writing a result, say) between runs. When stopped early (the command hung up), the runs not yet started
+    are never started.
     """
+    if limit >= getattr(executor, "_max_workers", limit + 1):
+        limit = len(jobs)
     queue = list(reversed(jobs))
     pending: set[cf.Future] = set()
     try:
