@@ -71,10 +71,10 @@ The pool's workers ignore Ctrl-C (the main process stops them) and die with the 
 non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
 Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor` whose workers are forked from this process,
 so they share its imports, and load the compiled kernels on a 10 ms run before their first job:
-:func:`warm_up`; a run's results never depend on which worker flew it, tested against the one-run path) or
-``ray`` (the optional ``ray``
-extra; a local Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor
-installed).
+:func:`warm_up`, then draw the plots in parallel; a run's results never depend on which worker flew it, tested
+against the one-run path; or the warm workers of a resident pool, ``executor``:
+:mod:`omnirotor.experiments.campaign_pool`) or ``ray`` (the optional ``ray`` extra; a local Ray the campaign
+starts, or a running cluster given by address, whose nodes need omnirotor installed).
 
 This module runs campaigns; :mod:`omnirotor.experiments.campaign_spec` reads their files and draws each
 run's options, :mod:`omnirotor.experiments.campaign_report` summarises and plots a campaign folder (their
@@ -388,15 +388,16 @@ def _start_worker(parent_pid: int, close_fds: tuple[int, ...], warm: RunJob | No
         warm_up(warm)
 
 
-def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
-    """Yield records as the runs finish, on a process pool (one worker: in this process, in order).
+@contextlib.contextmanager
+def _local_pool(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
+    """A process pool of ``workers`` for ``jobs`` (None for one worker: the runs then fly in this process).
 
-    The workers are forked from this process (its imports are theirs) and warm up (:func:`warm_up`) in
-    parallel before their first run.
+    The workers are forked from this process (its imports are theirs) and warm up (:func:`warm_up`) in parallel
+    before their first run; after the runs they draw the plots (each imports matplotlib then). Leaving the block
+    early (Ctrl-C, an error) kills the runs under way at once.
     """
     if workers == 1:
-        for job in jobs:
-            yield execute_run(job)
+        yield None
         return
     pool = cf.ProcessPoolExecutor(
         max_workers=workers,
@@ -405,9 +406,7 @@ def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None)
     )
     finished = False
     try:
-        futures = [pool.submit(execute_run, job) for job in jobs]
-        for fut in cf.as_completed(futures):
-            yield fut.result()
+        yield pool
         finished = True
     finally:
         if not finished:  # interrupted or failed: stop the runs under way now, not when they end
@@ -586,21 +585,31 @@ def _run_locked(
     count = len(done)
     report(count, n, None)
     executor, run_fn = pool
-    if jobs:
-        if backend == "local" and executor is not None:
-            stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers)
-        elif backend == "local":
-            stream = _local_backend(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
-        else:
-            stream = _ray_backend(ray, jobs, workers)
-        for rec in stream:
-            _append_record(out / RESULTS_FILE, rec)
-            done[rec["index"]] = rec
-            count += 1
-            report(count, n, rec)
+    if backend == "local" and executor is None and jobs:  # the command's own pool, for the runs and the plots
+        pool_cm = _local_pool(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
+    else:
+        pool_cm = contextlib.nullcontext(executor)
+    with pool_cm as executor:
+        if jobs:
+            if backend == "local" and executor is not None:
+                stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers)
+            elif backend == "local":
+                stream = (execute_run(job) for job in jobs)
+            else:
+                stream = _ray_backend(ray, jobs, workers)
+            for rec in stream:
+                _append_record(out / RESULTS_FILE, rec)
+                done[rec["index"]] = rec
+                count += 1
+                report(count, n, rec)
+        return _finish(spec, out, n, done, len(jobs), plots, executor)
+
+
+def _finish(spec, out: Path, n: int, done: dict, executed: int, plots: bool, executor) -> dict:
+    """Summarise the campaign folder's records, then plot (on ``executor``'s workers when given)."""
     records = [done[i] for i in sorted(done)]
     summary = summarize(spec, records, n)
-    summary["executed"] = len(jobs)
+    summary["executed"] = executed
     write_json_atomic(out / SUMMARY_FILE, summary)  # before the plots: a plotting failure never loses it
     if plots:
         try:
