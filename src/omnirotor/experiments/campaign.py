@@ -602,18 +602,18 @@ def _run_locked(
                 done[rec["index"]] = rec
                 count += 1
                 report(count, n, rec)
-        return _finish(spec, out, n, done, len(jobs), plots, executor)
+        return _finish(spec, out, n, done, len(jobs), plots, executor, workers)
 
 
-def _finish(spec, out: Path, n: int, done: dict, executed: int, plots: bool, executor) -> dict:
-    """Summarise the campaign folder's records, then plot (on ``executor``'s workers when given)."""
+def _finish(spec, out: Path, n: int, done: dict, executed: int, plots: bool, executor, workers) -> dict:
+    """Summarise the campaign folder's records, then plot (on ``workers`` of ``executor``'s when given)."""
     records = [done[i] for i in sorted(done)]
     summary = summarize(spec, records, n)
     summary["executed"] = executed
     write_json_atomic(out / SUMMARY_FILE, summary)  # before the plots: a plotting failure never loses it
     if plots:
         try:
-            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR, executor=executor)]
+            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR, executor, workers)]
         except Exception as exc:  # the summary stands; say what went wrong with the plots
             summary["plots_error"] = f"{type(exc).__name__}: {exc}"
             note(f"campaign plots failed ({summary['plots_error'][:200]}); {out / SUMMARY_FILE} is written")

@@ -33,6 +33,7 @@ __all__ = [
     "summarize",
     "plot_campaign",
     "plot_parameter",
+    "plot_parameters",
     "plot_comparison",
     "warm_plots",
 ]
@@ -301,7 +302,9 @@ def _unit(param: str) -> str:
     return f"{param} [{p.unit}]" if p is not None and p.unit else param
 
 
-def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path, executor=None) -> list[Path]:
+def plot_campaign(
+    spec: CampaignSpec, records: list[dict], out_dir: str | Path, executor=None, workers: int | None = None
+) -> list[Path]:
     """One PNG per varied parameter: binned success rate, and the key metric of each run against it.
 
     Args:
@@ -309,13 +312,25 @@ def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path, 
         records: its run records.
         out_dir: folder of the PNG files.
         executor: warm workers (a ``concurrent.futures.Executor``) to draw the plots on in parallel, or None.
+        workers: how many of them (None: all).
     """
     ok = [r for r in records if r.get("status") == "ok"]
     names = [name for name, _ in spec.vary]
     if executor is None:
-        return [plot_parameter(spec, ok, name, out_dir) for name in names]
-    futures = [executor.submit(plot_parameter, spec, ok, name, out_dir) for name in names]
-    return [fut.result() for fut in futures]
+        return plot_parameters(spec, ok, names, out_dir)
+    k = max(1, min(workers or executor._max_workers, len(names)))
+    futures = [executor.submit(plot_parameters, spec, ok, names[i::k], out_dir) for i in range(k)]
+    drawn = {p.name: p for fut in futures for p in fut.result()}
+    return [drawn[_plot_name(name)] for name in names]
+
+
+def _plot_name(name: str) -> str:
+    return f"success-vs-{name.replace('.', '_')}.png"
+
+
+def plot_parameters(spec: CampaignSpec, ok: list[dict], names: list[str], out_dir: str | Path) -> list[Path]:
+    """The plots of :func:`plot_campaign` for the varied parameters ``names`` (``ok``: the finished runs)."""
+    return [plot_parameter(spec, ok, name, out_dir) for name in names]
 
 
 def plot_parameter(spec: CampaignSpec, ok: list[dict], name: str, out_dir: str | Path) -> Path:
@@ -330,7 +345,7 @@ def plot_parameter(spec: CampaignSpec, ok: list[dict], name: str, out_dir: str |
     a2.set_title(f"{spec.key_metric} of each run", y=1.0)
     if a2.has_data():
         a2.legend(fontsize=8)
-    return _save(fig, Path(out_dir) / f"success-vs-{name.replace('.', '_')}.png", tight=False)
+    return _save(fig, Path(out_dir) / _plot_name(name), tight=False)
 
 
 def warm_plots() -> None:
