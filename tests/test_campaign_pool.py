@@ -184,7 +184,7 @@ def test_campaign_on_the_pool_equals_the_commands_own_pool_run_by_run(cache, tmp
     assert "not running" in cli("workers", "status", cache=cache).stdout
 
 
-def test_a_command_that_hangs_up_stops_its_campaign_and_the_pool_serves_the_next(cache, tmp_path, monkeypatch):
+def test_a_command_that_hangs_up_stops_its_campaign_and_the_pool_serves_the_next(cache, tmp_path, monkeypatch, capsys):
     camp = tmp_path / "c.toml"
     camp.write_text(CAMPAIGN)
     cp.start_pool(2, 120.0)
@@ -193,6 +193,9 @@ def test_a_command_that_hangs_up_stops_its_campaign_and_the_pool_serves_the_next
     run = cp.resident_campaign(args, None)
     assert run is not None and run.start["runs"] == 400
     next(msg for msg in run.runs() if msg["record"] is not None)  # one run finished
+    # a second command meanwhile: refused (busy), so it runs its own pool
+    assert cp.resident_campaign({"campaign_file": str(camp), "out": str(tmp_path / "x")}, None) is None
+    assert "busy with another campaign" in capsys.readouterr().err
     run.close()  # as Ctrl-C does
     deadline = time.monotonic() + 60
     while cp.pool_status()["busy"] and time.monotonic() < deadline:
@@ -205,3 +208,21 @@ def test_a_command_that_hangs_up_stops_its_campaign_and_the_pool_serves_the_next
     assert sum(1 for m in second.runs() if m["record"] is not None) == 2
     assert second.result["type"] == "done" and second.result["summary"]["runs_done"] == 2
     second.close()
+
+
+def test_a_worker_that_dies_fails_the_campaign_in_one_line_and_the_next_gets_fresh_workers(cache, tmp_path):
+    camp = tmp_path / "c.toml"
+    camp.write_text(CAMPAIGN)
+    st = cp.start_pool(2, 120.0)
+    run = cp.resident_campaign({"campaign_file": str(camp), "runs": 400, "out": str(tmp_path / "a")}, None)
+    assert run is not None
+    next(msg for msg in run.runs() if msg["record"] is not None)
+    os.kill(st["worker_pids"][0], 9)  # a worker killed (out of memory, say)
+    for _ in run.runs():
+        pass
+    assert run.result["type"] == "error" and run.result["kind"] == "internal"
+    run.close()
+    again = cli("campaign", "--campaign", str(camp), "--runs", "2", "--out", "b", cache=cache, cwd=tmp_path)
+    assert again.returncode == 0 and "campaign on the resident worker pool" in again.stderr, again.stderr
+    new = cp.pool_status()["worker_pids"]
+    assert len(new) == 2 and st["worker_pids"][0] not in new
