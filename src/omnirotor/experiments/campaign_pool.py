@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from omnirotor.errors import InputError
+from omnirotor.safe_io import note
 
 __all__ = [
     "BACKENDS",
@@ -319,9 +320,10 @@ def resident_campaign(args: dict[str, Any], workers: int | None) -> _Campaign | 
         InputError: the pool found the options bad (the same message as the command's own checks).
     """
     path = socket_path()
-    s = _connect(path, None)
+    s = _connect(path)
     if s is None:
         return None
+    s.settimeout(None)  # the answer comes once the pool's workers are warm (after a worker died: a while)
     f = s.makefile("rwb")
     request = {"op": "campaign", "digest": source_digest(), "cwd": os.getcwd(), "args": args, "workers": workers}
     try:
@@ -335,13 +337,9 @@ def resident_campaign(args: dict[str, Any], workers: int | None) -> _Campaign | 
         if first is not None and first.get("type") == "error":
             raise InputError(first["message"])
         why = (first or {}).get("why", "it did not answer")
-        _note(f"not using the resident worker pool ({why}); running a local pool")
+        note(f"not using the resident worker pool ({why}); running a local pool")
         return None
     return _Campaign(s, f, first)
-
-
-def _note(message: str) -> None:
-    print(f"omnirotor: note: {message}", file=sys.stderr)
 
 
 # -- the pool's process ------------------------------------------------------------------------------------------
