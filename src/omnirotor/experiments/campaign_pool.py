@@ -436,6 +436,8 @@ class _Daemon:
                 if getattr(self.executor, "_broken", False):
                     raise RuntimeError(f"a worker failed while warming up: {self.executor._broken}")
             self.worker_pids = sorted(pids)
+            if source_digest() != self.digest:  # edited while this process imported them: trust neither
+                self.digest = "sources-changed-while-starting"
             self.state = "ready"
 
     def status(self) -> dict:
