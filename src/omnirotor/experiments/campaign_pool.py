@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_WORKERS
 from omnirotor.safe_io import note
 
 __all__ = [
@@ -242,8 +243,8 @@ def start_pool(workers: int, idle_timeout_s: float, warm: bool = True, wait: boo
     Raises:
         InputError: bad arguments, a socket path too long, or a pool that failed to start (its log's last line).
     """
-    if not 1 <= workers <= 256:
-        raise InputError(f"--workers must be in 1..256, got {workers}")
+    if not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers must be in 1..{MAX_WORKERS}, got {workers}")
     if not 1.0 <= idle_timeout_s <= MAX_IDLE_TIMEOUT_S:
         raise InputError(f"--idle-timeout must be in [1, {MAX_IDLE_TIMEOUT_S:g}] s, got {idle_timeout_s:g}")
     path = socket_path()
@@ -254,6 +255,7 @@ def start_pool(workers: int, idle_timeout_s: float, warm: bool = True, wait: boo
         st["already"] = True
         return st
     if st is not None:
+        note(f"stopping the resident pool started from other sources (pid {st['pid']})")
         stop_pool()
     folder = path.parent
     folder.mkdir(parents=True, exist_ok=True, mode=0o700)
