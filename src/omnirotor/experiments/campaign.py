@@ -540,12 +540,14 @@ def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, pro
         return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd, pool)
 
 
-def _executor_backend(executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int):
+def _executor_backend(
+    executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int, cancel: bool
+):
     """Yield records as the runs finish on warm workers, at most ``limit`` at a time, in the order of ``jobs``.
 
     A ``limit`` of all the executor's workers queues every job at once, so that no worker waits for this process
-    (writing a result, say) between runs. When stopped early (the command hung up), the runs not yet started
-    are never started.
+    (writing a result, say) between runs. ``cancel``: when the consumer stops early (the command hung up), the
+    runs not yet started are cancelled (a resident pool goes on serving); else the pool's owner kills it.
     """
     if limit >= getattr(executor, "_max_workers", limit + 1):
         limit = len(jobs)
@@ -558,9 +560,11 @@ def _executor_backend(executor: cf.Executor, run_fn: Callable[[RunJob], dict], j
             done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
             for fut in done:
                 yield fut.result()
-    finally:
-        for fut in pending:
-            fut.cancel()
+    except GeneratorExit:
+        if cancel:
+            for fut in pending:
+                fut.cancel()
+        raise
 
 
 def _run_locked(
@@ -585,14 +589,15 @@ def _run_locked(
     count = len(done)
     report(count, n, None)
     executor, run_fn = pool
-    if backend == "local" and executor is None and jobs:  # the command's own pool, for the runs and the plots
+    own = backend == "local" and executor is None and bool(jobs)  # the command's own pool: runs, then plots
+    if own:
         pool_cm = _local_pool(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
     else:
         pool_cm = contextlib.nullcontext(executor)
     with pool_cm as executor:
         if jobs:
             if backend == "local" and executor is not None:
-                stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers)
+                stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers, not own)
             elif backend == "local":
                 stream = (execute_run(job) for job in jobs)
             else:
