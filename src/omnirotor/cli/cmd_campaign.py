@@ -77,7 +77,7 @@ def campaign(
     if pool is not None:
         head = pool.start
         out, label, total = Path(head["out"]), f"{head['task']} ({head['map']} map)", head["runs"]
-        used = f"{head['workers']} warm workers"
+        used = f"{head['workers']} warm worker{'s' if head['workers'] != 1 else ''}"
         if workers is not None and workers > head["workers"]:
             used += f", not the {workers} asked: the pool has {head['workers']}"
         note(f"campaign on the resident worker pool (pid {head['pid']}, {used})")
