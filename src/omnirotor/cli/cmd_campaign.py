@@ -7,6 +7,7 @@ Everything is checked before the output folder is touched: a bad option leaves n
 from __future__ import annotations
 
 import importlib.util
+import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -39,20 +40,15 @@ def campaign(
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Campaign seed (default: the file's).")] = None,
     restart: Annotated[bool, typer.Option(help="Discard the folder's results and start again.")] = False,
+    resident: Annotated[
+        bool, typer.Option(help="Run on the resident worker pool when it runs (omnirotor workers start).")
+    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON object.")] = False,
 ) -> None:
     """Run N randomised, seeded runs of a task; save each result as it arrives; summarise and plot."""
     from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
 
-    from omnirotor.experiments.campaign import BACKENDS, load_campaign, run_campaign
+    from omnirotor.experiments.campaign_pool import BACKENDS, resident_campaign
 
     if runs is not None and not 1 <= runs <= MAX_CAMPAIGN_RUNS:
         raise InputError(f"--runs must be >= 1 and <= {MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
@@ -70,26 +66,34 @@ def campaign(
         raise InputError("--seed must be >= 0 and < 2^63")
     if out is not None:
         check_output_dir(out, "--out")
-    spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
-    if out is None:
-        name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
-        out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
-    check_output_dir(out, "--out")
     err = Console(stderr=True)
+    tic = time.perf_counter()
+    pool = None
+    if backend == "local" and resident:
+        args = {"task": task, "runs": runs, "quick": quick, "out": None if out is None else str(out),
+                "campaign_file": campaign_file, "map_mode": map_mode, "maps": maps, "seed": seed,
+                "restart": restart}  # fmt: skip
+        pool = resident_campaign(args, workers)
+    if pool is not None:
+        head = pool.start
+        out, label, total = Path(head["out"]), f"{head['task']} ({head['map']} map)", head["runs"]
+        used = f"{head['workers']} warm worker{'s' if head['workers'] != 1 else ''}"
+        if workers is not None and workers > head["workers"]:
+            used += f", not the {workers} asked: the pool has {head['workers']}"
+        note(f"campaign on the resident worker pool (pid {head['pid']}, {used})")
+    else:
+        from omnirotor.experiments.campaign import load_campaign
+
+        spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
+        if out is None:
+            name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
+            out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
+        check_output_dir(out, "--out")
+        label, total = f"{spec.task} ({spec.options.map} map)", runs or spec.runs
     state = {"ok": 0, "fail": 0, "error": 0}
     simulated = [0.0]  # simulated seconds of the runs finished by this call
-    with Progress(
-        TextColumn(f"[bold]{spec.task}[/bold] ({spec.options.map} map)"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.description}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-    ) as bar:
-        bar_id = bar.add_task("", total=runs or spec.runs)
-        tic = time.perf_counter()
+    with _progress_bar(err, label) as bar:
+        bar_id = bar.add_task("", total=total)
 
         def progress(done: int, total: int, rec: dict | None) -> None:
             if rec is not None:
@@ -104,14 +108,22 @@ def campaign(
             )
 
         try:
-            summary = run_campaign(
-                spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
-                progress=progress,
-            )  # fmt: skip
+            if pool is not None:
+                summary = _follow(pool, progress)
+            else:
+                from omnirotor.experiments.campaign import run_campaign
+
+                summary = run_campaign(
+                    spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
+                    progress=progress,
+                )  # fmt: skip
         except KeyboardInterrupt:
             raise Interrupted(
                 f"the finished runs are kept in {out / 'results.jsonl'}; run the same command again to resume"
             ) from None
+        finally:
+            if pool is not None:
+                pool.close()
     wall = time.perf_counter() - tic
     line = (
         f"throughput: {simulated[0]:.1f} simulated s in {wall:.2f} s wall ({simulated[0] / max(wall, 1e-9):.1f} per s)"
@@ -122,6 +134,41 @@ def campaign(
         return
     _print_summary(summary, out)
     Console().print(line, highlight=False, soft_wrap=True)
+
+
+def _progress_bar(err, label: str):
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(
+        TextColumn(f"[bold]{label}[/bold]"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    )
+
+
+def _follow(pool, progress) -> dict:
+    """Feed the resident pool's messages about a campaign to ``progress``; its summary (errors raised here)."""
+    for msg in pool.runs():
+        progress(msg["done"], msg["total"], msg["record"])
+    result = pool.result
+    if result["type"] == "done":
+        return result["summary"]
+    if result.get("kind") == "input":
+        raise InputError(result["message"])
+    print(f"omnirotor: error: the resident worker pool failed: {result['message']}", file=sys.stderr)
+    raise typer.Exit(1)
 
 
 def _print_summary(s: dict, out: Path) -> None:

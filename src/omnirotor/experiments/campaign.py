@@ -71,10 +71,10 @@ The pool's workers ignore Ctrl-C (the main process stops them) and die with the 
 non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
 Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor` whose workers are forked from this process,
 so they share its imports, and load the compiled kernels on a 10 ms run before their first job:
-:func:`warm_up`; a run's results never depend on which worker flew it, tested against the one-run path) or
-``ray`` (the optional ``ray``
-extra; a local Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor
-installed).
+:func:`warm_up`, then draw the plots in parallel; a run's results never depend on which worker flew it, tested
+against the one-run path; or the warm workers of a resident pool, ``executor``:
+:mod:`omnirotor.experiments.campaign_pool`) or ``ray`` (the optional ``ray`` extra; a local Ray the campaign
+starts, or a running cluster given by address, whose nodes need omnirotor installed).
 
 This module runs campaigns; :mod:`omnirotor.experiments.campaign_spec` reads their files and draws each
 run's options, :mod:`omnirotor.experiments.campaign_report` summarises and plots a campaign folder (their
@@ -103,6 +103,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.experiments.campaign_pool import BACKENDS
 from omnirotor.experiments.campaign_report import (
     DEFINITION_FILE,
     PLOTS_DIR,
@@ -162,7 +163,6 @@ __all__ = [
     "plot_comparison",
 ]
 
-BACKENDS = ("local", "ray")
 IDENTIFY_REGIONS = ("R1", "R3", "R4")
 IDENTIFY_POINTS_PER_REGION = 8
 """Hover attitudes per region of :func:`identify_truth_maps` (the regions the paper flew)."""
@@ -388,15 +388,16 @@ def _start_worker(parent_pid: int, close_fds: tuple[int, ...], warm: RunJob | No
         warm_up(warm)
 
 
-def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
-    """Yield records as the runs finish, on a process pool (one worker: in this process, in order).
+@contextlib.contextmanager
+def _local_pool(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
+    """A process pool of ``workers`` for ``jobs`` (None for one worker: the runs then fly in this process).
 
-    The workers are forked from this process (its imports are theirs) and warm up (:func:`warm_up`) in
-    parallel before their first run.
+    The workers are forked from this process (its imports are theirs) and warm up (:func:`warm_up`) in parallel
+    before their first run; after the runs they draw the plots (each imports matplotlib then). Leaving the block
+    early (Ctrl-C, an error) kills the runs under way at once.
     """
     if workers == 1:
-        for job in jobs:
-            yield execute_run(job)
+        yield None
         return
     pool = cf.ProcessPoolExecutor(
         max_workers=workers,
@@ -405,9 +406,7 @@ def _local_backend(jobs: list[RunJob], workers: int, lock_fd: int | None = None)
     )
     finished = False
     try:
-        futures = [pool.submit(execute_run, job) for job in jobs]
-        for fut in cf.as_completed(futures):
-            yield fut.result()
+        yield pool
         finished = True
     finally:
         if not finished:  # interrupted or failed: stop the runs under way now, not when they end
@@ -486,6 +485,8 @@ def run_campaign(
     restart: bool = False,
     progress: Callable[[int, int, dict | None], None] | None = None,
     plots: bool = True,
+    executor: cf.Executor | None = None,
+    run_fn: Callable[[RunJob], dict] = execute_run,
 ) -> dict:
     """Run the runs of a campaign not yet in ``out_dir``, then summarise and plot.
 
@@ -500,6 +501,10 @@ def run_campaign(
         restart: discard the folder's results first (also when its definition differs).
         progress: called with (runs done, runs requested, the record just finished or None).
         plots: write the PNG plots.
+        executor: warm workers to run on instead of a new pool (local backend; the resident pool of
+            :mod:`omnirotor.experiments.campaign_pool`): at most ``workers`` runs at a time, and the plots drawn
+            there too.
+        run_fn: what runs a job on ``executor`` (picklable; the record of :func:`execute_run`).
 
     Returns:
         The summary (also in ``DIR/summary.json``), with ``executed``: the runs this call ran.
@@ -521,21 +526,50 @@ def run_campaign(
         raise InputError(f"--out {out}: exists and is not a folder")
     ray, started = _ray_connect(workers, address) if backend == "ray" else (None, False)
     try:
-        return _run(spec, out, n, backend, workers, ray, restart, progress, plots)
+        return _run(spec, out, n, backend, workers, ray, restart, progress, plots, (executor, run_fn))
     finally:
         if started:
             ray.shutdown()
 
 
-def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool) -> dict:
-    """:func:`run_campaign` once the backend is up."""
+def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool, pool) -> dict:
+    """:func:`run_campaign` once the backend is up (``pool``: its executor and run function)."""
     _prepare_folder(spec, out, restart, check_only=True)  # refuse before writing anything
     make_dir(out, "--out")
     with _folder_lock(out) as lock_fd:
-        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd)
+        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd, pool)
 
 
-def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd) -> dict:
+def _executor_backend(
+    executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int, cancel: bool
+):
+    """Yield records as the runs finish on warm workers, at most ``limit`` at a time, in the order of ``jobs``.
+
+    A ``limit`` of all the executor's workers queues every job at once, so that no worker waits for this process
+    (writing a result, say) between runs. ``cancel``: when the consumer stops early (the command hung up), the
+    runs not yet started are cancelled (a resident pool goes on serving); else the pool's owner kills it.
+    """
+    if limit >= getattr(executor, "_max_workers", limit + 1):
+        limit = len(jobs)
+    queue = list(reversed(jobs))
+    pending: set[cf.Future] = set()
+    try:
+        while queue or pending:
+            while queue and len(pending) < limit:
+                pending.add(executor.submit(run_fn, queue.pop()))
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                yield fut.result()
+    except GeneratorExit:
+        if cancel:
+            for fut in pending:
+                fut.cancel()
+        raise
+
+
+def _run_locked(
+    spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd, pool
+) -> dict:
     """:func:`_run` holding the folder's lock."""
     _prepare_folder(spec, out, restart)
     route_mujoco_log(out)  # the workers inherit it
@@ -554,23 +588,37 @@ def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bo
             done[i] = rec
     count = len(done)
     report(count, n, None)
-    if jobs:
-        if backend == "local":
-            stream = _local_backend(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
-        else:
-            stream = _ray_backend(ray, jobs, workers)
-        for rec in stream:
-            _append_record(out / RESULTS_FILE, rec)
-            done[rec["index"]] = rec
-            count += 1
-            report(count, n, rec)
+    executor, run_fn = pool
+    own = backend == "local" and executor is None and bool(jobs)  # the command's own pool: runs, then plots
+    if own:
+        pool_cm = _local_pool(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
+    else:
+        pool_cm = contextlib.nullcontext(executor)
+    with pool_cm as executor:
+        if jobs:
+            if backend == "local" and executor is not None:
+                stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers, not own)
+            elif backend == "local":
+                stream = (execute_run(job) for job in jobs)
+            else:
+                stream = _ray_backend(ray, jobs, workers)
+            for rec in stream:
+                _append_record(out / RESULTS_FILE, rec)
+                done[rec["index"]] = rec
+                count += 1
+                report(count, n, rec)
+        return _finish(spec, out, n, done, len(jobs), plots, executor, workers)
+
+
+def _finish(spec, out: Path, n: int, done: dict, executed: int, plots: bool, executor, workers) -> dict:
+    """Summarise the campaign folder's records, then plot (on ``workers`` of ``executor``'s when given)."""
     records = [done[i] for i in sorted(done)]
     summary = summarize(spec, records, n)
-    summary["executed"] = len(jobs)
+    summary["executed"] = executed
     write_json_atomic(out / SUMMARY_FILE, summary)  # before the plots: a plotting failure never loses it
     if plots:
         try:
-            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR)]
+            summary["plots"] = [str(p) for p in plot_campaign(spec, records, out / PLOTS_DIR, executor, workers)]
         except Exception as exc:  # the summary stands; say what went wrong with the plots
             summary["plots_error"] = f"{type(exc).__name__}: {exc}"
             note(f"campaign plots failed ({summary['plots_error'][:200]}); {out / SUMMARY_FILE} is written")

@@ -32,7 +32,10 @@ __all__ = [
     "binned_success",
     "summarize",
     "plot_campaign",
+    "plot_parameter",
+    "plot_parameters",
     "plot_comparison",
+    "warm_plots",
 ]
 
 RESULTS_FILE = "results.jsonl"
@@ -299,23 +302,63 @@ def _unit(param: str) -> str:
     return f"{param} [{p.unit}]" if p is not None and p.unit else param
 
 
-def plot_campaign(spec: CampaignSpec, records: list[dict], out_dir: str | Path) -> list[Path]:
-    """One PNG per varied parameter: binned success rate, and the key metric of each run against it."""
-    plt = _plt()
+def plot_campaign(
+    spec: CampaignSpec, records: list[dict], out_dir: str | Path, executor=None, workers: int | None = None
+) -> list[Path]:
+    """One PNG per varied parameter: binned success rate, and the key metric of each run against it.
+
+    Args:
+        spec: the campaign.
+        records: its run records.
+        out_dir: folder of the PNG files.
+        executor: warm workers (a ``concurrent.futures.Executor``) to draw the plots on in parallel, or None.
+        workers: how many of them (None: all).
+    """
     ok = [r for r in records if r.get("status") == "ok"]
-    paths = []
-    for name, _ in spec.vary:
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw=PANEL_MARGINS)
-        _draw_success(a1, binned_success(ok, name, spec.bins))
-        a1.set_xlabel(_unit(name))
-        a1.set_title(f"{spec.task}: success against {name}")
-        _scatter(a2, ok, name, spec.key_metric)
-        a2.set_xlabel(_unit(name))
-        a2.set_title(f"{spec.key_metric} of each run")
-        if a2.has_data():
-            a2.legend(fontsize=8)
-        paths.append(_save(fig, Path(out_dir) / f"success-vs-{name.replace('.', '_')}.png", tight=False))
-    return paths
+    names = [name for name, _ in spec.vary]
+    if executor is None:
+        return plot_parameters(spec, ok, names, out_dir)
+    k = max(1, min(workers or executor._max_workers, len(names)))
+    futures = [executor.submit(plot_parameters, spec, ok, names[i::k], out_dir) for i in range(k)]
+    drawn = {p.name: p for fut in futures for p in fut.result()}
+    return [drawn[_plot_name(name)] for name in names]
+
+
+def _plot_name(name: str) -> str:
+    return f"success-vs-{name.replace('.', '_')}.png"
+
+
+def plot_parameters(spec: CampaignSpec, ok: list[dict], names: list[str], out_dir: str | Path) -> list[Path]:
+    """The plots of :func:`plot_campaign` for the varied parameters ``names`` (``ok``: the finished runs)."""
+    return [plot_parameter(spec, ok, name, out_dir) for name in names]
+
+
+def plot_parameter(spec: CampaignSpec, ok: list[dict], name: str, out_dir: str | Path) -> Path:
+    """The plot of :func:`plot_campaign` for the varied parameter ``name`` (``ok``: the finished runs)."""
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw=PANEL_MARGINS)
+    _draw_success(a1, binned_success(ok, name, spec.bins))
+    a1.set_xlabel(_unit(name))
+    a1.set_title(f"{spec.task}: success against {name}", y=1.0)  # y given: no search for a free place above
+    _scatter(a2, ok, name, spec.key_metric)
+    a2.set_xlabel(_unit(name))
+    a2.set_title(f"{spec.key_metric} of each run", y=1.0)
+    if a2.has_data():
+        a2.legend(fontsize=8)
+    return _save(fig, Path(out_dir) / _plot_name(name), tight=False)
+
+
+def warm_plots() -> None:
+    """Import matplotlib and draw a small figure (its fonts and caches), so that a warm worker's first plot is fast."""
+    import io
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(2, 1))
+    ax.errorbar([0, 1], [0, 1], yerr=[0.1, 0.1], marker="o")
+    ax.scatter([0.5], [0.5])
+    ax.set_title("warm", y=1.0)
+    fig.savefig(io.BytesIO(), format="png", dpi=50)
+    plt.close(fig)
 
 
 def _load_folder(folder: str | Path) -> tuple[dict, list[dict]]:
