@@ -211,6 +211,13 @@ class SensorParams:
         mocap_latency_jitter_s: extra latency of each motion-capture sample, uniform in ``[0, jitter]`` and
             rounded to the step [s]; samples stay in order (a late one holds back the next, like a TCP/ROS
             stream) [A: 3 ms, Wi-Fi and ROS scheduling on top of the camera system's fixed delay].
+        mocap_drift_pos_std: standard deviation of the motion capture's slow position error, per world axis [m]:
+            a first-order Gauss-Markov process advanced at each sample (the rigid-body fit wandering as markers
+            drop in and out of the cameras' views and the frame vibrates; docs/fidelity.md). Unlike the white
+            ``mocap_pos_noise_std`` it is slow enough for the controller to follow: it moves the robot, while
+            the wrench observer, which sees the true acceleration and the commanded wrench, stays right.
+        mocap_drift_att_std: the same for the attitude, per axis of a small body rotation [rad].
+        mocap_drift_corner_hz: corner frequency of both drifts' first-order spectrum [Hz].
     """
 
     acc_noise_std: float = 0.1
@@ -228,17 +235,20 @@ class SensorParams:
     state_acc_noise_std: float = 0.05
     state_att_noise_std: float = 2e-3
     state_omega_noise_std: float = 2e-3
-    acc_vib_noise_std: float = 4.42
+    acc_vib_noise_std: float = 0.0
     imu_vib_acc_amp: float = 0.8
     imu_vib_gyro_amp: float = 0.02
     imu_vib_ref_hz: float = 100.0
     mocap_latency_jitter_s: float = 0.003
+    mocap_drift_pos_std: float = 0.00863
+    mocap_drift_att_std: float = 0.00093
+    mocap_drift_corner_hz: float = 0.1
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name == "imu_offset_B":
                 check_finite("sensors.imu_offset_B", *self.imu_offset_B)
-            elif f.name in ("mocap_rate_hz", "imu_vib_ref_hz"):
+            elif f.name in ("mocap_rate_hz", "imu_vib_ref_hz", "mocap_drift_corner_hz"):
                 check_positive(f"sensors.{f.name}", getattr(self, f.name))
             else:
                 _check_nonneg(f"sensors.{f.name}", getattr(self, f.name))
@@ -260,7 +270,7 @@ class AirflowParams:
             hover equals its weight]: a 30 g quadrotor gets 1.8 % of it, not a force six times its weight.
     """
 
-    force_std: float = 0.5333
+    force_std: float = 0.48333
     corner_hz: float = 1.0
     ref_weight_N: float = 15.94125
 
@@ -401,7 +411,7 @@ class SimParams:
     """
 
     dt: float = 1e-3
-    substeps: int = 1
+    substeps: int = 2
     provide_state: bool = True
     rotors: RotorDynamicsParams = dataclasses.field(default_factory=RotorDynamicsParams)
     aero: AeroParams = dataclasses.field(default_factory=AeroParams)
@@ -424,7 +434,7 @@ class SimParams:
         """These parameters without the disturbances (docs/fidelity.md).
 
         No thrust fluctuation, no recirculation force, no IMU vibration (broadband or at the rotor rates), no
-        motion-capture jitter; the rotor
+        motion-capture jitter or drift; the rotor
         reversal, the white sensor noise and the biases stay. For the tests of the plant's physics and of the
         controller on a clean plant (``omnirotor run --no-disturbances``).
         """
@@ -438,6 +448,8 @@ class SimParams:
                 imu_vib_acc_amp=0.0,
                 imu_vib_gyro_amp=0.0,
                 mocap_latency_jitter_s=0.0,
+                mocap_drift_pos_std=0.0,
+                mocap_drift_att_std=0.0,
             ),
         )
 
