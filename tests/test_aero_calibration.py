@@ -9,23 +9,35 @@ import pytest
 from omnirotor.cli import main
 from omnirotor.identification import HoverData, load_hover_data
 from omnirotor.sim import step
-from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAero, make_aero
-from omnirotor.sim.aero_calibration import FIT_PARAMETERS, calibrate, fit_wake, model_forces
+from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAero, frame_rotation, make_aero
+from omnirotor.sim.aero_calibration import (
+    FIT_PARAMETERS,
+    FRAME_TILT_PARAMETERS,
+    calibrate,
+    fit_wake,
+    model_forces,
+    repeat_noise_floor,
+)
 from omnirotor.sim.params import AeroParams, load_sim_params
 from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle("omnirotor")
 
-FIGURE_REACHED_N = 0.534
+FIGURE_REACHED_N = 0.469
 """Force RMS of the calibrated default model over the 39 real flight points (docs/fidelity.md)."""
+GOAL_N = 0.40
+"""The issue's goal for that figure (issue 12, item 1)."""
 
 
 def reference_wake_wrench(vehicle, u, p):
     """The rotor-wake formula of omnirotor.sim.aero written out pair by pair, without precomputation."""
-    P = vehicle.positions_B
-    yaw = math.radians(p.frame_yaw_deg)
-    Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-    Z = vehicle.axes_B @ Rz.T
+    r, pi, y = (math.radians(a) for a in (p.frame_roll_deg, p.frame_pitch_deg, p.frame_yaw_deg))
+    Rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
+    Ry = np.array([[math.cos(pi), 0, math.sin(pi)], [0, 1, 0], [-math.sin(pi), 0, math.cos(pi)]])
+    Rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
+    Q = Rz @ Ry @ Rx
+    P = vehicle.positions_B @ Q.T
+    Z = vehicle.axes_B @ Q.T
     n = len(u)
     L0 = min(np.linalg.norm(P[i] - P[j]) for i in range(n) for j in range(n) if i != j)
     d = [-(1.0 if u[j] >= 0 else -1.0) * Z[j] for j in range(n)]
@@ -50,7 +62,7 @@ def reference_wake_wrench(vehicle, u, p):
             )
             acc += G * a**p.aim_exponent * (L0 / L) * math.sqrt(abs(u[j]))
         eta = min(max(1 - acc / ni, p.eta_min), p.eta_max)
-        factor[i] = eta * (1 + p.reverse_gain if u[i] < 0 else 1.0)
+        factor[i] = eta * (1 + p.reverse_gain if u[i] < 0 else 1.0) * (1 + p.handedness_gain * vehicle.spins[i])
     A = np.zeros((6, n))
     for i in range(n):
         f = vehicle.c_f * Z[i]
@@ -70,7 +82,7 @@ def random_inputs(rng, n_points, n=8):
 def test_wake_model_matches_the_pair_by_pair_formula(seed):
     rng = np.random.default_rng(seed)
     p = AeroParams(thrust_gain=1.1, reverse_gain=0.07, ingest_gain=0.6, counter_gain=-0.4, aim_exponent=1.7,
-                   frame_yaw_deg=2.5)  # fmt: skip
+                   handedness_gain=0.04, frame_roll_deg=0.7, frame_pitch_deg=-1.2, frame_yaw_deg=2.5)  # fmt: skip
     aero = make_aero(V, p)
     for u in random_inputs(rng, 5):
         np.testing.assert_allclose(aero.wrench_B(u), reference_wake_wrench(V, u, p), rtol=1e-12, atol=1e-12)
@@ -113,7 +125,7 @@ def test_stopped_rotors_make_no_force_and_reversal_changes_thrust():
 def test_calibration_recovers_known_parameters_from_synthetic_data():
     rng = np.random.default_rng(7)
     true = AeroParams(thrust_gain=1.21, reverse_gain=0.06, ingest_gain=0.8, counter_gain=-0.35, aim_exponent=1.4,
-                      frame_yaw_deg=-2.0)  # fmt: skip
+                      handedness_gain=0.03, frame_yaw_deg=-2.0)  # fmt: skip
     U = random_inputs(rng, 30)
     w = np.zeros((30, 6))
     w[:, :3] = model_forces(V, true, U)
@@ -123,23 +135,103 @@ def test_calibration_recovers_known_parameters_from_synthetic_data():
         assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=1e-4, abs=1e-5), name
 
 
-def test_calibrated_default_explains_the_real_flight_data(flight_data):
+def test_calibration_recovers_a_three_axis_frame_rotation():
+    rng = np.random.default_rng(8)
+    true = AeroParams(thrust_gain=1.18, reverse_gain=0.02, ingest_gain=0.7, counter_gain=-0.5, aim_exponent=0.9,
+                      handedness_gain=-0.02, frame_roll_deg=0.8, frame_pitch_deg=-0.6, frame_yaw_deg=3.0)  # fmt: skip
+    U = random_inputs(rng, 30)
+    w = np.zeros((30, 6))
+    w[:, :3] = model_forces(V, true, U)
+    data = HoverData(U, w, ("",) * 30, ("synthetic",) * 30)
+    fitted = fit_wake(V, data, names=(*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS), stand_prior=False)
+    for name in (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS):
+        assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=1e-4, abs=1e-5), name
+
+
+def test_frame_rotation_turns_the_wrench_and_keeps_the_interaction():
+    """A rotation between the rotors' frame and the measured frame turns the whole wrench, nothing else."""
+    rng = np.random.default_rng(4)
+    base = AeroParams(frame_roll_deg=0.0, frame_pitch_deg=0.0, frame_yaw_deg=0.0)
+    turned = dataclasses.replace(base, frame_roll_deg=1.5, frame_pitch_deg=-2.0, frame_yaw_deg=4.0)
+    Q = frame_rotation(1.5, -2.0, 4.0)
+    a, b = make_aero(V, base), make_aero(V, turned)
+    for u in random_inputs(rng, 4):
+        w0, w1 = a.wrench_B(u), b.wrench_B(u)
+        np.testing.assert_allclose(w1[:3], Q @ w0[:3], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(w1[3:], Q @ w0[3:], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(a.efficiency(u), b.efficiency(u), rtol=1e-11)
+
+
+def test_handedness_gain_scales_the_two_propeller_handednesses_apart():
+    u = np.full(8, 140.0**2)
+    base = AeroParams(handedness_gain=0.0)
+    eta = make_aero(V, base).efficiency(u)
+    aero = make_aero(V, dataclasses.replace(base, handedness_gain=0.05))
+    np.testing.assert_allclose(aero.gains, 1.0 + 0.05 * V.spins)
+    # The thrust factors of the interaction are unchanged; the columns of the map carry the gain.
+    np.testing.assert_array_equal(aero.efficiency(u), eta)
+    np.testing.assert_allclose(aero.A_true, make_aero(V, base).A_true * (1.0 + 0.05 * V.spins)[None, :])
+
+
+def test_repeat_noise_floor_recovers_a_known_spread():
+    """Points in groups of one attitude, residuals with a known scatter about each group's own offset."""
+    rng = np.random.default_rng(5)
+    n_groups, reps, sigma = 300, 3, np.array([0.1, 0.2, 0.15])
+    k = np.arange(n_groups) + 0.5  # a Fibonacci lattice: attitudes about 12 deg apart
+    z, phi = 1.0 - 2.0 * k / n_groups, math.pi * (1.0 + math.sqrt(5.0)) * k
+    dirs = np.column_stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z])
+    f = np.repeat(16.0 * dirs, reps, axis=0)
+    offset = np.repeat(rng.standard_normal((n_groups, 3)), reps, axis=0)  # any model error of the attitude
+    residual = offset + sigma * rng.standard_normal((n_groups * reps, 3))
+    floor = repeat_noise_floor(f, residual)
+    assert len(floor.groups) == n_groups and floor.dof == n_groups * (reps - 1)
+    np.testing.assert_allclose(floor.std_axis, sigma, rtol=0.08)
+    assert floor.ci90[0] < np.linalg.norm(sigma) < floor.ci90[1]
+    # Distinct attitudes are no repeats: no floor.
+    single = repeat_noise_floor(16.0 * dirs, rng.standard_normal((n_groups, 3)))
+    assert single.dof == 0 and math.isnan(single.per_point)
+
+
+def _real_rms(flight_data, params):
     data = load_hover_data([flight_data], V)
     f = data.w_B[:, :3]
-    rms = lambda p: math.sqrt(np.mean(np.sum((model_forces(V, p, data.u_hz2) - f) ** 2, axis=1)))  # noqa: E731
-    assert rms(AeroParams()) <= FIGURE_REACHED_N + 5e-4
-    assert rms(AeroParams(model="spec7")) > 0.67  # SPEC §7.1's figure: the new model is the better one
+    return math.sqrt(np.mean(np.sum((model_forces(V, params, data.u_hz2) - f) ** 2, axis=1)))
+
+
+def test_calibrated_default_explains_the_real_flight_data(flight_data):
+    data = load_hover_data([flight_data], V)
+    assert _real_rms(flight_data, AeroParams()) <= FIGURE_REACHED_N + 5e-4
+    assert _real_rms(flight_data, AeroParams(model="spec7")) > 0.67  # SPEC §7.1's figure: the new model is better
     # The default is what the calibration gives from its neutral start (reproducible).
     fitted = calibrate(V, data, leave_one_point=False)
-    for name in FIT_PARAMETERS:
+    for name in (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS):
         assert getattr(fitted.params, name) == pytest.approx(getattr(AeroParams(), name), rel=2e-3, abs=2e-3), name
-    # Cross-validation: every held-out region is predicted better than SPEC §7 predicts it.
+    # Cross-validation: every held-out region is predicted better than SPEC §7 predicts it, and better than
+    # by the previous rotor-wake model (yaw only, no handedness: 0.635, 0.470, 0.545 N, docs/fidelity.md).
+    previous = {"R1": 0.635, "R3": 0.470, "R4": 0.545}
     for region, cv in fitted.cv_region.items():
         assert cv < fitted.table["SPEC §7 model"][region], region
-    # The force-stand pattern (SPEC §3.5): upside down above upright, the mixed-direction regions above both.
+        assert cv < previous[region], region
+    # Roll and pitch of the frame do not cross-validate: fitted too, they predict no held-out region better.
+    _, _, cv3 = fitted.tilt_fit
+    assert all(cv3[r] >= fitted.cv_region[r] for r in cv3)
+    # The repeat noise floor (R1's attitudes flown two or three times): 0.29 N per point.
+    assert fitted.floor.dof == 9 and fitted.floor.per_point == pytest.approx(0.292, abs=5e-3)
+    # The force-stand pattern (SPEC §3.5): upside down above upright, the mixed-direction regions above both,
+    # within 0.03 of the stand's range 1.22-1.27 (a soft prior: a 1 % miss costs like 0.2 N of force residual).
     s = fitted.stand
     assert s["R1"] < s["R6"] < min(v for r, v in s.items() if r not in ("R1", "R6"))
-    assert all(1.19 < v < 1.28 for r, v in s.items() if r not in ("R1", "R6"))
+    assert all(1.19 < v < 1.30 for r, v in s.items() if r not in ("R1", "R6"))
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 12 goal: 0.40 N over the 39 points; reached 0.469 N (LORO 0.46-0.55 N, LOPO 0.488 N) with a "
+    "repeat noise floor of 0.29 N per point (90 % 0.24-0.38 N): the rest is attitude-dependent thrust no "
+    "tried physical term explains in cross-validation (docs/fidelity.md)",
+)
+def test_truth_model_reaches_the_issue_goal_on_the_real_flight_data(flight_data):
+    assert _real_rms(flight_data, AeroParams()) <= GOAL_N
 
 
 def test_calibrate_truth_cli_writes_a_loadable_truth_and_the_report(flight_data, tmp_path, capsys):

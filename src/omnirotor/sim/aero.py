@@ -19,11 +19,15 @@ propeller law linear in the advance ratio (SPEC §7, item 4) the efficiency of r
 ``G = ingest_gain`` (intake), ``counter_gain`` (outlet) or their mean (edge-on), ``m = aim_exponent`` (the
 wake's angular spread), ``L0`` the shortest rotor distance (the cube side). A reversed rotor (``u_i < 0``)
 makes ``(1 + reverse_gain)`` times the thrust of a forward one (bidirectional propellers are not quite
-symmetric in reverse). The true wrench is ``A_twist (kappa eta (1 + reverse_gain [u < 0]) * u)`` where
-``A_twist`` is the map of the (optionally perturbed) rotor axes turned about body z by ``frame_yaw_deg`` (the
-yaw between the rotors' frame and the measured body frame, see ``docs/fidelity.md``). Every geometric term
-is precomputed for the four sign combinations of (u_i, u_j), so a call is one compiled pass over an
-(n, n) pattern (:func:`wake_wrench`, no allocation).
+symmetric in reverse). The two propeller handednesses (drag-torque sign ``k_i = ±1``, SPEC §1.2: rotors 1, 3,
+5, 7 against 2, 4, 6, 8) are mirror-image propellers whose thrust coefficients differ by ``± handedness_gain``.
+The true wrench is ``A_built (kappa eta (1 + reverse_gain [u < 0]) * u)`` where ``A_built`` is the map of the
+(optionally perturbed) rotors with gains ``1 + handedness_gain k_i``, the whole rotor geometry turned by
+``Rz(frame_yaw_deg) Ry(frame_pitch_deg) Rx(frame_roll_deg)``: the rotation between the rotors' frame and the
+measured (motion-capture) body frame, which the real data are expressed in (see ``docs/fidelity.md``). The
+rotation turns positions and axes alike, so the pair geometry does not change. Every geometric term is
+precomputed for the four sign combinations of (u_i, u_j), so a call is one compiled pass over an (n, n)
+pattern (:func:`wake_wrench`, no allocation).
 
 **SPEC §7 model** (``model = "spec7"``, also accepted as ``"interference"``): rotor j with input ``u_j`` [Hz²]
 has an isolated thrust ``T_j = kappa0 c_f |u_j|``, a disk induced speed ``v_j = sqrt(T_j / (2 rho pi R²))``
@@ -66,6 +70,7 @@ __all__ = [
     "AERO_INTERFERENCE",
     "AERO_WAKE",
     "pack_wake",
+    "frame_rotation",
     "wake_efficiency",
     "wake_wrench",
     "pack_interference",
@@ -158,7 +163,8 @@ class WakeAero(_CompiledAero):
     Args:
         vehicle: the vehicle (positions, axes, spins, c_f, c_tau).
         params: the model's parameters (``thrust_gain``, ``reverse_gain``, ``ingest_gain``, ``counter_gain``,
-            ``aim_exponent``, ``frame_yaw_deg``, ``eta_min``, ``eta_max`` and the manufacturing errors).
+            ``aim_exponent``, ``handedness_gain``, the frame rotation, ``eta_min``, ``eta_max`` and the
+            manufacturing errors).
     """
 
     def __init__(self, vehicle: VehicleParams, params: AeroParams | None = None) -> None:
@@ -168,18 +174,21 @@ class WakeAero(_CompiledAero):
         self.params = p
         self.n_rotors = n
         axes, gains = _manufactured_axes_and_gains(vehicle.axes_B, p)
-        yaw = math.radians(p.frame_yaw_deg)
-        Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0.0], [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
-        axes = axes @ Rz.T
-        self.positions_B = vehicle.positions_B.copy()
-        self.axes_B = axes
-        """(n, 3) the rotor axes: manufactured (tilt errors), then turned by ``frame_yaw_deg`` about body z."""
+        gains = gains * (1.0 + p.handedness_gain * np.asarray(vehicle.spins, dtype=float))
+        Q = frame_rotation(p.frame_roll_deg, p.frame_pitch_deg, p.frame_yaw_deg)
+        self.positions_B = vehicle.positions_B @ Q.T
+        """(n, 3) the rotor positions in the measured body frame (the rotors' frame turned by the frame rotation)."""
+        self.axes_B = axes @ Q.T
+        """(n, 3) the rotor axes: manufactured (tilt errors), then turned by the frame rotation."""
         self.gains = gains
-        """(n,) the manufactured thrust gains (ones without gain errors)."""
+        """(n,) the rotors' thrust gains: manufacturing errors times ``1 ± handedness_gain``."""
         self.A_nom = vehicle.A_nom.copy()
-        self.A_true = wrench_map(self.positions_B, axes, vehicle.spins, vehicle.c_f, vehicle.c_tau) * gains[None, :]
-        """(6, n) map of the manufactured rotors; the truth is ``A_true (kappa eta_rev eta * u)``."""
-        self.pair_weights = wake_pair_weights(self.positions_B, axes, p.ingest_gain, p.counter_gain, p.aim_exponent)
+        self.A_true = wrench_map(self.positions_B, self.axes_B, vehicle.spins, vehicle.c_f, vehicle.c_tau)
+        self.A_true *= gains[None, :]
+        """(6, n) map of the rotors as built; the truth is ``A_true (kappa eta_rev eta * u)``."""
+        self.pair_weights = wake_pair_weights(
+            self.positions_B, self.axes_B, p.ingest_gain, p.counter_gain, p.aim_exponent
+        )
         """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` for the sign blocks (u_i < 0, u_j < 0) = (b // 2, b % 2)."""
         self._model = pack_wake(self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max)
         self.kernel_kind = AERO_WAKE
@@ -427,6 +436,16 @@ def interference_wrench(u, model, out) -> None:
 EDGE_ON_COS = 0.05
 """``|c_ij|`` below which a wake passes rotor i edge-on (within 3 deg of its disk plane) rather than entering
 its intake or outlet [A; of 0.05 and 0.25, the one with the lower cross-validated error, docs/fidelity.md]."""
+
+
+def frame_rotation(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """(3, 3) ``Rz(yaw) Ry(pitch) Rx(roll)``: the rotors' frame in the measured body frame (angles in degrees)."""
+    r, p, y = math.radians(roll_deg), math.radians(pitch_deg), math.radians(yaw_deg)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ Ry @ Rx
 
 
 def wake_pair_geometry(positions_B: np.ndarray, axes_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

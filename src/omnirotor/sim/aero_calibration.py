@@ -2,11 +2,11 @@
 
 In hover the rotors hold the weight: the measured body force of point j is ``f_j = R_j^T m g e3`` (SPEC §3.1)
 and the measured inputs ``u_j`` are known. The truth model of :mod:`omnirotor.sim.aero` predicts ``f(u_j)``;
-the fit minimises ``sum_j |f(u_j) - f_j|²`` over the six parameters of :data:`FIT_PARAMETERS`, each inside
+the fit minimises ``sum_j |f(u_j) - f_j|²`` over the seven parameters of :data:`FIT_PARAMETERS`, each inside
 physical bounds (:data:`BOUNDS`), by bounded nonlinear least squares from a neutral start
 (:data:`NEUTRAL_START`, plus a fixed grid of starting yaws and ingestion gains). The force-stand ratios of SPEC
 §3.5 (R1, R6 and the mixed-direction regions, relative to R1) enter as a soft prior
-(:func:`stand_prior_residual`): fitted on the flight points alone, the model predicts the upside-down robot 8 %
+(:func:`stand_prior_residual`): fitted on the flight points alone, the model predicts the upside-down robot 5 %
 below upright, where the stand measured it 3 % above.
 The region labels are used only to *group* points for the leave-one-region-out cross-validation and the
 per-region report; the model never sees them.
@@ -14,7 +14,9 @@ per-region report; the model never sees them.
 The report compares, over the same points: the nominal map ``A_nom u``; the nominal map times one best
 constant; SPEC §7's model; the calibrated rotor-wake model; the identified global map and the per-region maps
 (SPEC §3.2, the paper's QP). The cross-validation refits the model without one region (and without one point)
-and scores the points left out.
+and scores the points left out. The report also gives the repeat noise floor (:func:`repeat_noise_floor`: how
+much the residual varies between flights of one attitude, which no model of the inputs can follow) and the fit
+with the full three-angle frame rotation (:data:`FRAME_TILT_PARAMETERS`), scored the same way.
 """
 
 from __future__ import annotations
@@ -43,14 +45,28 @@ __all__ = [
     "model_forces",
     "fit_wake",
     "cross_validate",
+    "FRAME_TILT_PARAMETERS",
+    "NoiseFloor",
+    "repeat_noise_floor",
     "calibrate",
     "write_truth_toml",
     "plot_measured_vs_predicted",
     "report_markdown",
 ]
 
-FIT_PARAMETERS = ("thrust_gain", "reverse_gain", "ingest_gain", "counter_gain", "aim_exponent", "frame_yaw_deg")
+FIT_PARAMETERS = (
+    "thrust_gain",
+    "reverse_gain",
+    "ingest_gain",
+    "counter_gain",
+    "aim_exponent",
+    "handedness_gain",
+    "frame_yaw_deg",
+)
 """The fitted parameters of the rotor-wake model (:class:`omnirotor.sim.params.AeroParams`)."""
+FRAME_TILT_PARAMETERS = ("frame_roll_deg", "frame_pitch_deg")
+"""The two further angles of the frame rotation: fitted only in the report's alternative fit (they do not
+cross-validate on the authors' data, docs/fidelity.md); the calibrated model keeps them at 0."""
 
 BOUNDS = {
     "thrust_gain": (0.8, 1.6),  # isolated rotor: c_f of SPEC §1.2 within -20 % .. +60 %
@@ -58,6 +74,9 @@ BOUNDS = {
     "ingest_gain": (0.0, 3.0),  # momentum theory: ingesting a wake never adds thrust
     "counter_gain": (-3.0, 3.0),
     "aim_exponent": (0.0, 8.0),  # from a wide wake (0) to a narrow jet (8: half power at 33 deg off axis)
+    "handedness_gain": (-0.2, 0.2),  # mirror-image propellers within 20 % of each other
+    "frame_roll_deg": (-5.0, 5.0),  # markers placed on the frame by hand: a few degrees at most
+    "frame_pitch_deg": (-5.0, 5.0),
     "frame_yaw_deg": (-10.0, 10.0),
 }
 """Physical bounds of each fitted parameter (units of :class:`AeroParams`)."""
@@ -68,6 +87,9 @@ NEUTRAL_START = {
     "ingest_gain": 0.0,
     "counter_gain": 0.0,
     "aim_exponent": 1.0,
+    "handedness_gain": 0.0,
+    "frame_roll_deg": 0.0,
+    "frame_pitch_deg": 0.0,
     "frame_yaw_deg": 0.0,
 }
 """Where every fit starts unless told otherwise: no interaction, a symmetric propeller, the mean ratio of SPEC
@@ -207,6 +229,70 @@ def fit_wake(
     return _with(p0, best.x, names)
 
 
+REPEAT_ANGLE_DEG = 0.5
+"""Hover points whose measured force directions agree within this angle [deg] are the same attitude flown
+again (the authors' protocol repeats each R1 attitude in up to three flights, SPEC §3.4)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseFloor:
+    """What no deterministic model of the rotor inputs can explain: the spread between repeats of one attitude.
+
+    Attributes:
+        groups: the repeated attitudes (indices of their points).
+        std_axis: (3,) pooled within-group standard deviation of the residual per body axis [N].
+        per_point: ``|std_axis|``, the expected force error of one point of a perfect model [N].
+        dof: degrees of freedom per axis (points in the groups minus the groups).
+        ci90: 90 % confidence interval of ``per_point`` (chi-square, ``3 dof`` degrees of freedom) [N].
+    """
+
+    groups: tuple[tuple[int, ...], ...]
+    std_axis: np.ndarray
+    per_point: float
+    dof: int
+    ci90: tuple[float, float]
+
+
+def repeat_noise_floor(f_meas: np.ndarray, residual: np.ndarray, angle_deg: float = REPEAT_ANGLE_DEG) -> NoiseFloor:
+    """The repeat noise floor of a model's force residual (:class:`NoiseFloor`).
+
+    Repeats of one attitude have the same measured force but were flown on different flights with different
+    rotor inputs; the model's residual differs between them by the robot's flight-to-flight variation
+    (battery, temperature, air), which no function of the inputs reproduces. The residual's within-group
+    deviations, pooled over the groups, estimate that noise per point.
+
+    Args:
+        f_meas: (N, 3) measured body forces [N].
+        residual: (N, 3) model minus measured [N].
+        angle_deg: largest angle between the force directions of one attitude's repeats [deg].
+
+    Returns:
+        The :class:`NoiseFloor` (NaN figures when no attitude is repeated).
+    """
+    from scipy.stats import chi2
+
+    v = f_meas / np.linalg.norm(f_meas, axis=1)[:, None]
+    cos_max = math.cos(math.radians(angle_deg))
+    groups: list[list[int]] = []
+    for k in range(v.shape[0]):
+        for g in groups:
+            if v[g[0]] @ v[k] >= cos_max:
+                g.append(k)
+                break
+        else:
+            groups.append([k])
+    rep = tuple(tuple(g) for g in groups if len(g) > 1)
+    dof = sum(len(g) for g in rep) - len(rep)
+    if dof == 0:
+        return NoiseFloor(rep, np.full(3, np.nan), float("nan"), 0, (float("nan"), float("nan")))
+    ss = sum(np.sum((residual[list(g)] - residual[list(g)].mean(axis=0)) ** 2, axis=0) for g in rep)
+    std_axis = np.sqrt(ss / dof)
+    per_point = float(np.linalg.norm(std_axis))
+    n3 = 3 * dof
+    ci = (per_point * math.sqrt(n3 / chi2.ppf(0.95, n3)), per_point * math.sqrt(n3 / chi2.ppf(0.05, n3)))
+    return NoiseFloor(rep, std_axis, per_point, dof, ci)
+
+
 @dataclasses.dataclass(frozen=True)
 class CalibrationResult:
     """Everything ``omnirotor calibrate-truth`` reports.
@@ -221,6 +307,9 @@ class CalibrationResult:
         cv_point_rms: force RMS [N] of each point predicted by the model fitted without that point, over all.
         forces: model name -> (N, 3) predicted body forces [N] ("measured" holds the data).
         stand: region -> the calibrated model's stand ratio scaled to the stand's R1 (:func:`stand_ratios`).
+        floor: the repeat noise floor of the calibrated model's residual (:func:`repeat_noise_floor`).
+        tilt_fit: the alternative fit with the full 3-DoF frame rotation (:data:`FRAME_TILT_PARAMETERS` too):
+            its parameters, its in-sample RMS and its leave-one-region-out RMS per region [N].
     """
 
     params: AeroParams
@@ -232,6 +321,8 @@ class CalibrationResult:
     cv_point_rms: float
     forces: dict[str, np.ndarray]
     stand: dict[str, float]
+    floor: NoiseFloor
+    tilt_fit: tuple[AeroParams, float, dict[str, float]]
 
 
 def _by_region(residual: np.ndarray, regions: Sequence[str]) -> dict[str, float]:
@@ -249,6 +340,7 @@ def cross_validate(
     start: AeroParams | None = None,
     leave_one_point: bool = True,
     stand_prior: bool = True,
+    names: Sequence[str] = FIT_PARAMETERS,
 ) -> tuple[dict[str, float], dict[str, AeroParams], float]:
     """Leave-one-region-out and leave-one-point-out force RMS of the rotor-wake fit.
 
@@ -259,6 +351,7 @@ def cross_validate(
         start: starting parameters of every refit.
         leave_one_point: also run the leave-one-point-out refits (one per point).
         stand_prior: fit with the force-stand prior.
+        names: the fitted parameters.
 
     Returns:
         ``(rms per held-out region [N], parameters fitted without each region, leave-one-point-out RMS [N]
@@ -271,7 +364,7 @@ def cross_validate(
         held = reg == r
         if held.all():
             continue
-        p = fit_wake(vehicle, data.subset(~held), start, stand_prior=stand_prior)
+        p = fit_wake(vehicle, data.subset(~held), start, names, stand_prior=stand_prior)
         cv_params[r] = p
         cv[r] = _rms(model_forces(vehicle, p, data.u_hz2[held]) - f_meas[held])
     loo = float("nan")
@@ -280,7 +373,7 @@ def cross_validate(
         for j in range(data.n_points):
             keep = np.ones(data.n_points, dtype=bool)
             keep[j] = False
-            p = fit_wake(vehicle, data.subset(keep), start, stand_prior=stand_prior)
+            p = fit_wake(vehicle, data.subset(keep), start, names, stand_prior=stand_prior)
             e = model_forces(vehicle, p, data.u_hz2[j : j + 1])[0] - f_meas[j]
             sq.append(float(e @ e))
         loo = float(math.sqrt(np.mean(sq)))
@@ -334,7 +427,12 @@ def calibrate(
     cv, cv_params, loo = cross_validate(vehicle, data, regions, start, leave_one_point, stand_prior)
     ratios = stand_ratios(vehicle, params)
     stand = {r: STAND_RATIOS["R1"][0] * v / ratios["R1"] for r, v in ratios.items()}
-    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces, stand)
+    floor = repeat_noise_floor(f_meas, forces["rotor-wake model (calibrated)"] - f_meas)
+    names_3 = (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS)
+    p3 = fit_wake(vehicle, data, start, names_3, stand_prior=stand_prior)
+    cv3, _, _ = cross_validate(vehicle, data, regions, start, False, stand_prior, names_3)
+    tilt_fit = (p3, _rms(model_forces(vehicle, p3, data.u_hz2) - f_meas), cv3)
+    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces, stand, floor, tilt_fit)
 
 
 def write_truth_toml(path: str | Path, params: AeroParams) -> None:
@@ -342,7 +440,7 @@ def write_truth_toml(path: str | Path, params: AeroParams) -> None:
     p = Path(path)
     lines = ["# Rotor-wake truth model calibrated by `omnirotor calibrate-truth` (docs/fidelity.md).", "[aero]"]
     lines.append('model = "wake"')
-    lines += [f"{n} = {getattr(params, n):.6g}" for n in FIT_PARAMETERS]
+    lines += [f"{n} = {getattr(params, n):.6g}" for n in (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS)]
     tmp = p.with_name(p.name + ".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(p)
@@ -354,6 +452,7 @@ def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     regions = sorted(set(result.regions))
     reg = np.asarray(result.regions)
@@ -378,6 +477,7 @@ def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> N
         bottom.set_xlabel("hover point")
         for ax in (top, bottom):
             ax.grid(alpha=0.3)
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[0][0].set_ylabel("body force [N]")
     axes[1][0].set_ylabel("measured - predicted [N]")
     axes[0][-1].legend(fontsize=6, ncol=2, loc="center right")
@@ -426,5 +526,32 @@ def report_markdown(result: CalibrationResult) -> str:
         + "\n| "
         + " | ".join(f"{v:.3f}" for v in result.stand.values())
         + " |\n\n"
-        "![measured vs predicted](measured-vs-predicted.png)\n"
+        + _floor_and_tilt_markdown(result)
+        + "![measured vs predicted](measured-vs-predicted.png)\n"
+    )
+
+
+def _floor_and_tilt_markdown(result: CalibrationResult) -> str:
+    """The report's paragraphs on the repeat noise floor and on the 3-DoF frame rotation."""
+    fl = result.floor
+    p3, rms3, cv3 = result.tilt_fit
+    cv_rows = "\n".join(
+        f"| {r} | {result.cv_region[r]:.3f} | {cv3[r]:.3f} |" for r in sorted(result.cv_region) if r in cv3
+    )
+    angles = ", ".join(f"{n} {getattr(p3, n):+.2f}" for n in (*FRAME_TILT_PARAMETERS, "frame_yaw_deg"))
+    if fl.dof == 0:
+        floor = "No attitude is flown twice: no repeat noise floor.\n\n"
+    else:
+        floor = (
+            f"Repeat noise floor: {len(fl.groups)} attitudes flown more than once ({fl.dof + len(fl.groups)} "
+            f"points); the calibrated model's residual varies between the repeats of one attitude by "
+            + ", ".join(f"{a} {v:.3f}" for a, v in zip(("x", "y", "z"), fl.std_axis, strict=True))
+            + f" N (pooled standard deviation, {fl.dof} degrees of freedom per axis): **{fl.per_point:.3f} N** "
+            f"per point (90 % interval {fl.ci90[0]:.2f}-{fl.ci90[1]:.2f} N), the force RMS a perfect model of "
+            "the rotor inputs would still show.\n\n"
+        )
+    return (
+        floor + "Frame rotation in three axes (roll and pitch fitted too; the calibrated model keeps them at 0): "
+        f"{angles} deg, in-sample {rms3:.3f} N; leave-one-region-out:\n\n"
+        "| held-out region | yaw only [N] | roll, pitch and yaw [N] |\n|---|---|---|\n" + cv_rows + "\n\n"
     )

@@ -116,8 +116,14 @@ class AeroParams:
         counter_gain: wake model: the same when j's wake meets i's outlet [-] (fitted; < 0 is a gain).
         aim_exponent: wake model: ``m`` of the reach ``max(a_ij, 0)^m``, the wake's angular spread [-]
             (fitted; large = a narrow jet).
-        frame_yaw_deg: wake model: yaw of the rotors' frame about body z relative to the measured body frame
-            [deg] (fitted; a linear effect, absorbed by any identified map).
+        handedness_gain: wake model: relative thrust difference of the two propeller handednesses: a rotor
+            with drag-torque sign ``k_i = +1`` (SPEC §1.2) makes ``1 + handedness_gain``, one with ``k_i = -1``
+            ``1 - handedness_gain`` times the common thrust [-] (fitted; the two are mirror-image propellers).
+        frame_roll_deg: wake model: roll of the rotors' frame relative to the measured (motion-capture) body
+            frame [deg] (0: fitting it does not cross-validate, docs/fidelity.md).
+        frame_pitch_deg: wake model: the same, pitch [deg] (0, as roll).
+        frame_yaw_deg: wake model: the same, yaw [deg] (fitted). The rotation ``Rz(yaw) Ry(pitch) Rx(roll)``
+            turns the whole rotor geometry; linear in u, so any identified map absorbs it.
         kappa0: SPEC §7: isolated-rotor thrust gain over the nominal c_f (1.18).
         gamma: SPEC §7: inflow sensitivity of the propeller law (4.0).
         rho: air density [kg/m³].
@@ -133,12 +139,15 @@ class AeroParams:
     """
 
     model: str = "wake"
-    thrust_gain: float = 1.23956
-    reverse_gain: float = 0.00774719
-    ingest_gain: float = 0.356999
-    counter_gain: float = -0.166377
-    aim_exponent: float = 0.63276
-    frame_yaw_deg: float = -3.09879
+    thrust_gain: float = 1.16303
+    reverse_gain: float = 0.0227739
+    ingest_gain: float = 0.909313
+    counter_gain: float = -0.730288
+    aim_exponent: float = 0.753233
+    handedness_gain: float = 0.0258951
+    frame_roll_deg: float = 0.0
+    frame_pitch_deg: float = 0.0
+    frame_yaw_deg: float = -4.88669
     kappa0: float = 1.18
     gamma: float = 4.0
     rho: float = 1.225
@@ -157,8 +166,11 @@ class AeroParams:
         for label in ("kappa0", "rho", "advance_ratio_ref", "thrust_gain"):
             check_positive(f"aero.{label}", getattr(self, label))
         _check_nonneg("aero.gamma", self.gamma)
-        for label in ("ingest_gain", "counter_gain", "frame_yaw_deg"):
+        for label in ("ingest_gain", "counter_gain", "frame_roll_deg", "frame_pitch_deg", "frame_yaw_deg"):
             check_finite(f"aero.{label}", getattr(self, label))
+        check_finite("aero.handedness_gain", self.handedness_gain)
+        if not -1.0 < self.handedness_gain < 1.0:
+            raise InputError(f"aero.handedness_gain must be in (-1, 1), got {self.handedness_gain}")
         _check_nonneg("aero.aim_exponent", self.aim_exponent)
         check_finite("aero.reverse_gain", self.reverse_gain)
         if self.reverse_gain <= -1.0:
