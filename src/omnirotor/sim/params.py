@@ -252,8 +252,8 @@ class SensorParams:
     imu_vib_gyro_amp: float = 0.02
     imu_vib_ref_hz: float = 100.0
     mocap_latency_jitter_s: float = 0.003
-    mocap_drift_pos_std: float = 0.00863
-    mocap_drift_att_std: float = 0.00093
+    mocap_drift_pos_std: float = 0.00817
+    mocap_drift_att_std: float = 0.0
     mocap_drift_corner_hz: float = 0.1
 
     def __post_init__(self) -> None:
@@ -282,7 +282,7 @@ class AirflowParams:
             hover equals its weight]: a 30 g quadrotor gets 1.8 % of it, not a force six times its weight.
     """
 
-    force_std: float = 0.48333
+    force_std: float = 0.35
     corner_hz: float = 1.0
     ref_weight_N: float = 15.94125
 
