@@ -101,8 +101,10 @@ def test_composer_with_a_python_qp_solver_flies_as_the_compiled_one(estimator, m
         statuses, regions, contact_steps = _fly(sim, ctl, traj, 3.4)
         runs.append((ctl.log.group("omega_cmd_hz").copy(), statuses, regions, contact_steps, ctl.allocator))
     (cmd_c, st_c, reg_c, contact_c, al_c), (cmd_d, st_d, reg_d, _, al_d) = runs
-    # Both solvers are exact active-set methods: the same optimum to rounding, hence the same flight.
-    np.testing.assert_allclose(cmd_d, cmd_c, rtol=0.0, atol=1e-6)
+    # Both solvers are exact active-set methods: the same optimum to rounding, hence the same flight. Compared
+    # in the QP's variable u = w|w| [Hz²]: near a zero crossing w = sign(u)|u|^(1/2) magnifies a rounding-level
+    # difference of u (the former 1e-6 Hz is 2.7e-4 Hz² at the hover speed 136 Hz: 1e-4 Hz² is tighter there).
+    np.testing.assert_allclose(cmd_d * np.abs(cmd_d), cmd_c * np.abs(cmd_c), rtol=0.0, atol=1e-4)
     np.testing.assert_array_equal(st_c, st_d)
     np.testing.assert_array_equal(reg_c, reg_d)
     assert (al_c.n_fallbacks, al_c.n_nonfinite) == (al_d.n_fallbacks, al_d.n_nonfinite)

