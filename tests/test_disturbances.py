@@ -1,7 +1,8 @@
 """The simulator's disturbances have the statistics their parameters say (issue 12, item 2).
 
 Rotor reversal delay, the thrust fluctuation's variance and spectrum, the IMU vibration's variance, the motion
-capture's latency jitter, the in-record generator; equal seeds give equal runs with every disturbance on.
+capture's latency jitter and slow drift, the in-record generator; equal seeds give equal runs with every
+disturbance on.
 """
 
 from __future__ import annotations
@@ -215,10 +216,55 @@ def test_mocap_latency_jitter_uniform():
     assert np.all(np.abs(counts / counts.sum() - 1 / counts.size) < 0.02)  # uniform over the steps
 
 
+def test_mocap_drift_variance_and_spectrum():
+    """The samples' slow error: per component a first-order process of the set standard deviation and corner."""
+    pos_std, att_std, fc, rate = 0.004, 0.002, 2.0, 1000.0
+    s = _sensors(
+        mocap_pos_noise_std=0.0, mocap_att_noise_std=0.0, mocap_latency_jitter_s=0.0, mocap_rate_hz=rate,
+        mocap_drift_pos_std=pos_std, mocap_drift_att_std=att_std, mocap_drift_corner_hz=fc,
+    )  # fmt: skip
+    moc = s.state["mocap"][0]
+    p0, q0 = np.array([0.1, -0.2, 1.0]), np.array([1.0, 0.0, 0.0, 0.0])
+    pos, att = [], []
+    for k in range(200_000):
+        s.refill()
+        if mocap_step(moc, s.state["noise_mocap"][0], k, k * DT, p0, q0) and moc["sample"][0] >= 0.0:
+            pos.append(moc["sample"][1:4] - p0)
+            q = moc["sample"][4:8]
+            att.append(2.0 * q[1:4] * np.sign(q[0]))  # small rotation from the identity
+    pos, att = np.array(pos)[400:], np.array(att)[400:]  # past the start from zero (five time constants)
+    n = len(pos)  # ~200 000 samples, ~2500 correlation times
+    tau_samples = rate / (2 * math.pi * fc)
+    rel = 3.0 * math.sqrt(2.0 * tau_samples / n)  # standard error of a variance of correlated samples, x3
+    assert np.all(np.abs(pos.std(axis=0) / pos_std - 1.0) < rel)
+    assert np.all(np.abs(att.std(axis=0) / att_std - 1.0) < rel)
+    lag1 = np.mean([np.corrcoef(pos[1:, j], pos[:-1, j])[0, 1] for j in range(3)])
+    assert lag1 == pytest.approx(math.exp(-2 * math.pi * fc / rate), abs=0.01)  # the corner frequency
+    off = _sensors(
+        mocap_pos_noise_std=0.0,
+        mocap_att_noise_std=0.0,
+        mocap_latency_jitter_s=0.0,
+        mocap_drift_pos_std=0.0,
+        mocap_drift_att_std=0.0,
+    )
+    m2 = off.state["mocap"][0]
+    for k in range(2000):
+        off.refill()
+        if mocap_step(m2, off.state["noise_mocap"][0], k, k * DT, p0, q0) and m2["sample"][0] >= 0.0:
+            assert np.array_equal(m2["sample"][1:4], p0)  # no drift when off: the samples are exact
+
+
 def _run(seed: int, steps: int = 300) -> np.ndarray:
     p = SimParams(
         rotors=dataclasses.replace(SimParams().rotors, thrust_noise_rel=0.05),
-        sensors=dataclasses.replace(SimParams().sensors, mocap_latency_jitter_s=0.003, imu_vib_acc_amp=0.8),
+        sensors=dataclasses.replace(
+            SimParams().sensors,
+            mocap_latency_jitter_s=0.003,
+            imu_vib_acc_amp=0.8,
+            mocap_drift_pos_std=0.01,
+            mocap_drift_att_std=0.005,
+            mocap_drift_corner_hz=2.0,
+        ),
     )
     sim = Simulator(V, "free", p, seed=seed)
     hover = sim.hover_speeds_hz(sim.truth.R_WB)

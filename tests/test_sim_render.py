@@ -106,8 +106,8 @@ def test_stepped_model_has_small_textures_and_steps_as_the_rendered_one():
         d.qpos[:3] = sim.data.qpos[:3]
         d.qpos[3:7] = sim.data.qpos[3:7]
         n = 0
-        for k in range(900):
-            d.xfrc_applied[body, :3] = (0.0, 3.0 * np.sin(0.01 * k), 0.0)
+        for k in range(900 * p.substeps):  # 0.9 s of pushes, whatever the physics step
+            d.xfrc_applied[body, :3] = (0.0, 3.0 * np.sin(0.01 * k / p.substeps), 0.0)
             mujoco.mj_step(m, d)
             n += d.ncon
         contacts.append(n)

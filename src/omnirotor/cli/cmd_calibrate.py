@@ -60,8 +60,8 @@ def calibrate_disturbances_cmd(
     grid: Annotated[
         str | None,
         typer.Option(
-            help="Pairs acc_vib_noise_std:force_std [m/s²:N] flown on the calibration row, comma-separated "
-            "(default: 0, 3, 6 m/s² x 0, 1, 2 N)."
+            help="Points mocap_drift_pos_std:mocap_drift_att_std:force_std [m:rad:N] flown on the calibration "
+            "row, comma-separated (default: 0, 7, 14 mm x 0, 4, 8 mrad x 0, 0.5, 1 N)."
         ),
     ] = None,
     quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,
@@ -75,6 +75,7 @@ def calibrate_disturbances_cmd(
     from omnirotor.config import parse_float
     from omnirotor.experiments.disturbance_calibration import (
         DEFAULT_GRID,
+        PARAMETERS,
         calibrate_disturbances,
         report_markdown,
         save_json,
@@ -94,11 +95,12 @@ def calibrate_disturbances_cmd(
     values = list(DEFAULT_GRID)
     if grid is not None:
         values = []
-        for pair in grid.split(","):
-            parts = pair.split(":")
-            if len(parts) != 2:
-                raise InputError(f"--grid: {pair.strip()!r} is not a pair acc_vib_noise_std:force_std")
-            values.append((parse_float(parts[0], "--grid"), parse_float(parts[1], "--grid")))
+        names = ":".join(p.split(".")[1] for p in PARAMETERS)
+        for point in grid.split(","):
+            parts = point.split(":")
+            if len(parts) != len(PARAMETERS):
+                raise InputError(f"--grid: {point.strip()!r} is not a point {names}")
+            values.append(tuple(parse_float(x, "--grid") for x in parts))
     check_output_dir(report, "--report")
     result = calibrate_disturbances(
         report, values, quick=quick, seed=seed, workers=workers, progress=lambda line: sys.stderr.write(line + "\n")

@@ -9,7 +9,10 @@
 * Motion capture: the body pose sampled at ``mocap_rate_hz`` (on the first step at or after each sample
   time), with position noise and a small random rotation, delivered ``mocap_latency_s`` later (rounded to
   the step) plus a jitter uniform in ``[0, mocap_latency_jitter_s]`` per sample (samples stay in order: a late
-  one holds back the next). The vehicle is at rest before t = 0, so the first frame already carries a sample.
+  one holds back the next). Each sample also carries a slow error (``mocap_drift_*``): per world position axis
+  and per axis of a small body rotation, a first-order Gauss-Markov process advanced at every sample, the
+  rigid-body fit wandering as markers drop in and out of view (docs/fidelity.md). The vehicle is at rest before
+  t = 0, so the first frame already carries a sample.
 * Rotor speeds: the true speeds plus white noise.
 * Bypass state: ground truth plus white noise (exact truth when the noise levels are zero).
 
@@ -112,6 +115,11 @@ MOCAP_DTYPE = np.dtype(
         ("sample", np.float64, (8,)),  # the last delivery: t, p_W (3), q_WB (4)
         ("jitter_steps", np.int64),  # largest extra latency [steps]
         ("rng", np.uint64),  # the jitter's generator (omnirotor.sim.prng)
+        ("drift", np.float64, (6,)),  # slow error of the samples: position (world) [m], small rotation [rad]
+        ("drift_decay", np.float64),  # its Gauss-Markov coefficients per sample period
+        ("drift_drive_p", np.float64),
+        ("drift_drive_a", np.float64),
+        ("drift_gen", [("rng", np.uint64)]),  # the drift's generator (its own stream)
     ]
 )
 """The motion capture's queue of samples taken but not yet delivered."""
@@ -286,10 +294,23 @@ def mocap_push(moc, noise, t: float, due: int, p, q) -> None:
     moc["t"][i] = t
     moc["due"][i] = due
     mp = moc["p_W"][i]
+    d = moc["drift"]
     for j in range(3):
-        mp[j] = e[j] + p[j]
+        mp[j] = e[j] + d[j] + p[j]
+        e[3 + j] += d[3 + j]  # the row is read once: its rotation becomes the sample's whole error
     quat_perturb_into(q, e[3:6], moc["q_WB"][i])
     moc["count"] += 1
+
+
+@jit
+def mocap_drift_step(moc) -> None:
+    """Advance the samples' slow error one sample period (first-order Gauss-Markov per component)."""
+    dp, da = moc["drift_drive_p"], moc["drift_drive_a"]
+    if dp == 0.0 and da == 0.0:
+        return
+    decay, d, gen = moc["drift_decay"], moc["drift"], moc["drift_gen"]
+    for j in range(6):
+        d[j] = prng.gauss_markov_next(d[j], decay, dp if j < 3 else da, gen)
 
 
 @jit
@@ -305,6 +326,7 @@ def mocap_step(moc, noise, k: int, t: float, p, q) -> bool:
         due = k + moc["latency_steps"]
         if moc["jitter_steps"] > 0:
             due += int(prng.next_uniform(moc) * (moc["jitter_steps"] + 1))
+        mocap_drift_step(moc)
         mocap_push(moc, noise, t, due, p, q)
         moc["next_t"] += moc["period"]
         while moc["next_t"] <= t + MOCAP_CLOCK_TOL_S:  # a rate above the step rate: one sample per step
@@ -562,6 +584,13 @@ class Mocap:
         r = self.rec[0]
         r["cap"], r["latency_steps"], r["period"] = cap, self.latency_steps, self.period
         r["jitter_steps"] = self.jitter_steps
+        decay, drive_p = prng.gauss_markov_coefficients(
+            params.mocap_drift_pos_std, params.mocap_drift_corner_hz, self.period
+        )
+        r["drift_decay"], r["drift_drive_p"] = decay, drive_p
+        r["drift_drive_a"] = prng.gauss_markov_coefficients(
+            params.mocap_drift_att_std, params.mocap_drift_corner_hz, self.period
+        )[1]
         self.noise: NoiseStream | None = None
         """The measurement-noise stream (6: position, small rotation), set by :meth:`reset`."""
 
@@ -587,6 +616,8 @@ class Mocap:
         """
         p = self.params
         self.rec["rng"] = prng.seed_state(seed, _MOCAP_RNG_STREAM)
+        self.rec["drift_gen"]["rng"] = prng.seed_state(seed, _MOCAP_DRIFT_RNG_STREAM)
+        self.rec["drift"] = 0.0  # starts at zero: its first second is its transient, as the airflow's
         scale = np.array([p.mocap_pos_noise_std] * 3 + [p.mocap_att_noise_std] * 3)
         if self._noise_rec is None:
             self._noise_rec = np.zeros(1, _noise_dtype(6))
@@ -633,6 +664,8 @@ _N_STREAMS = 6
 """Independent noise streams spawned from the seed: IMU biases, IMU noise, mocap, rotor speeds, state, IMU vibration."""
 _MOCAP_RNG_STREAM = 102
 """Index of the motion capture's jitter generator among the simulator's streams (:func:`prng.seed_state`)."""
+_MOCAP_DRIFT_RNG_STREAM = 104
+"""Index of the motion capture's drift generator."""
 _CONSTANTS = (
     ("n_rotors", None),
     ("state_mode", None),
@@ -644,6 +677,9 @@ _CONSTANTS = (
     ("mocap", "latency_steps"),
     ("mocap", "period"),
     ("mocap", "jitter_steps"),
+    ("mocap", "drift_decay"),
+    ("mocap", "drift_drive_p"),
+    ("mocap", "drift_drive_a"),
 )
 """The fields of the record that are parameters (kept by a reset)."""
 
