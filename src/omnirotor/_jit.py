@@ -56,6 +56,7 @@ __all__ = [
     "f64_at",
     "f64_at2",
     "i64_view",
+    "records_at",
 ]
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -256,15 +257,21 @@ _TABLE_STRIDE = 3  # address, rows, columns (columns = 0 for a 1-D array)
 
 
 def address_table(arrays: list[np.ndarray]) -> np.ndarray:
-    """An int64 table of ``(address, rows, columns)`` of C-contiguous 1-D or 2-D arrays, in order.
+    """An int64 table of ``(address, rows, columns)`` of C-contiguous arrays, in order.
+
+    The arrays are 1-D or 2-D float64 or int64 arrays, or 1-D arrays of a structured dtype (records).
 
     Raises:
-        ValueError: an array that is not C-contiguous, not 1-D or 2-D, or neither float64 nor int64.
+        ValueError: an array that is none of these.
     """
     table = np.zeros(_TABLE_STRIDE * len(arrays), dtype=np.int64)
     for i, a in enumerate(arrays):
-        if not a.flags.c_contiguous or a.ndim not in (1, 2) or a.dtype not in (np.float64, np.int64):
-            raise ValueError(f"address_table: array {i} is not a C-contiguous 1-D/2-D float64/int64 array")
+        records = a.dtype.names is not None and a.ndim == 1
+        plain = a.ndim in (1, 2) and a.dtype in (np.float64, np.int64)
+        if not a.flags.c_contiguous or not (records or plain):
+            raise ValueError(
+                f"address_table: array {i} is not a C-contiguous 1-D/2-D float64/int64 array or 1-D record array"
+            )
         o = _TABLE_STRIDE * i
         table[o] = a.ctypes.data
         table[o + 1] = a.shape[0]
@@ -290,6 +297,29 @@ def _i64_pointer(typingctx, address):
         return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.int64)))
 
     return sig, codegen
+
+
+@intrinsic
+def _void_pointer(typingctx, address):
+    sig = types.voidptr(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
+
+    return sig, codegen
+
+
+@jit
+def void_pointer(address: int):
+    """The address as a ``void*`` (for ``numba.carray`` of a structured dtype)."""
+    return _void_pointer(address)
+
+
+@jit
+def records_at(table, i: int, dtype):
+    """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (``dtype`` a global)."""
+    o = _TABLE_STRIDE * i
+    return numba.carray(_void_pointer(table[o]), (table[o + 1],), dtype)
 
 
 @jit
@@ -355,6 +385,17 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
         """The C-ordered ``(rows, cols)`` float64 array at ``address``."""
         return f64_at(address, int(rows) * int(cols)).reshape(int(rows), int(cols))
+
+    def void_pointer(address: int):  # noqa: F811
+        """The address (an integer)."""
+        return int(address)
+
+    def records_at(table, i: int, dtype):  # noqa: F811
+        """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (a ``numpy.recarray``)."""
+        o = _TABLE_STRIDE * i
+        rows = int(table[o + 1])
+        raw = (ctypes.c_char * (rows * dtype.itemsize)).from_address(int(table[o]))
+        return np.frombuffer(raw, dtype=dtype, count=rows).view(np.recarray)
 
     def i64_view(table, i: int):  # noqa: F811
         """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
