@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit, records_at
+from omnirotor._jit import R9_from_quat_into, jit, jit_entry, records_at
 
 N_ERR = 15
 """Error-state dimension: dp, dv, dtheta, db_a, db_g."""
@@ -78,6 +78,7 @@ UKF_DTYPE = np.dtype(
         ("gyro_corr_B", _F8, 3),  # the sample of this step, lever-arm corrected [rad/s] ...
         ("acc_corr_B", _F8, 3),  # ... [m/s²]
         ("gyro_lp_B", _F8, 3),  # low-passed gyro (for the lever arm's omega_dot) [rad/s]
+        ("omega_dot_B", _F8, 3),  # its derivative [rad/s²]
         ("omega_B", _F8, 3),  # output rate [rad/s]
         ("a_W", _F8, 3),  # output acceleration (without gravity) [m/s²]
         ("t", _F8),  # time of the output state [s]
@@ -282,25 +283,18 @@ def _correct_lever_arm(u, dt: float) -> None:
     r = u.r_imu_B
     r0, r1, r2 = r[0], r[1], r[2]
     lam = lpf_gain(dt, u.lever_cutoff_hz)
-    wd0 = _lowpass_rate(u, 0, lam, dt)  # omega_dot_B [rad/s²]
-    wd1 = _lowpass_rate(u, 1, lam, dt)
-    wd2 = _lowpass_rate(u, 2, lam, dt)
+    lp, wd = u.gyro_lp_B, u.omega_dot_B
+    for i in range(3):  # low-pass the gyro sample, differentiate
+        new = lp[i] + lam * (u.gyro_corr_B[i] - lp[i])
+        wd[i] = (new - lp[i]) / dt
+        lp[i] = new
+    wd0, wd1, wd2 = wd[0], wd[1], wd[2]
     w, bg, a = u.gyro_corr_B, u.x_out.b_gyro_B, u.acc_corr_B
     wx, wy, wz = w[0] - bg[0], w[1] - bg[1], w[2] - bg[2]
     cx, cy, cz = wy * r2 - wz * r1, wz * r0 - wx * r2, wx * r1 - wy * r0  # omega x r
     a[0] -= wy * cz - wz * cy + wd1 * r2 - wd2 * r1
     a[1] -= wz * cx - wx * cz + wd2 * r0 - wd0 * r2
     a[2] -= wx * cy - wy * cx + wd0 * r1 - wd1 * r0
-
-
-@jit
-def _lowpass_rate(u, i: int, lam: float, dt: float) -> float:
-    """Low-pass axis ``i`` of the gyro sample into ``u.gyro_lp_B``; return the filtered rate's derivative."""
-    lp = u.gyro_lp_B
-    new = lp[i] + lam * (u.gyro_corr_B[i] - lp[i])
-    wd = (new - lp[i]) / dt
-    lp[i] = new
-    return wd
 
 
 @jit
@@ -961,7 +955,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     return result, t
 
 
-@jit
+@jit_entry
 def ukf_step_by_table(table, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
     """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``)."""
     a = arrays_at(table, 0)

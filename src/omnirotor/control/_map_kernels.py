@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import address_table, f64_view, f64_view2, jit, records_at
+from omnirotor._jit import address_table, f64_view, f64_view2, jit, jit_entry, records_at
 from omnirotor.regions import Region
 
 __all__ = [
@@ -384,7 +384,7 @@ def arrays_at(table, i: int) -> SchedulerArrays:
     )  # fmt: skip
 
 
-@jit
+@jit_entry
 def schedule_select_by_table(table, R) -> int:
     """:func:`schedule_select` with the state and the arrays given by their addresses (:meth:`SchedulerArrays.table`).
 

@@ -37,7 +37,17 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit, jit_inline, records_at, void_pointer
+from omnirotor._jit import (
+    address_table,
+    f64_view,
+    f64_view2,
+    i64_view,
+    jit,
+    jit_entry,
+    jit_inline,
+    records_at,
+    void_pointer,
+)
 from omnirotor.blocks import compiled_step
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
@@ -483,7 +493,7 @@ DEFAULT_DTYPE = controller_dtype(_obs.STATE_DTYPE)
 """The controller's state with the default observer, the one :func:`controller_step_by_table` knows."""
 
 
-@jit
+@jit_entry
 def controller_step_by_table(table, frame, row) -> int:
     """:func:`controller_step_by_state` for a state of :data:`DEFAULT_DTYPE` given by its address ``table[0]``.
 

@@ -319,8 +319,8 @@ class UKFEstimator:
 
     _STATE_FIELDS = (
         "x_out", "R_WB_out", "x_fused", "R_WB_fused", "gyro_B", "acc_B", "gyro_corr_B", "acc_corr_B", "gyro_lp_B",
-        "omega_B", "a_W", "t", "t_fused", "t_accept", "lpf_dt", "lam_omega", "lam_acc", "dt", "k", "k_fused",
-        "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
+        "omega_dot_B", "omega_B", "a_W", "t", "t_fused", "t_accept", "lpf_dt", "lam_omega", "lam_acc", "dt", "k",
+        "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
         "n_nonfinite", "last_rejected", "degraded",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
