@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from omnirotor._jit import R9_from_quat_into, jit, jit_entry, records_at
+from omnirotor.blocks import new_records
 
 N_ERR = 15
 """Error-state dimension: dp, dv, dtheta, db_a, db_g."""
@@ -197,10 +198,11 @@ _H_ROWS = (0, 1, 2, 6, 7, 8)
 
 
 def new_arrays(cap: int) -> UKFArrays:
-    """Zeroed memory with ring buffers of ``cap`` samples."""
+    """Zeroed memory with ring buffers of ``cap`` samples (:func:`omnirotor.blocks.new_records`)."""
     return UKFArrays(
-        np.zeros(1, UKF_DTYPE), np.zeros(cap, IMU_SAMPLE_DTYPE), np.zeros(cap, NOMINAL_DTYPE), np.zeros(1, WORK_DTYPE)
-    )
+        new_records(UKF_DTYPE), new_records(IMU_SAMPLE_DTYPE, cap), new_records(NOMINAL_DTYPE, cap),
+        new_records(WORK_DTYPE),
+    )  # fmt: skip
 
 
 @jit

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from omnirotor._jit import address_table, f64_view, f64_view2, jit, jit_entry, records_at
+from omnirotor.blocks import new_records
 from omnirotor.regions import Region
 
 __all__ = [
@@ -118,7 +119,7 @@ def pack_schedule(
     state["smooth"] = 1 if smooth else 0
     state["half_band_rad"] = 0.5 * band_rad
     state["inv_band_per_rad"] = 1.0 / band_rad
-    table = np.zeros(K, REGION_DTYPE)
+    table = new_records(REGION_DTYPE, K)
     az = [np.zeros((K, max_iv)) for _ in range(4)]
     for j, (region, s) in enumerate(zip(regions, soft, strict=True)):
         r = table[j]
