@@ -78,3 +78,93 @@ def test_simulator_never_imports_the_controller():
         pytest.skip("omnirotor.sim not present")
     bad = _violations("sim", ("omnirotor.control",))
     assert not bad, "\n".join(bad)
+
+
+# -- compiled state as named records (issue 11, STYLE rule 13) ----------------------------------------------------
+
+_PACKED_LAYOUTS = {"omnirotor.messages": "FRAME_", "omnirotor.sim.step": "TRUTH_ROW_"}
+"""Flat layouts that stay flat, each owned by one module: the packed sensor frame (the controller's message in,
+a wire format) and the simulator's truth log row. Their constants may index arrays; no other constant may."""
+
+
+def _int_constants(tree: ast.Module) -> set[str]:
+    """Upper-case module-level names bound to an integer expression (literals and such names)."""
+    out = set()
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            name = node.targets[0].id
+            if name.lstrip("_").isupper():
+                parts = list(ast.walk(node.value))
+                allowed = (ast.BinOp, ast.UnaryOp, ast.Name, ast.Constant, ast.operator, ast.unaryop, ast.Load)
+                if all(isinstance(n, allowed) for n in parts) and all(
+                    type(n.value) is int for n in parts if isinstance(n, ast.Constant)
+                ):
+                    out.add(name)
+    return out
+
+
+def _constants_indexing(path: Path, package: str) -> set[str]:
+    """Integer constants (the module's own or imported ones) used inside a subscript's index in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    own = {name: package for name in _int_constants(tree)}
+    imported = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            for alias in node.names:
+                if alias.name.lstrip("_").isupper():
+                    imported[alias.asname or alias.name] = node.module
+    known = {**imported, **own}
+    hits = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript):
+            for n in ast.walk(node.slice):
+                if isinstance(n, ast.Name) and n.id in known:
+                    hits.add(f"{known[n.id]}.{n.id}")
+                elif isinstance(n, ast.Attribute) and n.attr.lstrip("_").isupper():  # module.CONSTANT
+                    hits.add(f"?.{n.attr}")
+    return hits
+
+
+def test_no_integer_offset_indexes_compiled_state():
+    """Blocks of the controller and the simulator read their state by field name, never ``x[UKF_S + 6]``."""
+    bad = []
+    for sub in ("control", "sim"):
+        for path in _modules(sub):
+            package = ".".join(path.relative_to(SRC.parent).with_suffix("").parts)
+            for hit in _constants_indexing(path, package):
+                owner, name = hit.rsplit(".", 1)
+                if not any(owner == mod and name.startswith(prefix) for mod, prefix in _PACKED_LAYOUTS.items()):
+                    bad.append(f"{path.relative_to(SRC.parent)}: {hit}")
+    assert not bad, bad
+
+
+def test_offset_check_finds_an_offset(tmp_path):
+    """The check above is not vacuous: it finds a constant used as an offset, imported or the module's own."""
+    f = tmp_path / "m.py"
+    f.write_text(
+        "from omnirotor.x import Y_Z\nUKF_S = 0\nUKF_F = UKF_S + 16\n\ndef k(x):\n    return x[UKF_F + 6] + x[Y_Z]\n"
+    )
+    assert _constants_indexing(f, "pkg.m") == {"pkg.m.UKF_F", "omnirotor.x.Y_Z"}
+
+
+def test_estimator_and_scheduler_state_are_named_records():
+    """The UKF and the map scheduler keep their state in structured records that their kernels read by name."""
+    from omnirotor.control import _estimator_kernels as ek
+    from omnirotor.control import _map_kernels as mk
+    from omnirotor.control.composer import controller_dtype
+    from omnirotor.control.estimator import UKFEstimator
+    from omnirotor.control.maps import MapScheduler
+    from omnirotor.control.observer import STATE_DTYPE as OBSERVER_DTYPE
+
+    assert UKFEstimator.state_dtype is ek.UKF_DTYPE and MapScheduler.state_dtype is mk.STATE_DTYPE
+    assert "n_nonfinite" in ek.UKF_DTYPE.names and "n_nonfinite" in mk.STATE_DTYPE.names
+    # The flat layouts are gone: no offset constants, no layout functions.
+    assert not any(hasattr(ek, name) for name in ("UKF_S", "UKF_SIZE", "WP_L", "WF_R", "CNT_SIZE", "memory_layout"))
+    assert not any(hasattr(mk, name) for name in ("SCH_HEADER", "REG_EL_LO", "STATE_REGION", "region_stride"))
+    # Nested into the controller's state under the registered names.
+    ctl = controller_dtype(OBSERVER_DTYPE)
+    assert ctl["ukf"] == ek.UKF_DTYPE and ctl["maps"] == mk.STATE_DTYPE
+    # The kernels' sources read fields as attributes of their records (u.x_out, st.region), never by offset.
+    for module, fields in ((ek, ("u.x_out", "u.P", "w.sigma_R_WB", "u.k_fused")), (mk, ("st.region", "r.n_az"))):
+        text = Path(module.__file__).read_text(encoding="utf-8")
+        assert all(f in text for f in fields)

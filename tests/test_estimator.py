@@ -372,24 +372,26 @@ def _reference_step(est, frame, c):
         if _reference_mocap_valid(frame):
             est.reset(frame)
             c.update(fused=0, rejected_mocap=0, reinit=0, rejected_inputs=0, last_rejected=False, degraded=False)
-        _ek.write_estimate(est.kernel_mem[0 : _ek.UKF_SIZE], out)
+        _ek.write_estimate(est.state[0], out)
         valid = est.initialised and not c["degraded"]
         return StateEstimate(float(frame.t), out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
-    mem = est.kernel_mem
+    u, buf, sbuf, w = est.state[0], est.kernel_arrays.imu_buf, est.kernel_arrays.state_buf, est.kernel_arrays.work[0]
     mocap = frame.mocap_new
-    code, t = _ek.ukf_imu_step(mem, frame.imu_gyro_B, frame.imu_acc_B, frame.t, not mocap, out)
+    code, t = _ek.imu_step(u, buf, sbuf, frame.imu_gyro_B, frame.imu_acc_B, frame.t)
+    if not mocap:
+        code |= _ek.finish(u, out)
     rejected = code & _ek.STEP_REJECTED
     if mocap:
         if _reference_mocap_valid(frame):
             t_m = frame.mocap_t if est.params.compensate_latency else t
             p_m, q_m = np.asarray(frame.mocap_p_W, dtype=float), np.asarray(frame.mocap_q_WB, dtype=float)
-            k_m = _ek.ukf_fuse_at(mem, float(t_m))
+            k_m = _ek.fuse_at(u, buf, float(t_m))
             if k_m < 0:
                 fused = _ek.FUSE_STALE
                 c["stale"] += 1
             else:
-                _ek.ukf_predict(mem, k_m)
-                fused = _ek.ukf_fuse(mem, p_m, q_m)
+                _ek.predict(u, buf, sbuf, w, k_m)
+                fused = _ek.fuse(u, buf, sbuf, w, p_m, q_m)
             if fused == _ek.FUSE_OK:
                 c["fused"] += 1
             else:
@@ -399,10 +401,10 @@ def _reference_step(est, frame, c):
         else:
             c["rejected_mocap"] += 1
             rejected = True
-        code = _ek.ukf_finish(mem, out)
+        code = _ek.finish(u, out)
     if code & _ek.STEP_ADVANCE:
         c["advance"] += 1
-        _ek.ukf_predict(mem, int(mem[_ek.UKF_K]) - int(mem[_ek.UKF_LAG_N]))
+        _ek.predict(u, buf, sbuf, w, int(u["k"]) - int(u["lag_n"]))
     if rejected:
         c["rejected_inputs"] += 1
     c["last_rejected"] = bool(rejected)
@@ -472,7 +474,7 @@ def test_compiled_step_is_bit_identical_to_the_kernel_orchestration(params):
         assert a.t == b.t and a.valid == b.valid, k
         for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
             assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
-        assert est.kernel_mem.tobytes() == ref.kernel_mem.tobytes(), k  # every state, buffer and P
+        assert _memory(est, counters=False) == _memory(ref, counters=False), k  # every state, buffer and P
         counters = (est.n_mocap_fused, est.rejected_mocap, est.n_reinit, est.rejected_inputs)
         assert counters == (c["fused"], c["rejected_mocap"], c["reinit"], c["rejected_inputs"]), k
         assert (est.last_input_rejected, est.degraded) == (c["last_rejected"], c["degraded"]), k
@@ -496,15 +498,16 @@ _NAIVE_LEVER_ARM = EstimatorParams(
 )
 
 
-def _workspace_offset(est):
-    """Offset of the workspace in the estimator's memory; the kernels' views agree with the layout."""
-    mem = est.kernel_mem
-    o_wk = _ek.memory_layout(int(mem[_ek.UKF_CAP]))[5]
-    assert mem.size == o_wk + _ek.WK_SIZE  # the workspace ends the memory
-    *parts, wk = _ek.views(mem)
-    assert wk.ctypes.data == mem[o_wk:].ctypes.data and wk.size == _ek.WK_SIZE
-    assert not any(np.shares_memory(part, wk) for part in parts)
-    return o_wk
+_COUNTERS = ("n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs", "n_nonfinite", "last_rejected")
+
+
+def _memory(est, counters: bool = True) -> bytes:
+    """The estimator's state record and ring buffers (not its scratch), as bytes; without the counters if asked."""
+    state = est.state.copy()
+    if not counters:
+        for name in (*_COUNTERS, "degraded"):
+            state[name] = 0
+    return b"".join(a.tobytes() for a in (state, est.kernel_arrays.imu_buf, est.kernel_arrays.state_buf))
 
 
 @pytest.mark.parametrize("params", [EstimatorParams(), _NAIVE_LEVER_ARM], ids=["default", "naive-lever-arm"])
@@ -512,7 +515,8 @@ def test_workspace_holds_no_state(params):
     """NaN in the workspace before every step changes nothing: it overlaps no state and is written before read."""
     frames, _, _ = _faulty_frames()
     est, ref = UKFEstimator(VEHICLE, params), UKFEstimator(VEHICLE, params)
-    o_wk = _workspace_offset(est)
+    work = est.kernel_arrays.work
+    assert not any(np.shares_memory(work, a) for a in est.kernel_arrays[:3])
     # Before these frames P loses positive definiteness, so that the next prediction takes the Cholesky
     # fall-backs (P symmetrised with jitter; P reset to P0) and their work arrays.
     broken = {600: -1e-13, 1000: -1.0}
@@ -522,17 +526,19 @@ def test_workspace_holds_no_state(params):
             for e in (est, ref):
                 e.P[3, 3] = broken[k]
                 e.P[3, 4] += 1e-9
-        est.kernel_mem[o_wk:] = np.nan
+        work.view(np.float64)[:] = np.nan
         a, b = est.step(f), ref.step(f)
-        used += not np.isnan(est.kernel_mem[o_wk:]).all()
+        used += not np.isnan(work.view(np.float64)).all()
         assert a.t == b.t and a.valid == b.valid, k
         for name in ("p_W", "v_W", "a_W", "R_WB", "omega_B"):
             assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
-        assert est.kernel_mem[:o_wk].tobytes() == ref.kernel_mem[:o_wk].tobytes(), k  # states, buffers, P
-        assert est.kernel_counters.tobytes() == ref.kernel_counters.tobytes(), k
+        assert _memory(est) == _memory(ref), k  # states, counters, buffers, P
     # The steps did use the workspace (every fusion does), and the sequence re-initialised once.
     assert est.n_mocap_fused > 0 and est.n_reinit == 1 and used >= est.n_mocap_fused
-    assert np.isfinite(est.kernel_mem[:o_wk]).all()
+    u = est.state[0]
+    floats = [u[name] for name in u.dtype.names if u.dtype[name].base == np.float64]
+    floats += [u[x][name] for x in ("x_out", "x_fused") for name in _ek.NOMINAL_DTYPE.names]
+    assert all(np.isfinite(a).all() for a in floats)
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT=1: kernels run as Python, no numba allocator")

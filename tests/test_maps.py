@@ -525,37 +525,32 @@ def test_kernel_arrays_for_a_compiled_loop():
     sched = MapScheduler(VEHICLE, maps, MapParams(mode="piecewise", blend="smooth"))
     twin = MapScheduler(VEHICLE, maps, MapParams(mode="piecewise", blend="smooth"))
     A = sched.select(np.eye(3))
-    assert sched.kernel_maps.shape == (10, 6 * VEHICLE.n_rotors) and np.shares_memory(A, sched.kernel_out)
-    assert np.shares_memory(sched.weights, sched.kernel_weights)
+    arrays = sched.kernel_arrays
+    assert arrays.maps.shape == (10, 6 * VEHICLE.n_rotors) and np.shares_memory(A, arrays.out)
+    assert np.shares_memory(sched.weights, arrays.weights)
+    assert sched.state.dtype == _mk.STATE_DTYPE and arrays.regions.dtype == _mk.REGION_DTYPE
     for deg in (45.0, 31.0, 29.0, 100.0, 150.0):  # R3, the R1/R3 band on both sides, R8, R6
         R = roll(deg)
-        k = _mk.schedule_select(
-            sched.kernel_schedule, R, sched.kernel_maps, sched.kernel_out, sched.kernel_weights, sched.kernel_state
-        )
+        k = _mk.schedule_select(sched.state[0], arrays, R)
         assert k == PARTITION.index_of_attitude(R)
         assert sched.region_index != k or deg == 31.0  # not yet synced (31 deg stays in R3 after 45 deg)
         sched.sync()
         assert sched.region_index == k and sched.region_name == PARTITION.names[k]
         np.testing.assert_array_equal(A, twin.select(R))
         np.testing.assert_array_equal(sched.weights, twin.weights)
-    before = (A.copy(), sched.weights.copy(), sched.kernel_state.copy())
+    before = (A.copy(), sched.weights.copy(), sched.state["region"].copy(), sched.state["blended"].copy())
     bad = roll(45.0)
     bad[2, 0] = np.nan
-    k = _mk.schedule_select(
-        sched.kernel_schedule, bad, sched.kernel_maps, sched.kernel_out, sched.kernel_weights, sched.kernel_state
-    )
-    assert k == sched.region_index
-    for got, want in zip((A, sched.weights, sched.kernel_state), before, strict=True):
+    k = _mk.schedule_select(sched.state[0], arrays, bad)
+    assert k == sched.region_index and sched.n_nonfinite == 1  # the map is kept, the attitude counted
+    for got, want in zip((A, sched.weights, sched.state["region"], sched.state["blended"]), before, strict=True):
         np.testing.assert_array_equal(got, want)
     for mode in ("nominal", "global"):
         const = MapScheduler(VEHICLE, R3_ONLY, MapParams(mode=mode))
-        out = const.kernel_out.copy()
-        k = _mk.schedule_select(
-            const.kernel_schedule, roll(45.0), const.kernel_maps, const.kernel_out, const.kernel_weights,
-            const.kernel_state,
-        )  # fmt: skip
+        out = const.kernel_arrays.out.copy()
+        k = _mk.schedule_select(const.state[0], const.kernel_arrays, roll(45.0))
         assert k == -1
-        np.testing.assert_array_equal(const.kernel_out, out)
+        np.testing.assert_array_equal(const.kernel_arrays.out, out)
         const.sync()
         assert const.region_index == -1 and const.region_name == mode
 

@@ -4,7 +4,11 @@ Every kernel is compiled with :data:`jit`: ``nopython``, ``cache=True`` (machine
 ``__pycache__`` folder next to the module, so only the first import on a machine compiles), ``fastmath=False``
 (IEEE arithmetic in the order written, so a kernel reproduces the NumPy / Python float reference it replaces to
 the last bit or within a rounding) and NumPy's error model (a division by zero gives inf or NaN as in NumPy;
-it never raises inside the loop). Kernels are compiled lazily, on their first call. Small helpers called with
+it never raises inside the loop). Kernels are compiled lazily, on their first call, and without the two
+wrappers numba builds by default for a call from Python and through a C pointer (:class:`KernelDispatcher`:
+a kernel called by kernels needs neither, and they cost a fifth of its compile time); a call from Python
+compiles a twin with them. Entry points Python calls once per period use :func:`jit_entry` (the wrappers,
+no twin). Small helpers called with
 constant arguments (which numba compiles once per constant value) and a few large functions that take the
 controller's tuple of arrays are inlined into their compiled callers instead (:func:`jit_inline`).
 
@@ -40,11 +44,13 @@ import numpy as np
 from numba import types
 from numba.core.caching import FunctionCache
 from numba.core.dispatcher import Dispatcher
+from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
 __all__ = [
     "jit",
     "jit_inline",
+    "jit_entry",
     "DependencyCache",
     "source_closure",
     "R9_from_quat_into",
@@ -56,6 +62,7 @@ __all__ = [
     "f64_at",
     "f64_at2",
     "i64_view",
+    "records_at",
 ]
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -118,16 +125,42 @@ class DependencyCache(FunctionCache):
     """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key.
 
     The hash is taken when the kernel is defined (its module imported), so it describes the sources the
-    process compiles from even if files change while it runs.
+    process compiles from even if files change while it runs. ``variant`` tells apart the entries of two
+    dispatchers of one function compiled with different options (:class:`KernelDispatcher` and its twin).
     """
 
-    def __init__(self, py_func) -> None:
+    def __init__(self, py_func, variant: str = "") -> None:
         super().__init__(py_func)
-        self._sources = _closure_hash(py_func.__code__.co_filename)
+        self._sources = _closure_hash(py_func.__code__.co_filename) + variant
 
     def _index_key(self, sig, codegen):
         sig_key, magic, hashes = super()._index_key(sig, codegen)
         return sig_key, magic, (*hashes, self._sources)
+
+
+class KernelDispatcher(CPUDispatcher):
+    """A kernel compiled for compiled callers: no Python or C-function wrapper (they cost compile time only).
+
+    numba builds, for every compiled function, a wrapper that unboxes Python arguments and one callable
+    through a C pointer, although a kernel called from another kernel uses neither. A call from Python goes
+    to a twin of the kernel compiled with the wrappers (on its first use; cached apart), so every kernel stays
+    callable from Python, at the cost of one more Python call: entry points called from Python once per
+    period (``*_by_table``, the closed loop) are compiled with :func:`jit_entry` instead.
+    """
+
+    def _python_twin(self):
+        twin = self.__dict__.get("_twin")
+        if twin is None:
+            twin = self.__dict__["_twin"] = jit_entry(self.py_func)
+        return twin
+
+    def __call__(self, *args, **kwargs):
+        return self._python_twin()(*args, **kwargs)
+
+    @property
+    def stats(self):
+        """The cache statistics of the Python twin (the one a Python call compiles or loads)."""
+        return self._python_twin().stats
 
 
 _njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
@@ -145,8 +178,26 @@ def _leaf(signature: str):
 _njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 
+_njit_kernel = numba.njit(
+    cache=True, fastmath=False, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True
+)
+
+
 def jit(fn):
-    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
+    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources.
+
+    Compiled without the wrappers a call from Python needs (:class:`KernelDispatcher`); a Python call goes to
+    a twin with them.
+    """
+    d = _njit_kernel(fn)
+    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d.__class__ = KernelDispatcher
+        d._cache = DependencyCache(d.py_func, "kernel")
+    return d
+
+
+def jit_entry(fn):
+    """:func:`jit` with numba's wrappers: for the entry points Python calls often (one Python call less)."""
     d = _njit(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
         d._cache = DependencyCache(d.py_func)
@@ -256,15 +307,21 @@ _TABLE_STRIDE = 3  # address, rows, columns (columns = 0 for a 1-D array)
 
 
 def address_table(arrays: list[np.ndarray]) -> np.ndarray:
-    """An int64 table of ``(address, rows, columns)`` of C-contiguous 1-D or 2-D arrays, in order.
+    """An int64 table of ``(address, rows, columns)`` of C-contiguous arrays, in order.
+
+    The arrays are 1-D or 2-D float64 or int64 arrays, or 1-D arrays of a structured dtype (records).
 
     Raises:
-        ValueError: an array that is not C-contiguous, not 1-D or 2-D, or neither float64 nor int64.
+        ValueError: an array that is none of these.
     """
     table = np.zeros(_TABLE_STRIDE * len(arrays), dtype=np.int64)
     for i, a in enumerate(arrays):
-        if not a.flags.c_contiguous or a.ndim not in (1, 2) or a.dtype not in (np.float64, np.int64):
-            raise ValueError(f"address_table: array {i} is not a C-contiguous 1-D/2-D float64/int64 array")
+        records = a.dtype.names is not None and a.ndim == 1
+        plain = a.ndim in (1, 2) and a.dtype in (np.float64, np.int64)
+        if not a.flags.c_contiguous or not (records or plain):
+            raise ValueError(
+                f"address_table: array {i} is not a C-contiguous 1-D/2-D float64/int64 array or 1-D record array"
+            )
         o = _TABLE_STRIDE * i
         table[o] = a.ctypes.data
         table[o + 1] = a.shape[0]
@@ -292,14 +349,37 @@ def _i64_pointer(typingctx, address):
     return sig, codegen
 
 
+@intrinsic
+def _void_pointer(typingctx, address):
+    sig = types.voidptr(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
+
+    return sig, codegen
+
+
 @jit
+def void_pointer(address: int):
+    """The address as a ``void*`` (for ``numba.carray`` of a structured dtype)."""
+    return _void_pointer(address)
+
+
+@jit_inline
+def records_at(table, i: int, dtype):
+    """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (``dtype`` a global)."""
+    o = _TABLE_STRIDE * i
+    return numba.carray(_void_pointer(table[o]), (table[o + 1],), dtype)
+
+
+@jit_inline
 def f64_view(table, i: int):
     """The 1-D float64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
     return numba.carray(_f64_pointer(table[o]), (table[o + 1],))
 
 
-@jit
+@jit_inline
 def f64_view2(table, i: int):
     """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
@@ -318,7 +398,7 @@ def f64_at2(address: int, rows: int, cols: int):
     return numba.carray(_f64_pointer(address), (rows, cols))
 
 
-@jit
+@jit_inline
 def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
     o = _TABLE_STRIDE * i
@@ -355,6 +435,17 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
         """The C-ordered ``(rows, cols)`` float64 array at ``address``."""
         return f64_at(address, int(rows) * int(cols)).reshape(int(rows), int(cols))
+
+    def void_pointer(address: int):  # noqa: F811
+        """The address (an integer)."""
+        return int(address)
+
+    def records_at(table, i: int, dtype):  # noqa: F811
+        """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (a ``numpy.recarray``)."""
+        o = _TABLE_STRIDE * i
+        rows = int(table[o + 1])
+        raw = (ctypes.c_char * (rows * dtype.itemsize)).from_address(int(table[o]))
+        return np.frombuffer(raw, dtype=dtype, count=rows).view(np.recarray)
 
     def i64_view(table, i: int):  # noqa: F811
         """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""

@@ -48,6 +48,7 @@ __all__ = [
     "compiled_step",
     "state_array",
     "new_state",
+    "new_records",
 ]
 
 BLOCK_KINDS = (
@@ -159,14 +160,19 @@ def block_names(kind: str) -> tuple[str, ...]:
 _PURE_PYTHON = bool(numba.config.DISABLE_JIT)
 
 
-def new_state(dtype: np.dtype) -> np.ndarray:
-    """A zeroed ``(1,)`` state of ``dtype``.
+def new_records(dtype: np.dtype, n: int = 1) -> np.ndarray:
+    """``n`` zeroed records of ``dtype``, a ``(n,)`` array.
 
     With ``NUMBA_DISABLE_JIT=1`` (kernels run as Python) it is a ``numpy.recarray``, whose records read their
     fields as attributes (``r.output``) as compiled code does; compiled, a plain array.
     """
-    state = np.zeros(1, dtype=dtype)
-    return state.view(np.recarray) if _PURE_PYTHON else state
+    records = np.zeros(n, dtype=dtype)
+    return records.view(np.recarray) if _PURE_PYTHON else records
+
+
+def new_state(dtype: np.dtype) -> np.ndarray:
+    """A zeroed ``(1,)`` state of ``dtype`` (:func:`new_records`)."""
+    return new_records(dtype)
 
 
 def state_array(dtype: np.dtype, state: np.ndarray | None, owner: str) -> np.ndarray:

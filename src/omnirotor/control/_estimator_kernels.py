@@ -1,28 +1,29 @@
 """Compiled kernels of the UKF state estimator (:class:`omnirotor.control.estimator.UKFEstimator`, SPEC §4.5).
 
-The estimator keeps its state in a few arrays: ``x`` (the nominal states, times, counters and parameters,
-layout ``UKF_*`` below), the ring buffers ``buf`` (cap, 8: t, dt, gyro_B, acc_B of each IMU sample) and
-``sbuf`` (cap, 16: the output state after each sample), the covariance ``P`` (15, 15), the unscented weights
-``W`` (2, 31: mean, covariance) and the constant matrices ``M`` (5, 15, 15: the process-noise terms Q1, Q2,
-Q3, the initial covariance P0 and, in its top-left 6 x 6 corner, the measurement noise Rn), followed by a
-workspace ``wk`` (``WK_SIZE``: the work arrays of :func:`ukf_predict` and :func:`ukf_fuse`, layouts ``WP_*``
-and ``WF_*``), all in one float64 array (:func:`memory_layout`), so that a step allocates nothing. The model
-and the filter are described in the estimator's module docstring; these kernels implement them:
+The estimator's memory is four NumPy structured arrays whose fields the kernels read by name
+(:class:`UKFArrays`), so that a step allocates nothing:
 
-* :func:`ukf_imu_step`: one IMU sample (validation, lever arm, buffering, noise-free mean propagation) and,
-  when no motion-capture sample is to be fused, the end of the step (:func:`ukf_finish`: the outputs);
-* :func:`ukf_predict`: the unscented covariance prediction of the delayed fused state;
-* :func:`ukf_fuse_at` and :func:`ukf_fuse`: where a delayed motion-capture sample belongs, and its update
+* ``ukf`` (1,) of :data:`UKF_DTYPE`: the output (current) and the delayed fused nominal states
+  (:data:`NOMINAL_DTYPE`: ``p_W, v_W, q_WB, b_acc_B, b_gyro_B``) with their ``R_WB``, the IMU samples, the
+  outputs, times and counters, the covariance ``P``, the unscented weights, the constant matrices (process
+  noise terms ``Q1, Q2, Q3``, initial covariance ``P0``, measurement noise ``Rn``) and the parameters. A
+  controller nests it as a field of its own state;
+* ``imu_buf`` (cap,) of :data:`IMU_SAMPLE_DTYPE` and ``state_buf`` (cap,) of :data:`NOMINAL_DTYPE`: ring
+  buffers of the IMU samples (lever-arm corrected) and of the output state after each;
+* ``work`` (1,) of :data:`WORK_DTYPE`: the scratch arrays of :func:`predict` and :func:`fuse`. Its content
+  means nothing between kernel calls: every kernel writes an entry before it reads it.
+
+The model and the filter are described in the estimator's module docstring; these kernels implement them:
+
+* :func:`imu_step`: one IMU sample (validation, lever arm, buffering, noise-free mean propagation) and
+  :func:`finish`: the end of a step (the outputs);
+* :func:`predict`: the unscented covariance prediction of the delayed fused state;
+* :func:`fuse_at` and :func:`fuse`: where a delayed motion-capture sample belongs, and its update
   (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now);
 * :func:`ukf_step`: the estimator's whole 1 kHz step after initialisation in one call (the above in order,
-  the motion-capture sample checks, the latency choice and the counters ``CNT_*``), for
-  :meth:`UKFEstimator.step` and for a compiled control loop.
-
-A kernel calling another compiles the callee again inside itself, so :func:`ukf_step` (which holds all of
-them, :func:`ukf_predict` the slowest) takes the longest to compile; the compiled code is cached on disk.
-Numba checks only the caller's own source file against its cache: after a change here, the cached kernels of
-other modules that call these (the controller's compiled step, the compiled closed loop) are stale and must be
-deleted (a stale copy loaded next to the new one can even call the wrong version of a helper and crash).
+  the motion-capture sample checks, the latency choice and the counters), for :meth:`UKFEstimator.step`
+  and for the controller's compiled step; :func:`ukf_step_by_table` the same from Python, with the arrays
+  given by their addresses (typing four structured arrays would cost numba more than the step).
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -31,75 +32,159 @@ product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-from omnirotor._jit import R9_from_quat_into, jit, jit_inline
+import numpy as np
+
+from omnirotor._jit import R9_from_quat_into, jit, jit_entry, records_at
+from omnirotor.blocks import new_records
 
 N_ERR = 15
 """Error-state dimension: dp, dv, dtheta, db_a, db_g."""
 N_SIGMA = 2 * N_ERR + 1
+N_MEAS = 6
+"""Dimension of the motion-capture measurement: position and attitude."""
 
-# Layout of the scalar part x = mem[0:UKF_SIZE] of the estimator's memory.
-UKF_S = 0  # (16,) output (current) nominal state: p_W, v_W, q_WB (wxyz), b_a, b_g
-UKF_RS = 16  # (9,) R_WB of the output state, row-major
-UKF_F = 25  # (16,) delayed fused state
-UKF_RF = 41  # (9,) its R_WB
-UKF_IMU = 50  # (6,) last good raw IMU sample: gyro_B, acc_B
-UKF_IMU_C = 56  # (6,) the sample of this step, lever-arm corrected
-UKF_GLP = 62  # (3,) low-passed gyro (for the lever arm's omega_dot)
-UKF_WO = 65  # (3,) omega_B output
-UKF_AO = 68  # (3,) a_W output
-UKF_T = 71  # time of the output state [s]
-UKF_T_F = 72  # time of the fused state [s]
-UKF_T_ACCEPT = 73  # frame time of the last accepted motion-capture sample [s]
-UKF_LPF_DT = 74  # dt of the cached output-filter gains (NaN: none yet)
-UKF_LAM_W = 75
-UKF_LAM_A = 76
-UKF_K = 77  # IMU samples pushed so far
-UKF_KF = 78  # samples already in the fused state
-UKF_JUST_RESET = 79  # 1 until a sample is fused after the start-up pose
-UKF_GATE_FAILS = 80  # consecutive gate failures
-UKF_DT = 81  # period of the last IMU sample [s]
-# Parameters.
-UKF_G = 82
-UKF_DT_NOM = 83
-UKF_GYRO_RANGE = 84
-UKF_ACC_RANGE = 85
-UKF_R_IMU = 86  # (3,) IMU offset from the CoM [m]
-UKF_LEVER = 89  # 1 when the offset is not zero
-UKF_LEVER_CUT = 90
-UKF_GYRO_CUT = 91
-UKF_ACC_CUT = 92
-UKF_CAP = 93  # ring-buffer length
-UKF_COV_N = 94  # samples per covariance step
-UKF_UT_SCALE = 95  # sqrt(n + lambda)
-UKF_MAX_LAT = 96  # largest motion-capture latency [s]
-UKF_GATE = 97  # chi-square gate
-UKF_REINIT_AFTER = 98
-UKF_LAG_N = 99  # samples the fused state may lag ...
-UKF_CHUNK_N = 100  # ... plus this many before it is advanced without motion capture
-UKF_TIMEOUT = 101  # motion-capture timeout [s]
-UKF_SIZE = 102
+_F8, _I8 = np.float64, np.int64
+NOMINAL_DTYPE = np.dtype(
+    [
+        ("p_W", _F8, 3),  # position [m]
+        ("v_W", _F8, 3),  # velocity [m/s]
+        ("q_WB", _F8, 4),  # attitude, unit quaternion wxyz
+        ("b_acc_B", _F8, 3),  # accelerometer bias [m/s²]
+        ("b_gyro_B", _F8, 3),  # gyro bias [rad/s]
+    ]
+)
+"""A nominal state of the filter."""
 
-# Bits of the code ukf_imu_step and ukf_finish return.
+IMU_SAMPLE_DTYPE = np.dtype(
+    [
+        ("t", _F8),  # time of the sample [s]
+        ("dt", _F8),  # its period [s]
+        ("gyro_B", _F8, 3),  # rate [rad/s], lever-arm corrected sample
+        ("acc_B", _F8, 3),  # specific force [m/s²]
+    ]
+)
+"""One buffered IMU sample."""
+
+UKF_DTYPE = np.dtype(
+    [
+        # states
+        ("x_out", NOMINAL_DTYPE),  # output (current) nominal state
+        ("R_WB_out", _F8, (3, 3)),  # its attitude as a matrix
+        ("x_fused", NOMINAL_DTYPE),  # delayed fused state
+        ("R_WB_fused", _F8, (3, 3)),
+        ("gyro_B", _F8, 3),  # last good raw IMU sample [rad/s] ...
+        ("acc_B", _F8, 3),  # ... [m/s²]
+        ("gyro_corr_B", _F8, 3),  # the sample of this step, lever-arm corrected [rad/s] ...
+        ("acc_corr_B", _F8, 3),  # ... [m/s²]
+        ("gyro_lp_B", _F8, 3),  # low-passed gyro (for the lever arm's omega_dot) [rad/s]
+        ("omega_dot_B", _F8, 3),  # its derivative [rad/s²]
+        ("omega_B", _F8, 3),  # output rate [rad/s]
+        ("a_W", _F8, 3),  # output acceleration (without gravity) [m/s²]
+        ("t", _F8),  # time of the output state [s]
+        ("t_fused", _F8),  # time of the fused state [s]
+        ("t_accept", _F8),  # frame time of the last accepted motion-capture sample [s]
+        ("lpf_dt", _F8),  # dt of the cached output-filter gains [s] (NaN: none yet)
+        ("lam_omega", _F8),  # output-filter gains
+        ("lam_acc", _F8),
+        ("dt", _F8),  # period of the last IMU sample [s]
+        ("k", _I8),  # IMU samples pushed so far
+        ("k_fused", _I8),  # samples already in the fused state
+        ("just_reset", _I8),  # 1 until a sample is fused after the start-up pose
+        ("gate_fails", _I8),  # consecutive gate failures
+        ("P", _F8, (N_ERR, N_ERR)),  # covariance of the error of the fused state
+        # counters and flags
+        ("n_mocap_fused", _I8),  # motion-capture samples fused
+        ("n_rejected_mocap", _I8),  # rejected (invalid, stale, singular or outside the gate)
+        ("n_reinit", _I8),  # re-initialisations from motion capture after repeated gate failures
+        ("n_rejected_inputs", _I8),  # frames in which the period, the IMU or the motion-capture sample was rejected
+        ("n_nonfinite", _I8),  # frames with a non-finite time, IMU sample or motion-capture sample
+        ("last_rejected", _I8),  # 1 when something in the last frame was rejected
+        ("degraded", _I8),  # 1 while no motion-capture sample was accepted for longer than the timeout
+        # parameters
+        ("g", _F8),  # gravity [m/s²]
+        ("dt_nom", _F8),  # nominal IMU period [s]
+        ("gyro_range", _F8),  # [rad/s]
+        ("acc_range", _F8),  # [m/s²]
+        ("r_imu_B", _F8, 3),  # IMU offset from the CoM [m]
+        ("lever", _I8),  # 1 when the offset is not zero
+        ("lever_cutoff_hz", _F8),
+        ("gyro_cutoff_hz", _F8),
+        ("acc_cutoff_hz", _F8),
+        ("cov_n", _I8),  # samples per covariance step
+        ("ut_scale", _F8),  # sqrt(n + lambda)
+        ("max_latency_s", _F8),  # largest motion-capture latency
+        ("gate_chi2", _F8),  # chi-square gate
+        ("reinit_after", _I8),
+        ("lag_n", _I8),  # samples the fused state may lag ...
+        ("chunk_n", _I8),  # ... plus this many before it is advanced without motion capture
+        ("timeout_s", _F8),  # motion-capture timeout
+        ("compensate_latency", _I8),  # 1: fuse a sample at the time it was taken, 0: at its arrival
+        ("w_mean", _F8, N_SIGMA),  # unscented weights of the mean ...
+        ("w_cov", _F8, N_SIGMA),  # ... and of the covariance
+        ("Q1", _F8, (N_ERR, N_ERR)),  # process noise Q(T) = T Q1 + T² Q2 + T³ Q3
+        ("Q2", _F8, (N_ERR, N_ERR)),
+        ("Q3", _F8, (N_ERR, N_ERR)),
+        ("P0", _F8, (N_ERR, N_ERR)),  # initial covariance
+        ("Rn", _F8, (N_MEAS, N_MEAS)),  # motion-capture noise: position [m²], attitude [rad²]
+    ]
+)
+"""State, counters and parameters of the UKF (named fields; the kernels read them so)."""
+
+WORK_DTYPE = np.dtype(
+    [
+        # predict
+        ("L", _F8, (N_ERR, N_ERR)),  # lower Cholesky factor of P
+        ("P_jit", _F8, (N_ERR, N_ERR)),  # P symmetrised, with jitter on the diagonal (P lost definiteness)
+        ("sigma_d", _F8, (N_SIGMA, N_ERR)),  # sigma-point offsets in the error coordinates
+        ("sigma_p_W", _F8, (N_SIGMA, 3)),  # sigma points' p_W [m]
+        ("sigma_v_W", _F8, (N_SIGMA, 3)),  # their v_W [m/s]
+        ("sigma_b_acc_B", _F8, (N_SIGMA, 3)),  # their b_acc_B [m/s²]
+        ("sigma_b_gyro_B", _F8, (N_SIGMA, 3)),  # their b_gyro_B [rad/s]
+        ("sigma_R_WB", _F8, (N_SIGMA, 3, 3)),  # their R_WB
+        ("rot", _F8, (3, 3)),  # rotation of a sigma-point offset or of one covariance step
+        ("tmp", _F8, (3, 3)),  # product of two rotations
+        ("R0_T", _F8, (3, 3)),  # transpose of the first sigma point's R_WB
+        ("gyro_mean_B", _F8, 3),  # mean IMU reading of a covariance step [rad/s] ...
+        ("acc_mean_B", _F8, 3),  # ... [m/s²]
+        ("a_W", _F8, 3),  # a_W of a sigma point [m/s²]
+        ("err", _F8, (N_SIGMA, N_ERR)),  # errors of the propagated sigma points
+        ("err_mean", _F8, N_ERR),  # their weighted mean
+        # fuse
+        ("innov", _F8, N_MEAS),  # innovation: position [m], rotation vector [rad]
+        ("PHt", _F8, (N_ERR, N_MEAS)),  # P Hᵀ
+        ("S", _F8, (N_MEAS, N_MEAS)),  # innovation covariance (inverted in place)
+        ("S_inv", _F8, (N_MEAS, N_MEAS)),  # its inverse
+        ("K", _F8, (N_ERR, N_MEAS)),  # Kalman gain
+        ("dx", _F8, N_ERR),  # error-state correction
+        ("Pn", _F8, (N_ERR, N_ERR)),  # updated covariance (I - K H) P
+        ("Gt", _F8, (3, 3)),  # reset Jacobian's attitude block
+        ("Gt_rows", _F8, (3, N_ERR)),  # its product with the attitude rows of Pn
+        ("Gt_cols", _F8, (N_ERR, 3)),  # and with the attitude columns
+    ]
+)
+"""Scratch of the kernels (named fields)."""
+
+
+class UKFArrays(NamedTuple):
+    """The UKF's memory (module docstring); ``cap`` is the ring buffers' length."""
+
+    ukf: np.ndarray  # (1,) UKF_DTYPE
+    imu_buf: np.ndarray  # (cap,) IMU_SAMPLE_DTYPE
+    state_buf: np.ndarray  # (cap,) NOMINAL_DTYPE
+    work: np.ndarray  # (1,) WORK_DTYPE
+
+
+# Bits of the code imu_step and finish return.
 STEP_REJECTED = 1  # the period or the IMU sample was rejected
 STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeout
-STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (ukf_predict to k - lag_n)
-
-M_Q1, M_Q2, M_Q3, M_P0, M_RN = 0, 1, 2, 3, 4
-
-# Layout of the counters array (int64) that ukf_step updates.
-CNT_MOCAP_FUSED = 0  # motion-capture samples fused
-CNT_REJECTED_MOCAP = 1  # motion-capture samples rejected (invalid, stale, singular or outside the gate)
-CNT_REINIT = 2  # re-initialisations from motion capture after repeated gate failures
-CNT_REJECTED_INPUTS = 3  # frames in which something (period, IMU sample, motion-capture sample) was rejected
-CNT_LAST_REJECTED = 4  # 1 when something in the last frame was rejected
-CNT_DEGRADED = 5  # 1 while no motion-capture sample was accepted for longer than the timeout
-CNT_SIZE = 6
+STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (predict to k - lag_n)
 
 QUAT_NORM_TOL = 0.1
 """A motion-capture quaternion whose norm is off 1 by more than this is rejected."""
 
-# Return codes of ukf_fuse.
+# Return codes of fuse.
 FUSE_OK = 0
 FUSE_STALE = 1  # older than the fused state or the buffer, or from the future
 FUSE_SINGULAR = 2  # innovation covariance not invertible
@@ -108,86 +193,27 @@ FUSE_REINIT = 4  # outside the gate once too often: the pose was re-initialised 
 
 _RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] above which P is reset-transported
 
-
-# Layout of the workspace wk (WK_SIZE,) at the end of the memory: the work arrays of ukf_predict (WP_*) and of
-# ukf_fuse (WF_*). Its content means nothing between kernel calls: every kernel writes an entry before it reads
-# it. ukf_predict and ukf_fuse never run inside one another, so their arrays share the region.
-_NN = N_ERR * N_ERR
-WP_L = 0  # (15, 15) lower Cholesky factor of P
-WP_PJ = WP_L + _NN  # (15, 15) P symmetrised, with jitter on the diagonal (when P lost positive definiteness)
-WP_D = WP_PJ + _NN  # (31, 15) sigma-point offsets in the error coordinates
-WP_PS = WP_D + N_SIGMA * N_ERR  # (31, 3) sigma points' p_W [m]
-WP_VS = WP_PS + 3 * N_SIGMA  # (31, 3) their v_W [m/s]
-WP_BA = WP_VS + 3 * N_SIGMA  # (31, 3) their b_a [m/s²]
-WP_BG = WP_BA + 3 * N_SIGMA  # (31, 3) their b_g [rad/s]
-WP_RS = WP_BG + 3 * N_SIGMA  # (31, 3, 3) their R_WB (3 x 3 matrices here are row-major, 9 entries)
-WP_ROT = WP_RS + 9 * N_SIGMA  # (3, 3) rotation of a sigma-point offset or of one covariance step
-WP_TMP = WP_ROT + 9  # (3, 3) product of two rotations
-WP_R0T = WP_TMP + 9  # (3, 3) transpose of the first sigma point's R_WB
-WP_M = WP_R0T + 9  # (6,) mean IMU reading of a covariance step: gyro_B [rad/s], acc_B [m/s²]
-WP_A = WP_M + 6  # (3,) a_W of a sigma point [m/s²]
-WP_E = WP_A + 3  # (31, 15) errors of the propagated sigma points
-WP_MEAN = WP_E + N_SIGMA * N_ERR  # (15,) their weighted mean
-WP_SIZE = WP_MEAN + N_ERR
-N_MEAS = 6
-"""Dimension of the motion-capture measurement: position and attitude."""
-WF_R = 0  # (6,) innovation: position [m], rotation vector [rad]
-WF_PHT = WF_R + N_MEAS  # (15, 6) P Hᵀ
-WF_S = WF_PHT + N_ERR * N_MEAS  # (6, 6) innovation covariance (inverted in place)
-WF_SINV = WF_S + N_MEAS * N_MEAS  # (6, 6) its inverse
-WF_K = WF_SINV + N_MEAS * N_MEAS  # (15, 6) Kalman gain
-WF_DX = WF_K + N_ERR * N_MEAS  # (15,) error-state correction
-WF_PN = WF_DX + N_ERR  # (15, 15) updated covariance (I - K H) P
-WF_GT = WF_PN + _NN  # (3, 3) reset Jacobian's attitude block
-WF_ROWS = WF_GT + 9  # (3, 15) its product with the attitude rows of Pn
-WF_COLS = WF_ROWS + 3 * N_ERR  # (15, 3) and with the attitude columns
-WF_SIZE = WF_COLS + 3 * N_ERR
-WK_SIZE = max(WP_SIZE, WF_SIZE)
-
 _H_ROWS = (0, 1, 2, 6, 7, 8)
 """The error coordinates the motion-capture pose measures (dp, dtheta): rows of H, in measurement order."""
 
 
-def memory_layout(cap: int) -> tuple[int, int, int, int, int, int, int]:
-    """Offsets of buf (cap x 8), sbuf (cap x 16), P (15 x 15), W (2 x 31), M (5 x 15 x 15), wk (WK_SIZE), the size.
-
-    Args:
-        cap: ring-buffer length [samples].
-    """
-    o_buf = UKF_SIZE
-    o_sbuf = o_buf + 8 * cap
-    o_P = o_sbuf + 16 * cap
-    o_W = o_P + N_ERR * N_ERR
-    o_M = o_W + 2 * N_SIGMA
-    o_wk = o_M + 5 * N_ERR * N_ERR
-    return o_buf, o_sbuf, o_P, o_W, o_M, o_wk, o_wk + WK_SIZE
+def new_arrays(cap: int) -> UKFArrays:
+    """Zeroed memory with ring buffers of ``cap`` samples (:func:`omnirotor.blocks.new_records`)."""
+    return UKFArrays(
+        new_records(UKF_DTYPE), new_records(IMU_SAMPLE_DTYPE, cap), new_records(NOMINAL_DTYPE, cap),
+        new_records(WORK_DTYPE),
+    )  # fmt: skip
 
 
 @jit
-def views(mem):
-    """``(x, buf, sbuf, P, W, M, wk)``: the parts of the estimator's memory (module docstring)."""
-    cap = int(mem[UKF_CAP])
-    o_buf = UKF_SIZE
-    o_sbuf = o_buf + 8 * cap
-    o_P = o_sbuf + 16 * cap
-    o_W = o_P + N_ERR * N_ERR
-    o_M = o_W + 2 * N_SIGMA
-    o_wk = o_M + 5 * N_ERR * N_ERR
-    return (
-        mem[0:UKF_SIZE],
-        mem[o_buf:o_sbuf].reshape(cap, 8),
-        mem[o_sbuf:o_P].reshape(cap, 16),
-        mem[o_P:o_W].reshape(N_ERR, N_ERR),
-        mem[o_W:o_M].reshape(2, N_SIGMA),
-        mem[o_M:o_wk].reshape(5, N_ERR, N_ERR),
-        mem[o_wk : o_wk + WK_SIZE],
+def arrays_at(table, i: int) -> UKFArrays:
+    """The :class:`UKFArrays` of entries ``i`` to ``i + 3`` of an :func:`omnirotor._jit.address_table`."""
+    return UKFArrays(
+        records_at(table, i, UKF_DTYPE),
+        records_at(table, i + 1, IMU_SAMPLE_DTYPE),
+        records_at(table, i + 2, NOMINAL_DTYPE),
+        records_at(table, i + 3, WORK_DTYPE),
     )
-
-
-@jit_inline
-def _work2(wk, o: int, rows: int, cols: int):
-    """The (rows, cols) work array at ``wk[o:]`` (a view)."""
-    return wk[o : o + rows * cols].reshape(rows, cols)
 
 
 @jit
@@ -200,23 +226,42 @@ def lpf_gain(dt: float, cutoff_hz: float) -> float:
 
 
 @jit
-def propagate(s, o: int, R, oR: int, dt: float, g: float, imu, oi: int) -> None:
-    """One IMU sample on the nominal state ``s[o:o+16]``, in place; ``R[oR:oR+9]`` becomes ``R_WB(q)``.
+def R_from_quat_into(q, R) -> None:
+    """``R`` (3, 3) = the rotation of the unit quaternion ``q`` (4,), wxyz."""
+    R9_from_quat_into(q[0], q[1], q[2], q[3], R.reshape(9), 0)
 
-    ``imu[oi:oi+6]`` is ``gyro_B [rad/s], acc_B [m/s²]`` (lever-arm corrected); see the estimator's model.
+
+@jit
+def copy_nominal(src, dst) -> None:
+    """``dst`` = ``src`` (:data:`NOMINAL_DTYPE` records)."""
+    for i in range(3):
+        dst.p_W[i] = src.p_W[i]
+        dst.v_W[i] = src.v_W[i]
+        dst.b_acc_B[i] = src.b_acc_B[i]
+        dst.b_gyro_B[i] = src.b_gyro_B[i]
+    for i in range(4):
+        dst.q_WB[i] = src.q_WB[i]
+
+
+@jit
+def propagate(s, R, dt: float, g: float, gyro, acc) -> None:
+    """One IMU sample ``gyro`` [rad/s], ``acc`` [m/s²] (3,) on the nominal state ``s``, in place; ``R`` = ``R_WB(q)``.
+
+    The sample is lever-arm corrected; see the estimator's model.
     """
-    fx, fy, fz = imu[oi + 3] - s[o + 10], imu[oi + 4] - s[o + 11], imu[oi + 5] - s[o + 12]
-    ax = R[oR] * fx + R[oR + 1] * fy + R[oR + 2] * fz
-    ay = R[oR + 3] * fx + R[oR + 4] * fy + R[oR + 5] * fz
-    az = R[oR + 6] * fx + R[oR + 7] * fy + R[oR + 8] * fz - g
+    ba, bg, p, v, q = s.b_acc_B, s.b_gyro_B, s.p_W, s.v_W, s.q_WB
+    fx, fy, fz = acc[0] - ba[0], acc[1] - ba[1], acc[2] - ba[2]
+    ax = R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz
+    ay = R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz
+    az = R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz - g
     h = 0.5 * dt * dt
-    s[o] += s[o + 3] * dt + ax * h
-    s[o + 1] += s[o + 4] * dt + ay * h
-    s[o + 2] += s[o + 5] * dt + az * h
-    s[o + 3] += ax * dt
-    s[o + 4] += ay * dt
-    s[o + 5] += az * dt
-    wx, wy, wz = (imu[oi] - s[o + 13]) * dt, (imu[oi + 1] - s[o + 14]) * dt, (imu[oi + 2] - s[o + 15]) * dt
+    p[0] += v[0] * dt + ax * h
+    p[1] += v[1] * dt + ay * h
+    p[2] += v[2] * dt + az * h
+    v[0] += ax * dt
+    v[1] += ay * dt
+    v[2] += az * dt
+    wx, wy, wz = (gyro[0] - bg[0]) * dt, (gyro[1] - bg[1]) * dt, (gyro[2] - bg[2]) * dt
     th2 = wx * wx + wy * wy + wz * wz
     if th2 > 1e-24:
         th = math.sqrt(th2)
@@ -224,40 +269,34 @@ def propagate(s, o: int, R, oR: int, dt: float, g: float, imu, oi: int) -> None:
     else:
         c, k = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0
     dx, dy, dz = k * wx, k * wy, k * wz
-    qw, qx, qy, qz = s[o + 6], s[o + 7], s[o + 8], s[o + 9]
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
     nw = qw * c - qx * dx - qy * dy - qz * dz
     nx = qw * dx + qx * c + qy * dz - qz * dy
     ny = qw * dy - qx * dz + qy * c + qz * dx
     nz = qw * dz + qx * dy - qy * dx + qz * c
     inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    s[o + 6], s[o + 7], s[o + 8], s[o + 9] = nw * inv, nx * inv, ny * inv, nz * inv
-    R9_from_quat_into(s[o + 6], s[o + 7], s[o + 8], s[o + 9], R, oR)
+    q[0], q[1], q[2], q[3] = nw * inv, nx * inv, ny * inv, nz * inv
+    R_from_quat_into(q, R)
 
 
 @jit
-def _correct_lever_arm(x, dt: float) -> None:
-    """Remove ``omega x (omega x r) + omega_dot x r`` from the accelerometer sample ``x[UKF_IMU_C+3:+6]``."""
-    r0, r1, r2 = x[UKF_R_IMU], x[UKF_R_IMU + 1], x[UKF_R_IMU + 2]
-    lam = lpf_gain(dt, x[UKF_LEVER_CUT])
-    C, S = UKF_IMU_C, UKF_S
-    wd0 = _lowpass_rate(x, 0, lam, dt)  # omega_dot_B [rad/s²]
-    wd1 = _lowpass_rate(x, 1, lam, dt)
-    wd2 = _lowpass_rate(x, 2, lam, dt)
-    wx, wy, wz = x[C] - x[S + 13], x[C + 1] - x[S + 14], x[C + 2] - x[S + 15]
+def _correct_lever_arm(u, dt: float) -> None:
+    """Remove ``omega x (omega x r) + omega_dot x r`` from the accelerometer sample ``u.acc_corr_B``."""
+    r = u.r_imu_B
+    r0, r1, r2 = r[0], r[1], r[2]
+    lam = lpf_gain(dt, u.lever_cutoff_hz)
+    lp, wd = u.gyro_lp_B, u.omega_dot_B
+    for i in range(3):  # low-pass the gyro sample, differentiate
+        new = lp[i] + lam * (u.gyro_corr_B[i] - lp[i])
+        wd[i] = (new - lp[i]) / dt
+        lp[i] = new
+    wd0, wd1, wd2 = wd[0], wd[1], wd[2]
+    w, bg, a = u.gyro_corr_B, u.x_out.b_gyro_B, u.acc_corr_B
+    wx, wy, wz = w[0] - bg[0], w[1] - bg[1], w[2] - bg[2]
     cx, cy, cz = wy * r2 - wz * r1, wz * r0 - wx * r2, wx * r1 - wy * r0  # omega x r
-    x[C + 3] -= wy * cz - wz * cy + wd1 * r2 - wd2 * r1
-    x[C + 4] -= wz * cx - wx * cz + wd2 * r0 - wd0 * r2
-    x[C + 5] -= wx * cy - wy * cx + wd0 * r1 - wd1 * r0
-
-
-@jit
-def _lowpass_rate(x, i: int, lam: float, dt: float) -> float:
-    """Low-pass axis ``i`` of the gyro sample into ``x[UKF_GLP + i]``; return the filtered rate's derivative."""
-    L = UKF_GLP + i
-    new = x[L] + lam * (x[UKF_IMU_C + i] - x[L])
-    wd = (new - x[L]) / dt
-    x[L] = new
-    return wd
+    a[0] -= wy * cz - wz * cy + wd1 * r2 - wd2 * r1
+    a[1] -= wz * cx - wx * cz + wd2 * r0 - wd0 * r2
+    a[2] -= wx * cy - wy * cx + wd0 * r1 - wd1 * r0
 
 
 @jit
@@ -269,120 +308,115 @@ def mocap_sample_valid(p, q, tol: float) -> bool:
 
 
 @jit
-def imu_valid(x, gyro, acc) -> bool:
-    """A finite sample within the sensor ranges."""
+def imu_valid(u, gyro, acc) -> bool:
+    """A finite sample within the sensor ranges of the UKF record ``u``."""
     sg, sa = gyro[0] + gyro[1] + gyro[2], acc[0] + acc[1] + acc[2]
     if not (math.isfinite(sg) and math.isfinite(sa)):
         return False
-    gr, ar = x[UKF_GYRO_RANGE], x[UKF_ACC_RANGE]
+    gr, ar = u.gyro_range, u.acc_range
     return max(abs(gyro[0]), abs(gyro[1]), abs(gyro[2])) <= gr and max(abs(acc[0]), abs(acc[1]), abs(acc[2])) <= ar
 
 
 @jit
-def ukf_imu_step(mem, gyro, acc, t_frame: float, finish: bool, out) -> tuple:
+def imu_step(u, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
     """One IMU sample: period and sample validation, lever arm, buffering, mean propagation.
 
     An invalid period (not finite, not increasing) is replaced by the nominal one, an invalid sample by the
-    last good one. With ``finish`` (no motion-capture sample to fuse in this frame) :func:`ukf_finish` follows.
+    last good one. The step ends with :func:`finish` (after the motion-capture update, if any).
+
+    Args:
+        u: the UKF record (:data:`UKF_DTYPE`).
+        buf: (cap,) the IMU ring buffer.
+        sbuf: (cap,) the ring buffer of output states.
+        gyro: (3,) gyro sample [rad/s], body frame.
+        acc: (3,) accelerometer sample [m/s²], body frame.
+        t_frame: frame time [s].
 
     Returns:
-        ``(code, t)``: ``STEP_REJECTED`` when the period or the sample was rejected, plus ``STEP_DEGRADED``
-        from :func:`ukf_finish` with ``finish``; the time of the estimate [s].
+        ``(code, t)``: ``STEP_REJECTED`` when the period or the sample was rejected; the time of the estimate [s].
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)
-    code, t = _imu_step(x, buf, sbuf, gyro, acc, t_frame)
-    if finish:
-        code |= _finish(x, out)
-    return code, t
-
-
-@jit
-def _imu_step(x, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
-    """:func:`ukf_imu_step` without ``finish``, on the parts of the memory (:func:`views`)."""
     rejected = False
-    dt = t_frame - x[UKF_T]
+    dt = t_frame - u.t
     if not (dt > 0.0 and math.isfinite(dt)):
-        dt = x[UKF_DT_NOM]
+        dt = u.dt_nom
         rejected = True
-    t = x[UKF_T] + dt
-    x[UKF_T] = t
-    x[UKF_DT] = dt
-    if imu_valid(x, gyro, acc):
+    t = u.t + dt
+    u.t = t
+    u.dt = dt
+    if imu_valid(u, gyro, acc):
         for i in range(3):
-            x[UKF_IMU + i] = gyro[i]
-            x[UKF_IMU + 3 + i] = acc[i]
+            u.gyro_B[i] = gyro[i]
+            u.acc_B[i] = acc[i]
     else:
         rejected = True
-    for i in range(6):
-        x[UKF_IMU_C + i] = x[UKF_IMU + i]
-    if x[UKF_LEVER] != 0.0:
-        _correct_lever_arm(x, dt)
-    k = int(x[UKF_K])
-    row = k % buf.shape[0]
-    buf[row, 0] = t
-    buf[row, 1] = dt
-    for i in range(6):
-        buf[row, 2 + i] = x[UKF_IMU_C + i]
-    propagate(x, UKF_S, x, UKF_RS, dt, x[UKF_G], x, UKF_IMU_C)
-    for i in range(16):
-        sbuf[row, i] = x[UKF_S + i]
-    x[UKF_K] = k + 1
+    for i in range(3):
+        u.gyro_corr_B[i] = u.gyro_B[i]
+        u.acc_corr_B[i] = u.acc_B[i]
+    if u.lever != 0:
+        _correct_lever_arm(u, dt)
+    k = u.k
+    sample = buf[k % buf.shape[0]]
+    sample.t = t
+    sample.dt = dt
+    for i in range(3):
+        sample.gyro_B[i] = u.gyro_corr_B[i]
+        sample.acc_B[i] = u.acc_corr_B[i]
+    propagate(u.x_out, u.R_WB_out, dt, u.g, u.gyro_corr_B, u.acc_corr_B)
+    copy_nominal(u.x_out, sbuf[k % sbuf.shape[0]])
+    u.k = k + 1
     return STEP_REJECTED if rejected else 0, t
 
 
 @jit
-def ukf_finish(mem, out) -> int:
+def finish(u, out) -> int:
     """End of a step: the outputs, and whether the delayed state must be advanced.
 
     Outputs: bias-corrected rate and acceleration, low-passed, and the estimate ``p_W, v_W, a_W, R_WB
     (row-major), omega_B`` into ``out`` (21,). The delayed fused state is advanced by the caller
-    (``ukf_predict(mem, k - lag_n)``, as :func:`ukf_step` does) when motion capture has not come for too long;
+    (``predict(..., k - lag_n)``, as :func:`ukf_step` does) when motion capture has not come for too long;
     that does not change the outputs.
 
     Returns:
         ``STEP_DEGRADED`` when no motion-capture sample was accepted for longer than the timeout, plus
         ``STEP_ADVANCE`` when the delayed state lags by more than the latency plus one chunk.
     """
-    return _finish(mem[0:UKF_SIZE], out)
-
-
-@jit
-def _finish(x, out) -> int:
-    """:func:`ukf_finish` on the scalar part ``x`` of the memory."""
     code = 0
-    if int(x[UKF_K]) - int(x[UKF_KF]) > int(x[UKF_LAG_N]) + int(x[UKF_CHUNK_N]):
+    if u.k - u.k_fused > u.lag_n + u.chunk_n:
         code = STEP_ADVANCE
-    dt = x[UKF_DT]
-    if dt != x[UKF_LPF_DT]:
-        x[UKF_LPF_DT] = dt
-        x[UKF_LAM_W] = lpf_gain(dt, x[UKF_GYRO_CUT])
-        x[UKF_LAM_A] = lpf_gain(dt, x[UKF_ACC_CUT])
-    lam_w, lam_a = x[UKF_LAM_W], x[UKF_LAM_A]
-    S, R, C, g = UKF_S, UKF_RS, UKF_IMU_C, x[UKF_G]
-    fx, fy, fz = x[C + 3] - x[S + 10], x[C + 4] - x[S + 11], x[C + 5] - x[S + 12]
-    Wo, Ao = UKF_WO, UKF_AO
-    x[Wo] += lam_w * (x[C] - x[S + 13] - x[Wo])
-    x[Wo + 1] += lam_w * (x[C + 1] - x[S + 14] - x[Wo + 1])
-    x[Wo + 2] += lam_w * (x[C + 2] - x[S + 15] - x[Wo + 2])
-    x[Ao] += lam_a * (x[R] * fx + x[R + 1] * fy + x[R + 2] * fz - x[Ao])
-    x[Ao + 1] += lam_a * (x[R + 3] * fx + x[R + 4] * fy + x[R + 5] * fz - x[Ao + 1])
-    x[Ao + 2] += lam_a * (x[R + 6] * fx + x[R + 7] * fy + x[R + 8] * fz - g - x[Ao + 2])
-    write_estimate(x, out)
-    if x[UKF_T] - x[UKF_T_ACCEPT] > x[UKF_TIMEOUT]:
+    dt = u.dt
+    if dt != u.lpf_dt:
+        u.lpf_dt = dt
+        u.lam_omega = lpf_gain(dt, u.gyro_cutoff_hz)
+        u.lam_acc = lpf_gain(dt, u.acc_cutoff_hz)
+    lam_w, lam_a = u.lam_omega, u.lam_acc
+    s, R, g = u.x_out, u.R_WB_out, u.g
+    w, a, ba, bg = u.gyro_corr_B, u.acc_corr_B, s.b_acc_B, s.b_gyro_B
+    fx, fy, fz = a[0] - ba[0], a[1] - ba[1], a[2] - ba[2]
+    wo, ao = u.omega_B, u.a_W
+    wo[0] += lam_w * (w[0] - bg[0] - wo[0])
+    wo[1] += lam_w * (w[1] - bg[1] - wo[1])
+    wo[2] += lam_w * (w[2] - bg[2] - wo[2])
+    ao[0] += lam_a * (R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz - ao[0])
+    ao[1] += lam_a * (R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz - ao[1])
+    ao[2] += lam_a * (R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz - g - ao[2])
+    write_estimate(u, out)
+    if u.t - u.t_accept > u.timeout_s:
         code |= STEP_DEGRADED
     return code
 
 
 @jit
-def write_estimate(x, out) -> None:
-    """The estimate ``p_W, v_W, a_W, R_WB, omega_B`` (21,) of the output state into ``out``."""
-    for i in range(6):
-        out[i] = x[UKF_S + i]
+def write_estimate(u, out) -> None:
+    """The estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (21,) of the output state into ``out``."""
+    s = u.x_out
     for i in range(3):
-        out[6 + i] = x[UKF_AO + i]
-        out[18 + i] = x[UKF_WO + i]
-    for i in range(9):
-        out[9 + i] = x[UKF_RS + i]
+        out[i] = s.p_W[i]
+        out[3 + i] = s.v_W[i]
+        out[6 + i] = u.a_W[i]
+        out[18 + i] = u.omega_B[i]
+    for i in range(3):
+        for j in range(3):
+            out[9 + 3 * i + j] = u.R_WB_out[i, j]
 
 
 # -- linear algebra and SO(3) on small arrays -------------------------------------------------------------------
@@ -517,124 +551,125 @@ def _copy2(src, dst) -> None:
             dst[i, j] = src[i, j]
 
 
-@jit_inline
-def _mul33_at(A, oA: int, B, oB: int, out, o: int) -> None:
-    """``out[o:o+9] = A[oA:oA+9] B[oB:oB+9]``: 3 x 3 matrices, row-major (out must not overlap A or B)."""
+@jit
+def _mul33(A, B, out) -> None:
+    """``out = A B`` for 3 x 3 matrices (out must not overlap A or B)."""
     for i in range(3):
-        a0, a1, a2 = A[oA + 3 * i], A[oA + 3 * i + 1], A[oA + 3 * i + 2]
+        a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
         for j in range(3):
-            out[o + 3 * i + j] = a0 * B[oB + j] + a1 * B[oB + 3 + j] + a2 * B[oB + 6 + j]
+            out[i, j] = a0 * B[0, j] + a1 * B[1, j] + a2 * B[2, j]
 
 
 # -- unscented prediction --------------------------------------------------------------------------------------
 
 
 @jit
-def ukf_predict(mem, k_end: int) -> None:
-    """Unscented prediction of the delayed fused state over the buffered samples [kf, k_end).
+def predict(u, buf, sbuf, w, k_end: int) -> None:
+    """Unscented prediction of the delayed fused state over the buffered samples [k_fused, k_end).
 
     The mean is the output state already propagated to sample ``k_end - 1`` (UKF-M); the covariance is the
     unscented transform of P through the motion model in steps of at most ``cov_n`` samples with the step's
-    mean IMU reading, plus the additive process noise (see the estimator's module docstring). Its work arrays
-    are in the workspace (``WP_*``).
+    mean IMU reading, plus the additive process noise (see the estimator's module docstring).
+
+    Args:
+        u: the UKF record.
+        buf: (cap,) the IMU ring buffer.
+        sbuf: (cap,) the ring buffer of output states.
+        w: the scratch record (:data:`WORK_DTYPE`).
+        k_end: the sample to predict to (exclusive).
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)
-    _predict(x, buf, sbuf, P, W, M, wk, k_end)
-
-
-@jit
-def _predict(x, buf, sbuf, P, W, M, wk, k_end: int) -> None:
-    """:func:`ukf_predict` on the parts of the memory (:func:`views`)."""
-    kf = int(x[UKF_KF])
+    kf = u.k_fused
     if k_end <= kf:
         return
     n, S = N_ERR, N_SIGMA
     cap = buf.shape[0]
-    cov_n = int(x[UKF_COV_N])
-    g = x[UKF_G]
+    cov_n = u.cov_n
+    g = u.g
+    P = u.P
     # cholesky_lower writes all of L when it succeeds, and the last attempt (P0, positive diagonal) does.
-    L = _work2(wk, WP_L, n, n)
+    L = w.L
     info = cholesky_lower(P, L)
     if info != 0:  # lost positive definiteness to rounding: symmetrise and add a little jitter
-        Pj = _work2(wk, WP_PJ, n, n)
+        Pj = w.P_jit
         for i in range(n):
             for j in range(n):
                 Pj[i, j] = 0.5 * (P[i, j] + P[j, i]) + (1e-12 if i == j else 0.0)
         info = cholesky_lower(Pj, L)
         if info != 0:
-            _copy2(M[M_P0], P)
+            _copy2(u.P0, P)
             cholesky_lower(P, L)
     # Sigma-point offsets D (S, n): 0, +columns of L, -columns of L, scaled.
-    scale = x[UKF_UT_SCALE]
-    D = _work2(wk, WP_D, S, n)
+    scale = u.ut_scale
+    D = w.sigma_d
     for i in range(n):
         D[0, i] = 0.0
     for j in range(n):
         for i in range(n):
             D[1 + j, i] = L[i, j] * scale
             D[1 + n + j, i] = -(L[i, j] * scale)
-    F = UKF_F
-    Ps = _work2(wk, WP_PS, S, 3)
-    Vs = _work2(wk, WP_VS, S, 3)
-    BA = _work2(wk, WP_BA, S, 3)
-    BG = _work2(wk, WP_BG, S, 3)
-    # The 3 x 3 matrices are row-major in wk (no per-point views): R_WB of sigma point s at WP_RS + 9 s.
+    f = u.x_fused
+    Ps, Vs, BA, BG, Rs = w.sigma_p_W, w.sigma_v_W, w.sigma_b_acc_B, w.sigma_b_gyro_B, w.sigma_R_WB
+    rot, tmp = w.rot, w.tmp
     for s in range(S):
         for i in range(3):
-            Ps[s, i] = x[F + i] + D[s, i]
-            Vs[s, i] = x[F + 3 + i] + D[s, 3 + i]
-            BA[s, i] = x[F + 10 + i] + D[s, 9 + i]
-            BG[s, i] = x[F + 13 + i] + D[s, 12 + i]
-        exp_so3_at(D[s, 6], D[s, 7], D[s, 8], wk, WP_ROT)
-        _mul33_at(x, UKF_RF, wk, WP_ROT, wk, WP_RS + 9 * s)  # R_f exp(dtheta_s)
-    # Covariance steps: duration and mean IMU reading [gyro (3), acc (3)] of each.
+            Ps[s, i] = f.p_W[i] + D[s, i]
+            Vs[s, i] = f.v_W[i] + D[s, 3 + i]
+            BA[s, i] = f.b_acc_B[i] + D[s, 9 + i]
+            BG[s, i] = f.b_gyro_B[i] + D[s, 12 + i]
+        exp_so3_into(D[s, 6], D[s, 7], D[s, 8], rot)
+        _mul33(u.R_WB_fused, rot, Rs[s])  # R_f exp(dtheta_s)
+    # Covariance steps: duration and mean IMU reading of each.
     T_total = 0.0
-    m = wk[WP_M : WP_M + 6]
-    a = wk[WP_A : WP_A + 3]
+    mg, ma, a = w.gyro_mean_B, w.acc_mean_B, w.a_W
     k = kf
     while k < k_end:
         k1 = min(k_end, k + cov_n)
         T = 0.0
-        for i in range(6):
-            m[i] = 0.0
+        for i in range(3):
+            mg[i] = 0.0
+            ma[i] = 0.0
         for j in range(k, k1):
-            dtj = buf[j % cap, 1]
+            sample = buf[j % cap]
+            dtj = sample.dt
             T += dtj
-            for i in range(6):
-                m[i] += buf[j % cap, 2 + i] * dtj
-        for i in range(6):
-            m[i] = m[i] / T
+            for i in range(3):
+                mg[i] += sample.gyro_B[i] * dtj
+            for i in range(3):
+                ma[i] += sample.acc_B[i] * dtj
+        for i in range(3):
+            mg[i] = mg[i] / T
+            ma[i] = ma[i] / T
         half_T2 = 0.5 * T * T
         for s in range(S):
-            r = WP_RS + 9 * s
-            b0, b1, b2 = m[3] - BA[s, 0], m[4] - BA[s, 1], m[5] - BA[s, 2]
+            R = Rs[s]
+            b0, b1, b2 = ma[0] - BA[s, 0], ma[1] - BA[s, 1], ma[2] - BA[s, 2]
             for i in range(3):
-                a[i] = wk[r + 3 * i] * b0 + wk[r + 3 * i + 1] * b1 + wk[r + 3 * i + 2] * b2
+                a[i] = R[i, 0] * b0 + R[i, 1] * b1 + R[i, 2] * b2
             a[2] -= g
             for i in range(3):
                 Ps[s, i] += Vs[s, i] * T + a[i] * half_T2
                 Vs[s, i] += a[i] * T
-            exp_so3_at((m[0] - BG[s, 0]) * T, (m[1] - BG[s, 1]) * T, (m[2] - BG[s, 2]) * T, wk, WP_ROT)
-            _mul33_at(wk, r, wk, WP_ROT, wk, WP_TMP)
-            for i in range(9):
-                wk[r + i] = wk[WP_TMP + i]
+            exp_so3_into((mg[0] - BG[s, 0]) * T, (mg[1] - BG[s, 1]) * T, (mg[2] - BG[s, 2]) * T, rot)
+            _mul33(R, rot, tmp)
+            _copy2(tmp, R)
         T_total += T
         k = k1
     # Errors of the propagated sigma points relative to the first (the mean's) point.
-    E = _work2(wk, WP_E, S, n)  # row s at wk[WP_E + n s]
+    E = w.err
+    R0_T = w.R0_T
     for i in range(3):
         for j in range(3):
-            wk[WP_R0T + 3 * i + j] = wk[WP_RS + 3 * j + i]  # R_0ᵀ
+            R0_T[i, j] = Rs[0][j, i]
     for s in range(S):
         for i in range(3):
             E[s, i] = Ps[s, i] - Ps[0, i]
             E[s, 3 + i] = Vs[s, i] - Vs[0, i]
-        _mul33_at(wk, WP_R0T, wk, WP_RS + 9 * s, wk, WP_TMP)
-        log_so3_at(wk, WP_TMP, wk, WP_E + n * s + 6)
+        _mul33(R0_T, Rs[s], tmp)
+        log_so3_into(tmp, E[s], 6)
         for i in range(9, 15):
             E[s, i] = D[s, i]
-    wm, wc = W[0], W[1]
-    mean = wk[WP_MEAN : WP_MEAN + n]
+    wm, wc = u.w_mean, u.w_cov
+    mean = w.err_mean
     for i in range(n):
         mean[i] = 0.0
     for s in range(S):
@@ -648,27 +683,27 @@ def _predict(x, buf, sbuf, P, W, M, wk, k_end: int) -> None:
         for j in range(n):
             P[i, j] = 0.0
     for s in range(S):
-        w = wc[s]
+        ws = wc[s]
         for i in range(n):
-            c = E[s, i] * w
+            c = E[s, i] * ws
             for j in range(i, n):
                 P[i, j] += c * E[s, j]
     T2 = T_total * T_total
     T3 = T_total * T_total * T_total
+    Q1, Q2, Q3 = u.Q1, u.Q2, u.Q3
     for i in range(n):
         for j in range(i, n):
-            q = M[M_Q1, i, j] * T_total
-            q += M[M_Q2, i, j] * T2
-            q += M[M_Q3, i, j] * T3
+            q = Q1[i, j] * T_total
+            q += Q2[i, j] * T2
+            q += Q3[i, j] * T3
             P[i, j] += q
             P[j, i] = P[i, j]
     # The mean: the output state already propagated to sample k_end - 1.
     last = (k_end - 1) % cap
-    for i in range(16):
-        x[F + i] = sbuf[last, i]
-    R9_from_quat_into(x[F + 6], x[F + 7], x[F + 8], x[F + 9], x, UKF_RF)
-    x[UKF_T_F] = buf[last, 0]
-    x[UKF_KF] = k_end
+    copy_nominal(sbuf[last], f)
+    R_from_quat_into(f.q_WB, u.R_WB_fused)
+    u.t_fused = buf[last].t
+    u.k_fused = k_end
 
 
 # -- motion-capture update -------------------------------------------------------------------------------------
@@ -686,97 +721,83 @@ def _q_mul(aw, ax, ay, az, bw, bx, by, bz):
 
 
 @jit
-def _repropagate(x, buf, sbuf) -> None:
+def _repropagate(u, buf, sbuf) -> None:
     """Output state = fused state moved over the buffered samples after it (mean only)."""
-    for i in range(16):
-        x[UKF_S + i] = x[UKF_F + i]
-    for i in range(9):
-        x[UKF_RS + i] = x[UKF_RF + i]
-    cap, width = buf.shape
-    samples = buf.reshape(cap * width)  # flat: one view, not one per sample
-    g = x[UKF_G]
-    for k in range(int(x[UKF_KF]), int(x[UKF_K])):
-        row = k % cap
-        propagate(x, UKF_S, x, UKF_RS, buf[row, 1], g, samples, width * row + 2)
-        for i in range(16):
-            sbuf[row, i] = x[UKF_S + i]
+    copy_nominal(u.x_fused, u.x_out)
+    _copy2(u.R_WB_fused, u.R_WB_out)
+    cap = buf.shape[0]
+    g = u.g
+    for k in range(u.k_fused, u.k):
+        sample = buf[k % cap]
+        propagate(u.x_out, u.R_WB_out, sample.dt, g, sample.gyro_B, sample.acc_B)
+        copy_nominal(u.x_out, sbuf[k % cap])
 
 
 @jit
-def ukf_fuse_at(mem, t_m: float) -> int:
+def fuse_at(u, buf, t_m: float) -> int:
     """The buffered sample at which a pose taken at ``t_m`` [s] is fused (the nearest), or -1 if it is stale.
 
     A sample older than the fused state or the buffer, or from the future, is stale; one taken just before the
-    start-up pose is fused at start-up. The caller then predicts the delayed state there
-    (:func:`ukf_predict`) and updates it (:func:`ukf_fuse`).
+    start-up pose is fused at start-up. The caller then predicts the delayed state there (:func:`predict`)
+    and updates it (:func:`fuse`).
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)
-    return _fuse_at(x, buf, t_m)
-
-
-@jit
-def _fuse_at(x, buf, t_m: float) -> int:
-    """:func:`ukf_fuse_at` on the parts of the memory (:func:`views`)."""
-    t_now = x[UKF_T]
-    half = 0.5 * x[UKF_DT_NOM]
-    if t_m < x[UKF_T_F] - half and x[UKF_JUST_RESET] != 0.0:
-        t_m = x[UKF_T_F]  # taken before the start-up pose: there is no earlier state, fuse it at start-up
-    if t_m < x[UKF_T_F] - half or t_m > t_now + half or t_now - t_m > x[UKF_MAX_LAT] + half:
+    t_now = u.t
+    half = 0.5 * u.dt_nom
+    if t_m < u.t_fused - half and u.just_reset != 0:
+        t_m = u.t_fused  # taken before the start-up pose: there is no earlier state, fuse it at start-up
+    if t_m < u.t_fused - half or t_m > t_now + half or t_now - t_m > u.max_latency_s + half:
         return -1
     # The buffered samples up to t_m (nearest sample).
     cap = buf.shape[0]
-    k_m = int(x[UKF_KF])
-    k = int(x[UKF_K])
-    while k_m < k and buf[k_m % cap, 0] <= t_m + half:
+    k_m = u.k_fused
+    k = u.k
+    while k_m < k and buf[k_m % cap].t <= t_m + half:
         k_m += 1
     return k_m
 
 
 @jit
-def ukf_fuse(mem, p_m, q_m) -> int:
+def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     """Update the delayed state (already predicted to the sample's time) with a pose, re-propagate to now.
 
-    Its work arrays are in the workspace (``WF_*``).
-
     Args:
-        mem: the estimator's memory.
+        u: the UKF record.
+        buf: (cap,) the IMU ring buffer.
+        sbuf: (cap,) the ring buffer of output states.
+        w: the scratch record.
         p_m: (3,) measured position [m].
         q_m: (4,) measured attitude, wxyz (normalised here).
 
     Returns:
         ``FUSE_OK``, or why the sample was rejected (``FUSE_*``).
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)
-    return _fuse(x, buf, sbuf, P, M, wk, p_m, q_m)
-
-
-@jit
-def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
-    """:func:`ukf_fuse` on the parts of the memory (:func:`views`)."""
-    t_now = x[UKF_T]
-    F = UKF_F
+    t_now = u.t
+    f = u.x_fused
+    fq = f.q_WB
+    P = u.P
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
     mw, mx, my, mz = q_m[0] / qn, q_m[1] / qn, q_m[2] / qn, q_m[3] / qn
     # Innovation in the error coordinates: (p_m - p, log(R_fᵀ R_m)).
-    r = wk[WF_R : WF_R + N_MEAS]
+    r = w.innov
     for i in range(3):
-        r[i] = p_m[i] - x[F + i]
-    ew, ex, ey, ez = _q_mul(x[F + 6], -x[F + 7], -x[F + 8], -x[F + 9], mw, mx, my, mz)
+        r[i] = p_m[i] - f.p_W[i]
+    ew, ex, ey, ez = _q_mul(fq[0], -fq[1], -fq[2], -fq[3], mw, mx, my, mz)
     if ew < 0.0:
         ew, ex, ey, ez = -ew, -ex, -ey, -ez
     nv = math.sqrt(ex * ex + ey * ey + ez * ez)
     kq = 2.0 * math.atan2(nv, ew) / nv if nv > 1e-12 else 2.0
     r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
     n = N_ERR
-    PHt = _work2(wk, WF_PHT, n, N_MEAS)
+    PHt = w.PHt
     for i in range(n):
         for j in range(6):
             PHt[i, j] = P[i, _H_ROWS[j]]
-    S_mat = _work2(wk, WF_S, N_MEAS, N_MEAS)
+    S_mat = w.S
+    Rn = u.Rn
     for i in range(6):
         for j in range(6):
-            S_mat[i, j] = PHt[_H_ROWS[i], j] + M[M_RN, i, j]
-    S_inv = _work2(wk, WF_SINV, N_MEAS, N_MEAS)
+            S_mat[i, j] = PHt[_H_ROWS[i], j] + Rn[i, j]
+    S_inv = w.S_inv
     if not invert_in_place(S_mat, S_inv):
         return FUSE_SINGULAR
     d2 = 0.0
@@ -785,35 +806,35 @@ def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
         for i in range(6):
             acc += r[i] * S_inv[i, j]
         d2 += acc * r[j]
-    if not d2 <= x[UKF_GATE]:
-        x[UKF_GATE_FAILS] += 1.0
-        if x[UKF_GATE_FAILS] >= x[UKF_REINIT_AFTER]:
+    if not d2 <= u.gate_chi2:
+        u.gate_fails += 1
+        if u.gate_fails >= u.reinit_after:
             # The filter is lost: take the motion-capture pose, keep velocity and biases, reset P.
             for i in range(3):
-                x[F + i] = p_m[i]
-            x[F + 6], x[F + 7], x[F + 8], x[F + 9] = mw, mx, my, mz
-            R9_from_quat_into(mw, mx, my, mz, x, UKF_RF)
-            _copy2(M[M_P0], P)
-            x[UKF_GATE_FAILS] = 0.0
-            x[UKF_T_ACCEPT] = t_now
-            _repropagate(x, buf, sbuf)
+                f.p_W[i] = p_m[i]
+            fq[0], fq[1], fq[2], fq[3] = mw, mx, my, mz
+            R_from_quat_into(fq, u.R_WB_fused)
+            _copy2(u.P0, P)
+            u.gate_fails = 0
+            u.t_accept = t_now
+            _repropagate(u, buf, sbuf)
             return FUSE_REINIT
         return FUSE_GATE
-    x[UKF_GATE_FAILS] = 0.0
-    K = _work2(wk, WF_K, n, N_MEAS)
+    u.gate_fails = 0
+    K = w.K
     for i in range(n):
         for j in range(6):
             acc = 0.0
             for l in range(6):
                 acc += PHt[i, l] * S_inv[l, j]
             K[i, j] = acc
-    dx = wk[WF_DX : WF_DX + n]
+    dx = w.dx
     for i in range(n):
         acc = 0.0
         for j in range(6):
             acc += K[i, j] * r[j]
         dx[i] = acc
-    Pn = _work2(wk, WF_PN, n, n)  # (I - K H) P
+    Pn = w.Pn  # (I - K H) P
     for i in range(n):
         for j in range(n):
             acc = 0.0
@@ -821,34 +842,34 @@ def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
                 acc += K[i, l] * PHt[j, l]
             Pn[i, j] = P[i, j] - acc
     # Inject the error into the nominal state.
-    for i in range(6):
-        x[F + i] += dx[i]
+    for i in range(3):
+        f.p_W[i] += dx[i]
+        f.v_W[i] += dx[3 + i]
     th = math.sqrt(dx[6] * dx[6] + dx[7] * dx[7] + dx[8] * dx[8])
     kq = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
-    qw, qx, qy, qz = _q_mul(
-        x[F + 6], x[F + 7], x[F + 8], x[F + 9], math.cos(0.5 * th), kq * dx[6], kq * dx[7], kq * dx[8]
-    )
+    qw, qx, qy, qz = _q_mul(fq[0], fq[1], fq[2], fq[3], math.cos(0.5 * th), kq * dx[6], kq * dx[7], kq * dx[8])
     qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    x[F + 6], x[F + 7], x[F + 8], x[F + 9] = qw / qn, qx / qn, qy / qn, qz / qn
-    R9_from_quat_into(x[F + 6], x[F + 7], x[F + 8], x[F + 9], x, UKF_RF)
-    for i in range(9, 15):
-        x[F + i + 1] += dx[i]
+    fq[0], fq[1], fq[2], fq[3] = qw / qn, qx / qn, qy / qn, qz / qn
+    R_from_quat_into(fq, u.R_WB_fused)
+    for i in range(3):
+        f.b_acc_B[i] += dx[9 + i]
+        f.b_gyro_B[i] += dx[12 + i]
     # Reset: the attitude error is now relative to the corrected mean, P -> G P Gᵀ, G = I - [dtheta/2]x.
     # It changes P by a relative |dtheta|/2, so it is skipped for the usual sub-milliradian corrections.
     hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
     if hx * hx + hy * hy + hz * hz > _RESET_MIN_RAD2:
-        Gt = _work2(wk, WF_GT, 3, 3)
+        Gt = w.Gt
         Gt[0, 0], Gt[0, 1], Gt[0, 2] = 1.0, hz, -hy
         Gt[1, 0], Gt[1, 1], Gt[1, 2] = -hz, 1.0, hx
         Gt[2, 0], Gt[2, 1], Gt[2, 2] = hy, -hx, 1.0
-        rows = _work2(wk, WF_ROWS, 3, n)
+        rows = w.Gt_rows
         for i in range(3):
             for j in range(n):
                 rows[i, j] = Gt[i, 0] * Pn[6, j] + Gt[i, 1] * Pn[7, j] + Gt[i, 2] * Pn[8, j]
         for i in range(3):
             for j in range(n):
                 Pn[6 + i, j] = rows[i, j]
-        cols = _work2(wk, WF_COLS, n, 3)
+        cols = w.Gt_cols
         for i in range(n):
             for j in range(3):
                 cols[i, j] = Pn[i, 6] * Gt[j, 0] + Pn[i, 7] * Gt[j, 1] + Pn[i, 8] * Gt[j, 2]
@@ -858,9 +879,9 @@ def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
     for i in range(n):
         for j in range(n):
             P[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
-    x[UKF_T_ACCEPT] = t_now
-    x[UKF_JUST_RESET] = 0.0
-    _repropagate(x, buf, sbuf)
+    u.t_accept = t_now
+    u.just_reset = 0
+    _repropagate(u, buf, sbuf)
     return FUSE_OK
 
 
@@ -868,19 +889,19 @@ def _fuse(x, buf, sbuf, P, M, wk, p_m, q_m) -> int:
 
 
 @jit
-def ukf_step(
-    mem, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, compensate_latency: bool, out, counters
-) -> tuple:
+def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
     """The estimator's 1 kHz step once initialised (SPEC §4.5): IMU sample, motion-capture fusion, outputs.
 
-    In order: :func:`ukf_imu_step`; with a motion-capture sample, its checks (finite ``mocap_t``, finite pose,
-    quaternion norm within ``QUAT_NORM_TOL`` of 1), :func:`ukf_fuse_at` at ``mocap_t`` (or at the frame time
-    without ``compensate_latency``), :func:`ukf_predict` there, :func:`ukf_fuse` and :func:`ukf_finish`;
-    finally :func:`ukf_predict` to ``k - lag_n`` when the delayed fused state lags too far. The same
-    arithmetic, in the same order, as calling those kernels one by one.
+    In order: :func:`imu_step`; without a motion-capture sample :func:`finish`; with one, its checks (finite
+    ``mocap_t``, finite pose, quaternion norm within ``QUAT_NORM_TOL`` of 1), :func:`fuse_at` at ``mocap_t``
+    (or at the frame time without ``u.compensate_latency``), :func:`predict` there, :func:`fuse` and
+    :func:`finish`; finally :func:`predict` to ``k - lag_n`` when the delayed fused state lags too far.
 
     Args:
-        mem: the estimator's memory (float64, layout :func:`memory_layout`).
+        u: the UKF record (:data:`UKF_DTYPE`); its counters are updated.
+        buf: (cap,) the IMU ring buffer (:data:`IMU_SAMPLE_DTYPE`).
+        sbuf: (cap,) the ring buffer of output states (:data:`NOMINAL_DTYPE`).
+        w: the scratch record (:data:`WORK_DTYPE`).
         gyro: (3,) gyro sample [rad/s], body frame (float64).
         acc: (3,) accelerometer sample [m/s²], body frame (float64).
         t_frame: frame time [s].
@@ -889,53 +910,62 @@ def ukf_step(
         p_m: (3,) measured position [m], world frame (float64; ignored without ``mocap_new``). A frame that
             announces a sample without a well-formed pose passes NaN here: it is rejected and counted.
         q_m: (4,) measured attitude, wxyz (float64; as ``p_m``).
-        compensate_latency: fuse at ``mocap_t`` (True) or at the frame time (False).
         out: (21,) the estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (as :func:`write_estimate`).
-        counters: (CNT_SIZE,) int64 counters and flags (``CNT_*``), updated.
 
     Returns:
         ``(code, t)``: ``STEP_REJECTED`` when something in the frame was rejected, plus ``STEP_DEGRADED``
         while degraded (the estimate is then not valid); the time of the estimate [s] (``t_frame``, or the
         previous time plus the nominal period when the frame's period was rejected).
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)  # once: the kernels below take the parts
-    code, t = _imu_step(x, buf, sbuf, gyro, acc, t_frame)
+    nonfinite = not (math.isfinite(t_frame) and math.isfinite(gyro[0] + gyro[1] + gyro[2] + acc[0] + acc[1] + acc[2]))
+    code, t = imu_step(u, buf, sbuf, gyro, acc, t_frame)
     if not mocap_new:
-        code |= _finish(x, out)
+        code |= finish(u, out)
     rejected = (code & STEP_REJECTED) != 0
     if mocap_new:
         if math.isfinite(mocap_t) and mocap_sample_valid(p_m, q_m, QUAT_NORM_TOL):
-            t_m = mocap_t if compensate_latency else t
-            k_m = _fuse_at(x, buf, t_m)
+            t_m = mocap_t if u.compensate_latency != 0 else t
+            k_m = fuse_at(u, buf, t_m)
             if k_m < 0:
                 fused = FUSE_STALE
             else:
-                _predict(x, buf, sbuf, P, W, M, wk, k_m)
-                fused = _fuse(x, buf, sbuf, P, M, wk, p_m, q_m)
+                predict(u, buf, sbuf, w, k_m)
+                fused = fuse(u, buf, sbuf, w, p_m, q_m)
             if fused == FUSE_OK:
-                counters[CNT_MOCAP_FUSED] += 1
+                u.n_mocap_fused += 1
             else:
-                counters[CNT_REJECTED_MOCAP] += 1
+                u.n_rejected_mocap += 1
                 if fused == FUSE_REINIT:
-                    counters[CNT_REINIT] += 1
+                    u.n_reinit += 1
                 rejected = True
         else:
-            counters[CNT_REJECTED_MOCAP] += 1
+            u.n_rejected_mocap += 1
             rejected = True
-        code = _finish(x, out)
+            if not math.isfinite(mocap_t + p_m[0] + p_m[1] + p_m[2] + q_m[0] + q_m[1] + q_m[2] + q_m[3]):
+                nonfinite = True
+        code = finish(u, out)
     if code & STEP_ADVANCE:
-        _predict(x, buf, sbuf, P, W, M, wk, int(x[UKF_K]) - int(x[UKF_LAG_N]))
+        predict(u, buf, sbuf, w, u.k - u.lag_n)
     result = code & STEP_DEGRADED
     if rejected:
-        counters[CNT_REJECTED_INPUTS] += 1
+        u.n_rejected_inputs += 1
         result |= STEP_REJECTED
-    counters[CNT_LAST_REJECTED] = 1 if rejected else 0
-    counters[CNT_DEGRADED] = 1 if result & STEP_DEGRADED else 0
+    if nonfinite:
+        u.n_nonfinite += 1
+    u.last_rejected = 1 if rejected else 0
+    u.degraded = 1 if result & STEP_DEGRADED else 0
     return result, t
 
 
+@jit_entry
+def ukf_step_by_table(table, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
+    """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``)."""
+    a = arrays_at(table, 0)
+    return ukf_step(a.ukf[0], a.imu_buf, a.state_buf, a.work[0], gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, out)
+
+
 @jit
-def ukf_reinit(mem, p_m, q_m, counters, out) -> None:
+def ukf_reinit(u, p_m, q_m, out) -> None:
     """Re-initialise the pose from a motion-capture sample at the current time (after a time glitch or a dropout).
 
     The output and the delayed fused state both become the sample's pose at the time of the last step; the
@@ -944,36 +974,35 @@ def ukf_reinit(mem, p_m, q_m, counters, out) -> None:
     frame supervision (:mod:`omnirotor.control.supervisor`).
 
     Args:
-        mem: the estimator's memory.
+        u: the UKF record; ``n_reinit`` counts it.
         p_m: (3,) measured position [m] (finite).
         q_m: (4,) measured attitude, wxyz (finite, non-zero; normalised here).
-        counters: (CNT_SIZE,) the counters; ``CNT_REINIT`` counts it.
         out: (21,) the estimate, rewritten.
     """
-    x, buf, sbuf, P, W, M, wk = views(mem)
-    S = UKF_S
+    s = u.x_out
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
     for i in range(3):
-        x[S + i] = p_m[i]
+        s.p_W[i] = p_m[i]
     for i in range(4):
-        x[S + 6 + i] = q_m[i] / qn
-    for i in range(3, 6):
-        if not math.isfinite(x[S + i]):
-            x[S + i] = 0.0
-    for i in range(10, 16):
-        if not math.isfinite(x[S + i]):
-            x[S + i] = 0.0
-    R9_from_quat_into(x[S + 6], x[S + 7], x[S + 8], x[S + 9], x, UKF_RS)
-    for i in range(16):
-        x[UKF_F + i] = x[S + i]
-    for i in range(9):
-        x[UKF_RF + i] = x[UKF_RS + i]
-    x[UKF_T_F] = x[UKF_T]
-    x[UKF_KF] = x[UKF_K]
-    x[UKF_T_ACCEPT] = x[UKF_T]
-    x[UKF_JUST_RESET] = 1.0
-    x[UKF_GATE_FAILS] = 0.0
-    _copy2(M[M_P0], P)
-    counters[CNT_REINIT] += 1
-    counters[CNT_DEGRADED] = 0
-    write_estimate(x, out)
+        s.q_WB[i] = q_m[i] / qn
+    for i in range(3):
+        if not math.isfinite(s.v_W[i]):
+            s.v_W[i] = 0.0
+    for i in range(3):
+        if not math.isfinite(s.b_acc_B[i]):
+            s.b_acc_B[i] = 0.0
+    for i in range(3):
+        if not math.isfinite(s.b_gyro_B[i]):
+            s.b_gyro_B[i] = 0.0
+    R_from_quat_into(s.q_WB, u.R_WB_out)
+    copy_nominal(s, u.x_fused)
+    _copy2(u.R_WB_out, u.R_WB_fused)
+    u.t_fused = u.t
+    u.k_fused = u.k
+    u.t_accept = u.t
+    u.just_reset = 1
+    u.gate_fails = 0
+    _copy2(u.P0, u.P)
+    u.n_reinit += 1
+    u.degraded = 0
+    write_estimate(u, out)

@@ -1,23 +1,17 @@
 """Compiled per-step wrench-map selection of :class:`omnirotor.control.maps.MapScheduler` (SPEC §3.3).
 
 :func:`schedule_select` is the whole of :meth:`MapScheduler.select` in piecewise mode, in one compiled call
-that a compiled control loop can make as well: the azimuth and elevation of the up direction
+that the controller's compiled step makes as well: the azimuth and elevation of the up direction
 ``v_B = R_WBᵀ e3`` (the third row of ``R_WB``), the first region whose closed intervals contain it (as
 :meth:`omnirotor.regions.Region.contains`), and with ``blend = "smooth"`` near a border the normalised soft
 weights and the blended map (the formulas are in the docstring of :mod:`omnirotor.control.maps`).
 
-The partition is packed once by :func:`pack_schedule` into one float64 array:
-
-* header ``SCH_*``: number of regions K (0 outside piecewise mode), interval slots M per region, smooth
-  flag, half band width [rad], inverse band width [1/rad];
-* then K region blocks of :func:`region_stride` (M) entries each, from ``SCH_HEADER``: the closed elevation
-  interval and the count of azimuth intervals of the hard test (``REG_EL_LO``, ``REG_EL_HI``, ``REG_N_AZ``),
-  the soft elevation interval (±inf where the edge is a pole), the full-circle flag and the count of
-  merged circular azimuth intervals, then ``REG_N_GROUPS`` groups of M slots (padded with 0): the hard
-  test's azimuth lower and upper bounds, the soft intervals' centres and half-widths [rad].
-
-What changes from call to call is kept in a small float64 ``state`` (``STATE_*``): the current region index
-(-1 before the first selection) and whether the output holds a blend.
+The scheduler's state and parameters are one structured record (:data:`STATE_DTYPE`: the current region,
+the blend flag, the count of non-finite attitudes, the blending band); the partition and the maps, whose
+sizes depend on the partition (K regions, at most M azimuth intervals per region) and on the vehicle (n
+rotors), are the arrays of :class:`SchedulerArrays`, built once by :func:`pack_schedule`: one
+:data:`REGION_DTYPE` record per region (its elevation intervals and interval counts) and the (K, M) tables of
+its azimuth intervals (padded with 0).
 
 Arithmetic is that of the Python float code it replaced, in the same order: the azimuth and elevation use
 :func:`py_hypot`, which is CPython 3.11's ``math.hypot`` (the C library's ``hypot``, which numba calls, differs
@@ -30,65 +24,81 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import address_table, f64_view, f64_view2, jit, jit_entry, records_at
+from omnirotor.blocks import new_records
 from omnirotor.regions import Region
 
 __all__ = [
+    "STATE_DTYPE",
+    "REGION_DTYPE",
+    "SchedulerArrays",
     "pack_schedule",
     "schedule_select",
-    "state_buffer",
+    "schedule_select_by_table",
     "py_hypot",
     "azimuth_elevation",
-    "region_stride",
 ]
 
-# -- packed schedule: header -------------------------------------------------------------------------------
-SCH_N_REGIONS = 0  # K (0: nominal or global mode, the map never changes)
-SCH_MAX_IV = 1  # M: azimuth-interval slots per region block
-SCH_SMOOTH = 2  # 1: smooth blend, 0: hard switch
-SCH_HALF_BAND = 3  # half the band width [rad]
-SCH_INV_BAND = 4  # 1 / band width [1/rad]
-SCH_HEADER = 5  # first region block
+_F8, _I8 = np.float64, np.int64
+STATE_DTYPE = np.dtype(
+    [
+        ("region", _I8),  # index of the current region; -1 before the first selection (and outside piecewise)
+        ("blended", _I8),  # 1 while the output holds a blend rather than one region's map
+        ("n_nonfinite", _F8),  # selections asked for a non-finite attitude (the map was kept)
+        # parameters
+        ("n_regions", _I8),  # K (0: nominal or global mode, the map never changes)
+        ("smooth", _I8),  # 1: smooth blend, 0: hard switch
+        ("half_band_rad", _F8),  # half the band width [rad]
+        ("inv_band_per_rad", _F8),  # 1 / band width [1/rad]
+    ]
+)
+"""The scheduler's state and parameters (named fields; the kernel reads them so)."""
 
-# -- packed schedule: one region block ---------------------------------------------------------------------
-REG_EL_LO = 0  # closed elevation interval of the hard test [rad]
-REG_EL_HI = 1
-REG_N_AZ = 2  # number of azimuth intervals of the hard test
-REG_SOFT_EL_LO = 3  # soft elevation interval [rad]; -inf / +inf where the edge is a pole (no border)
-REG_SOFT_EL_HI = 4
-REG_AZ_FULL = 5  # 1: the azimuth spans the whole circle (no azimuth border)
-REG_N_SOFT = 6  # number of merged circular azimuth intervals
-REG_HEADER = 7
-# Then REG_N_GROUPS groups of M slots each, group g at REG_HEADER + g * M:
-REG_AZ_LO = 0  # the hard test's azimuth lower bounds [rad]
-REG_AZ_HI = 1  # its upper bounds [rad]
-REG_CENTRE = 2  # centres of the merged circular azimuth intervals [rad]
-REG_HALF = 3  # their half-widths [rad]
-REG_N_GROUPS = 4
-
-# -- state between calls -----------------------------------------------------------------------------------
-STATE_REGION = 0  # index of the current region; -1 before the first selection
-STATE_BLENDED = 1  # 1 while the output holds a blend rather than one region's map
-STATE_SIZE = 2
-
-# -- CPython's math.hypot (Modules/mathmodule.c, 3.11) -----------------------------------------------------
-_SPLIT = 134217729.0  # 2**27 + 1: Veltkamp's constant, splits a double into two halves of 26 bits
-_MIN_NORMAL_EXP = -1023  # frexp exponent below which the power-of-two scaling 2**-e would overflow
-_TWO_PI = 2.0 * math.pi
+REGION_DTYPE = np.dtype(
+    [
+        ("el_lo_rad", _F8),  # closed elevation interval of the hard test [rad]
+        ("el_hi_rad", _F8),
+        ("n_az", _I8),  # number of azimuth intervals of the hard test
+        ("soft_el_lo_rad", _F8),  # soft elevation interval [rad]; -inf / +inf where the edge is a pole
+        ("soft_el_hi_rad", _F8),
+        ("az_full", _I8),  # 1: the azimuth spans the whole circle (no azimuth border)
+        ("n_soft", _I8),  # number of merged circular azimuth intervals
+    ]
+)
+"""One region of the partition, as the kernel reads it."""
 
 
-def region_stride(max_iv: int) -> int:
-    """Length of one region block of the packed schedule with ``max_iv`` interval slots per group."""
-    return REG_HEADER + REG_N_GROUPS * max_iv
+class SchedulerArrays(NamedTuple):
+    """The partition and the maps (K regions, M interval slots, n rotors)."""
+
+    regions: np.ndarray  # (K,) REGION_DTYPE
+    az_lo_rad: np.ndarray  # (K, M) the hard test's azimuth lower bounds [rad]
+    az_hi_rad: np.ndarray  # (K, M) its upper bounds [rad]
+    az_centre_rad: np.ndarray  # (K, M) centres of the merged circular azimuth intervals [rad]
+    az_half_rad: np.ndarray  # (K, M) their half-widths [rad]
+    maps: np.ndarray  # (K, 6n) the region maps, (6, n) row-major each (one map outside piecewise mode)
+    out: np.ndarray  # (6n,) the map in use
+    weights: np.ndarray  # (K,) blending weights (one-hot with hard blending)
+
+    def table(self, state: np.ndarray) -> np.ndarray:
+        """The addresses of the ``(1,)`` state array and of these (:func:`omnirotor._jit.address_table`).
+
+        For :func:`schedule_select_by_table`; the caller keeps the arrays alive.
+        """
+        return address_table([state, *self])
 
 
-def pack_schedule(regions: Sequence[Region], soft: Sequence, smooth: bool, band_rad: float) -> np.ndarray:
-    """The packed schedule (layout in the module docstring) of a partition.
+def pack_schedule(
+    state, regions: Sequence[Region], soft: Sequence, smooth: bool, band_rad: float, maps: np.ndarray
+) -> SchedulerArrays:
+    """Write the parameters of a partition into the record ``state``; its :class:`SchedulerArrays`.
 
     Args:
+        state: the scheduler's record (:data:`STATE_DTYPE`); its state is set to "no region selected yet".
         regions: the partition's regions in order (empty outside piecewise mode); their closed intervals
             are converted to radians as :class:`omnirotor.regions.Region` does for ``contains``.
         soft: the same regions as circular intervals, one per region, each with the attributes
@@ -96,43 +106,44 @@ def pack_schedule(regions: Sequence[Region], soft: Sequence, smooth: bool, band_
             (``omnirotor.control.maps._SoftRegion``).
         smooth: blend near the borders (``blend = "smooth"``) rather than switch.
         band_rad: total width of the blending band [rad], > 0.
-
-    Returns:
-        (SCH_HEADER + K * region_stride(M),) float64 array.
+        maps: (K', 6n) the maps to choose from (K' = K, or 1 outside piecewise mode); the output starts as
+            the first.
     """
     if len(soft) != len(regions):
         raise ValueError(f"pack_schedule: {len(regions)} regions but {len(soft)} soft regions")
     max_iv = max((max(len(r.azimuth_deg), len(s.az_centres)) for r, s in zip(regions, soft, strict=True)), default=0)
-    stride = region_stride(max_iv)
-    out = np.zeros(SCH_HEADER + len(regions) * stride)
-    out[SCH_N_REGIONS] = len(regions)
-    out[SCH_MAX_IV] = max_iv
-    out[SCH_SMOOTH] = 1.0 if smooth else 0.0
-    out[SCH_HALF_BAND] = 0.5 * band_rad
-    out[SCH_INV_BAND] = 1.0 / band_rad
+    K = len(regions)
+    state["region"] = -1
+    state["blended"] = 0
+    state["n_regions"] = K
+    state["smooth"] = 1 if smooth else 0
+    state["half_band_rad"] = 0.5 * band_rad
+    state["inv_band_per_rad"] = 1.0 / band_rad
+    table = new_records(REGION_DTYPE, K)
+    az = [np.zeros((K, max_iv)) for _ in range(4)]
     for j, (region, s) in enumerate(zip(regions, soft, strict=True)):
-        blk = out[SCH_HEADER + j * stride : SCH_HEADER + (j + 1) * stride]
-        blk[REG_EL_LO] = math.radians(region.elevation_deg[0])
-        blk[REG_EL_HI] = math.radians(region.elevation_deg[1])
-        blk[REG_N_AZ] = len(region.azimuth_deg)
-        blk[REG_SOFT_EL_LO] = s.el_lo
-        blk[REG_SOFT_EL_HI] = s.el_hi
-        blk[REG_AZ_FULL] = 1.0 if s.az_full else 0.0
-        blk[REG_N_SOFT] = len(s.az_centres)
+        r = table[j]
+        r["el_lo_rad"] = math.radians(region.elevation_deg[0])
+        r["el_hi_rad"] = math.radians(region.elevation_deg[1])
+        r["n_az"] = len(region.azimuth_deg)
+        r["soft_el_lo_rad"] = s.el_lo
+        r["soft_el_hi_rad"] = s.el_hi
+        r["az_full"] = 1 if s.az_full else 0
+        r["n_soft"] = len(s.az_centres)
         for i, (lo, hi) in enumerate(region.azimuth_deg):
-            blk[REG_HEADER + REG_AZ_LO * max_iv + i] = math.radians(lo)
-            blk[REG_HEADER + REG_AZ_HI * max_iv + i] = math.radians(hi)
+            az[0][j, i] = math.radians(lo)
+            az[1][j, i] = math.radians(hi)
         for i, (c, h) in enumerate(zip(s.az_centres, s.az_halves, strict=True)):
-            blk[REG_HEADER + REG_CENTRE * max_iv + i] = c
-            blk[REG_HEADER + REG_HALF * max_iv + i] = h
-    return out
+            az[2][j, i] = c
+            az[3][j, i] = h
+    maps = np.ascontiguousarray(maps, dtype=np.float64)
+    return SchedulerArrays(table, *az, maps, maps[0].copy(), np.zeros(K))
 
 
-def state_buffer() -> np.ndarray:
-    """A fresh (STATE_SIZE,) selection state: no region selected yet, no blend."""
-    state = np.zeros(STATE_SIZE)
-    state[STATE_REGION] = -1.0
-    return state
+# -- CPython's math.hypot (Modules/mathmodule.c, 3.11) -----------------------------------------------------
+_SPLIT = 134217729.0  # 2**27 + 1: Veltkamp's constant, splits a double into two halves of 26 bits
+_MIN_NORMAL_EXP = -1023  # frexp exponent below which the power-of-two scaling 2**-e would overflow
+_TWO_PI = 2.0 * math.pi
 
 
 @jit
@@ -237,36 +248,32 @@ def _wrap_pi(a: float) -> float:
 
 
 @jit
-def _contains(sched: np.ndarray, b: int, m: int, az: float, el: float) -> bool:
-    """The hard test of the region block at ``b``: (az, el) [rad] in its closed intervals."""
-    if el < sched[b + REG_EL_LO] or el > sched[b + REG_EL_HI]:
+def _contains(r, az_lo, az_hi, az: float, el: float) -> bool:
+    """The hard test of the region ``r`` (its azimuth bounds ``az_lo``, ``az_hi``): (az, el) [rad] inside."""
+    if el < r.el_lo_rad or el > r.el_hi_rad:
         return False
-    lo = b + REG_HEADER + REG_AZ_LO * m
-    hi = b + REG_HEADER + REG_AZ_HI * m
-    for i in range(int(sched[b + REG_N_AZ])):
-        if sched[lo + i] <= az <= sched[hi + i]:
+    for i in range(r.n_az):
+        if az_lo[i] <= az <= az_hi[i]:
             return True
     return False
 
 
 @jit
-def _depth(sched: np.ndarray, b: int, m: int, az: float, el: float) -> float:
-    """Smallest angular distance [rad] from (az, el), inside the region at ``b``, to one of its borders."""
+def _depth(r, centres, halves, az: float, el: float) -> float:
+    """Smallest angular distance [rad] from (az, el), inside the region ``r``, to one of its borders."""
     d = math.inf
-    el_lo = sched[b + REG_SOFT_EL_LO]
-    el_hi = sched[b + REG_SOFT_EL_HI]
+    el_lo = r.soft_el_lo_rad
+    el_hi = r.soft_el_hi_rad
     if el_lo > -math.inf:
         d = el - el_lo
     if el_hi < math.inf:
         d_hi = el_hi - el
         if d_hi < d:
             d = d_hi
-    if sched[b + REG_AZ_FULL] == 0.0:
-        c0 = b + REG_HEADER + REG_CENTRE * m
-        h0 = b + REG_HEADER + REG_HALF * m
+    if r.az_full == 0:
         d_az = -math.inf
-        for i in range(int(sched[b + REG_N_SOFT])):
-            di = sched[h0 + i] - abs(_wrap_pi(az - sched[c0 + i]))
+        for i in range(r.n_soft):
+            di = halves[i] - abs(_wrap_pi(az - centres[i]))
             if di > d_az:
                 d_az = di
         if d_az < d:
@@ -275,10 +282,10 @@ def _depth(sched: np.ndarray, b: int, m: int, az: float, el: float) -> float:
 
 
 @jit
-def _soft_weight(sched: np.ndarray, b: int, m: int, az: float, el: float, half_band: float, inv_band: float) -> float:
-    """Raw soft membership of (az, el) [rad] in the region at ``b`` (band half-width ``half_band`` [rad])."""
-    lo = sched[b + REG_SOFT_EL_LO]
-    hi = sched[b + REG_SOFT_EL_HI]
+def _soft_weight(r, centres, halves, az: float, el: float, half_band: float, inv_band: float) -> float:
+    """Raw soft membership of (az, el) [rad] in the region ``r`` (band half-width ``half_band`` [rad])."""
+    lo = r.soft_el_lo_rad
+    hi = r.soft_el_hi_rad
     if el <= lo - half_band or el >= hi + half_band:
         return 0.0
     w = 1.0
@@ -286,13 +293,11 @@ def _soft_weight(sched: np.ndarray, b: int, m: int, az: float, el: float, half_b
         w = _smoothstep((el - lo) * inv_band + 0.5)
     elif el > hi - half_band:
         w = _smoothstep((hi - el) * inv_band + 0.5)
-    if sched[b + REG_AZ_FULL] != 0.0:
+    if r.az_full != 0:
         return w
-    c0 = b + REG_HEADER + REG_CENTRE * m
-    h0 = b + REG_HEADER + REG_HALF * m
     a = 0.0
-    for i in range(int(sched[b + REG_N_SOFT])):
-        d = sched[h0 + i] - abs(_wrap_pi(az - sched[c0 + i]))  # signed distance inside the interval [rad]
+    for i in range(r.n_soft):
+        d = halves[i] - abs(_wrap_pi(az - centres[i]))  # signed distance inside the interval [rad]
         if d >= half_band:
             return w
         if d > -half_band:
@@ -301,53 +306,50 @@ def _soft_weight(sched: np.ndarray, b: int, m: int, az: float, el: float, half_b
 
 
 @jit
-def schedule_select(
-    sched: np.ndarray,
-    R: np.ndarray,
-    maps_flat: np.ndarray,
-    out_flat: np.ndarray,
-    weights: np.ndarray,
-    state: np.ndarray,
-) -> int:
+def schedule_select(st, arrays, R) -> int:
     """Select (or blend) the wrench map of attitude ``R`` (SPEC §3.3): :meth:`MapScheduler.select`.
 
     Args:
-        sched: packed schedule (:func:`pack_schedule`).
+        st: the scheduler's record (:data:`STATE_DTYPE`), updated.
+        arrays: its :class:`SchedulerArrays`; ``out`` and ``weights`` are written when the selection changes
+            or a blend is computed.
         R: (3, 3) attitude ``R_WB``, body to world; its third row is the up direction ``v_B``.
-        maps_flat: (K, 6n) region maps, row-major (6, n) each.
-        out_flat: (6n,) the selected map, written when the selection changes or a blend is computed.
-        weights: (K,) blending weights, written with the map (one-hot with hard blending).
-        state: (STATE_SIZE,) selection state, updated (:func:`state_buffer` makes a fresh one).
 
     Returns:
         Index of the region of ``R`` (first match); the current index, with nothing written, when ``R``'s
         up direction has a NaN or lies in no region; -1 when K = 0 (nominal or global mode: the map is
-        constant and nothing is written).
+        constant and nothing is written). A non-finite ``R`` is counted in ``n_nonfinite``.
     """
-    n_regions = int(sched[SCH_N_REGIONS])
+    n_regions = st.n_regions
     if n_regions == 0:
         return -1
+    current = st.region
+    finite = True
+    for i in range(3):
+        for j in range(3):
+            finite = finite and math.isfinite(R[i, j])
+    if not finite:
+        st.n_nonfinite += 1.0
     az, el = azimuth_elevation(R[2, 0], R[2, 1], R[2, 2])
-    current = int(state[STATE_REGION])
     if not (math.isfinite(az) and math.isfinite(el)):
         return current
-    m = int(sched[SCH_MAX_IV])
-    stride = REG_HEADER + REG_N_GROUPS * m
+    regions, maps, out, weights = arrays.regions, arrays.maps, arrays.out, arrays.weights
     k = -1
     for j in range(n_regions):
-        if _contains(sched, SCH_HEADER + j * stride, m, az, el):
+        if _contains(regions[j], arrays.az_lo_rad[j], arrays.az_hi_rad[j], az, el):
             k = j
             break
     if k < 0:  # a hole in a user partition (the grid check at load missed it): keep the last map
         return current
-    state[STATE_REGION] = k
-    half_band = sched[SCH_HALF_BAND]
-    n_out = out_flat.shape[0]
-    if sched[SCH_SMOOTH] != 0.0 and _depth(sched, SCH_HEADER + k * stride, m, az, el) < half_band:
-        inv_band = sched[SCH_INV_BAND]
+    st.region = k
+    half_band = st.half_band_rad
+    n_out = out.shape[0]
+    centres, halves = arrays.az_centre_rad, arrays.az_half_rad
+    if st.smooth != 0 and _depth(regions[k], centres[k], halves[k], az, el) < half_band:
+        inv_band = st.inv_band_per_rad
         total = 0.0
         for j in range(n_regions):
-            w = _soft_weight(sched, SCH_HEADER + j * stride, m, az, el, half_band, inv_band)
+            w = _soft_weight(regions[j], centres[j], halves[j], az, el, half_band, inv_band)
             weights[j] = w
             total += w
         inv_total = 1.0 / total
@@ -356,24 +358,37 @@ def schedule_select(
         # sum_j w_j A_j over j in order; a zero weight adds +-0.0, which leaves every sum as it is (a sum
         # that starts at +0.0 is never -0.0), so those regions are skipped.
         for i in range(n_out):
-            out_flat[i] = 0.0
+            out[i] = 0.0
         for j in range(n_regions):
             w = weights[j]
             if w != 0.0:
                 for i in range(n_out):
-                    out_flat[i] += w * maps_flat[j, i]
-        state[STATE_BLENDED] = 1.0
-    elif state[STATE_BLENDED] != 0.0 or weights[k] != 1.0:
+                    out[i] += w * maps[j, i]
+        st.blended = 1
+    elif st.blended != 0 or weights[k] != 1.0:
         for j in range(n_regions):
             weights[j] = 0.0
         weights[k] = 1.0
         for i in range(n_out):
-            out_flat[i] = maps_flat[k, i]
-        state[STATE_BLENDED] = 0.0
+            out[i] = maps[k, i]
+        st.blended = 0
     return k
 
 
 @jit
-def region_of(state) -> float:
-    """The current region index of a selection state (-1 before the first selection)."""
-    return state[STATE_REGION]
+def arrays_at(table, i: int) -> SchedulerArrays:
+    """The :class:`SchedulerArrays` of entries ``i`` to ``i + 7`` of an address table."""
+    return SchedulerArrays(
+        records_at(table, i, REGION_DTYPE), f64_view2(table, i + 1), f64_view2(table, i + 2),
+        f64_view2(table, i + 3), f64_view2(table, i + 4), f64_view2(table, i + 5), f64_view(table, i + 6),
+        f64_view(table, i + 7),
+    )  # fmt: skip
+
+
+@jit_entry
+def schedule_select_by_table(table, R) -> int:
+    """:func:`schedule_select` with the state and the arrays given by their addresses (:meth:`SchedulerArrays.table`).
+
+    From Python, typing a structured array argument costs numba more than the selection.
+    """
+    return schedule_select(records_at(table, 0, STATE_DTYPE)[0], arrays_at(table, 1), R)

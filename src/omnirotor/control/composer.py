@@ -36,10 +36,18 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
 
-from omnirotor._jit import address_table, f64_view, f64_view2, i64_view, jit, jit_inline
+from omnirotor._jit import (
+    address_table,
+    f64_view,
+    f64_view2,
+    i64_view,
+    jit,
+    jit_entry,
+    jit_inline,
+    records_at,
+    void_pointer,
+)
 from omnirotor.blocks import compiled_step
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
@@ -106,7 +114,6 @@ OWN_DTYPE = np.dtype(
         ("measured", _I8),  # 1: the observer takes the measured rotor speeds, 0: the last command
         ("piecewise", _I8),  # 1: the map follows the attitude
         ("excluded", _I8),  # 1: some rotor is excluded from the allocation
-        ("compensate", _I8),  # 1: the UKF fuses a motion-capture sample at the time it was taken
         ("given_code", _I8),  # EST_GIVEN: the estimator's STEP_* code of this period
         ("alloc_code", _I8),  # this period's result of alloc_begin
     ]
@@ -140,23 +147,25 @@ class RotorArrays(NamedTuple):
 
 
 class EstimatorArrays(NamedTuple):
-    """The UKF's arrays (placeholders with the bypass)."""
+    """The UKF's ring buffers and scratch (:class:`~omnirotor.control._estimator_kernels.UKFArrays`).
 
-    mem: np.ndarray  # the UKF's memory (omnirotor.control._estimator_kernels)
-    counters: np.ndarray  # its int64 counters
+    Its record is the state's field ``ukf``; placeholders of one entry with another estimator.
+    """
+
+    imu_buf: np.ndarray  # (cap,) IMU_SAMPLE_DTYPE
+    state_buf: np.ndarray  # (cap,) NOMINAL_DTYPE
+    work: np.ndarray  # (1,) WORK_DTYPE
+
+    @classmethod
+    def placeholder(cls) -> EstimatorArrays:
+        """Arrays of one entry, for a controller whose compiled step does not run the UKF."""
+        return cls(*_ek.new_arrays(1)[1:])
 
 
-class SchedulerArrays(NamedTuple):
-    """The map scheduler's arrays (:class:`omnirotor.control.maps.MapScheduler`)."""
+SchedulerArrays = _mk.SchedulerArrays
+"""The map scheduler's partition and maps (its record is the state's field ``maps``)."""
 
-    schedule: np.ndarray
-    maps: np.ndarray
-    out: np.ndarray  # the map in use, (6n,)
-    weights: np.ndarray
-    state: np.ndarray
-
-
-N_ARRAYS = len(RotorArrays._fields) + len(_al.AllocArrays._fields) + 2 + 5 + 1
+N_ARRAYS = sum(len(t._fields) for t in (RotorArrays, _al.AllocArrays, EstimatorArrays, SchedulerArrays)) + 1
 """Arrays reached through the state's ``arrays`` field."""
 
 CONTROLLER_DTYPE_FIELDS = ("own", "observer", "admittance", "pose", "desired_ee", "compliant_ee", "body_ref")
@@ -175,8 +184,10 @@ def controller_dtype(observer_dtype: np.dtype) -> np.dtype:
             ("compliant_ee", ref),
             ("body_ref", ref),
             ("allocation", _al.STATE_DTYPE),
-            ("bypass", _est.BYPASS_DTYPE),
+            ("bypass", _est.BYPASS_DTYPE),  # the estimators, by their registered names
+            ("ukf", _ek.UKF_DTYPE),
             ("supervisor", _sup.STATE_DTYPE),
+            ("maps", _mk.STATE_DTYPE),
             ("arrays", _I8, (3 * N_ARRAYS,)),
         ]
     )
@@ -205,9 +216,10 @@ def _args_of(state):
         f64_view(t, 11), f64_view(t, 12), f64_view(t, 13), f64_view(t, 14), f64_view2(t, 15), f64_view2(t, 16),
         f64_view(t, 17), i64_view(t, 18), f64_view(t, 19),
     )  # fmt: skip
-    est = EstimatorArrays(f64_view(t, 20), i64_view(t, 21))
-    sch = SchedulerArrays(f64_view(t, 22), f64_view2(t, 23), f64_view(t, 24), f64_view(t, 25), f64_view(t, 26))
-    return state, rot, ar, est, sch, f64_view(t, 27)
+    est = EstimatorArrays(
+        records_at(t, 20, _ek.IMU_SAMPLE_DTYPE), records_at(t, 21, _ek.NOMINAL_DTYPE), records_at(t, 22, _ek.WORK_DTYPE)
+    )
+    return state, rot, ar, est, _mk.arrays_at(t, 23), f64_view(t, 31)
 
 
 @jit
@@ -305,15 +317,14 @@ def step_begin(args, frame, row) -> int:
     kind = c.estimator
     if kind == EST_UKF:
         code, _ = _ek.ukf_step(
-            est.mem, f[FRAME_GYRO_B : FRAME_GYRO_B + 3], f[FRAME_ACC_B : FRAME_ACC_B + 3], f[FRAME_T],
-            f[FRAME_MOCAP_NEW] != 0.0, f[FRAME_MOCAP_T], f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3],
-            f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c.compensate != 0, e, est.counters,
+            st.ukf, est.imu_buf, est.state_buf, est.work[0], f[FRAME_GYRO_B : FRAME_GYRO_B + 3],
+            f[FRAME_ACC_B : FRAME_ACC_B + 3], f[FRAME_T], f[FRAME_MOCAP_NEW] != 0.0, f[FRAME_MOCAP_T],
+            f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], e,
         )  # fmt: skip
         if act & _sup.ACT_REINIT:
             _ek.ukf_reinit(
-                est.mem, f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4],
-                est.counters, e,
-            )  # fmt: skip
+                st.ukf, f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], e
+            )
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
         code = _est.bypass_step(f, st.bypass, e)
@@ -350,8 +361,8 @@ def step_begin(args, frame, row) -> int:
     c.region = -1.0
     if c.piecewise != 0:
         if finite:
-            _mk.schedule_select(sch.schedule, R, sch.maps, sch.out, sch.weights, sch.state)
-        c.region = _mk.region_of(sch.state)
+            _mk.schedule_select(st.maps, sch, R)
+        c.region = st.maps.region
     if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP):  # no state to act on: hold, as below
         finite = False
     if not finite:  # no stateful block is updated: hold the last safe command
@@ -482,22 +493,12 @@ DEFAULT_DTYPE = controller_dtype(_obs.STATE_DTYPE)
 """The controller's state with the default observer, the one :func:`controller_step_by_table` knows."""
 
 
-@intrinsic
-def _void_pointer(typingctx, address):
-    sig = types.voidptr(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
-
-    return sig, codegen
-
-
-@jit
+@jit_entry
 def controller_step_by_table(table, frame, row) -> int:
     """:func:`controller_step_by_state` for a state of :data:`DEFAULT_DTYPE` given by its address ``table[0]``.
 
     The same step. Typing a structured array argument costs numba some 14 µs per call from Python (no fast
     path for record dtypes), an int64 array nothing: the controller with the default blocks calls this one.
     """
-    state = numba.carray(_void_pointer(table[0]), (1,), DEFAULT_DTYPE)
+    state = numba.carray(void_pointer(table[0]), (1,), DEFAULT_DTYPE)
     return controller_step(_args_of(state), frame, row)

@@ -221,8 +221,8 @@ class InteractionController:
         observer_cls = block_class("observer", p.observer_kind)
         self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype))
         self._own = own = state[0]["own"]
-        self.estimator = make_estimator(vehicle, p.estimator, state=state["bypass"])
-        self.scheduler = MapScheduler(vehicle, maps, p.maps)
+        self.estimator = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind])
+        self.scheduler = MapScheduler(vehicle, maps, p.maps, state=state["maps"])
         self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
         self.admittance = AdmittanceFilter(p.admittance, state=state["admittance"])
         self.pose = PoseController(vehicle, p.pose, state=state["pose"])
@@ -315,16 +315,16 @@ class InteractionController:
         own = self._own
         own["t0"] = self._t0
         own["excluded"] = 1 if self._excluded else 0
-        if isinstance(est, UKFEstimator):
+        # The compiled step runs the UKF or the bypass kept in the state's field of its name; another estimator
+        # (or one kept elsewhere) runs from Python and gives its estimate.
+        own["estimator"] = _c.EST_GIVEN
+        est_arrays = _c.EstimatorArrays.placeholder()
+        if isinstance(est, UKFEstimator) and np.shares_memory(est.state, self.state["ukf"]):
             own["estimator"] = _c.EST_UKF
-            own["compensate"] = 1 if est.kernel_compensate_latency else 0
-            est_arrays = _c.EstimatorArrays(est.kernel_mem, est.kernel_counters)
-        else:
-            own["estimator"] = _c.EST_BYPASS if isinstance(est, BypassEstimator) else _c.EST_GIVEN
-            est_arrays = _c.EstimatorArrays(np.zeros(1), np.zeros(1, dtype=np.int64))
-        sched_arrays = _c.SchedulerArrays(
-            sched.kernel_schedule, sched.kernel_maps, sched.kernel_out, sched.kernel_weights, sched.kernel_state
-        )
+            est_arrays = _c.EstimatorArrays(*est.kernel_arrays[1:])
+        elif isinstance(est, BypassEstimator) and np.shares_memory(est.state, self.state["bypass"]):
+            own["estimator"] = _c.EST_BYPASS
+        sched_arrays = sched.kernel_arrays
         self._kernel_args = (
             self.state,
             self._rot,
@@ -364,7 +364,7 @@ class InteractionController:
         self.estimator.reset(frame)
         # The estimate the first frame's supervision checks motion capture against: the start's.
         if isinstance(self.estimator, UKFEstimator):
-            _ek.write_estimate(self.estimator.kernel_mem, self._estimate)
+            self.estimator.write_estimate(self._estimate)
         elif isinstance(self.estimator, BypassEstimator):
             self._estimate[:] = self.estimator.state[0]["last"]
         self.observer.reset()

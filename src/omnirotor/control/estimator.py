@@ -71,7 +71,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import address_table, jit
 from omnirotor.blocks import block_class, register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
@@ -219,20 +219,22 @@ class EstimatorParams:
 class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
 
-    The filter's arrays live in one float array (layout in :mod:`omnirotor.control._estimator_kernels`),
-    its counters and flags in one int64 array; once initialised, a step is one compiled call,
-    :func:`~omnirotor.control._estimator_kernels.ukf_step`, which reads and writes both.
+    The filter's state, counters and parameters are one structured record (:attr:`state`, dtype
+    :data:`~omnirotor.control._estimator_kernels.UKF_DTYPE`), its ring buffers and scratch three more
+    structured arrays (:attr:`kernel_arrays`); once initialised, a step is one compiled call,
+    :func:`~omnirotor.control._estimator_kernels.ukf_step`, which reads and writes their fields by name.
 
     A compiled loop may step the filter itself, after :meth:`reset` (or a first :meth:`step` that
-    initialised it; ``initialised`` must be True), with
-    ``ukf_step(kernel_mem, gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, kernel_compensate_latency, out,
-    kernel_counters)``: ``gyro_B``, ``acc_B`` (3,), ``p_m`` (3,), ``q_m`` (4,) and ``out`` (21,) float64
-    arrays (``p_m``, ``q_m`` any such arrays without a sample, NaN for a sample announced without a
-    well-formed pose), floats ``t`` and ``mocap_t`` [s], bools ``mocap_new`` and the flag. It returns
-    ``(code, t)``; the estimate is ``out`` (layout of ``write_estimate``) at time ``t``, valid unless ``code``
-    has ``STEP_DEGRADED``; the properties below then read the updated counters.
+    initialised it; ``initialised`` must be True), with ``ukf_step(state[0], imu_buf, state_buf, work[0],
+    gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, out)`` (the arrays of :attr:`kernel_arrays`):
+    ``gyro_B``, ``acc_B`` (3,), ``p_m`` (3,), ``q_m`` (4,) and ``out`` (21,) float64 arrays (``p_m``, ``q_m``
+    any such arrays without a sample, NaN for a sample announced without a well-formed pose), floats ``t``
+    and ``mocap_t`` [s], the bool ``mocap_new``. It returns ``(code, t)``; the estimate is ``out`` (layout of
+    ``write_estimate``) at time ``t``, valid unless ``code`` has ``STEP_DEGRADED``; the properties below then
+    read the updated counters.
 
     Attributes:
+        state: the ``(1,)`` record (``UKF_DTYPE``; a field of the controller's state when it owns the filter).
         degraded: True while no motion-capture sample was accepted for ``mocap_timeout_s`` (or before the
             filter is initialised).
         initialised: True once the filter has a first pose.
@@ -244,101 +246,102 @@ class UKFEstimator:
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
         P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
-        kernel_mem: the filter's memory (float64 array) that ``ukf_step`` takes: states, buffers, P and
-            constants, then the kernels' workspace (layout ``memory_layout`` of the kernels' module).
-        kernel_counters: (``CNT_SIZE``,) int64 counters and flags (``CNT_*``) that ``ukf_step`` updates; the
-            properties above read it.
-        kernel_compensate_latency: ``params.compensate_latency``, the flag ``ukf_step`` takes.
+        kernel_arrays: the :class:`~omnirotor.control._estimator_kernels.UKFArrays` (``state`` first).
     """
 
-    state_dtype = None
-    """Not converted to named fields yet: the state is the flat memory of :mod:`_estimator_kernels`."""
+    state_dtype = _ek.UKF_DTYPE
     log_fields = ()
 
-    def __init__(self, vehicle: VehicleParams, params: EstimatorParams | None = None):
+    def __init__(
+        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+    ):
         """Allocate the filter; it initialises on the first frame with a pose (see :meth:`reset`).
 
         Args:
             vehicle: the vehicle (gravity).
             params: estimator parameters; defaults to :class:`EstimatorParams()`.
+            state: optional ``(1,)`` array of ``UKF_DTYPE`` to keep the state in (e.g. a field of the
+                controller's state).
         """
         self.params = p = params if params is not None else EstimatorParams()
         self.vehicle = vehicle
         self._g = vehicle.gravity
         self._dt_nom = 1.0 / p.imu_rate_hz
-        # Ring buffer of IMU samples: t [s], dt [s], gyro_B (3), acc_B (3) (lever-arm corrected).
-        self._lag_n = int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz))
-        self._chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
-        self._cap = self._lag_n + self._chunk_n + 8
-        self._cov_n = max(1, int(round(_COV_STEP_S * p.imu_rate_hz)))
-        # The memory ends with the kernels' workspace (o_wk:size), so that a step allocates nothing.
-        o_buf, o_sbuf, o_P, o_W, o_M, o_wk, size = _ek.memory_layout(self._cap)
-        self._mem = mem = np.zeros(size)
-        self.kernel_mem = mem
-        self.state = mem  # the block's state (not converted to named fields: layout in _estimator_kernels)
-        self.kernel_counters = np.zeros(_ek.CNT_SIZE, dtype=np.int64)
-        self.kernel_compensate_latency = bool(p.compensate_latency)
+        lag_n = int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz))
+        chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
+        cap = lag_n + chunk_n + 8  # ring buffers of IMU samples and output states
+        self.state = state_array(_ek.UKF_DTYPE, state, "UKF")
+        blank = _ek.new_arrays(cap)
+        self.kernel_arrays = _ek.UKFArrays(self.state, *blank[1:])
+        # Their addresses, for one compiled call from Python (typing record arrays costs more than the step).
+        self._table = address_table(list(self.kernel_arrays))
         # The pose ukf_step gets for a sample announced without a well-formed one (rejected as non-finite).
         self._no_p = np.full(3, math.nan)
         self._no_q = np.full(4, math.nan)
-        self._x = x = mem[0 : _ek.UKF_SIZE]
-        self.P = mem[o_P:o_W].reshape(_N_ERR, _N_ERR)
+        self._rec = u = self.state[0]
+        self.P = u["P"]
         # Unscented-transform weights (mean, covariance).
         n = _N_ERR
         lam = p.ut_alpha**2 * (n + p.ut_kappa) - n
-        W = mem[o_W:o_M].reshape(2, 2 * n + 1)
-        W[0] = 0.5 / (n + lam)
-        W[1] = W[0]
-        W[0, 0] = lam / (n + lam)
-        W[1, 0] = lam / (n + lam) + 1.0 - p.ut_alpha**2 + p.ut_beta
+        u["w_mean"] = 0.5 / (n + lam)
+        u["w_cov"] = 0.5 / (n + lam)
+        u["w_mean"][0] = lam / (n + lam)
+        u["w_cov"][0] = lam / (n + lam) + 1.0 - p.ut_alpha**2 + p.ut_beta
         # Process noise terms, initial covariance, measurement noise (position, attitude).
-        M = mem[o_M:o_wk].reshape(5, n, n)
-        M[_ek.M_Q1], M[_ek.M_Q2], M[_ek.M_Q3] = self._process_noise_terms()
-        M[_ek.M_P0] = self._P0 = np.diag(
+        u["Q1"], u["Q2"], u["Q3"] = self._process_noise_terms()
+        u["P0"] = np.diag(
             [p.init_pos_std**2] * 3 + [p.init_vel_std**2] * 3 + [math.radians(p.init_att_std_deg) ** 2] * 3
             + [p.init_acc_bias_std**2] * 3 + [p.init_gyro_bias_std**2] * 3
         )  # fmt: skip
         att = math.radians(p.mocap_att_std_deg)
-        M[_ek.M_RN, 0:6, 0:6] = np.diag([p.mocap_pos_std**2] * 3 + [att * att] * 3)
-        x[_ek.UKF_G] = self._g
-        x[_ek.UKF_DT_NOM] = self._dt_nom
-        x[_ek.UKF_GYRO_RANGE] = p.gyro_range
-        x[_ek.UKF_ACC_RANGE] = p.acc_range
-        x[_ek.UKF_R_IMU : _ek.UKF_R_IMU + 3] = [float(c) for c in p.imu_offset_B]
-        x[_ek.UKF_LEVER] = 1.0 if any(c != 0.0 for c in p.imu_offset_B) else 0.0
-        x[_ek.UKF_LEVER_CUT] = p.lever_arm_cutoff_hz
-        x[_ek.UKF_GYRO_CUT] = p.gyro_cutoff_hz
-        x[_ek.UKF_ACC_CUT] = p.acc_cutoff_hz
-        x[_ek.UKF_CAP] = self._cap
-        x[_ek.UKF_COV_N] = self._cov_n
-        x[_ek.UKF_UT_SCALE] = math.sqrt(n + lam)
-        x[_ek.UKF_MAX_LAT] = p.mocap_max_latency_s
-        x[_ek.UKF_GATE] = p.mocap_gate_chi2
-        x[_ek.UKF_REINIT_AFTER] = p.mocap_reinit_after
-        x[_ek.UKF_LAG_N] = self._lag_n
-        x[_ek.UKF_CHUNK_N] = self._chunk_n
-        x[_ek.UKF_TIMEOUT] = p.mocap_timeout_s
+        u["Rn"] = np.diag([p.mocap_pos_std**2] * 3 + [att * att] * 3)
+        u["g"] = self._g
+        u["dt_nom"] = self._dt_nom
+        u["gyro_range"] = p.gyro_range
+        u["acc_range"] = p.acc_range
+        u["r_imu_B"] = [float(c) for c in p.imu_offset_B]
+        u["lever"] = 1 if any(c != 0.0 for c in p.imu_offset_B) else 0
+        u["lever_cutoff_hz"] = p.lever_arm_cutoff_hz
+        u["gyro_cutoff_hz"] = p.gyro_cutoff_hz
+        u["acc_cutoff_hz"] = p.acc_cutoff_hz
+        u["cov_n"] = max(1, int(round(_COV_STEP_S * p.imu_rate_hz)))
+        u["ut_scale"] = math.sqrt(n + lam)
+        u["max_latency_s"] = p.mocap_max_latency_s
+        u["gate_chi2"] = p.mocap_gate_chi2
+        u["reinit_after"] = p.mocap_reinit_after
+        u["lag_n"] = lag_n
+        u["chunk_n"] = chunk_n
+        u["timeout_s"] = p.mocap_timeout_s
+        u["compensate_latency"] = 1 if p.compensate_latency else 0
         self._clear()
 
     # -- state -------------------------------------------------------------------------------------------
 
+    _STATE_FIELDS = (
+        "x_out", "R_WB_out", "x_fused", "R_WB_fused", "gyro_B", "acc_B", "gyro_corr_B", "acc_corr_B", "gyro_lp_B",
+        "omega_dot_B", "omega_B", "a_W", "t", "t_fused", "t_accept", "lpf_dt", "lam_omega", "lam_acc", "dt", "k",
+        "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
+        "n_nonfinite", "last_rejected", "degraded",
+    )  # fmt: skip
+    """The fields :meth:`reset` clears (the rest are parameters and constants)."""
+
     def _clear(self) -> None:
         """Forget everything: uninitialised, counters cleared, covariance back to the initial one."""
         self.initialised = False
-        self.kernel_counters[:] = 0
-        self.kernel_counters[_ek.CNT_DEGRADED] = 1
-        x = self._x
-        x[0 : _ek.UKF_G] = 0.0  # states, times and counters (parameters kept)
-        x[_ek.UKF_S + 6] = 1.0  # output (current) nominal state: p, v, q (wxyz), b_a, b_g
-        _ek.R9_from_quat_into(1.0, 0.0, 0.0, 0.0, x, _ek.UKF_RS)
-        x[_ek.UKF_F : _ek.UKF_F + 16] = x[_ek.UKF_S : _ek.UKF_S + 16]  # delayed fused state
-        x[_ek.UKF_RF : _ek.UKF_RF + 9] = x[_ek.UKF_RS : _ek.UKF_RS + 9]
-        x[_ek.UKF_T_ACCEPT] = -math.inf  # frame time of the last accepted motion-capture sample
-        x[_ek.UKF_JUST_RESET] = 1.0  # no sample fused since the start-up pose
-        x[_ek.UKF_IMU + 5] = self._g  # last good sample: gyro_B, acc_B (raw)
-        x[_ek.UKF_LPF_DT] = math.nan
-        x[_ek.UKF_LAM_W] = x[_ek.UKF_LAM_A] = 1.0
-        self.P[:] = self._P0
+        u = self._rec
+        for name in self._STATE_FIELDS:
+            u[name] = 0
+        u["degraded"] = 1
+        u["x_out"]["q_WB"][0] = 1.0  # output (current) nominal state: p, v, q (wxyz), b_a, b_g
+        u["R_WB_out"] = np.eye(3)
+        u["x_fused"] = u["x_out"]  # delayed fused state
+        u["R_WB_fused"] = u["R_WB_out"]
+        u["t_accept"] = -math.inf  # frame time of the last accepted motion-capture sample
+        u["just_reset"] = 1  # no sample fused since the start-up pose
+        u["acc_B"][2] = self._g  # last good sample: gyro_B, acc_B (raw)
+        u["lpf_dt"] = math.nan
+        u["lam_omega"] = u["lam_acc"] = 1.0
+        u["P"] = u["P0"]
 
     def reset(self, frame: SensorFrame) -> None:
         """(Re)initialise from a frame: its motion-capture pose if it has one, else ``frame.state``.
@@ -350,86 +353,85 @@ class UKFEstimator:
             InputError: the frame has neither a valid motion-capture sample nor a state.
         """
         self._clear()
-        x = self._x
-        S = _ek.UKF_S
+        u = self._rec
+        s = u["x_out"]
         state = frame.state if frame.state is not None and _state_finite(frame.state) else None
         if state is not None:
-            x[S + 3 : S + 6] = state.v_W
+            s["v_W"] = state.v_W
         if self._mocap_valid(frame):
-            x[S : S + 3] = frame.mocap_p_W
+            s["p_W"] = frame.mocap_p_W
             q = np.asarray(frame.mocap_q_WB, dtype=float)
-            x[S + 6 : S + 10] = q / np.linalg.norm(q)
+            s["q_WB"] = q / np.linalg.norm(q)
         elif state is not None:
-            x[S : S + 3] = state.p_W
-            x[S + 6 : S + 10] = quat_wxyz_from_R(np.asarray(state.R_WB, dtype=float))
+            s["p_W"] = state.p_W
+            s["q_WB"] = quat_wxyz_from_R(np.asarray(state.R_WB, dtype=float))
         else:
             raise InputError("the estimator needs a motion-capture sample or a state to initialise")
-        _ek.R9_from_quat_into(x[S + 6], x[S + 7], x[S + 8], x[S + 9], x, _ek.UKF_RS)
-        x[_ek.UKF_F : _ek.UKF_F + 16] = x[S : S + 16]
-        x[_ek.UKF_RF : _ek.UKF_RF + 9] = x[_ek.UKF_RS : _ek.UKF_RS + 9]
-        x[_ek.UKF_T] = x[_ek.UKF_T_F] = frame.t
-        x[_ek.UKF_T_ACCEPT] = frame.t
+        _ek.R_from_quat_into(s["q_WB"], u["R_WB_out"])
+        u["x_fused"] = s
+        u["R_WB_fused"] = u["R_WB_out"]
+        u["t"] = u["t_fused"] = frame.t
+        u["t_accept"] = frame.t
         self.initialised = True
-        self.kernel_counters[_ek.CNT_DEGRADED] = 0
+        u["degraded"] = 0
         gyro, acc = frame.imu_gyro_B.tolist(), frame.imu_acc_B.tolist()
         if self._imu_valid(gyro, acc):
-            x[_ek.UKF_IMU : _ek.UKF_IMU + 6] = gyro + acc
-        imu = x[_ek.UKF_IMU : _ek.UKF_IMU + 6]
-        x[_ek.UKF_GLP : _ek.UKF_GLP + 3] = imu[0:3]
-        x[_ek.UKF_WO : _ek.UKF_WO + 3] = [imu[i] - x[S + 13 + i] for i in range(3)]
-        x[_ek.UKF_AO : _ek.UKF_AO + 3] = 0.0
+            u["gyro_B"], u["acc_B"] = gyro, acc
+        u["gyro_lp_B"] = u["gyro_B"]
+        u["omega_B"] = [u["gyro_B"][i] - s["b_gyro_B"][i] for i in range(3)]
+        u["a_W"] = 0.0
 
     @property
     def bias_acc_B(self) -> np.ndarray:
         """(3,) estimated accelerometer bias [m/s²]."""
-        return self._x[_ek.UKF_S + 10 : _ek.UKF_S + 13].copy()
+        return self._rec["x_out"]["b_acc_B"].copy()
 
     @property
     def bias_gyro_B(self) -> np.ndarray:
         """(3,) estimated gyro bias [rad/s]."""
-        return self._x[_ek.UKF_S + 13 : _ek.UKF_S + 16].copy()
+        return self._rec["x_out"]["b_gyro_B"].copy()
 
     @property
     def lag_s(self) -> float:
         """How far the delayed fused state lags the output [s]."""
-        return float(self._x[_ek.UKF_T] - self._x[_ek.UKF_T_F])
+        return float(self._rec["t"] - self._rec["t_fused"])
 
-    # The counters and flags, kept in kernel_counters (class docstring).
+    # The counters and flags, kept in the state record (class docstring).
 
     @property
     def degraded(self) -> bool:
         """True while no motion-capture sample was accepted for the timeout (or before initialisation)."""
-        return bool(self.kernel_counters[_ek.CNT_DEGRADED])
+        return bool(self._rec["degraded"])
 
     @property
     def last_input_rejected(self) -> bool:
         """True when something in the last frame was rejected."""
-        return bool(self.kernel_counters[_ek.CNT_LAST_REJECTED])
+        return bool(self._rec["last_rejected"])
 
     @property
     def rejected_inputs(self) -> int:
         """Count of frames in which the period, the IMU or the motion-capture sample was rejected."""
-        return int(self.kernel_counters[_ek.CNT_REJECTED_INPUTS])
+        return int(self._rec["n_rejected_inputs"])
 
     @property
     def rejected_mocap(self) -> int:
         """Count of motion-capture samples rejected (invalid, stale or outside the gate)."""
-        return int(self.kernel_counters[_ek.CNT_REJECTED_MOCAP])
+        return int(self._rec["n_rejected_mocap"])
 
     @property
     def n_mocap_fused(self) -> int:
         """Count of motion-capture samples fused."""
-        return int(self.kernel_counters[_ek.CNT_MOCAP_FUSED])
+        return int(self._rec["n_mocap_fused"])
 
     @property
     def n_reinit(self) -> int:
         """Count of re-initialisations from motion capture after repeated gate failures."""
-        return int(self.kernel_counters[_ek.CNT_REINIT])
+        return int(self._rec["n_reinit"])
 
     # -- validation ----------------------------------------------------------------------------------------
 
     def _imu_valid(self, gyro: list[float], acc: list[float]) -> bool:
-        return bool(_ek.imu_valid(self._x, np.asarray(gyro, dtype=float), np.asarray(acc, dtype=float)))
+        return bool(_ek.imu_valid(self._rec, np.asarray(gyro, dtype=float), np.asarray(acc, dtype=float)))
 
     @staticmethod
     def _mocap_valid(frame: SensorFrame) -> bool:
@@ -455,7 +457,7 @@ class UKFEstimator:
         if not self.initialised:
             if self._mocap_valid(frame) or (frame.state is not None and _state_finite(frame.state)):
                 self.reset(frame)
-            _ek.write_estimate(self._x, out)
+            self.write_estimate(out)
             return self._estimate(frame.t, out)
         # Every array goes to the kernel as float64 (another dtype would compile a variant of the whole step).
         gyro, acc = frame.imu_gyro_B, frame.imu_acc_B
@@ -467,21 +469,15 @@ class UKFEstimator:
             p, q = np.asarray(frame.mocap_p_W, dtype=_F64), np.asarray(frame.mocap_q_WB, dtype=_F64)
             if p.shape == (3,) and q.shape == (4,):
                 p_m, q_m = p, q
-        code, t = _ek.ukf_step(
-            self._mem,
-            gyro,
-            acc,
-            float(frame.t),
-            mocap,
-            float(frame.mocap_t) if mocap else math.nan,
-            p_m,
-            q_m,
-            self.kernel_compensate_latency,
-            out,
-            self.kernel_counters,
+        code, t = _ek.ukf_step_by_table(
+            self._table, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan, p_m, q_m, out
         )
         valid = not code & _ek.STEP_DEGRADED
         return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
+
+    def write_estimate(self, out: np.ndarray) -> None:
+        """The current estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` into ``out`` (21,)."""
+        _ek.write_estimate(self._rec, out)
 
     def _estimate(self, t: float, x: np.ndarray) -> StateEstimate:
         # One fresh array per message; the fields are views into it.
@@ -669,10 +665,8 @@ def make_estimator(
     Args:
         vehicle: the vehicle.
         params: estimator parameters.
-        state: for the bypass, the ``(1,)`` array of :data:`BYPASS_DTYPE` to keep its state in.
+        state: the ``(1,)`` array of the estimator's ``state_dtype`` to keep its state in (optional).
     """
     params = params if params is not None else EstimatorParams()
     cls = block_class("estimator", params.kind)
-    if cls is BypassEstimator:
-        return BypassEstimator(vehicle, params, state=state)
-    return cls(vehicle, params)
+    return cls(vehicle, params, state=state)

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from omnirotor.blocks import register
+from omnirotor.blocks import register, state_array
 from omnirotor.config import check_positive
 from omnirotor.control import _map_kernels as _mk
 from omnirotor.errors import InputError
@@ -136,31 +136,45 @@ class MapScheduler:
     """Select the wrench map for the current attitude (SPEC §3.3), for the allocation and the observer.
 
     The selection runs in one compiled call (:func:`omnirotor.control._map_kernels.schedule_select`) on the
-    arrays below, which a compiled control loop can pass to the same function; after such a call made
-    elsewhere, :meth:`sync` brings :attr:`region_index` and :attr:`region_name` up to date.
+    state record and the arrays below, which the controller's compiled step passes to the same function;
+    after such a call made elsewhere, :meth:`sync` brings :attr:`region_index` and :attr:`region_name` up to
+    date.
 
     Attributes:
+        state: the ``(1,)`` record (:data:`~omnirotor.control._map_kernels.STATE_DTYPE`: current region,
+            blend flag, count of non-finite attitudes, blending band; a field of the controller's state when
+            the controller owns the scheduler).
         region_index: index in ``maps.partition`` of the attitude's region (first match, as the hard
             switch), updated by :meth:`select` in piecewise mode; -1 in nominal and global modes, where no
             region is used.
         region_name: name of that region, or "nominal" / "global" in those modes.
         weights: (K,) read-only blending weights of the K regions from the last :meth:`select` (one-hot
             with hard blending); empty outside piecewise mode.
-        kernel_schedule: the packed partition and blending parameters (:func:`_map_kernels.pack_schedule`;
-            no regions outside piecewise mode).
-        kernel_maps: (K, 6n) the maps to choose from, each (6, n) row-major (one map outside piecewise mode).
-        kernel_out: (6n,) the array behind the map :meth:`select` returns.
-        kernel_weights: (K,) the array behind :attr:`weights`.
-        kernel_state: (``_map_kernels.STATE_SIZE``,) the selection state: current region index, blend flag.
+        n_nonfinite: count of :meth:`select` calls with a non-finite attitude (the map was kept).
+        kernel_arrays: the partition and the maps (:class:`~omnirotor.control._map_kernels.SchedulerArrays`):
+            its ``out`` (6n,) is the array behind the map :meth:`select` returns, its ``weights`` the array
+            behind :attr:`weights`.
     """
 
-    def __init__(self, vehicle: VehicleParams, maps: WrenchMapSet | None, params: MapParams | None = None):
+    state_dtype = _mk.STATE_DTYPE
+    log_fields = ()
+
+    def __init__(
+        self,
+        vehicle: VehicleParams,
+        maps: WrenchMapSet | None,
+        params: MapParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+    ):
         """Prepare the maps of the chosen mode.
 
         Args:
             vehicle: the vehicle; its ``A_nom`` is the nominal map.
             maps: identified maps (``omnirotor.wrench_maps``); needed for the global and piecewise modes.
             params: scheduling parameters; defaults to :class:`MapParams()` (nominal).
+            state: optional ``(1,)`` array of ``STATE_DTYPE`` to keep the state in (e.g. a field of the
+                controller's state).
 
         Raises:
             InputError: a mode that needs maps without them, no global map in global mode, maps of the
@@ -193,11 +207,6 @@ class MapScheduler:
         if not np.all(np.isfinite(self._maps)):
             raise InputError("wrench maps contain NaN or inf")
         K = self._maps.shape[0]
-        self.kernel_maps = self._maps.reshape(K, 6 * n)
-        self._out = self._maps[0].copy()
-        self.kernel_out = self._out.reshape(6 * n)
-        self._view = self._out.view()
-        self._view.flags.writeable = False
         smooth = self._partition is not None and self.params.blend == "smooth"
         band = math.radians(self.params.blend_width_deg)
         regions: tuple[Region, ...] = ()
@@ -213,32 +222,35 @@ class MapScheduler:
                         f"({math.degrees(narrow):.1f} deg) of partition {self._partition.name!r}"
                     )
         self._names = tuple(r.name for r in regions)
-        self.kernel_schedule = _mk.pack_schedule(regions, soft, smooth, band)
-        self.kernel_weights = np.zeros(len(regions))
-        self._weights_view = self.kernel_weights.view()
+        self.state = state_array(_mk.STATE_DTYPE, state, "map scheduler")
+        self.kernel_arrays = arrays = _mk.pack_schedule(
+            self.state[0], regions, soft, smooth, band, self._maps.reshape(K, 6 * n)
+        )
+        self._table = arrays.table(self.state)
+        self._out = arrays.out.reshape(6, n)
+        self._view = self._out.view()
+        self._view.flags.writeable = False
+        self._weights_view = arrays.weights.view()
         self._weights_view.flags.writeable = False
-        self.kernel_state = _mk.state_buffer()
-        self.state = self.kernel_state
-        self.n_nonfinite = 0
         self.region_index = -1
         self.region_name = mode
-        self._initial = (self._out.copy(), self.kernel_weights.copy(), self.kernel_state.copy())
+        self._initial = (self._out.copy(), arrays.weights.copy(), self.state.copy())
         if self._partition is not None:
             self.select(np.eye(3))
-            self._initial = (self._out.copy(), self.kernel_weights.copy(), self.kernel_state.copy())
-
-    state_dtype = None
-    """Not converted to named fields yet: the selection state is ``kernel_state`` (layout in ``_map_kernels``)."""
-    log_fields = ()
+            self._initial = (self._out.copy(), arrays.weights.copy(), self.state.copy())
 
     def reset(self) -> None:
         """Back to the selection made at construction (upright), the counter cleared."""
         out, weights, state = self._initial
         self._out[...] = out
-        self.kernel_weights[:] = weights
-        self.kernel_state[:] = state
-        self.n_nonfinite = 0
+        self.kernel_arrays.weights[:] = weights
+        self.state[...] = state
         self.sync()
+
+    @property
+    def n_nonfinite(self) -> int:
+        """Count of :meth:`select` calls with a non-finite attitude (the map was kept)."""
+        return int(self.state[0]["n_nonfinite"])
 
     @property
     def weights(self) -> np.ndarray:
@@ -262,27 +274,23 @@ class MapScheduler:
         """
         if self._partition is None:
             return self._view
-        if type(R_WB) is not np.ndarray or R_WB.dtype != np.float64:
-            R_WB = np.asarray(R_WB, dtype=np.float64)
-        if not np.isfinite(R_WB).all():  # counted; the kernel keeps the previous map
-            self.n_nonfinite += 1
-        k = _mk.schedule_select(
-            self.kernel_schedule, R_WB, self.kernel_maps, self.kernel_out, self.kernel_weights, self.kernel_state
-        )
+        if type(R_WB) is not np.ndarray or R_WB.dtype != np.float64 or not R_WB.flags.c_contiguous:
+            R_WB = np.ascontiguousarray(R_WB, dtype=np.float64)
+        k = _mk.schedule_select_by_table(self._table, R_WB)
         if k != self.region_index:
             self.region_index = k
             self.region_name = self._names[k]
         return self._view
 
     def sync(self) -> None:
-        """Update :attr:`region_index` and :attr:`region_name` from :attr:`kernel_state`.
+        """Update :attr:`region_index` and :attr:`region_name` from :attr:`state`.
 
         Needed only after :func:`_map_kernels.schedule_select` was called on this scheduler's arrays from
         elsewhere (a compiled loop); :meth:`select` keeps them up to date itself.
         """
         if self._partition is None:
             return
-        k = int(self.kernel_state[_mk.STATE_REGION])
+        k = int(self.state[0]["region"])
         if k != self.region_index:
             self.region_index = k
             self.region_name = self._names[k] if k >= 0 else self.params.mode

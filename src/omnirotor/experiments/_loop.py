@@ -16,7 +16,7 @@ and calls again.
 
 from __future__ import annotations
 
-from omnirotor._jit import jit, monotonic_ns
+from omnirotor._jit import jit_entry, monotonic_ns
 from omnirotor.control.composer import controller_step
 from omnirotor.sim.sensors import needs_refill
 from omnirotor.sim.step import sim_step
@@ -26,7 +26,7 @@ __all__ = ["run_steps"]
 _NS_PER_US = 1e3
 
 
-@jit
+@jit_entry
 def run_steps(sim, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
     """Steps ``k, k+1, ...`` of a closed-loop run, up to ``stop`` or the end of a noise block.
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, jit, mujoco_function
+from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, jit, jit_entry, mujoco_function
 from omnirotor.sim import aero as _aero
 from omnirotor.sim import airflow, contact, faults, rotors, sensors
 
@@ -100,7 +100,7 @@ TRUTH_ROW_SIZE = 29
 _ROW_T, _ROW_P, _ROW_V, _ROW_R, _ROW_OMEGA, _ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG = 0, 1, 4, 7, 16, 19, 22, 25, 28
 
 
-@jit
+@jit_entry
 def apply_wrench(pose, w_B, ext, f_air_W, xfrc) -> None:
     """Rotor wrench ``w_B`` (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
 
@@ -158,7 +158,7 @@ def aero_wrench(aero, u_hz2, w_B) -> None:
             w_B[r] = acc
 
 
-@jit
+@jit_entry
 def observe(sim, k: int, dt: float, frame, row) -> None:
     """The frame and the truth row at step ``k`` (time ``k dt``) from MuJoCo's current state.
 
@@ -196,7 +196,7 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
     row[_ROW_FLAG] = 1.0 if touching else 0.0
 
 
-@jit
+@jit_entry
 def pre_step(sim, cmd_hz, k: int, dt: float):
     """The fault schedule's part before a period from step ``k`` (the Python step's); returns the rotors' command."""
     s = sim[0]
@@ -206,7 +206,7 @@ def pre_step(sim, cmd_hz, k: int, dt: float):
     return cmd
 
 
-@jit
+@jit_entry
 def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
     """A whole control period of :meth:`omnirotor.sim.simulator.Simulator.step` (module docstring).
 
