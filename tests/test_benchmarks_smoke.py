@@ -205,8 +205,8 @@ def test_scaling_rows_cover_every_campaign(tiny):
 def test_goal_bookkeeping():
     goals = bench.evaluate_goals(
         {
-            "controller_step_us": 15.0,
-            "closed_loop_rtf_ukf": 10.0,
+            "controller_step_us": 5.0,
+            "closed_loop_rtf_ukf": 20.0,
             "closed_loop_rtf_fast": 80.0,
             "rtf_ratio_vs_rotorpy": None,
         }
