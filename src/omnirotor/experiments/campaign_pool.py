@@ -471,19 +471,17 @@ class _Daemon:
             threading.Thread(target=self.handle, args=(conn,), daemon=True).start()
 
     def handle(self, conn: socket.socket) -> None:
-        with conn, conn.makefile("rwb") as f:
-            try:
-                req = _recv(f)
-                op = (req or {}).get("op")
-                if op == "status":
-                    _send(f, self.status())
-                elif op == "stop":
-                    _send(f, {"type": "stopping", "pid": os.getpid()})
-                    self.stopping.set()
-                elif op == "campaign":
-                    self.campaign(f, req)
-            except (OSError, ValueError):  # the command hung up (Ctrl-C) or sent nonsense: forget it
-                pass
+        # a command that hangs up (Ctrl-C) or sends nonsense is forgotten
+        with conn, conn.makefile("rwb") as f, contextlib.suppress(OSError, ValueError):
+            req = _recv(f)
+            op = (req or {}).get("op")
+            if op == "status":
+                _send(f, self.status())
+            elif op == "stop":
+                _send(f, {"type": "stopping", "pid": os.getpid()})
+                self.stopping.set()
+            elif op == "campaign":
+                self.campaign(f, req)
 
     def campaign(self, f, req: dict) -> None:
         if req.get("digest") != self.digest:
