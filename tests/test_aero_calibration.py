@@ -157,6 +157,7 @@ def test_frame_rotation_turns_the_wrench_and_keeps_the_interaction():
     a, b = make_aero(V, base), make_aero(V, turned)
     for u in random_inputs(rng, 4):
         w0, w1 = a.wrench_B(u), b.wrench_B(u)
+        assert not np.allclose(w1, w0)  # the rotation is applied, not ignored
         np.testing.assert_allclose(w1[:3], Q @ w0[:3], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(w1[3:], Q @ w0[3:], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(a.efficiency(u), b.efficiency(u), rtol=1e-11)
@@ -168,6 +169,7 @@ def test_handedness_gain_scales_the_two_propeller_handednesses_apart():
     eta = make_aero(V, base).efficiency(u)
     aero = make_aero(V, dataclasses.replace(base, handedness_gain=0.05))
     np.testing.assert_allclose(aero.gains, 1.0 + 0.05 * V.spins)
+    assert aero.gains[V.spins > 0].min() > aero.gains[V.spins < 0].max()  # the k = +1 rotors make more thrust
     # The thrust factors of the interaction are unchanged; the columns of the map carry the gain.
     np.testing.assert_array_equal(aero.efficiency(u), eta)
     np.testing.assert_allclose(aero.A_true, make_aero(V, base).A_true * (1.0 + 0.05 * V.spins)[None, :])

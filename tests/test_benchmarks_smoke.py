@@ -124,7 +124,7 @@ def test_rotorpy_figures_are_consistent(tiny):
 
 
 def test_rotorpy_starts_are_what_they_say():
-    pytest.importorskip("rotorpy")
+    pytest.importorskip("rotorpy", reason="RotorPy is in the bench extra (make bench installs it)")
     import numpy as np
 
     x0 = np.array([0.0, 0.0, 1.5])
@@ -181,7 +181,7 @@ def test_crazyflow_in_its_own_venv_tiny():
 
 
 def test_quadrotor_preset_matches_rotorpy_crazyflie():
-    pytest.importorskip("rotorpy")
+    pytest.importorskip("rotorpy", reason="RotorPy is in the bench extra (make bench installs it)")
     rows = {r["quantity"]: r for r in bench.peer.crazyflie_comparison()}
     mismatched = {name for name, r in rows.items() if not r["match"]}
     # The preset reproduces the vehicle; only the simulator's default motor time constant differs, and the

@@ -190,7 +190,7 @@ def test_hover_task_films_the_run(tmp_path):
         )
     except InputError as exc:  # no offscreen GL on this machine
         if "renderer" in str(exc):
-            pytest.skip(str(exc))
+            pytest.skip(f"no offscreen GL renderer on this machine: {exc}")
         raise
     assert res.truth_log.n == 200
     assert path.is_file() and path.stat().st_size > 1000

@@ -188,8 +188,9 @@ def test_refine_maps_refuses_a_cell_across_two_regions(vehicle):
     maps = _maps_with_distinct_regions(vehicle)
     across = Region("X", ((-60.0, -30.0),), (10.0, 50.0))  # R3 ends at -45
     part = Partition("bad", (across, *maps.partition.regions))
-    with pytest.raises(InputError, match="X .* reaches into regions R2, R3"):
+    with pytest.raises(InputError, match="X .* reaches into regions R2, R3") as info:
         refine_maps(maps, part)
+    assert "\n" not in str(info.value)  # one line, as every InputError reaches the user
 
 
 def test_cells_get_their_own_torque_rows_and_the_smooth_blend_interpolates_them(vehicle):

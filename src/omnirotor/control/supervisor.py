@@ -273,7 +273,6 @@ STATE_DTYPE = np.dtype(
         ("resume_state", _F8, 6),  # its p_W, v_W
         ("resume_t", _F8),  # its controller time [s]
         ("resume_window_s", _F8),
-        ("vel_window_s", _F8),
         ("vel_tol_m", _F8),
         ("vel_n", _I8),  # states per window (velocity_window_s / dt, at most VEL_RING - 1)
         ("vel_k", _I8),  # states entered into the ring since the check (re)started
@@ -329,7 +328,7 @@ def reset_supervisor(
     rec["rotation_tol"], rec["quat_norm_tol"] = params.rotation_tol, params.quat_norm_tol
     rec["dropout_reinit_s"], rec["hold_timeout_s"] = params.dropout_reinit_s, params.bypass_hold_timeout_s
     rec["resume_window_s"] = params.bypass_resume_window_s
-    rec["vel_window_s"], rec["vel_tol_m"] = params.velocity_window_s, params.velocity_tol_m
+    rec["vel_tol_m"] = params.velocity_tol_m
     rec["vel_n"] = min(max(1, round(params.velocity_window_s / dt)), VEL_RING - 1)
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
     t = float(frame[FRAME_T])
