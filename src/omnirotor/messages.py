@@ -83,6 +83,8 @@ class ControlStatus(enum.IntFlag):
     """The allocation excludes at least one rotor declared failed."""
     FRAME_REJECTED = 32
     """The frame supervision rejected a part of the sensor frame (its cause is logged); the prediction replaced it."""
+    MOCAP_NOISE_RAISED = 64
+    """The estimator weighs motion capture as noisier than configured: its innovations showed more noise."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

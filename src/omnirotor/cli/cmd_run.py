@@ -124,6 +124,12 @@ def run(
             out.rmdir()  # bad input found while setting up the run: leave nothing behind
         raise
     rep = result.summary()
+    raised = rep.get("safety", {}).get("flags", {}).get("mocap_noise_raised", 0)
+    if raised:
+        note(
+            f"the estimator found motion capture noisier than configured and weighed it so in {raised} of "
+            f"{rep['safety']['steps']} steps: set estimator.mocap_pos_std / mocap_att_std_deg to the system's noise"
+        )
     if out is not None:
         from omnirotor.safe_io import write_json_atomic
 

@@ -102,6 +102,13 @@ UKF_DTYPE = np.dtype(
         ("n_nonfinite", _I8),  # frames with a non-finite time, IMU sample or motion-capture sample
         ("last_rejected", _I8),  # 1 when something in the last frame was rejected
         ("degraded", _I8),  # 1 while no motion-capture sample was accepted for longer than the timeout
+        # motion-capture noise matched to the innovations (adapt_mocap_noise)
+        ("noise_var_pos", _F8),  # running estimate of the position noise variance per axis [m²]
+        ("noise_var_att", _F8),  # ... of the attitude noise variance per axis [rad²]
+        ("n_noise_adapted", _I8),  # motion-capture samples weighed with a raised noise
+        ("noise_pos_std_max", _F8),  # largest position noise one sigma used [m]
+        ("noise_att_std_max", _F8),  # largest attitude noise one sigma used [rad]
+        ("noise_reset_done", _I8),  # 1 once P went back to P0 in this episode of raised noise
         # parameters
         ("g", _F8),  # gravity [m/s²]
         ("dt_nom", _F8),  # nominal IMU period [s]
@@ -127,7 +134,15 @@ UKF_DTYPE = np.dtype(
         ("Q2", _F8, (N_ERR, N_ERR)),
         ("Q3", _F8, (N_ERR, N_ERR)),
         ("P0", _F8, (N_ERR, N_ERR)),  # initial covariance
-        ("Rn", _F8, (N_MEAS, N_MEAS)),  # motion-capture noise: position [m²], attitude [rad²]
+        ("Rn", _F8, (N_MEAS, N_MEAS)),  # motion-capture noise in use: position [m²], attitude [rad²]
+        ("adapt_noise", _I8),  # 1: raise Rn where the innovations show more noise than assumed
+        ("adapt_alpha", _F8),  # weight of one sample in the running noise estimates
+        ("adapt_on_ratio2", _F8),  # raised once the estimate exceeds this many times the assumed variance ...
+        ("adapt_clip_ratio2", _F8),  # ... one sample counting at most this many times the variance in use ...
+        ("adapt_max_ratio2", _F8),  # ... and never above this many times the assumed variance
+        ("adapt_reset_ratio2", _F8),  # raised beyond this many times the assumed variance: P back to P0
+        ("var_pos_assumed", _F8),  # assumed position noise variance per axis [m²]
+        ("var_att_assumed", _F8),  # assumed attitude noise variance per axis [rad²]
     ]
 )
 """State, counters and parameters of the UKF (named fields; the kernels read them so)."""
@@ -179,6 +194,7 @@ class UKFArrays(NamedTuple):
 # Bits of the code imu_step and finish return.
 STEP_REJECTED = 1  # the period or the IMU sample was rejected
 STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeout
+STEP_NOISE_RAISED = 4  # motion capture is weighed with more noise than assumed (match_noise)
 STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (predict to k - lag_n)
 
 QUAT_NORM_TOL = 0.1
@@ -757,6 +773,56 @@ def fuse_at(u, buf, t_m: float) -> int:
 
 
 @jit
+def _matched_variance(u, r, o: int, est: float, assumed: float) -> float:
+    """One block of :func:`match_noise`: the updated running estimate; writes the block's variance into ``Rn``."""
+    P = u.P
+    excess = 0.0  # the innovation's square beyond what the state's own uncertainty explains, per axis
+    for i in range(3):
+        excess += r[o + i] * r[o + i] - P[_H_ROWS[o + i], _H_ROWS[o + i]]
+    in_use = u.Rn[o, o]
+    # clipped to [0, adapt_clip_ratio2 * in_use]: a state less certain than its P says (just re-initialised)
+    # proves nothing about the noise, and one outlier must not move the estimate far
+    est += u.adapt_alpha * (min(max(excess / 3.0, 0.0), u.adapt_clip_ratio2 * in_use) - est)
+    var = assumed
+    if est > u.adapt_on_ratio2 * assumed:
+        var = min(est, u.adapt_max_ratio2 * assumed)
+    for i in range(3):
+        u.Rn[o + i, o + i] = var
+    return est
+
+
+@jit
+def match_noise(u, r) -> None:
+    """Match the motion-capture noise to the innovations (covariance matching, per block; SPEC §4.5 [A]).
+
+    A filter that assumes less noise than its motion capture has gates out most samples, re-initialises from
+    single noisy ones and corrupts its bias estimates: 10 mm of noise against 1 mm assumed flew a hover tens of
+    metres away. So the variance the innovation ``r`` shows beyond the state's own uncertainty, ``(|r|² -
+    tr(H P Hᵀ)) / 3`` per axis, is averaged over the samples (weight ``adapt_alpha``, before the gate: a gated
+    sample is evidence too), each sample counting at most ``adapt_clip_ratio2`` times the variance in use so
+    that single outliers barely move it. Where the average exceeds ``adapt_on_ratio2`` times the assumed
+    variance it replaces the assumed one in ``Rn`` (at most ``adapt_max_ratio2`` times it); below, ``Rn`` is
+    the assumed noise, so a filter whose noise is as assumed (or less) runs exactly as without this.
+    """
+    u.noise_var_pos = _matched_variance(u, r, 0, u.noise_var_pos, u.var_pos_assumed)
+    u.noise_var_att = _matched_variance(u, r, 3, u.noise_var_att, u.var_att_assumed)
+    sp, sa = math.sqrt(u.Rn[0, 0]), math.sqrt(u.Rn[3, 3])
+    if u.Rn[0, 0] != u.var_pos_assumed or u.Rn[3, 3] != u.var_att_assumed:
+        u.n_noise_adapted += 1
+    else:
+        u.noise_reset_done = 0  # back to the noise assumed: the episode is over
+    far = u.Rn[0, 0] > u.adapt_reset_ratio2 * u.var_pos_assumed or u.Rn[3, 3] > u.adapt_reset_ratio2 * u.var_att_assumed
+    if far and u.noise_reset_done == 0:
+        # The confidence built on a noise this much smaller is unfounded (velocity and biases were fitted to
+        # noise): back to the initial covariance, so they are learnt again at the filter's start-up pace. Once
+        # per episode of raised noise: an estimate that hovers about the threshold must not reset it each time.
+        _copy2(u.P0, u.P)
+        u.noise_reset_done = 1
+    u.noise_pos_std_max = max(u.noise_pos_std_max, sp)
+    u.noise_att_std_max = max(u.noise_att_std_max, sa)
+
+
+@jit
 def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     """Update the delayed state (already predicted to the sample's time) with a pose, re-propagate to now.
 
@@ -787,6 +853,8 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     nv = math.sqrt(ex * ex + ey * ey + ez * ez)
     kq = 2.0 * math.atan2(nv, ew) / nv if nv > 1e-12 else 2.0
     r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
+    if u.adapt_noise != 0:
+        match_noise(u, r)
     n = N_ERR
     PHt = w.PHt
     for i in range(n):
@@ -914,8 +982,9 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
 
     Returns:
         ``(code, t)``: ``STEP_REJECTED`` when something in the frame was rejected, plus ``STEP_DEGRADED``
-        while degraded (the estimate is then not valid); the time of the estimate [s] (``t_frame``, or the
-        previous time plus the nominal period when the frame's period was rejected).
+        while degraded (the estimate is then not valid), plus ``STEP_NOISE_RAISED`` while motion capture is
+        weighed as noisier than assumed (:func:`match_noise`); the time of the estimate [s] (``t_frame``, or
+        the previous time plus the nominal period when the frame's period was rejected).
     """
     nonfinite = not (math.isfinite(t_frame) and math.isfinite(gyro[0] + gyro[1] + gyro[2] + acc[0] + acc[1] + acc[2]))
     code, t = imu_step(u, buf, sbuf, gyro, acc, t_frame)
@@ -947,6 +1016,8 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     if code & STEP_ADVANCE:
         predict(u, buf, sbuf, w, u.k - u.lag_n)
     result = code & STEP_DEGRADED
+    if u.Rn[0, 0] != u.var_pos_assumed or u.Rn[3, 3] != u.var_att_assumed:
+        result |= STEP_NOISE_RAISED
     if rejected:
         u.n_rejected_inputs += 1
         result |= STEP_REJECTED

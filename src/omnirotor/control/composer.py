@@ -134,6 +134,7 @@ _BIT_SATURATED = 4
 _BIT_DEGRADED = 8
 _BIT_EXCLUDED = 16
 _BIT_REJECTED = 32
+_BIT_NOISE_RAISED = 64
 
 
 class RotorArrays(NamedTuple):
@@ -343,6 +344,8 @@ def step_begin(args, frame, row) -> int:
         bits |= _BIT_DEGRADED
     if code & _ek.STEP_REJECTED:
         bits |= _BIT_NONFINITE
+    if code & _ek.STEP_NOISE_RAISED:
+        bits |= _BIT_NOISE_RAISED
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
     t = f[FRAME_T] - c.t0

@@ -96,6 +96,20 @@ ESTIMATOR_KINDS = ("ukf", "bypass")
 _N_ERR = 15  # error-state dimension: dp, dv, dtheta, db_a, db_g
 _ADVANCE_CHUNK_S = 0.01  # without motion capture, advance the delayed fused state in steps of this much
 _COV_STEP_S = 0.01  # longest step of the sigma-point (covariance) propagation [s]
+MATCH_ON_RATIO = 2.0
+"""The motion-capture noise is raised once the innovations show more than this many times the assumed one sigma
+(averaged over ``mocap_adapt_samples``): a margin over the estimate's own scatter (its relative standard error
+is about sqrt(2 / (3 n)) = 0.12 for 50 samples), so a filter whose noise is as assumed is never touched."""
+MATCH_RESET_RATIO = 5.0
+"""Once the motion-capture noise in use exceeds this many times the assumed one sigma, the covariance goes back
+to the initial one (once per such episode): velocity and biases fitted while the filter trusted samples five
+times noisier than it thought are not worth the confidence it had in them (10 mm of noise against 1 mm assumed
+held a hover 1.9 cm off for seconds without this, 0.5 cm with it); a smaller mismatch is better left alone (3 mm
+against 1 mm: a reset doubles its hover error)."""
+MATCH_CLIP_RATIO = 5.0
+"""One motion-capture sample counts at most this many times the noise one sigma in use: an outlier moves the
+running estimate by at most 25 / ``mocap_adapt_samples`` of the variance, while noise ten times the assumed
+raises it by half each sample and is matched within about a dozen samples."""
 _F64 = np.dtype(np.float64)  # the dtype of every array the compiled step takes
 
 
@@ -123,6 +137,11 @@ class EstimatorParams:
         mocap_gate_chi2: chi-square gate on the 6-D pose innovation (22.5 is the 99.9 % quantile).
         mocap_reinit_after: consecutive gate failures after which the pose is re-initialised from motion
             capture.
+        mocap_adapt_noise: raise the motion-capture noise where the innovations show more than assumed
+            (:func:`~omnirotor.control._estimator_kernels.match_noise`); off: always ``mocap_pos_std`` and
+            ``mocap_att_std_deg``.
+        mocap_adapt_samples: samples the running noise estimate averages over (its time constant).
+        mocap_adapt_max_ratio: largest raised noise, as a multiple of the assumed one sigma.
         compensate_latency: fuse each sample at the time it was taken (True) or at arrival (False, naive).
         imu_offset_B: IMU position relative to the CoM, body frame [m].
         lever_arm_cutoff_hz: cut-off of the gyro filter differentiated for the lever-arm correction [Hz].
@@ -152,6 +171,9 @@ class EstimatorParams:
     mocap_max_latency_s: float = 0.03
     mocap_gate_chi2: float = 50.0
     mocap_reinit_after: int = 20
+    mocap_adapt_noise: bool = True
+    mocap_adapt_samples: int = 50
+    mocap_adapt_max_ratio: float = 30.0
     compensate_latency: bool = True
     imu_offset_B: tuple[float, float, float] = (0.0, 0.0, 0.0)
     lever_arm_cutoff_hz: float = 30.0
@@ -182,6 +204,7 @@ class EstimatorParams:
             "mocap_timeout_s",
             "mocap_max_latency_s",
             "mocap_gate_chi2",
+            "mocap_adapt_max_ratio",
             "lever_arm_cutoff_hz",
             "init_pos_std",
             "init_vel_std",
@@ -204,6 +227,14 @@ class EstimatorParams:
             raise InputError(f"estimator mocap_reinit_after must be an integer, got {self.mocap_reinit_after!r}")
         if self.mocap_reinit_after < 1:
             raise InputError(f"estimator mocap_reinit_after must be >= 1, got {self.mocap_reinit_after}")
+        n = self.mocap_adapt_samples
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(f"estimator mocap_adapt_samples must be an integer >= 1, got {n!r}")
+        if self.mocap_adapt_max_ratio < MATCH_ON_RATIO:
+            raise InputError(
+                f"estimator mocap_adapt_max_ratio must be >= {MATCH_ON_RATIO:g} (where raising starts), "
+                f"got {self.mocap_adapt_max_ratio:g}"
+            )
         if len(self.imu_offset_B) != 3:
             raise InputError(f"estimator imu_offset_B needs 3 values, got {len(self.imu_offset_B)}")
         check_finite("estimator imu_offset_B", *self.imu_offset_B)
@@ -294,7 +325,13 @@ class UKFEstimator:
             + [p.init_acc_bias_std**2] * 3 + [p.init_gyro_bias_std**2] * 3
         )  # fmt: skip
         att = math.radians(p.mocap_att_std_deg)
-        u["Rn"] = np.diag([p.mocap_pos_std**2] * 3 + [att * att] * 3)
+        u["var_pos_assumed"], u["var_att_assumed"] = p.mocap_pos_std**2, att * att
+        u["adapt_noise"] = 1 if p.mocap_adapt_noise else 0
+        u["adapt_alpha"] = 1.0 / p.mocap_adapt_samples
+        u["adapt_on_ratio2"] = MATCH_ON_RATIO**2
+        u["adapt_clip_ratio2"] = MATCH_CLIP_RATIO**2
+        u["adapt_max_ratio2"] = p.mocap_adapt_max_ratio**2
+        u["adapt_reset_ratio2"] = MATCH_RESET_RATIO**2
         u["g"] = self._g
         u["dt_nom"] = self._dt_nom
         u["gyro_range"] = p.gyro_range
@@ -321,7 +358,8 @@ class UKFEstimator:
         "x_out", "R_WB_out", "x_fused", "R_WB_fused", "gyro_B", "acc_B", "gyro_corr_B", "acc_corr_B", "gyro_lp_B",
         "omega_dot_B", "omega_B", "a_W", "t", "t_fused", "t_accept", "lpf_dt", "lam_omega", "lam_acc", "dt", "k",
         "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
-        "n_nonfinite", "last_rejected", "degraded",
+        "n_nonfinite", "last_rejected", "degraded", "noise_var_pos", "noise_var_att", "n_noise_adapted",
+        "noise_pos_std_max", "noise_att_std_max", "noise_reset_done",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
 
@@ -342,6 +380,7 @@ class UKFEstimator:
         u["lpf_dt"] = math.nan
         u["lam_omega"] = u["lam_acc"] = 1.0
         u["P"] = u["P0"]
+        u["Rn"] = np.diag([u["var_pos_assumed"]] * 3 + [u["var_att_assumed"]] * 3)
 
     def reset(self, frame: SensorFrame) -> None:
         """(Re)initialise from a frame: its motion-capture pose if it has one, else ``frame.state``.
@@ -427,6 +466,22 @@ class UKFEstimator:
     def n_reinit(self) -> int:
         """Count of re-initialisations from motion capture after repeated gate failures."""
         return int(self._rec["n_reinit"])
+
+    @property
+    def n_noise_adapted(self) -> int:
+        """Count of motion-capture samples weighed with a raised noise (``mocap_adapt_noise``)."""
+        return int(self._rec["n_noise_adapted"])
+
+    @property
+    def mocap_noise_std(self) -> tuple[float, float]:
+        """The motion-capture noise one sigma in use: position [m], attitude [rad]."""
+        Rn = self._rec["Rn"]
+        return math.sqrt(Rn[0, 0]), math.sqrt(Rn[3, 3])
+
+    @property
+    def mocap_noise_std_max(self) -> tuple[float, float]:
+        """The largest motion-capture noise one sigma used so far: position [m], attitude [rad]."""
+        return float(self._rec["noise_pos_std_max"]), float(self._rec["noise_att_std_max"])
 
     # -- validation ----------------------------------------------------------------------------------------
 
