@@ -40,6 +40,9 @@ def test_a_hover_on_a_motion_capture_ten_times_noisier_than_assumed_holds_its_pl
     err_off_cm, safety_off = hover(False)
     assert err_off_cm > 100.0  # measured 23 m: what the matching prevents
     assert safety_off["flags"]["mocap_noise_raised"] == 0
+    # the samples its gate refused are flagged as such (167 measured), not as non-finite input
+    assert safety_off["flags"]["mocap_rejected"] > 20 * max(1, safety["flags"]["mocap_rejected"])
+    assert safety_off["flags"]["nonfinite_input"] == 0 and safety["flags"]["nonfinite_input"] == 0
 
 
 def test_run_says_when_the_estimator_raised_the_noise(tmp_path, capsys):

@@ -85,6 +85,8 @@ class ControlStatus(enum.IntFlag):
     """The frame supervision rejected a part of the sensor frame (its cause is logged); the prediction replaced it."""
     MOCAP_NOISE_RAISED = 64
     """The estimator weighs motion capture as noisier than configured: its innovations showed more noise."""
+    MOCAP_REJECTED = 128
+    """The estimator did not fuse a well-formed motion-capture sample (outside its innovation gate, or too late)."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

@@ -195,6 +195,7 @@ class UKFArrays(NamedTuple):
 STEP_REJECTED = 1  # the period or the IMU sample was rejected
 STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeout
 STEP_NOISE_RAISED = 4  # motion capture is weighed with more noise than assumed (match_noise)
+STEP_MOCAP_REJECTED = 8  # a well-formed motion-capture sample was not fused (outside the gate, too late, singular)
 STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (predict to k - lag_n)
 
 QUAT_NORM_TOL = 0.1
@@ -981,7 +982,9 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
         out: (21,) the estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (as :func:`write_estimate`).
 
     Returns:
-        ``(code, t)``: ``STEP_REJECTED`` when something in the frame was rejected, plus ``STEP_DEGRADED``
+        ``(code, t)``: ``STEP_REJECTED`` when something in the frame was not well-formed (the period, the IMU
+        sample, the motion-capture sample), else ``STEP_MOCAP_REJECTED`` when a well-formed motion-capture
+        sample was not fused (:func:`fuse`'s gate, too late for the buffer, singular), plus ``STEP_DEGRADED``
         while degraded (the estimate is then not valid), plus ``STEP_NOISE_RAISED`` while motion capture is
         weighed as noisier than assumed (:func:`match_noise`); the time of the estimate [s] (``t_frame``, or
         the previous time plus the nominal period when the frame's period was rejected).
@@ -991,6 +994,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     if not mocap_new:
         code |= finish(u, out)
     rejected = (code & STEP_REJECTED) != 0
+    invalid = rejected  # an input not well-formed (as against a well-formed sample the filter did not fuse)
     if mocap_new:
         if math.isfinite(mocap_t) and mocap_sample_valid(p_m, q_m, QUAT_NORM_TOL):
             t_m = mocap_t if u.compensate_latency != 0 else t
@@ -1009,7 +1013,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
                 rejected = True
         else:
             u.n_rejected_mocap += 1
-            rejected = True
+            rejected = invalid = True
             if not math.isfinite(mocap_t + p_m[0] + p_m[1] + p_m[2] + q_m[0] + q_m[1] + q_m[2] + q_m[3]):
                 nonfinite = True
         code = finish(u, out)
@@ -1020,7 +1024,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
         result |= STEP_NOISE_RAISED
     if rejected:
         u.n_rejected_inputs += 1
-        result |= STEP_REJECTED
+        result |= STEP_REJECTED if invalid else STEP_MOCAP_REJECTED
     if nonfinite:
         u.n_nonfinite += 1
     u.last_rejected = 1 if rejected else 0

@@ -135,6 +135,7 @@ _BIT_DEGRADED = 8
 _BIT_EXCLUDED = 16
 _BIT_REJECTED = 32
 _BIT_NOISE_RAISED = 64
+_BIT_MOCAP_REJECTED = 128
 
 
 class RotorArrays(NamedTuple):
@@ -346,6 +347,8 @@ def step_begin(args, frame, row) -> int:
         bits |= _BIT_NONFINITE
     if code & _ek.STEP_NOISE_RAISED:
         bits |= _BIT_NOISE_RAISED
+    if code & _ek.STEP_MOCAP_REJECTED:
+        bits |= _BIT_MOCAP_REJECTED
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
     t = f[FRAME_T] - c.t0

@@ -192,7 +192,7 @@ def load_controller_params(
 
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
-_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(128))
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(256))
 
 
 class InteractionController:
