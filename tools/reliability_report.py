@@ -602,6 +602,47 @@ def run_glitches() -> list[tuple[str, str, bool, bool, bool]]:
     return rows
 
 
+MOCAP_NOISE_SECTION = [
+    "## A motion capture noisier than the estimator assumes",
+    "",
+    "Not a glitch but a wrong setting, and as dangerous: the UKF is told its motion capture's noise",
+    "(`estimator.mocap_pos_std`, 1 mm; `mocap_att_std_deg`, 0.5°). Told 1 mm while the samples scatter by 10",
+    "mm, it gated most samples out, re-initialised its pose from single noisy ones and fitted its velocity and",
+    "biases to the noise: the closed-loop hover (10 s, clean plant, seeds 0 and 1) flew **23 and 24 m** away.",
+    "The estimator now matches the noise to its innovations (`_estimator_kernels.match_noise`, covariance",
+    "matching per block, before the gate): the variance the innovations show beyond the state's own",
+    "uncertainty, averaged over 50 samples, each sample counting at most 25 times the variance in use (one",
+    "outlier moves it by half the variance), replaces the assumed one once it exceeds 4 times it (twice the",
+    "one sigma; at most 30 times the one sigma); once the noise in use passes five times the assumed, the",
+    "covariance goes back to the initial one, once per episode (the biases fitted meanwhile are not worth the",
+    "confidence the filter had in them). Every period weighed so carries `ControlStatus.MOCAP_NOISE_RAISED`,",
+    "counted in the run's `safety.flags.mocap_noise_raised`, and `omnirotor run` says it on stderr. A",
+    "well-formed sample the filter does not fuse (outside its gate, too late) is flagged `MOCAP_REJECTED` (it",
+    "was counted as `NONFINITE_INPUT` before, which a clean run then showed once or twice). Hover, closed",
+    "loop, largest per-axis RMS error [cm], seeds 0 / 1:",
+    "",
+    "| motion-capture noise (1 mm assumed) | without matching | with matching | told the true noise |",
+    "|---|---|---|---|",
+    "| 2 mm | 0.07 / 0.11 | 0.08 / 0.12 | 0.08 / 0.10 |",
+    "| 5 mm | 3.5 / 6.0 | 0.57 / 0.62 | 0.12 / 0.17 |",
+    "| 10 mm | 2 332 / 2 420 | 0.32 / 0.55 | 0.21 / 0.32 |",
+    "| 20 mm | 1 752 / 1 472 | 0.94 / 0.71 | 0.64 / 0.70 |",
+    "",
+    "On the estimator alone (an analytic flight, `tests/test_estimator.py`) the matched filter does as well as",
+    "one told the noise (1.85 against 1.84 mm at 3 mm, 4.61 against 4.55 mm at 10 mm) and finds 2.8 and 9.4",
+    "mm; a filter whose noise is as assumed runs bit for bit as without the matching (tested). In the default",
+    "simulator the innovations show about 1 mm (0.3 mm of white noise plus latency jitter and the IMU's",
+    "vibration), so the default 1 mm is never raised in the paper's experiments; the identification flight's",
+    "fast turns raise it for 1.4 s of 106 s. Left: 5 mm sits at the reset's threshold and keeps 4x the error",
+    "of a filter told the noise.",
+    "",
+    "",
+]
+"""The section on a motion capture noisier than the estimator assumes: prose and figures measured once (hover,
+10 s, clean plant, seeds 0 and 1); what it claims is asserted by tests/test_mocap_noise_matching.py and
+tests/test_estimator.py."""
+
+
 def render(results: list[tuple[Probe, str, str]], glitches: list[tuple[str, str, bool, bool, bool]]) -> str:
     """The text of docs/reliability.md: the probes' ``results`` and the sensor ``glitches`` (:func:`run_glitches`)."""
     groups: dict[str, list] = {}
@@ -650,6 +691,7 @@ def render(results: list[tuple[Probe, str, str]], glitches: list[tuple[str, str,
         lines.append(f"| {est} | {what} | " + " | ".join("yes" if o else "**no**" for o in ok) + " |")
     lines += [
         "",
+        *MOCAP_NOISE_SECTION,
         "## Beyond the probes",
         "",
         "Tested elsewhere, not counted above:",
