@@ -270,7 +270,8 @@ def test_calibrated_default_explains_the_real_flight_data(flight_data):
     strict=True,
     reason="issue 12 goal: 0.40 N over the 39 points; reached 0.469 N (LORO 0.46-0.55 N, LOPO 0.488 N) with a "
     "repeat noise floor of 0.29 N per point (90 % 0.24-0.38 N): the rest is attitude-dependent thrust no "
-    "tried physical term explains in cross-validation (docs/fidelity.md)",
+    "tried physical term explains in cross-validation (frame download, intake field, per-handedness reverse gain, "
+    "the hover moments in the fit: docs/fidelity.md)",
 )
 def test_truth_model_reaches_the_issue_goal_on_the_real_flight_data(flight_data):
     assert _real_rms(flight_data, AeroParams()) <= GOAL_N
