@@ -44,6 +44,7 @@ from omnirotor.identification import HoverData, IdentificationParams, assign_reg
 from omnirotor.regions import Partition, load_partition
 from omnirotor.sim.aero import make_aero
 from omnirotor.sim.params import AeroParams
+from omnirotor.so3 import hat
 from omnirotor.vehicle import VehicleParams
 
 __all__ = [
@@ -186,14 +187,6 @@ of the two repeat noise floors on the authors' data (0.29 N and 0.041 N·m per p
 equation counts by its noise."""
 
 
-def _skew(f: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) the cross-product matrices ``[f]x`` of the rows of ``f`` (``[f]x r = f x r``)."""
-    out = np.zeros((f.shape[0], 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -f[:, 2], f[:, 1], -f[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = f[:, 2], -f[:, 1], f[:, 0]
-    return out
-
-
 def com_offset(f_meas: np.ndarray, m_model: np.ndarray) -> np.ndarray:
     """The centre-of-mass offset ``r_c`` [m] that best balances the model's hover moments.
 
@@ -208,7 +201,7 @@ def com_offset(f_meas: np.ndarray, m_model: np.ndarray) -> np.ndarray:
     Returns:
         (3,) ``r_c`` in the body frame [m].
     """
-    M = -_skew(np.asarray(f_meas, dtype=float)).reshape(-1, 3)  # r_c x f = -[f]x r_c
+    M = -np.vstack([hat(f) for f in np.asarray(f_meas, dtype=float)])  # r_c x f = -[f]x r_c
     return np.linalg.lstsq(M, np.asarray(m_model, dtype=float).ravel(), rcond=None)[0]
 
 
