@@ -17,6 +17,15 @@ constant; SPEC §7's model; the calibrated rotor-wake model; the identified glob
 and scores the points left out. The report also gives the repeat noise floor (:func:`repeat_noise_floor`: how
 much the residual varies between flights of one attitude, which no model of the inputs can follow) and the fit
 with the full three-angle frame rotation (:data:`FRAME_TILT_PARAMETERS`), scored the same way.
+
+**Moments.** In hover the net moment about the centre of mass is zero as well, so the model's moment at the
+measured inputs must equal ``r_c x f_j`` for the (unknown, mm-sized) offset ``r_c`` of the centre of mass from the
+rotors' centre (:func:`com_offset`; the rotor geometry of SPEC §1.2 is about that centre). The report gives each
+model's moment RMS after the best ``r_c``, the moments' own repeat noise floor, and the fit with the moment
+equations added (:data:`MOMENT_WEIGHT_PER_M`; ``r_c`` solved in closed form at every evaluation), scored on the
+force as the default is. The drag-torque coefficient c_τ (SPEC §1.2) enters the moments only; ±20 % of it moves
+the default model's hover moment RMS on the authors' data by 0.01 N·m (0.220 to 0.210 / 0.233 N·m), a twentieth of
+what is to explain, so it stays at SPEC's value.
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ from omnirotor.identification import HoverData, IdentificationParams, assign_reg
 from omnirotor.regions import Partition, load_partition
 from omnirotor.sim.aero import make_aero
 from omnirotor.sim.params import AeroParams
+from omnirotor.so3 import hat
 from omnirotor.vehicle import VehicleParams
 
 __all__ = [
@@ -42,10 +52,15 @@ __all__ = [
     "BOUNDS",
     "NEUTRAL_START",
     "CalibrationResult",
+    "MomentFit",
     "model_forces",
     "fit_wake",
     "cross_validate",
     "FRAME_TILT_PARAMETERS",
+    "MOMENT_WEIGHT_PER_M",
+    "model_wrenches",
+    "com_offset",
+    "moment_residual",
     "NoiseFloor",
     "repeat_noise_floor",
     "calibrate",
@@ -152,15 +167,48 @@ def stand_prior_residual(vehicle: VehicleParams, params: AeroParams) -> np.ndarr
     return STAND_PRIOR_WEIGHT_N * np.array(res)
 
 
+def model_wrenches(vehicle: VehicleParams, params: AeroParams, u_hz2: np.ndarray) -> np.ndarray:
+    """(N, 6) body wrench ``[f [N]; m [N·m]]`` of the truth model ``params.model`` at each row of ``u_hz2`` [Hz²]."""
+    aero = make_aero(vehicle, params)
+    out = np.empty((u_hz2.shape[0], 6))
+    for k in range(u_hz2.shape[0]):
+        aero.wrench_B(u_hz2[k], out=out[k])
+    return out
+
+
 def model_forces(vehicle: VehicleParams, params: AeroParams, u_hz2: np.ndarray) -> np.ndarray:
     """(N, 3) body force [N] of the truth model ``params.model`` at each row of ``u_hz2`` [Hz²]."""
-    aero = make_aero(vehicle, params)
-    out = np.empty((u_hz2.shape[0], 3))
-    w = np.empty(6)
-    for k in range(u_hz2.shape[0]):
-        aero.wrench_B(u_hz2[k], out=w)
-        out[k] = w[:3]
-    return out
+    return model_wrenches(vehicle, params, u_hz2)[:, :3]
+
+
+MOMENT_WEIGHT_PER_M = 7.0
+"""Weight of a moment residual [N·m] against a force residual [N] in the moment-constrained fit [1/m]: the ratio
+of the two repeat noise floors on the authors' data (0.29 N and 0.041 N·m per point, docs/fidelity.md), so each
+equation counts by its noise."""
+
+
+def com_offset(f_meas: np.ndarray, m_model: np.ndarray) -> np.ndarray:
+    """The centre-of-mass offset ``r_c`` [m] that best balances the model's hover moments.
+
+    About the rotors' centre the rotors make ``m_j``; the weight ``-f_j`` acts at ``r_c``, so hover needs
+    ``m_j = r_c x f_j`` (linear in ``r_c``, solved by least squares over the points).
+
+    Args:
+        f_meas: (N, 3) measured body forces (the rotors' force that holds the weight) [N].
+        m_model: (N, 3) the model's moments about the rotors' centre at the measured inputs, minus any measured
+            moment about the centre of mass (zero in steady hover) [N·m].
+
+    Returns:
+        (3,) ``r_c`` in the body frame [m].
+    """
+    M = -np.vstack([hat(f) for f in np.asarray(f_meas, dtype=float)])  # r_c x f = -[f]x r_c
+    return np.linalg.lstsq(M, np.asarray(m_model, dtype=float).ravel(), rcond=None)[0]
+
+
+def moment_residual(f_meas: np.ndarray, m_model: np.ndarray, r_c: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) hover moment left about the centre of mass, ``m_j - r_c x f_j`` [N·m] (``r_c`` default: the best)."""
+    r = com_offset(f_meas, m_model) if r_c is None else np.asarray(r_c, dtype=float)
+    return np.asarray(m_model, dtype=float) - np.cross(r, np.asarray(f_meas, dtype=float))
 
 
 def _rms(residual: np.ndarray) -> float:
@@ -179,6 +227,7 @@ def fit_wake(
     names: Sequence[str] = FIT_PARAMETERS,
     from_start: bool = False,
     stand_prior: bool = True,
+    moment_weight: float = 0.0,
 ) -> AeroParams:
     """Fit the rotor-wake parameters ``names`` to hover data (bounded least squares on the force residual).
 
@@ -190,6 +239,8 @@ def fit_wake(
         names: which parameters to fit (a subset of :data:`FIT_PARAMETERS`).
         from_start: start the fitted parameters at their values in ``start``.
         stand_prior: add the force-stand prior (:func:`stand_prior_residual`) to the force residuals.
+        moment_weight: add the hover moments about the best centre of mass (:func:`moment_residual`) times this
+            [1/m] to the residuals (0: forces only; :data:`MOMENT_WEIGHT_PER_M` weighs them by their noise).
 
     Returns:
         The fitted parameters (``model = "wake"``).
@@ -207,12 +258,17 @@ def fit_wake(
     hi = np.array([BOUNDS[n][1] for n in names])
     x0 = np.array([getattr(p0, n) if from_start else NEUTRAL_START[n] for n in names], dtype=float)
     x0 = np.clip(x0, lo, hi)
-    f_meas = data.w_B[:, :3]
+    f_meas, m_meas = data.w_B[:, :3], data.w_B[:, 3:]
 
     def residual(x: np.ndarray) -> np.ndarray:
         p = _with(p0, x, names)
-        r = (model_forces(vehicle, p, data.u_hz2) - f_meas).ravel()
-        return np.concatenate([r, stand_prior_residual(vehicle, p)]) if stand_prior else r
+        w = model_wrenches(vehicle, p, data.u_hz2)
+        parts = [(w[:, :3] - f_meas).ravel()]
+        if moment_weight > 0.0:
+            parts.append(moment_weight * moment_residual(f_meas, w[:, 3:] - m_meas).ravel())
+        if stand_prior:
+            parts.append(stand_prior_residual(vehicle, p))
+        return np.concatenate(parts)
 
     # The cost is multimodal (yaw, and the trade between the thrust gain and the ingestion): start also from
     # a fixed grid of yaws and ingestion gains, keep the best optimum.
@@ -310,6 +366,12 @@ class CalibrationResult:
         floor: the repeat noise floor of the calibrated model's residual (:func:`repeat_noise_floor`).
         tilt_fit: the alternative fit with the full 3-DoF frame rotation (:data:`FRAME_TILT_PARAMETERS` too):
             its parameters, its in-sample RMS and its leave-one-region-out RMS per region [N].
+        moments: model name -> hover moment RMS about the best centre of mass (:func:`moment_residual`) [N·m],
+            for the models with a moment (not the identified maps, whose moment rows the paper's QP ignores).
+        moment_floor: the repeat noise floor of the calibrated model's hover moments [N·m].
+        moment_fit: the alternative fit with the moments (:data:`MOMENT_WEIGHT_PER_M`): its parameters, the
+            centre-of-mass offset [m], in-sample force RMS [N], moment RMS [N·m], force RMS of each held-out
+            region [N] and leave-one-point-out force RMS [N] (NaN when not run).
     """
 
     params: AeroParams
@@ -323,6 +385,30 @@ class CalibrationResult:
     stand: dict[str, float]
     floor: NoiseFloor
     tilt_fit: tuple[AeroParams, float, dict[str, float]]
+    moments: dict[str, float]
+    moment_floor: NoiseFloor
+    moment_fit: MomentFit
+
+
+@dataclasses.dataclass(frozen=True)
+class MomentFit:
+    """The rotor-wake fit with the hover moments (:func:`fit_wake` with ``moment_weight``), scored on the force.
+
+    Attributes:
+        params: the fitted parameters.
+        com_offset_m: (3,) the centre-of-mass offset that balances its moments best [m].
+        force_rms: in-sample force RMS [N].
+        moment_rms: in-sample moment RMS about that centre of mass [N·m].
+        cv_region: region -> force RMS [N] of the refit without that region.
+        cv_point_rms: leave-one-point-out force RMS [N] (NaN when not run).
+    """
+
+    params: AeroParams
+    com_offset_m: np.ndarray
+    force_rms: float
+    moment_rms: float
+    cv_region: dict[str, float]
+    cv_point_rms: float
 
 
 def _by_region(residual: np.ndarray, regions: Sequence[str]) -> dict[str, float]:
@@ -341,6 +427,7 @@ def cross_validate(
     leave_one_point: bool = True,
     stand_prior: bool = True,
     names: Sequence[str] = FIT_PARAMETERS,
+    moment_weight: float = 0.0,
 ) -> tuple[dict[str, float], dict[str, AeroParams], float]:
     """Leave-one-region-out and leave-one-point-out force RMS of the rotor-wake fit.
 
@@ -352,6 +439,7 @@ def cross_validate(
         leave_one_point: also run the leave-one-point-out refits (one per point).
         stand_prior: fit with the force-stand prior.
         names: the fitted parameters.
+        moment_weight: fit with the hover moments too (:func:`fit_wake`); the score stays the force RMS.
 
     Returns:
         ``(rms per held-out region [N], parameters fitted without each region, leave-one-point-out RMS [N]
@@ -364,7 +452,7 @@ def cross_validate(
         held = reg == r
         if held.all():
             continue
-        p = fit_wake(vehicle, data.subset(~held), start, names, stand_prior=stand_prior)
+        p = fit_wake(vehicle, data.subset(~held), start, names, stand_prior=stand_prior, moment_weight=moment_weight)
         cv_params[r] = p
         cv[r] = _rms(model_forces(vehicle, p, data.u_hz2[held]) - f_meas[held])
     loo = float("nan")
@@ -373,7 +461,7 @@ def cross_validate(
         for j in range(data.n_points):
             keep = np.ones(data.n_points, dtype=bool)
             keep[j] = False
-            p = fit_wake(vehicle, data.subset(keep), start, names, stand_prior=stand_prior)
+            p = fit_wake(vehicle, data.subset(keep), start, names, stand_prior=stand_prior, moment_weight=moment_weight)
             e = model_forces(vehicle, p, data.u_hz2[j : j + 1])[0] - f_meas[j]
             sq.append(float(e @ e))
         loo = float(math.sqrt(np.mean(sq)))
@@ -432,7 +520,40 @@ def calibrate(
     p3 = fit_wake(vehicle, data, start, names_3, stand_prior=stand_prior)
     cv3, _, _ = cross_validate(vehicle, data, regions, start, False, stand_prior, names_3)
     tilt_fit = (p3, _rms(model_forces(vehicle, p3, data.u_hz2) - f_meas), cv3)
-    return CalibrationResult(params, regions, table, k, cv, cv_params, loo, forces, stand, floor, tilt_fit)
+    moment_of = {
+        "nominal": data.u_hz2 @ vehicle.A_nom[3:].T,
+        "nominal x best constant": k * (data.u_hz2 @ vehicle.A_nom[3:].T),
+        "SPEC §7 model": model_wrenches(vehicle, AeroParams(model="spec7"), data.u_hz2)[:, 3:],
+        "rotor-wake model (calibrated)": model_wrenches(vehicle, params, data.u_hz2)[:, 3:],
+    }
+    m_meas = data.w_B[:, 3:]
+    moments = {name: _rms(moment_residual(f_meas, m - m_meas)) for name, m in moment_of.items()}
+    wake_moments = moment_of["rotor-wake model (calibrated)"] - m_meas
+    moment_floor = repeat_noise_floor(f_meas, moment_residual(f_meas, wake_moments))
+    moment_fit = _moment_fit(vehicle, data, regions, start, leave_one_point, stand_prior)
+    return CalibrationResult(
+        params, regions, table, k, cv, cv_params, loo, forces, stand, floor, tilt_fit, moments, moment_floor, moment_fit
+    )
+
+
+def _moment_fit(
+    vehicle: VehicleParams,
+    data: HoverData,
+    regions: Sequence[str],
+    start: AeroParams | None,
+    leave_one_point: bool,
+    stand_prior: bool,
+) -> MomentFit:
+    """The fit with the hover moments (:data:`MOMENT_WEIGHT_PER_M`) and its cross-validation on the force."""
+    f_meas = data.w_B[:, :3]
+    weight = MOMENT_WEIGHT_PER_M
+    p = fit_wake(vehicle, data, start, stand_prior=stand_prior, moment_weight=weight)
+    w = model_wrenches(vehicle, p, data.u_hz2)
+    m_model = w[:, 3:] - data.w_B[:, 3:]
+    r_c = com_offset(f_meas, m_model)
+    cv, _, loo = cross_validate(vehicle, data, regions, start, leave_one_point, stand_prior, moment_weight=weight)
+    moment_rms = _rms(moment_residual(f_meas, m_model, r_c))
+    return MomentFit(p, r_c, _rms(w[:, :3] - f_meas), moment_rms, cv, loo)
 
 
 def write_truth_toml(path: str | Path, params: AeroParams) -> None:
@@ -527,7 +648,36 @@ def report_markdown(result: CalibrationResult) -> str:
         + " | ".join(f"{v:.3f}" for v in result.stand.values())
         + " |\n\n"
         + _floor_and_tilt_markdown(result)
+        + _moments_markdown(result)
         + "![measured vs predicted](measured-vs-predicted.png)\n"
+    )
+
+
+def _moments_markdown(result: CalibrationResult) -> str:
+    """The report's paragraph on the hover moments: each model's, their noise floor and the fit with them."""
+    mf, fl = result.moment_fit, result.moment_floor
+    rows = "\n".join(f"| {name} | {v:.3f} |" for name, v in result.moments.items())
+    cv_rows = "\n".join(
+        f"| {r} | {result.cv_region[r]:.3f} | {mf.cv_region[r]:.3f} |"
+        for r in sorted(result.cv_region)
+        if r in mf.cv_region
+    )
+    loo = "not run" if math.isnan(mf.cv_point_rms) else f"{mf.cv_point_rms:.3f} N"
+    floor = (
+        "no attitude is flown twice"
+        if fl.dof == 0
+        else f"**{fl.per_point:.3f} N·m** per point (90 % interval {fl.ci90[0]:.3f}-{fl.ci90[1]:.3f} N·m)"
+    )
+    return (
+        "Hover moments: about the centre of mass the rotors make no moment; each model's moment at the measured "
+        "inputs about the centre-of-mass offset that balances it best, RMS [N·m] (repeat noise floor of the "
+        f"calibrated model's moments: {floor}):\n\n"
+        "| model | moment RMS [N·m] |\n|---|---|\n" + rows + "\n\n"
+        f"Fitted with the moments too (weight {MOMENT_WEIGHT_PER_M:g} N per N·m, the ratio of the two noise "
+        f"floors): force RMS {mf.force_rms:.3f} N, moment RMS {mf.moment_rms:.3f} N·m, centre of mass at "
+        + ", ".join(f"{1e3 * v:+.1f}" for v in mf.com_offset_m)
+        + f" mm; leave-one-point-out force RMS {loo}; leave-one-region-out force RMS:\n\n"
+        "| held-out region | forces only [N] | forces and moments [N] |\n|---|---|---|\n" + cv_rows + "\n\n"
     )
 
 
