@@ -21,6 +21,7 @@ from omnirotor.sim.model import (
     TOOL_BODY,
     build_mjcf,
 )
+from omnirotor.sim.scenes import attitude_pointing
 from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle("omnirotor")
@@ -147,3 +148,45 @@ def test_simulator_reads_the_tool_contact_as_the_end_effectors():
             sim.truth_row(row)
             np.testing.assert_allclose(row[22:25], tr.contact_force_W, atol=1e-9)  # the compiled truth row agrees
     assert touching > 100 and peak_N > 1.0  # before any other part touches, the tip leans on the wall
+
+
+def _tip_contact(m, d):
+    """(dist, frame normal) of the tip's contact with the environment after ``mj_forward``, or None."""
+    tip = geom(m, EE_TIP_GEOM)
+    for c in d.contact[: d.ncon]:
+        if tip in (c.geom1, c.geom2):
+            sign = 1.0 if c.geom1 == tip else -1.0  # the frame's normal points from geom1 to geom2
+            return c.dist, sign * np.asarray(c.frame[:3])
+    return None
+
+
+def test_tip_meets_pipe_and_wall_through_exact_distances():
+    """The tip's contacts are MuJoCo's analytic sphere tests: depth and normal exact wherever the tip slides.
+
+    An iterative convex test (GJK/EPA, MPR) would give them to its tolerance only and could jitter from one
+    step to the next as the tip slides (docs/fidelity.md, "Where the sliding chatter comes from").
+    """
+    rng = np.random.default_rng(12)
+    p = SceneParams()
+    centre_B = V.p_E_B_array - 0.008 * V.p_E_B_array / np.linalg.norm(V.p_E_B_array)
+    for scene in ("pipe", "wall"):
+        m = mujoco.MjModel.from_xml_string(build_mjcf(V, scene, SceneParams(tool_compliant=False), 1e-3))
+        d = mujoco.MjData(m)
+        for _ in range(40):
+            depth = rng.uniform(1e-5, 5e-4)
+            if scene == "pipe":  # a point of the slid arc (0 to 50 deg of roll), anywhere along the pipe
+                th = math.radians(rng.uniform(0.0, 50.0))
+                n_W = np.array([0.0, -math.cos(th), math.sin(th)])
+                axial = np.array([rng.uniform(-0.3, 0.3), 0.0, 0.0])
+                surface = np.asarray(p.pipe_centre) + axial + p.pipe_radius * n_W
+            else:
+                n_W = np.asarray(p.wall_normal, dtype=float)
+                surface = np.asarray(p.wall_point) + rng.uniform(-0.2, 0.2, 3) * np.array([1.0, 0.0, 1.0])
+            R = attitude_pointing(V.p_E_B_array / np.linalg.norm(V.p_E_B_array), -n_W)
+            tip_W = surface + (0.008 - depth) * n_W
+            d.qpos[:3] = tip_W - R @ centre_B
+            mujoco.mju_mat2Quat(d.qpos[3:7], R.ravel())
+            mujoco.mj_forward(m, d)
+            dist, normal = _tip_contact(m, d)
+            assert dist == pytest.approx(-depth, abs=1e-12), scene
+            np.testing.assert_allclose(normal, -n_W, atol=1e-12)  # from the tip into the surface
