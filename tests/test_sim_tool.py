@@ -12,9 +12,11 @@ import pytest
 
 from omnirotor.messages import RotorCommand
 from omnirotor.sim import SceneParams, SimParams, Simulator
+from omnirotor.sim.contact import EeContact, friction_step
 from omnirotor.sim.model import (
     BODY_NAME,
     EE_ROD_GEOM,
+    EE_SITE,
     EE_TIP_GEOM,
     TOOL_AXIAL_JOINT,
     TOOL_BEND_JOINTS,
@@ -190,3 +192,66 @@ def test_tip_meets_pipe_and_wall_through_exact_distances():
             dist, normal = _tip_contact(m, d)
             assert dist == pytest.approx(-depth, abs=1e-12), scene
             np.testing.assert_allclose(normal, -n_W, atol=1e-12)  # from the tip into the surface
+
+
+def _push_on_wall(f_t: float, steps: int = 3000, f_n: float = 3.0):
+    """The tool's tip pushed on the wall by ``f_n`` with ``f_t`` along it (on the vehicle, at the tip), no gravity.
+
+    Steps as the simulator does (``mj_forward``, the tool's friction law, ``mj_Euler``). Returns the contact
+    block (its wrench of the last step), the tip's position along the wall per step [m], the direction along
+    the wall and the wall's normal.
+    """
+    p = SceneParams()
+    m = model("wall")
+    m.opt.gravity[:] = 0.0
+    d = mujoco.MjData(m)
+    block = EeContact(m, data=d, mu=p.friction, tool_mass=p.tool_mass)
+    n = np.asarray(p.wall_normal, dtype=float)
+    t = np.array([1.0, 0.0, 0.0])
+    R = attitude_pointing(V.p_E_B_array / np.linalg.norm(V.p_E_B_array), -n)
+    d.qpos[:3] = np.asarray(p.wall_point) - R @ V.p_E_B_array + 1e-4 * n
+    mujoco.mju_mat2Quat(d.qpos[3:7], R.ravel())
+    veh, tip = body(m, BODY_NAME), geom(m, EE_TIP_GEOM)
+    along = []
+    for _ in range(steps):
+        mujoco.mj_forward(m, d)
+        if friction_step(block.friction[0], d.sensordata):  # as the simulator does: the friction in qacc
+            mujoco.mj_fwdAcceleration(m, d)
+            mujoco.mj_fwdConstraint(m, d)
+            mujoco.mj_sensorAcc(m, d)
+        along.append(float(d.geom_xpos[tip] @ t))
+        d.qfrc_applied[:] = 0.0
+        d.qfrc_applied[:3] = -20.0 * d.qvel[:3]  # a damped vehicle: no slow sway on the tool's bending spring
+        d.qfrc_applied[3:6] = -0.5 * d.qvel[3:6]
+        mujoco.mj_applyFT(m, d, -f_n * n + f_t * t, np.zeros(3), d.geom_xpos[tip].copy(), veh, d.qfrc_applied)
+        mujoco.mj_Euler(m, d)
+    block.step(d.sensordata, d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, EE_SITE)].copy())
+    return block, np.array(along), t, n
+
+
+def test_tool_friction_sticks_inside_the_cone():
+    """A tangential load below mu f_n: the contact point does not slip and friction holds the load (Coulomb)."""
+    block, along, t, n = _push_on_wall(0.6)
+    fr = block.friction[0]
+    assert fr["n"][0] == 1 and fr["n"][1] == 0  # the tip alone touches
+    assert np.linalg.norm(fr["v"][0, 0]) < 1e-6  # no slip [m/s]
+    f = fr["f"][0, 0]
+    f_W = block.state[0]["f_W"]  # the truth wrench: the wall's normal force plus the friction
+    assert f_W @ n == pytest.approx(3.0, rel=1e-2)
+    assert -0.6 < f @ t < -0.55  # holds the load (less what the damped vehicle takes)
+    assert np.linalg.norm(f) < SceneParams().friction * (f_W @ n)  # inside the cone
+    assert abs(f @ n) < 1e-12 and f_W @ t == pytest.approx(f @ t, abs=1e-12)
+    assert np.ptp(along[-1000:]) < 1e-4  # the tip stays put (it may roll by microns)
+
+
+def test_tool_friction_slides_at_mu_times_the_normal_force_outside_the_cone():
+    block, along, t, n = _push_on_wall(1.5)
+    assert along[-1] - along[-1000] > 0.05  # it slides (and accelerates) along the load
+    fr = block.friction[0]
+    f = fr["f"][0, : fr["n"][0]].sum(axis=0)
+    f_n = block.state[0]["f_W"] @ n  # the wall's normal force (friction has no normal part)
+    assert f_n > 1.0
+    # kinetic friction mu f_n (of the normal force before the friction entered the step: 1e-5 apart)
+    assert np.linalg.norm(f) == pytest.approx(SceneParams().friction * f_n, rel=1e-4)
+    v = fr["v"][0, 0]
+    assert v @ t > 0.01 and f @ v == pytest.approx(-np.linalg.norm(f) * np.linalg.norm(v), rel=1e-3)  # against the slip
