@@ -255,3 +255,21 @@ def test_tool_friction_slides_at_mu_times_the_normal_force_outside_the_cone():
     assert np.linalg.norm(f) == pytest.approx(SceneParams().friction * f_n, rel=1e-4)
     v = fr["v"][0, 0]
     assert v @ t > 0.01 and f @ v == pytest.approx(-np.linalg.norm(f) * np.linalg.norm(v), rel=1e-3)  # against the slip
+
+
+@pytest.mark.parametrize("law", ["stick-slip", "mujoco"])
+def test_friction_law_decides_who_applies_the_tools_friction(law):
+    """stick-slip: MuJoCo's contacts of the EE geoms are frictionless (the simulator applies Coulomb's law to the
+    tool); mujoco: MuJoCo's cone, as for every other contact."""
+    m = model("pipe", friction_law=law)
+    d = mujoco.MjData(m)
+    block = EeContact(m, data=d, mu=0.3, tool_mass=0.01)
+    for name in (EE_TIP_GEOM, EE_ROD_GEOM):
+        assert m.geom_condim[geom(m, name)] == (1 if law == "stick-slip" else 3)
+    assert m.geom_condim[geom(m, "pipe")] == 3
+    assert bool(block.friction[0]["enabled"]) == (law == "stick-slip")
+    assert block.friction[0]["h"] == pytest.approx(1e-3)
+    # the rigid tool keeps MuJoCo's cone whatever the law
+    rigid = model("pipe", friction_law=law, tool_compliant=False)
+    assert rigid.geom_condim[geom(rigid, EE_TIP_GEOM)] == 3
+    assert not EeContact(rigid, data=mujoco.MjData(rigid), mu=0.3, tool_mass=0.01).friction[0]["enabled"]
