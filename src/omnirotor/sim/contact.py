@@ -88,6 +88,17 @@ FRICTION_DTYPE = np.dtype(
 
 
 @jit
+def _add_force_at(f, fo: int, m, mo: int, fx, fy, fz, rx, ry, rz) -> None:
+    """Add the force ``(fx, fy, fz)`` into ``f[fo:fo+3]`` and its moment ``r x f`` (arm ``r``) into ``m[mo:mo+3]``."""
+    f[fo] += fx
+    f[fo + 1] += fy
+    f[fo + 2] += fz
+    m[mo] += ry * fz - rz * fy
+    m[mo + 1] += rz * fx - rx * fz
+    m[mo + 2] += rx * fy - ry * fx
+
+
+@jit
 def friction_reset(fr) -> None:
     """Forget the contacts and take the friction force off the tool (``fr``: a :data:`FRICTION_DTYPE` record)."""
     fr["n"][:] = 0
@@ -176,12 +187,7 @@ def friction_step(fr, sensordata) -> bool:
             new_pos[s, 0], new_pos[s, 1], new_pos[s, 2] = px, py, pz
             new_f[s, 0], new_f[s, 1], new_f[s, 2] = fx, fy, fz
             new_v[s, 0], new_v[s, 1], new_v[s, 2] = vx, vy, vz
-            xfrc[0] += fx
-            xfrc[1] += fy
-            xfrc[2] += fz
-            xfrc[3] += ry * fz - rz * fy
-            xfrc[4] += rz * fx - rx * fz
-            xfrc[5] += rx * fy - ry * fx
+            _add_force_at(xfrc, 0, xfrc, 3, fx, fy, fz, rx, ry, rz)
         for s in range(found):
             for i in range(3):
                 old_pos[s, i] = new_pos[s, i]
@@ -219,12 +225,10 @@ def contact_wrench(par, fr, sensordata, p_E_W, f_W, m_W) -> bool:
         rx = sensordata[a + 7] - p_E_W[0]
         ry = sensordata[a + 8] - p_E_W[1]
         rz = sensordata[a + 9] - p_E_W[2]
-        f_W[0] += fx
-        f_W[1] += fy
-        f_W[2] += fz
-        m_W[0] += -sensordata[a + 4] + ry * fz - rz * fy
-        m_W[1] += -sensordata[a + 5] + rz * fx - rx * fz
-        m_W[2] += -sensordata[a + 6] + rx * fy - ry * fx
+        _add_force_at(f_W, 0, m_W, 0, fx, fy, fz, rx, ry, rz)
+        m_W[0] -= sensordata[a + 4]
+        m_W[1] -= sensordata[a + 5]
+        m_W[2] -= sensordata[a + 6]
     if fr["enabled"]:
         for g in range(fr["n"].shape[0]):
             for s in range(fr["n"][g]):
@@ -232,12 +236,7 @@ def contact_wrench(par, fr, sensordata, p_E_W, f_W, m_W) -> bool:
                 rx = fr["pos"][g, s, 0] - p_E_W[0]
                 ry = fr["pos"][g, s, 1] - p_E_W[1]
                 rz = fr["pos"][g, s, 2] - p_E_W[2]
-                f_W[0] += fx
-                f_W[1] += fy
-                f_W[2] += fz
-                m_W[0] += ry * fz - rz * fy
-                m_W[1] += rz * fx - rx * fz
-                m_W[2] += rx * fy - ry * fx
+                _add_force_at(f_W, 0, m_W, 0, fx, fy, fz, rx, ry, rz)
     return touching
 
 
