@@ -19,7 +19,7 @@ from omnirotor.sim import model_cache
 from omnirotor.sim.model import build_mjcf
 from omnirotor.sim.params import SimParams
 from omnirotor.vehicle import load_vehicle
-from test_campaign_identical import comparable
+from test_campaign_identical import PERTURBED, comparable
 
 V = load_vehicle("omnirotor")
 DT = SimParams().dt / SimParams().substeps
@@ -101,32 +101,12 @@ def test_mass_and_inertia_reach_the_mjcf_through_the_vehicle_inertial_alone():
         assert len(changed) == 1 and changed[0][0].strip().startswith('<inertial pos="0 0 0" mass=')
 
 
-CAMPAIGN = """
-task = "{task}"
-seed = 7
-[options]
-quick = true
-duration_s = {duration}
-[vary.mass_error]
-dist = "normal"
-std = 0.03
+INERTIA = """
 [vary.inertia_error]
 dist = "normal"
 std = 0.10
-[vary.gamma]
-dist = "uniform"
-low = 2.0
-high = 8.0
-[vary.sensor_noise_scale]
-dist = "loguniform"
-low = 0.5
-high = 3.0
-[vary.gust_force_N]
-dist = "uniform"
-low = 1.0
-high = 4.0
-{extra}
 """
+"""Added to the default campaign's parameters (those of ``test_campaign_identical``): the inertia edits the model."""
 
 
 @pytest.mark.parametrize(
@@ -138,7 +118,7 @@ high = 4.0
 )
 def test_perturbed_runs_equal_runs_on_freshly_built_plants(tmp_path, monkeypatch, task, duration, extra):
     camp = tmp_path / "c.toml"
-    camp.write_text(CAMPAIGN.format(task=task, duration=duration, extra=extra))
+    camp.write_text(PERTURBED.format(task=task, duration=duration) + INERTIA + extra)
     spec = load_campaign(camp)
     jobs = [run_options(spec, i) for i in range(3)]
     model_cache.clear()
