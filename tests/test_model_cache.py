@@ -1,9 +1,10 @@
-"""The simulator's model from the parsed-MJCF cache is the model of the run's own MJCF (issue #16, item 2).
+"""A run's plant built from what the worker kept equals the plant built afresh (issue #16, item 2: set-up per run).
 
 :func:`omnirotor.sim.model_cache.compiled_model` compiles a kept :class:`mujoco.MjSpec` with each run's mass and
-inertia, and the tasks no longer reset their plant at the scene's start before the run resets it at the
-trajectory's; neither may change a number. Compared here: every array and every ``opt``/``stat``/``vis`` value of
-the two models, and every metric of perturbed campaign runs flown both ways.
+inertia; SPEC §7's truth model keeps its rotor pairs' jet profiles per rotor geometry; the tasks no longer reset
+their plant at the scene's start before the run resets it at the trajectory's. None may change a number.
+Compared here: every array and every ``opt``/``stat``/``vis`` value of the two models, the truth model's wrench,
+and every metric of perturbed campaign runs flown both ways.
 """
 
 import dataclasses
@@ -13,11 +14,12 @@ import numpy as np
 import pytest
 
 import omnirotor.experiments.tasks as tasks
+import omnirotor.sim.aero as aero
 import omnirotor.sim.simulator as simulator
 from omnirotor.experiments.campaign import execute_run, load_campaign, run_options
 from omnirotor.sim import model_cache
 from omnirotor.sim.model import build_mjcf
-from omnirotor.sim.params import SimParams
+from omnirotor.sim.params import AeroParams, SimParams
 from omnirotor.vehicle import load_vehicle
 from test_campaign_identical import PERTURBED, comparable
 
@@ -133,3 +135,24 @@ def test_perturbed_runs_equal_runs_on_freshly_built_plants(tmp_path, monkeypatch
     for i, (a, b) in enumerate(zip(cached, fresh, strict=True)):
         assert a["params"]["mass_error"] != 0.0 and a["params"]["inertia_error"] != 0.0
         assert comparable(a["metrics"]) == comparable(b["metrics"]), f"run {i} differs from its fresh plant"
+
+
+def test_interference_truth_from_kept_profiles_equals_one_built_afresh():
+    rng = np.random.default_rng(5)
+    u = rng.uniform(-1.0, 1.0, (20, V.n_rotors)) * 1.5e4  # both spin directions [Hz²]
+    for tilt in (0.0, 3.0):  # nominal axes (shared by all runs), then a new airframe's
+        params = [AeroParams(model="spec7", gamma=g, gain_error_std=0.03, tilt_error_std_deg=tilt, error_seed=s)
+                  for g, s in ((3.0, 1), (7.5, 2))]  # fmt: skip
+        aero._profiles.clear()
+        fresh = [aero.make_aero(V, p) for p in params]  # each the first of its geometry (cleared between)
+        for f in fresh:
+            aero._profiles.clear()
+            f2 = aero.make_aero(V, f.params)
+            assert np.array_equal(f2._K2, f._K2)
+        kept = [aero.make_aero(V, p) for p in params]  # the second from the first's profiles when they agree
+        for a, b in zip(kept, fresh, strict=True):
+            assert np.array_equal(a._K2, b._K2)
+            assert all(np.array_equal(a.wrench_B(x), b.wrench_B(x)) for x in u)
+        assert len(aero._profiles) == (1 if tilt == 0.0 else 2)
+    with pytest.raises(ValueError, match="read-only"):
+        next(iter(aero._profiles.values()))[0][0, 1] = 1.0
