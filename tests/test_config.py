@@ -53,3 +53,44 @@ def test_dotted_overrides():
         apply_overrides(Outer(), ["inner.gain"])
     with pytest.raises(InputError, match="gain"):
         apply_overrides(Outer(), ["inner.gain=-2"])
+
+
+def one_by_one(obj, overrides):
+    """The overrides applied one at a time (each a replace of its own), as the function did before batching."""
+    for item in overrides:
+        obj = apply_overrides(obj, [item])
+    return obj
+
+
+def test_overrides_batched_equal_one_at_a_time_later_keys_winning():
+    items = ["inner.gain=3.5", "name=abc", "inner.gain=2", "inner={gain = 7.0}", "inner.axes=[1, 1, 1]", "on=false"]
+    assert apply_overrides(Outer(), items) == one_by_one(Outer(), items) == Outer("abc", False, Inner(7.0, (1, 1, 1)))
+    # the keys are checked in order: the first bad one is the error, as before
+    with pytest.raises(InputError, match="gainz"):
+        apply_overrides(Outer(), ["name=a", "inner.gainz=1", "nme=2"])
+    with pytest.raises(InputError, match="'x' is not a parameter group"):
+        apply_overrides(Outer(), ["name.x=1", "inner.gain=-1"])
+
+
+def test_campaign_plant_overrides_batched_equal_one_at_a_time():
+    from omnirotor.experiments.campaign import load_campaign, run_options
+    from omnirotor.sim.params import SimParams
+
+    spec = load_campaign(None, "hover", quick=True)
+    for i in range(12):
+        overrides = list(run_options(spec, i).options.plant.sim_overrides)
+        assert len(overrides) > 15
+        assert apply_overrides(SimParams(), overrides) == one_by_one(SimParams(), overrides)
+
+
+@pytest.mark.parametrize(
+    "text", ["0", "-3", "+12", "7.3698364447390325", "-0.0", "1e5", "1E+05", "2.5e-3", "0.000912992758492902"]
+)
+def test_number_overrides_parse_as_toml_does(text):
+    import tomllib
+
+    from omnirotor.config import _parse_scalar
+
+    want = tomllib.loads(f"v = {text}")["v"]
+    got = _parse_scalar(text)
+    assert type(got) is type(want) and got == want and str(got) == str(want)

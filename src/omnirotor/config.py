@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import tomllib
 import types
 import typing
@@ -92,6 +93,12 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
 
 
 @functools.cache
+def _field_names(cls: type) -> frozenset[str]:
+    """The field names of a dataclass type."""
+    return frozenset(f.name for f in dataclasses.fields(cls))
+
+
+@functools.cache
 def _type_hints(cls: type) -> dict[str, Any]:
     """``typing.get_type_hints`` of a dataclass, evaluated once per class (a campaign run builds hundreds)."""
     return typing.get_type_hints(cls)
@@ -124,7 +131,14 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
         raise InputError(f"{prefix}{exc}") from None
 
 
+_TOML_DECIMAL = re.compile(r"[+-]?(?:0|[1-9][0-9]*)(?P<float>(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?)")
+"""A TOML integer or float in decimal notation without underscores: the values a campaign writes."""
+
+
 def _parse_scalar(text: str) -> Any:
+    m = _TOML_DECIMAL.fullmatch(text)
+    if m is not None:  # what tomllib makes of it, without parsing a document
+        return float(text) if m.group("float") else int(text)
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except (tomllib.TOMLDecodeError, RecursionError):
@@ -134,27 +148,51 @@ def _parse_scalar(text: str) -> Any:
 def apply_overrides(obj: T, overrides: list[str]) -> T:
     """Return a copy of a (nested) frozen dataclass with dotted ``key=value`` overrides applied.
 
-    Values are parsed as TOML (``0.3``, ``[1, 2, 3]``, ``true``); anything else is taken as a string.
+    Values are parsed as TOML (``0.3``, ``[1, 2, 3]``, ``true``); anything else is taken as a string. Each key and
+    value is checked in order (unknown key, not a parameter group, wrong type: the first bad one is the error);
+    then each dataclass is replaced once with all its new values, a later override of the same key winning, so
+    that ``__post_init__`` validates the result, not every step to it (a campaign run's plant has about twenty
+    overrides, and each replace of the simulator parameters validated all of them).
     """
+    items = []
     for item in overrides:
         if "=" not in item:
             raise InputError(f"override {item!r}: expected key=value")
         key, text = item.split("=", 1)
-        obj = _set_path(obj, key.strip().split("."), _parse_scalar(text.strip()), key.strip())
-    return obj
+        key = key.strip()
+        path = key.split(".")
+        items.append((path, _checked_value(obj, path, _parse_scalar(text.strip()), key)))
+    return _set_paths(obj, items) if items else obj
 
 
-def _set_path(obj: Any, path: list[str], value: Any, full: str) -> Any:
-    if not dataclasses.is_dataclass(obj):
-        raise InputError(f"override {full}: {path[0]!r} is not a parameter group")
-    names = {f.name for f in dataclasses.fields(obj)}
-    if path[0] not in names:
-        raise InputError(f"override {full}: unknown key {path[0]!r}; allowed: {', '.join(sorted(names))}")
-    if len(path) == 1:
-        tp = _type_hints(type(obj))[path[0]]
-        return dataclasses.replace(obj, **{path[0]: _convert(value, tp, full)})
-    child = getattr(obj, path[0])
-    return dataclasses.replace(obj, **{path[0]: _set_path(child, path[1:], value, full)})
+def _checked_value(obj: Any, path: list[str], value: Any, full: str) -> Any:
+    """``value`` converted to the type of the field at ``path`` in ``obj`` (which must exist)."""
+    for i, name in enumerate(path):
+        if not dataclasses.is_dataclass(obj):
+            raise InputError(f"override {full}: {name!r} is not a parameter group")
+        names = _field_names(type(obj))
+        if name not in names:
+            raise InputError(f"override {full}: unknown key {name!r}; allowed: {', '.join(sorted(names))}")
+        if i == len(path) - 1:
+            return _convert(value, _type_hints(type(obj))[name], full)
+        obj = getattr(obj, name)
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _set_paths(obj: Any, items: list[tuple[list[str], Any]]) -> Any:
+    """``obj`` with the checked ``(path, value)`` items set in order: one ``dataclasses.replace`` per dataclass."""
+    changes: dict[str, Any] = {}
+    inner: dict[str, list[tuple[list[str], Any]]] = {}
+    for path, value in items:
+        name = path[0]
+        if len(path) == 1:
+            changes[name] = value
+            inner.pop(name, None)  # a whole group given replaces what earlier items set inside it
+        else:
+            inner.setdefault(name, []).append((path[1:], value))
+    for name, sub in inner.items():
+        changes[name] = _set_paths(changes.get(name, getattr(obj, name)), sub)
+    return dataclasses.replace(obj, **changes)
 
 
 def parse_float(text: str, where: str) -> float:

@@ -310,6 +310,7 @@ def plant_simulator(
     seed: int,
     plant: PlantPerturbation | None,
     controller=None,
+    reset: bool = True,
 ) -> Simulator:
     """The simulator of the true plant: the believed one perturbed by ``plant``, its faults scheduled.
 
@@ -320,13 +321,16 @@ def plant_simulator(
         seed: simulator noise seed.
         plant: the perturbation (None: the believed plant, no faults).
         controller: told about rotor failures.
+        reset: reset the simulator at the scene's start; False leaves it to the caller, before anything else
+            (see :class:`~omnirotor.sim.Simulator`).
 
     Returns:
         A :class:`~omnirotor.sim.Simulator` (with the fault schedule of ``plant``, :func:`install_faults`).
     """
     if plant is None:
-        return Simulator(believed_vehicle, scene=scene, params=believed_params, seed=seed)
-    sim = Simulator(plant.vehicle(believed_vehicle), scene=scene, params=plant.sim_params(believed_params), seed=seed)
+        return Simulator(believed_vehicle, scene=scene, params=believed_params, seed=seed, reset=reset)
+    sim_params = plant.sim_params(believed_params)
+    sim = Simulator(plant.vehicle(believed_vehicle), scene=scene, params=sim_params, seed=seed, reset=reset)
     return install_faults(sim, plant.faults, controller) if plant.faults else sim
 
 

@@ -218,7 +218,8 @@ def _fly(
 ):
     maps = opts.load_maps(vehicle)
     controller = _controller(vehicle, opts, admittance, zero, maps)
-    sim = plant_simulator(vehicle, scene, opts.sim_params(), opts.seed, opts.plant, controller)
+    # run_closed_loop resets the plant at the trajectory's start first: no reset at the scene's start before it
+    sim = plant_simulator(vehicle, scene, opts.sim_params(), opts.seed, opts.plant, controller, reset=False)
     with video_sink(sim, opts.video) as video:
         ctl_log, truth_log = run_closed_loop(sim, controller, trajectory, duration_s, progress=progress, video=video)
     names = tuple(maps.partition.names) if maps is not None and opts.map_mode == "piecewise" else ()

@@ -255,17 +255,7 @@ class InterferenceAero(_CompiledAero):
         self.A_true = wrench_map(positions, axes, vehicle.spins, vehicle.c_f, vehicle.c_tau) * gains[None, :]
         """(6, n) map of the manufactured rotors; the truth is ``A_true (kappa0 eta * u)``."""
 
-        samples = _disk_samples(positions, axes, radius)  # (n, 9, 3)
-        prof_pos = np.zeros((n, n))  # <U_j / v_j>_disk_i when s = +r.z_j (u_j < 0: jet along +z_j)
-        prof_neg = np.zeros((n, n))  # when s = -r.z_j (u_j > 0: jet along -z_j)
-        for j in range(n):
-            r = samples - positions[j]  # (n, 9, 3)
-            a = r @ axes[j]
-            rperp2 = np.maximum(np.einsum("ikc,ikc->ik", r, r) - a * a, 0.0)
-            prof_pos[:, j] = _jet_profile(a, rperp2, radius, p.jet_spread).mean(axis=1)
-            prof_neg[:, j] = _jet_profile(-a, rperp2, radius, p.jet_spread).mean(axis=1)
-        np.fill_diagonal(prof_pos, 0.0)
-        np.fill_diagonal(prof_neg, 0.0)
+        prof_pos, prof_neg = _pair_profiles(positions, axes, radius, p.jet_spread)
         cos_ij = axes @ axes.T
         # V_i = sign_i sum_j [prof^{sign_j}_ij (z_i . z_j)] sign_j v_j, since d_j . d_i = sign_i sign_j z_i . z_j.
         # Stacked as K2 @ [min(sign v, 0); max(sign v, 0)]: negative inputs blow along +z_j, positive along -z_j.
@@ -354,6 +344,44 @@ def _jet_profile(s: np.ndarray, rperp2: np.ndarray, radius: float, beta: float) 
     b = r0 + beta * s_pos
     value = (1.0 + s_pos / np.sqrt(s_pos * s_pos + radius * radius)) * (r0 / b) * np.exp(-rperp2 / (b * b))
     return np.where(downstream, value, 0.0)
+
+
+_PROFILES_KEPT = 16
+"""Rotor geometries whose jet profiles :func:`_pair_profiles` keeps per process."""
+_profiles: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _pair_profiles(
+    positions: np.ndarray, axes: np.ndarray, radius: float, spread: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, n) disk-averaged jet profiles ``<U_j / v_j>_disk_i`` of every rotor pair, both jet directions.
+
+    The first for ``s = +r.z_j`` (u_j < 0: jet along +z_j), the second for ``s = -r.z_j`` (u_j > 0: along -z_j);
+    zero diagonals. They depend on the rotor geometry alone, which a campaign's runs share while their gains and
+    interference strengths differ: computed once per geometry and process (read-only arrays).
+    """
+    key = (positions.shape, positions.tobytes(), axes.tobytes(), float(radius), float(spread))
+    kept = _profiles.get(key)
+    if kept is not None:
+        return kept
+    n = positions.shape[0]
+    samples = _disk_samples(positions, axes, radius)  # (n, 9, 3)
+    prof_pos = np.zeros((n, n))
+    prof_neg = np.zeros((n, n))
+    for j in range(n):
+        r = samples - positions[j]  # (n, 9, 3)
+        a = r @ axes[j]
+        rperp2 = np.maximum(np.einsum("ikc,ikc->ik", r, r) - a * a, 0.0)
+        prof_pos[:, j] = _jet_profile(a, rperp2, radius, spread).mean(axis=1)
+        prof_neg[:, j] = _jet_profile(-a, rperp2, radius, spread).mean(axis=1)
+    np.fill_diagonal(prof_pos, 0.0)
+    np.fill_diagonal(prof_neg, 0.0)
+    prof_pos.setflags(write=False)
+    prof_neg.setflags(write=False)
+    if len(_profiles) >= _PROFILES_KEPT:
+        _profiles.pop(next(iter(_profiles)))
+    _profiles[key] = prof_pos, prof_neg
+    return prof_pos, prof_neg
 
 
 def _disk_samples(positions: np.ndarray, axes: np.ndarray, radius: float) -> np.ndarray:

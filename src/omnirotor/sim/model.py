@@ -52,6 +52,7 @@ __all__ = [
     "ee_contacts_sensor",
     "TOOL_SENSORS",
     "FRICTION_SLOTS",
+    "vehicle_inertial",
 ]
 
 BODY_NAME = "vehicle"
@@ -165,17 +166,34 @@ def _tool_inertia(vehicle: VehicleParams, params: SceneParams) -> np.ndarray:
     return i_perp * (np.eye(3) - np.outer(d, d)) + i_ax * np.outer(d, d)
 
 
-def _body_inertial(vehicle: VehicleParams, params: SceneParams, mass: float, compliant: bool) -> str:
-    """The vehicle body's ``<inertial>``: the file's inertia, less the compliant tool's (its own body carries it).
+def _r9(x: float) -> float:
+    """``x`` as the MJCF writes it (9 significant digits) and MuJoCo reads it back."""
+    return float(f"{float(x):.9g}")
+
+
+def vehicle_inertial(vehicle: VehicleParams, params: SceneParams, compliant: bool) -> tuple[float, str, tuple]:
+    """The vehicle body's ``<inertial>``: the file's mass and inertia, less the compliant tool's (its own body's).
 
     The tool's inertia is taken from the body's as its mass is, so that the vehicle with its tool locked has
     the inertia of its file (what the controller and the torque identification's rigid-body model assume).
 
+    Args:
+        vehicle: the vehicle.
+        params: the scene parameters (the tool's mass).
+        compliant: the tool is a child body of its own.
+
+    Returns:
+        ``(mass [kg], "diaginertia" or "fullinertia", its 3 or 6 values [kg·m²])``, rounded as the MJCF writes
+        them (:func:`build_mjcf`; :mod:`omnirotor.sim.model_cache` gives the same numbers to a parsed model).
+
     Raises:
-        InputError: when the remainder is not a physical inertia (the tool too heavy or too long).
+        InputError: when the tool leaves the body half the vehicle's mass or less, or a non-physical inertia.
     """
+    mass = vehicle.mass - (params.tool_mass if compliant else 0.0)
+    if mass <= 0.5 * vehicle.mass:
+        raise InputError(f"scene.tool_mass ({params.tool_mass} kg) must be below half the vehicle's mass")
     if not compliant:
-        return f'<inertial pos="0 0 0" mass="{mass:.9g}" diaginertia="{_fmt(vehicle.inertia_diag)}"/>'
+        return _r9(mass), "diaginertia", tuple(_r9(j) for j in vehicle.inertia_diag)
     J = vehicle.inertia - _tool_inertia(vehicle, params)
     ev = np.linalg.eigvalsh(J)
     if ev[0] <= 0.0 or 2.0 * ev[-1] > ev.sum() * (1.0 + 0.02):
@@ -184,7 +202,7 @@ def _body_inertial(vehicle: VehicleParams, params: SceneParams, mass: float, com
             f" inertia (principal moments {ev.tolist()})"
         )
     full = (J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2])
-    return f'<inertial pos="0 0 0" mass="{mass:.9g}" fullinertia="{_fmt(full)}"/>'
+    return _r9(mass), "fullinertia", tuple(_r9(x) for x in full)
 
 
 def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str], str]:
@@ -304,10 +322,8 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     friction = f"{params.friction:.9g} 0.005 0.0001"
     floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
     ee, tool = _ee_elements(vehicle, params)
-    mass = vehicle.mass - (params.tool_mass if tool else 0.0)
-    if mass <= 0.5 * vehicle.mass:
-        raise InputError(f"scene.tool_mass ({params.tool_mass} kg) must be below half the vehicle's mass")
-    inertial = _body_inertial(vehicle, params, mass, bool(tool))
+    mass, kind, moments = vehicle_inertial(vehicle, params, bool(tool))
+    inertial = f'<inertial pos="0 0 0" mass="{mass:.9g}" {kind}="{_fmt(moments)}"/>'
     body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + ee + ([tool] if tool else []))
     return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
   <compiler angle="radian" autolimits="true" balanceinertia="true"/>

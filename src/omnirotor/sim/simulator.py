@@ -38,6 +38,7 @@ from omnirotor.sim.airflow import AirflowForce
 from omnirotor.sim.contact import EeContact, friction_reset, friction_step, other_contact
 from omnirotor.sim.faults import FaultSchedule
 from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
+from omnirotor.sim.model_cache import compiled_model
 from omnirotor.sim.params import SimParams
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.scenes import SCENES, SceneAnchors, default_start_pose, scene_anchors
@@ -114,13 +115,23 @@ class Simulator:
         scene: one of :data:`SCENES`.
         params: simulator parameters (default :class:`SimParams`).
         seed: seed of every noise source (same seed, same run).
+        reset: start at rest at the scene's start (:meth:`reset`); False leaves the first :meth:`reset` to the
+            caller, before anything else (for a caller that resets at once anyway, as
+            :func:`~omnirotor.experiments.closed_loop.run_closed_loop` does: a reset draws every noise
+            stream's first block).
 
     Raises:
         InputError: unknown scene.
     """
 
     def __init__(
-        self, vehicle: VehicleParams, scene: str = "free", params: SimParams | None = None, seed: int = 0
+        self,
+        vehicle: VehicleParams,
+        scene: str = "free",
+        params: SimParams | None = None,
+        seed: int = 0,
+        *,
+        reset: bool = True,
     ) -> None:
         if scene not in SCENES:
             raise InputError(f"unknown scene {scene!r}; scenes: {', '.join(SCENES)}")
@@ -134,8 +145,7 @@ class Simulator:
         p = self.params
         self.dt = p.dt
         self.substeps = p.substeps
-        xml = build_mjcf(vehicle, scene, p.scene, p.dt / p.substeps, textures=False)  # see render_model
-        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.model = compiled_model(vehicle, scene, p.scene, p.dt / p.substeps)  # 2 px textures: see render_model
         self._render_model: mujoco.MjModel | None = None
         self.data = mujoco.MjData(self.model)
         m = self.model
@@ -210,7 +220,8 @@ class Simulator:
         # The aero model and rotor bank the compiled step was set up for (see step()).
         self._fused_aero = self.aero if hasattr(self.aero, "kernel_model") else None
         self._fused_rotors = self.rotors
-        self.reset()
+        if reset:
+            self.reset()
 
     # ------------------------------------------------------------------------------------------------
     @property
