@@ -132,14 +132,9 @@ def sliding_runs(truth_maps):
     }
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="compliant tool, elliptic cone, two physics steps per control period: force_hf_ratio 0.089, 0.113, 0.093 "
-    "for nominal, global, piecewise (one step: 0.108-0.124; four steps pass, 0.072-0.092, but the closed loop then "
-    "runs at ~38x real time, below the 40x goal); the rest comes from one-step contact openings (docs/fidelity.md)",
-)
 def test_sliding_force_has_no_chatter(sliding_runs):
-    # issue 12 item 3: the true contact force's part above 20 Hz within 10 % of its mean while sliding
+    # issue 12 item 3: the true contact force's part above 20 Hz within 10 % of its mean while sliding; four physics
+    # steps per control period give 0.072, 0.092, 0.080 (nominal, global, piecewise); two gave 0.089, 0.113, 0.093
     for mode, m in sliding_runs.items():
         assert m["contact"]["force_hf_ratio"] <= 0.10, (mode, m["contact"])
 

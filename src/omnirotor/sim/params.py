@@ -418,7 +418,8 @@ class SimParams:
     Attributes:
         dt: control period [s]: one :meth:`Simulator.step` (SPEC §4: 1 kHz).
         substeps: physics steps per control period (the rotor wrench is held, its world direction follows
-            the attitude).
+            the attitude); four resolve the sliding contact (docs/fidelity.md, "Physics steps per control
+            period").
         provide_state: fill ``SensorFrame.state`` with ground truth plus ``sensors.state_*`` noise.
         rotors: rotor speed loop.
         aero: truth aerodynamics.
@@ -428,7 +429,7 @@ class SimParams:
     """
 
     dt: float = 1e-3
-    substeps: int = 2
+    substeps: int = 4
     provide_state: bool = True
     rotors: RotorDynamicsParams = dataclasses.field(default_factory=RotorDynamicsParams)
     aero: AeroParams = dataclasses.field(default_factory=AeroParams)
