@@ -213,7 +213,12 @@ def test_step_restores_mujocos_profiler_clock_and_does_not_feed_it():
     assert clock.value == before
     assert sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration == spent  # stepped without the clock
     mujoco.mj_forward(sim.model, sim.data)  # a call from Python still feeds the profile
-    assert sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration > spent
+    spent_python = sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration
+    assert spent_python > spent
+    sim.kernel_state["mj"]["timer"] = 0  # no address: the step leaves the clock alone, MuJoCo profiles it
+    sim.step(cmd)
+    assert sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration > spent_python
+    assert clock.value == before
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT=1: kernels run as Python, no numba allocator")

@@ -67,7 +67,7 @@ MJ_DTYPE = np.dtype(
         ("sensordata", np.int64),  # address of sensordata
         ("n_sensordata", np.int64),
         ("xfrc", np.int64),  # address of its xfrc_applied row (6: force, torque, world frame)
-        ("timer", np.int64),  # address of MuJoCo's global mjcb_time (_jit.mujoco_timer_address)
+        ("timer", np.int64),  # address of MuJoCo's global mjcb_time (_jit.mujoco_timer_address; 0: left alone)
     ]
 )
 """Where the step finds the vehicle in MuJoCo's arrays (MjData never reallocates them)."""
@@ -235,10 +235,13 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
     cmd = faults.faults_command(s["faults"], t, cmd_hz)
     faults.faults_wrench(s["faults"], t, ext)
     substeps = mj["substeps"]
-    # MuJoCo's profiler clock off for these calls (module docstring), restored after them.
-    timer = i64_at(mj["timer"], 1)
-    clock = timer[0]
-    timer[0] = 0
+    # MuJoCo's profiler clock off for these calls (module docstring), restored after them (0: no address given).
+    timer_adr = mj["timer"]
+    clock = 0
+    if timer_adr != 0:
+        timer = i64_at(timer_adr, 1)
+        clock = timer[0]
+        timer[0] = 0
     for i in range(substeps):
         mj_Euler(m, d)
         last = i == substeps - 1
@@ -249,5 +252,6 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc, s["R9"])
         # The sensors are read after the period only: computed on its last physics step.
         mj_forwardSkip(m, d, _MJ_STAGE_NONE, 0 if last else 1)
-    timer[0] = clock
+    if timer_adr != 0:
+        i64_at(timer_adr, 1)[0] = clock
     observe(sim, k + 1, dt, frame, row)
