@@ -6,15 +6,21 @@
   ``mj_contactForce`` (an oracle written here) with several EE contacts on both EE geoms at once, and the
   :class:`GroundTruth` record gives the same;
 * the packed frame round-trips through :class:`SensorFrame`;
-* the compiled clock agrees with ``time.perf_counter_ns``.
+* the compiled clock agrees with ``time.perf_counter_ns``;
+* the step's cost cuts change no number: the constraint solver without islands steps bit for bit as with them,
+  the step puts MuJoCo's profiler clock back as it found it, and allocates nothing per physics step.
 """
 
+import copy
+import ctypes
 import time
 
 import mujoco
+import numba
 import numpy as np
+import pytest
 
-from omnirotor._jit import monotonic_ns
+from omnirotor._jit import monotonic_ns, mujoco_timer_address
 from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate, frame_size
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.model import EE_ROD_GEOM, EE_TIP_GEOM, ROD_RADIUS, TOOL_BODY
@@ -180,3 +186,70 @@ def test_pure_python_mode_flies_the_same_run():
         runs.append(np.array(json.loads(out.stdout.strip().splitlines()[-1])))
     np.testing.assert_array_equal(runs[0], runs[1])
     assert np.ptp(runs[0][:, 3]) > 1e-6  # the body moved: MuJoCo really stepped in both modes
+
+
+def test_solver_without_islands_steps_bit_for_bit_as_with_them():
+    """The model disables MuJoCo's constraint islands (a cost, no physics): the same contact run either way."""
+    sim = Simulator(V, "wall", seed=2)
+    _pressed_on_wall(sim)
+    assert sim.model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND
+    with_islands = copy.copy(sim.model)
+    with_islands.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+    runs = []
+    for m in (sim.model, with_islands):
+        d = copy.copy(sim.data)
+        rows = []
+        for _ in range(300):
+            mujoco.mj_step(m, d)
+            rows.append(np.concatenate([d.qpos, d.qvel, d.sensordata]))
+        runs.append(np.array(rows))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    in_contact = runs[0][:, sim.model.nq + sim.model.nv] > 0  # the tip's contact sensor found contacts
+    assert np.count_nonzero(in_contact) > 200  # of 300 steps (265: the tip bounces once)
+
+
+def test_step_restores_mujocos_profiler_clock_and_does_not_feed_it():
+    sim = Simulator(V, "wall", seed=1)
+    clock = ctypes.c_void_p.from_address(mujoco_timer_address())
+    before = clock.value
+    assert before  # the bindings installed their clock with the MjData
+    cmd = RotorCommand(0.0, sim.hover_speeds_hz())
+    sim.step(cmd)
+    spent = sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration
+    for _ in range(20):
+        sim.step(cmd)
+    assert clock.value == before
+    assert sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration == spent  # stepped without the clock
+    mujoco.mj_forward(sim.model, sim.data)  # a call from Python still feeds the profile
+    spent_python = sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration
+    assert spent_python > spent
+    sim.kernel_state["mj"]["timer"] = 0  # no address: the step leaves the clock alone, MuJoCo profiles it
+    sim.step(cmd)
+    assert sim.data.timer[int(mujoco.mjtTimer.mjTIMER_FORWARD)].duration > spent_python
+    assert clock.value == before
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT=1: kernels run as Python, no numba allocator")
+def test_step_allocates_nothing_per_physics_step():
+    """Four physics steps per period allocate what one does (the call's argument unboxing from Python only)."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    counts = {}
+    was_enabled = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        for substeps in (1, 4):
+            sim = Simulator(V, "wall", SimParams(substeps=substeps), seed=1)
+            _pressed_on_wall(sim)
+            cmd = RotorCommand(0.0, sim.hover_speeds_hz())
+            sim.step(cmd)
+            before = rtsys.get_allocation_stats()
+            for _ in range(50):
+                sim.step(cmd)
+            after = rtsys.get_allocation_stats()
+            counts[substeps] = after.alloc - before.alloc
+            assert sim.truth.in_contact
+    finally:
+        if not was_enabled:
+            _nrt_python.memsys_disable_stats()
+    assert counts[1] == counts[4], counts

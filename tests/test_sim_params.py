@@ -34,7 +34,7 @@ def test_load_sim_params_from_toml(tmp_path):
         '[aero]\nmodel = "cfd"\n',
         "[sensors]\nmocap_rate_hz = 0\n",
         "dt = 0.001\nsubsteps = 0\n",
-        "dt = 0.008\n",  # contact time constant 5 ms < 2 physics steps (dt / substeps = 4 ms)
+        "dt = 0.008\nsubsteps = 2\n",  # contact time constant 5 ms < 2 physics steps (dt / substeps = 4 ms)
         "[scene]\nfunnel_entrance_diameter = 0.01\n",
         "[scene]\nwall_point = [1.0, 2.0]\n",
         "not toml = = \n",

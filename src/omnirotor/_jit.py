@@ -27,7 +27,8 @@ import each other. They follow the conventions of :mod:`omnirotor.so3` (quaterni
 C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
 the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
 library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (the C library's
-``clock_gettime``, to time a block inside a compiled loop).
+``clock_gettime``, to time a block inside a compiled loop). The one address a kernel is given at run time,
+that of MuJoCo's profiler clock ``mjcb_time`` (:func:`mujoco_timer_address`), travels in its arguments.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ __all__ = [
     "source_closure",
     "R9_from_quat_into",
     "mujoco_function",
+    "mujoco_timer_address",
     "monotonic_ns",
     "address_table",
     "f64_view",
@@ -62,6 +64,7 @@ __all__ = [
     "f64_at",
     "f64_at2",
     "i64_view",
+    "i64_at",
     "records_at",
 ]
 
@@ -240,10 +243,11 @@ def _mujoco_library_path() -> str:
     return os.path.join(folder, names[0])
 
 
-def mujoco_function(name: str):
-    """MuJoCo's ``void name(const mjModel* m, mjData* d)``, callable from kernels with the two addresses.
+def mujoco_function(name: str, int_args: int = 0):
+    """MuJoCo's ``void name(const mjModel* m, mjData* d, int...)``, callable from kernels with the two addresses.
 
-    The addresses are ``MjModel._address`` and ``MjData._address`` of the Python bindings, passed as integers.
+    The addresses are ``MjModel._address`` and ``MjData._address`` of the Python bindings, passed as integers,
+    followed by ``int_args`` C ``int`` arguments (e.g. ``mj_forwardSkip``'s ``skipstage, skipsensor``).
     MuJoCo's warnings land in ``MjData.warning`` as usual; a MuJoCo *error* inside such a call cannot be turned
     into a Python exception (the bindings' handler would unwind through compiled code), so only functions that
     raise none for a valid model are bound (the step functions). With ``NUMBA_DISABLE_JIT=1`` the same C
@@ -253,11 +257,24 @@ def mujoco_function(name: str):
         import ctypes
 
         fn = getattr(ctypes.CDLL(_mujoco_library_path()), name)
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [ctypes.c_int] * int_args
         fn.restype = None
-        return lambda m, d: fn(int(m), int(d))
+        return lambda m, d, *ints: fn(int(m), int(d), *(int(i) for i in ints))
     _load_mujoco_library()
-    return types.ExternalFunction(name, types.void(types.uintp, types.uintp))
+    return types.ExternalFunction(name, types.void(types.uintp, types.uintp, *([types.int32] * int_args)))
+
+
+def mujoco_timer_address() -> int:
+    """Address of MuJoCo's global ``mjcb_time`` (the clock of its profiler, ``MjData.timer``) in this process.
+
+    The ``mujoco`` bindings install a default clock there whenever they create an ``MjData``; MuJoCo then reads
+    it twice per pipeline stage (about 30 calls of ``clock_gettime`` per ``mj_Euler`` + ``mj_forward``). A
+    kernel that steps MuJoCo and does not want the profile clears the word for its calls and restores it
+    (:func:`omnirotor.sim.step.sim_step`). Only the profile depends on it, never the physics.
+    """
+    import ctypes
+
+    return ctypes.addressof(ctypes.c_void_p.in_dll(ctypes.CDLL(_mujoco_library_path()), "mjcb_time"))
 
 
 _clock_gettime = types.ExternalFunction("clock_gettime", types.int32(types.int32, types.uintp))
@@ -398,6 +415,12 @@ def f64_at2(address: int, rows: int, cols: int):
     return numba.carray(_f64_pointer(address), (rows, cols))
 
 
+@_leaf("int64[::1](int64, int64)")
+def i64_at(address: int, n: int):
+    """The 1-D int64 array of ``n`` entries at ``address`` (the caller keeps the memory alive)."""
+    return numba.carray(_i64_pointer(address), (n,))
+
+
 @jit_inline
 def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
@@ -431,6 +454,10 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_at(address: int, n: int):  # noqa: F811
         """The 1-D float64 array of ``n`` entries at ``address``."""
         return np.ctypeslib.as_array((ctypes.c_double * int(n)).from_address(int(address)))
+
+    def i64_at(address: int, n: int):  # noqa: F811
+        """The 1-D int64 array of ``n`` entries at ``address``."""
+        return np.ctypeslib.as_array((ctypes.c_int64 * int(n)).from_address(int(address)))
 
     def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
         """The C-ordered ``(rows, cols)`` float64 array at ``address``."""

@@ -425,7 +425,8 @@ class SimParams:
     Attributes:
         dt: control period [s]: one :meth:`Simulator.step` (SPEC §4: 1 kHz).
         substeps: physics steps per control period (the rotor wrench is held, its world direction follows
-            the attitude).
+            the attitude); two resolve the contact's 5 ms time constant by ten (docs/fidelity.md, "Physics
+            steps per control period").
         provide_state: fill ``SensorFrame.state`` with ground truth plus ``sensors.state_*`` noise.
         rotors: rotor speed loop.
         aero: truth aerodynamics.

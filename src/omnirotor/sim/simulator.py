@@ -30,6 +30,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
+from omnirotor._jit import mujoco_timer_address
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import step as _step
@@ -209,9 +210,11 @@ class Simulator:
         mj["R_WB"], mj["p_E_W"] = d.xmat[self._body].ctypes.data, d.site_xpos[self._ee_site].ctypes.data
         mj["sensordata"], mj["n_sensordata"] = d.sensordata.ctypes.data, d.sensordata.shape[0]
         mj["xfrc"] = self._xfrc.ctypes.data
+        mj["timer"] = mujoco_timer_address()
         self._ext = rec["ext"]
         self._ext["p_E_B"] = self._p_E_B
         self._w_B = rec["w_B"][0]
+        self._R9 = rec["R9"][0]  # apply_wrench's scratch
         self._k = 0
         self._truth: GroundTruth | None = None
         self._frame_buf = np.zeros(frame_size(n))  # the packed frame (omnirotor.messages) of the last step
@@ -403,7 +406,7 @@ class Simulator:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""
         if recompute_rotors:
             self.aero.wrench_B(self.rotors.u_eff_hz2, out=self._w_B)
-        _step.apply_wrench(self._pose, self._w_B, self._ext[0], self.airflow.f_W, self._xfrc)
+        _step.apply_wrench(self._pose, self._w_B, self._ext[0], self.airflow.f_W, self._xfrc, self._R9)
 
     # ------------------------------------------------------------------------------------------------
     @property

@@ -6,8 +6,9 @@ fault schedule (:mod:`omnirotor.sim.faults`) checks the command, stops failed ro
 reversals, thrust fluctuation) and the truth aerodynamics (:func:`aero_wrench` of the fluctuating inputs
 ``u_eff_hz2``) give the new rotor wrench ``w_B``, and the airflow block
 (:func:`omnirotor.sim.airflow.airflow_step`) its force at the CoM; :func:`apply_wrench` puts them and the
-external wrench into ``xfrc_applied``; ``mj_forward``; the tool's friction,
-:func:`omnirotor.sim.contact.friction_step`), then :func:`observe` at the new time: the sensors
+external wrench into ``xfrc_applied``; ``mj_forward`` (its sensor stage skipped except on the period's last
+physics step, or on every one while the tool's friction reads its contacts); the tool's friction
+(:func:`omnirotor.sim.contact.friction_step`), then :func:`observe` at the new time: the sensors
 (:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts,
 corruptions), the truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`)
 adds the EE contact wrench to it.
@@ -16,7 +17,10 @@ Everything the step reads and updates is one record of :data:`SIM_DTYPE`, whose 
 records (``rotor_par``, ``rotors``, ``sensors``, ``contact_par``, ``faults``, ``airflow_par``, ``airflow``)
 and the composer's wiring: the addresses of MuJoCo's arrays for the vehicle (``mj``), the truth model
 (``aero``), the external wrench (``ext``) and the rotor wrench ``w_B``. MuJoCo's C step functions are called
-directly (:func:`omnirotor._jit.mujoco_function`).
+directly (:func:`omnirotor._jit.mujoco_function`). MuJoCo's profiler clock (``mjcb_time``, which the
+``mujoco`` bindings install) is cleared for those calls and restored after them: MuJoCo reads it about 30
+times per physics step, a sixth of a free-flight step's cost, and the step never reads ``MjData.timer``. So
+:meth:`~omnirotor.sim.simulator.Simulator.step` leaves MuJoCo's stage timers alone (they do not count it).
 
 The truth row (:data:`TRUTH_ROW_SIZE` + n entries; the simulator owns its layout): ``t, p_W (3), v_W (3),
 R_WB (9), omega_B (3), p_E_W (3), contact_force_W (3), contact_moment_W (3), in_contact, rotor_hz (n)``.
@@ -26,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, jit, jit_entry, mujoco_function
+from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, i64_at, jit, jit_entry, mujoco_function
 from omnirotor.sim import aero as _aero
 from omnirotor.sim import airflow, contact, faults, rotors, sensors
 
@@ -50,6 +54,9 @@ mj_forward = mujoco_function("mj_forward")
 mj_fwdAcceleration = mujoco_function("mj_fwdAcceleration")
 mj_fwdConstraint = mujoco_function("mj_fwdConstraint")
 mj_sensorAcc = mujoco_function("mj_sensorAcc")
+mj_forwardSkip = mujoco_function("mj_forwardSkip", int_args=2)
+"""MuJoCo's ``void mj_forwardSkip(const mjModel* m, mjData* d, int skipstage, int skipsensor)``."""
+_MJ_STAGE_NONE = 0  # mjtStage.mjSTAGE_NONE: skip no stage
 
 MJ_DTYPE = np.dtype(
     [
@@ -64,6 +71,7 @@ MJ_DTYPE = np.dtype(
         ("sensordata", np.int64),  # address of sensordata
         ("n_sensordata", np.int64),
         ("xfrc", np.int64),  # address of its xfrc_applied row (6: force, torque, world frame)
+        ("timer", np.int64),  # address of MuJoCo's global mjcb_time (_jit.mujoco_timer_address; 0: left alone)
     ]
 )
 """Where the step finds the vehicle in MuJoCo's arrays (MjData never reallocates them)."""
@@ -96,6 +104,7 @@ SIM_DTYPE = np.dtype(
         ("aero", AERO_DTYPE),
         ("ext", EXT_DTYPE),
         ("w_B", np.float64, (6,)),  # the rotor wrench at the CoM, body frame [N, N·m]
+        ("R9", np.float64, (9,)),  # scratch of apply_wrench: R_WB of the integrated pose, row-major
     ]
 )
 """The record of :func:`sim_step`: the blocks' records and the composer's wiring."""
@@ -106,15 +115,14 @@ _ROW_T, _ROW_P, _ROW_V, _ROW_R, _ROW_OMEGA, _ROW_P_E, _ROW_F, _ROW_M, _ROW_FLAG 
 
 
 @jit_entry
-def apply_wrench(pose, w_B, ext, f_air_W, xfrc) -> None:
+def apply_wrench(pose, w_B, ext, f_air_W, xfrc, R) -> None:
     """Rotor wrench ``w_B`` (body frame) rotated to the world, plus the external wrench, into ``xfrc`` (6,).
 
     ``f_air_W`` (3,) is the recirculating airflow's force at the CoM (:mod:`omnirotor.sim.airflow`).
 
-    ``R_WB`` is that of the quaternion ``pose[3:7]``; an active external force applied at the EE tip adds its
-    moment ``(R p_E_B) x f_W``.
+    ``R_WB`` is that of the quaternion ``pose[3:7]`` (written into the scratch ``R`` (9,), row-major); an
+    active external force applied at the EE tip adds its moment ``(R p_E_B) x f_W``.
     """
-    R = np.empty(9)
     R9_from_quat_into(pose[3], pose[4], pose[5], pose[6], R, 0)
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = R[0], R[1], R[2], R[3], R[4], R[5], R[6], R[7], R[8]
     fx, fy, fz, mx, my, mz = w_B[0], w_B[1], w_B[2], w_B[3], w_B[4], w_B[5]
@@ -232,17 +240,30 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
     cmd = faults.faults_command(s["faults"], t, cmd_hz)
     faults.faults_wrench(s["faults"], t, ext)
     substeps = mj["substeps"]
+    friction_on = s["friction"]["enabled"]
     sensordata = f64_at(mj["sensordata"], mj["n_sensordata"])
+    # MuJoCo's profiler clock off for these calls (module docstring), restored after them (0: no address given).
+    timer_adr = mj["timer"]
+    clock = 0
+    if timer_adr != 0:
+        timer = i64_at(timer_adr, 1)
+        clock = timer[0]
+        timer[0] = 0
     for i in range(substeps):
         mj_Euler(m, d)
-        if i == substeps - 1:
+        last = i == substeps - 1
+        if last:
             rotors.rotor_step(s["rotor_par"], s["rotors"], cmd)
             airflow.airflow_step(s["airflow_par"], s["airflow"])
             aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
-        apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc)
-        mj_forward(m, d)
+        apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc, s["R9"])
+        # The sensors are read after the period only (computed on its last physics step), except by the tool's
+        # friction law, which reads the EE contacts after every physics step.
+        mj_forwardSkip(m, d, _MJ_STAGE_NONE, 0 if (last or friction_on) else 1)
         if contact.friction_step(s["friction"], sensordata):  # the tool's friction over the next physics step
             mj_fwdAcceleration(m, d)
             mj_fwdConstraint(m, d)
             mj_sensorAcc(m, d)
+    if timer_adr != 0:
+        i64_at(timer_adr, 1)[0] = clock
     observe(sim, k + 1, dt, frame, row)
