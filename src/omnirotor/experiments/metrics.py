@@ -7,8 +7,8 @@ from their logs, i.e. the pose the robot *believed* (motion capture through the 
 controller's ``e_R`` is computed from): :func:`pose_errors` computes that by default (``pose="believed"``,
 the ``ee_rms_error`` / ``ee_max_error`` of a run). The simulator also knows the *true* pose
 (``pose="true"``, ``ee_rms_error_true`` / ``ee_max_error_true``): a slow error of the believed pose (a
-motion-capture drift) moves the true robot while the believed one stays on the reference, so it shows only
-there. The simulator adds what the paper could not measure: the true contact force at the end-effector and
+motion-capture drift) moves the true robot while the believed one stays near the reference, so it shows
+mostly there. The simulator adds what the paper could not measure: the true contact force at the end-effector and
 whether the tip touches.
 """
 
