@@ -67,6 +67,8 @@ def main() -> None:
     print(f"  the rest                       {_rms(e - map_part, touch):.3f} N")
     print(f"  from 1 s after touch-down      {_rms(e, after):.3f} N")
     print(f"  mean per world axis            {np.round(e[touch].mean(axis=0), 3).tolist()} N")
+    print(f"  the map's part, mean per axis  {np.round(map_part[touch].mean(axis=0), 3).tolist()} N")
+    print(f"  true contact force, mean       {np.round(log.f_contact_W[touch].mean(axis=0), 3).tolist()} N")
 
 
 if __name__ == "__main__":
