@@ -70,6 +70,8 @@ def test_compiled_step_equals_the_step_run_from_python():
 def _contact_wrench_by_contact_force(sim: Simulator, p_E_W: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     """Oracle: the environment's force on the EE geoms and its moment about ``p_E_W``, contact by contact.
 
+    MuJoCo's contact forces (frictionless for the compliant tool's geoms) plus the tool's friction forces.
+
     The robot's geoms are those of the bodies whose root is the vehicle body (the vehicle and its tool).
     """
     m, d = sim.model, sim.data
@@ -90,6 +92,12 @@ def _contact_wrench_by_contact_force(sim: Simulator, p_E_W: np.ndarray) -> tuple
         f_W = sign * (F.T @ f6[:3])
         force += f_W
         moment += sign * (F.T @ f6[3:]) + np.cross(d.contact.pos[c] - p_E_W, f_W)
+    # the compliant tool's friction is a force the simulator applies (omnirotor.sim.contact.friction_step)
+    fr = sim.contact.friction[0]
+    for g in range(fr["n"].shape[0]):
+        for k in range(fr["n"][g]):
+            force += fr["f"][g, k]
+            moment += np.cross(fr["pos"][g, k] - p_E_W, fr["f"][g, k])
     return force, moment, touching
 
 

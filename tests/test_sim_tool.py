@@ -12,15 +12,18 @@ import pytest
 
 from omnirotor.messages import RotorCommand
 from omnirotor.sim import SceneParams, SimParams, Simulator
+from omnirotor.sim.contact import EeContact, friction_step
 from omnirotor.sim.model import (
     BODY_NAME,
     EE_ROD_GEOM,
+    EE_SITE,
     EE_TIP_GEOM,
     TOOL_AXIAL_JOINT,
     TOOL_BEND_JOINTS,
     TOOL_BODY,
     build_mjcf,
 )
+from omnirotor.sim.scenes import attitude_pointing
 from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle("omnirotor")
@@ -147,3 +150,126 @@ def test_simulator_reads_the_tool_contact_as_the_end_effectors():
             sim.truth_row(row)
             np.testing.assert_allclose(row[22:25], tr.contact_force_W, atol=1e-9)  # the compiled truth row agrees
     assert touching > 100 and peak_N > 1.0  # before any other part touches, the tip leans on the wall
+
+
+def _tip_contact(m, d):
+    """(dist, frame normal) of the tip's contact with the environment after ``mj_forward``, or None."""
+    tip = geom(m, EE_TIP_GEOM)
+    for c in d.contact[: d.ncon]:
+        if tip in (c.geom1, c.geom2):
+            sign = 1.0 if c.geom1 == tip else -1.0  # the frame's normal points from geom1 to geom2
+            return c.dist, sign * np.asarray(c.frame[:3])
+    return None
+
+
+def test_tip_meets_pipe_and_wall_through_exact_distances():
+    """The tip's contacts are MuJoCo's analytic sphere tests: depth and normal exact wherever the tip slides.
+
+    An iterative convex test (GJK/EPA, MPR) would give them to its tolerance only and could jitter from one
+    step to the next as the tip slides (docs/fidelity.md, "Where the sliding chatter comes from").
+    """
+    rng = np.random.default_rng(12)
+    p = SceneParams()
+    centre_B = V.p_E_B_array - 0.008 * V.p_E_B_array / np.linalg.norm(V.p_E_B_array)
+    for scene in ("pipe", "wall"):
+        m = mujoco.MjModel.from_xml_string(build_mjcf(V, scene, SceneParams(tool_compliant=False), 1e-3))
+        d = mujoco.MjData(m)
+        for _ in range(40):
+            depth = rng.uniform(1e-5, 5e-4)
+            if scene == "pipe":  # a point of the slid arc (0 to 50 deg of roll), anywhere along the pipe
+                th = math.radians(rng.uniform(0.0, 50.0))
+                n_W = np.array([0.0, -math.cos(th), math.sin(th)])
+                axial = np.array([rng.uniform(-0.3, 0.3), 0.0, 0.0])
+                surface = np.asarray(p.pipe_centre) + axial + p.pipe_radius * n_W
+            else:
+                n_W = np.asarray(p.wall_normal, dtype=float)
+                surface = np.asarray(p.wall_point) + rng.uniform(-0.2, 0.2, 3) * np.array([1.0, 0.0, 1.0])
+            R = attitude_pointing(V.p_E_B_array / np.linalg.norm(V.p_E_B_array), -n_W)
+            tip_W = surface + (0.008 - depth) * n_W
+            d.qpos[:3] = tip_W - R @ centre_B
+            mujoco.mju_mat2Quat(d.qpos[3:7], R.ravel())
+            mujoco.mj_forward(m, d)
+            dist, normal = _tip_contact(m, d)
+            assert dist == pytest.approx(-depth, abs=1e-12), scene
+            np.testing.assert_allclose(normal, -n_W, atol=1e-12)  # from the tip into the surface
+
+
+def _push_on_wall(f_t: float, steps: int = 3000, f_n: float = 3.0):
+    """The tool's tip pushed on the wall by ``f_n`` with ``f_t`` along it (on the vehicle, at the tip), no gravity.
+
+    Steps as the simulator does (``mj_forward``, the tool's friction law, ``mj_Euler``). Returns the contact
+    block (its wrench of the last step), the tip's position along the wall per step [m], the direction along
+    the wall and the wall's normal.
+    """
+    p = SceneParams()
+    m = model("wall")
+    m.opt.gravity[:] = 0.0
+    d = mujoco.MjData(m)
+    block = EeContact(m, data=d, mu=p.friction, tool_mass=p.tool_mass)
+    n = np.asarray(p.wall_normal, dtype=float)
+    t = np.array([1.0, 0.0, 0.0])
+    R = attitude_pointing(V.p_E_B_array / np.linalg.norm(V.p_E_B_array), -n)
+    d.qpos[:3] = np.asarray(p.wall_point) - R @ V.p_E_B_array + 1e-4 * n
+    mujoco.mju_mat2Quat(d.qpos[3:7], R.ravel())
+    veh, tip = body(m, BODY_NAME), geom(m, EE_TIP_GEOM)
+    along = []
+    for _ in range(steps):
+        mujoco.mj_forward(m, d)
+        if friction_step(block.friction[0], d.sensordata):  # as the simulator does: the friction in qacc
+            mujoco.mj_fwdAcceleration(m, d)
+            mujoco.mj_fwdConstraint(m, d)
+            mujoco.mj_sensorAcc(m, d)
+        along.append(float(d.geom_xpos[tip] @ t))
+        d.qfrc_applied[:] = 0.0
+        d.qfrc_applied[:3] = -20.0 * d.qvel[:3]  # a damped vehicle: no slow sway on the tool's bending spring
+        d.qfrc_applied[3:6] = -0.5 * d.qvel[3:6]
+        mujoco.mj_applyFT(m, d, -f_n * n + f_t * t, np.zeros(3), d.geom_xpos[tip].copy(), veh, d.qfrc_applied)
+        mujoco.mj_Euler(m, d)
+    block.step(d.sensordata, d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, EE_SITE)].copy())
+    return block, np.array(along), t, n
+
+
+def test_tool_friction_sticks_inside_the_cone():
+    """A tangential load below mu f_n: the contact point does not slip and friction holds the load (Coulomb)."""
+    block, along, t, n = _push_on_wall(0.6)
+    fr = block.friction[0]
+    assert fr["n"][0] == 1 and fr["n"][1] == 0  # the tip alone touches
+    assert np.linalg.norm(fr["v"][0, 0]) < 1e-6  # no slip [m/s]
+    f = fr["f"][0, 0]
+    f_W = block.state[0]["f_W"]  # the truth wrench: the wall's normal force plus the friction
+    assert f_W @ n == pytest.approx(3.0, rel=1e-2)
+    assert -0.6 < f @ t < -0.55  # holds the load (less what the damped vehicle takes)
+    assert np.linalg.norm(f) < SceneParams().friction * (f_W @ n)  # inside the cone
+    assert abs(f @ n) < 1e-12 and f_W @ t == pytest.approx(f @ t, abs=1e-12)
+    assert np.ptp(along[-1000:]) < 1e-4  # the tip stays put (it may roll by microns)
+
+
+def test_tool_friction_slides_at_mu_times_the_normal_force_outside_the_cone():
+    block, along, t, n = _push_on_wall(1.5)
+    assert along[-1] - along[-1000] > 0.05  # it slides (and accelerates) along the load
+    fr = block.friction[0]
+    f = fr["f"][0, : fr["n"][0]].sum(axis=0)
+    f_n = block.state[0]["f_W"] @ n  # the wall's normal force (friction has no normal part)
+    assert f_n > 1.0
+    # kinetic friction mu f_n (of the normal force before the friction entered the step: 1e-5 apart)
+    assert np.linalg.norm(f) == pytest.approx(SceneParams().friction * f_n, rel=1e-4)
+    v = fr["v"][0, 0]
+    assert v @ t > 0.01 and f @ v == pytest.approx(-np.linalg.norm(f) * np.linalg.norm(v), rel=1e-3)  # against the slip
+
+
+@pytest.mark.parametrize("law", ["stick-slip", "mujoco"])
+def test_friction_law_decides_who_applies_the_tools_friction(law):
+    """stick-slip: MuJoCo's contacts of the EE geoms are frictionless (the simulator applies Coulomb's law to the
+    tool); mujoco: MuJoCo's cone, as for every other contact."""
+    m = model("pipe", friction_law=law)
+    d = mujoco.MjData(m)
+    block = EeContact(m, data=d, mu=0.3, tool_mass=0.01)
+    for name in (EE_TIP_GEOM, EE_ROD_GEOM):
+        assert m.geom_condim[geom(m, name)] == (1 if law == "stick-slip" else 3)
+    assert m.geom_condim[geom(m, "pipe")] == 3
+    assert bool(block.friction[0]["enabled"]) == (law == "stick-slip")
+    assert block.friction[0]["h"] == pytest.approx(1e-3)
+    # the rigid tool keeps MuJoCo's cone whatever the law
+    rigid = model("pipe", friction_law=law, tool_compliant=False)
+    assert rigid.geom_condim[geom(rigid, EE_TIP_GEOM)] == 3
+    assert not EeContact(rigid, data=mujoco.MjData(rigid), mu=0.3, tool_mass=0.01).friction[0]["enabled"]

@@ -15,7 +15,10 @@ given explicitly (the geoms carry no mass), and by default a compliant tool. Its
   of that mass at the tip, also taken from the body's, so the vehicle's mass, CoM and (tool locked) inertia stay
   those of its file. Its joints follow the free joint in ``qpos``.
 
-Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone.
+Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone;
+with the compliant tool and ``SceneParams.friction_law = "stick-slip"`` (the default) the EE geoms' contacts are
+frictionless in MuJoCo (``condim`` 1, ``priority`` 1) and :func:`omnirotor.sim.contact.friction_step` applies
+Coulomb's law to the tool, reading per-contact sensors of the EE geoms and the tool body's velocity sensors.
 
 Measured inertias of flat vehicles may violate the triangle inequality by a hair (the quadrotor preset by
 1%); MuJoCo's ``balanceinertia`` then nudges them onto it.
@@ -46,6 +49,9 @@ __all__ = [
     "TOOL_AXIAL_JOINT",
     "TOOL_BEND_JOINTS",
     "ee_contact_sensor",
+    "ee_contacts_sensor",
+    "TOOL_SENSORS",
+    "FRICTION_SLOTS",
 ]
 
 BODY_NAME = "vehicle"
@@ -60,6 +66,10 @@ TOOL_BODY = "ee_tool"
 """Child body of the vehicle carrying the rod and the tip when the tool is compliant."""
 TOOL_AXIAL_JOINT = "tool_axial"
 TOOL_BEND_JOINTS = ("tool_bend_a", "tool_bend_b")
+TOOL_SENSORS = ("tool_linvel", "tool_angvel", "tool_pos")
+"""The tool body's velocity sensors (linear, angular, world frame) and its origin, read by the friction law."""
+FRICTION_SLOTS = 6
+"""Contacts per EE geom its per-contact sensor reports (:data:`omnirotor.sim.contact.FRICTION_SLOTS`)."""
 EDGE_RADIUS = 0.006
 """Radius of the frame's edges and arms [m] [A]."""
 PROP_HALF_THICKNESS = 0.004
@@ -202,14 +212,16 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
     start = d * start_len
     rod_end = centre - ROD_RADIUS * d
     compliant = params.tool_compliant
+    # with the tool's own friction law MuJoCo's contacts of the EE geoms are frictionless (module docstring)
+    own = ' condim="1" priority="1"' if _explicit_friction(params) else ""
     tool = [
         f'<geom name="{EE_TIP_GEOM}" class="robot" type="sphere" size="{TIP_RADIUS}" '
-        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"/>'
+        f'pos="{_fmt(centre)}" rgba="{_TIP_RGBA}"{own}/>'
     ]
     if length - TIP_RADIUS - ROD_RADIUS - start_len > 1e-6:
         tool.append(
             f'<geom name="{EE_ROD_GEOM}" class="robot" type="capsule" size="{ROD_RADIUS}" '
-            f'fromto="{_fmt(start)} {_fmt(rod_end)}"/>'
+            f'fromto="{_fmt(start)} {_fmt(rod_end)}"{own}/>'
         )
     if not compliant:
         return out + tool, ""
@@ -230,10 +242,22 @@ def ee_contact_sensor(geom: str) -> str:
     return f"{geom}_contact"
 
 
-def _ee_sensors(body_xml: str) -> str:
+def ee_contacts_sensor(geom: str) -> str:
+    """Name of the per-contact sensor of EE geom ``geom`` (present with the tool's own friction law)."""
+    return f"{geom}_contacts"
+
+
+def _explicit_friction(params: SceneParams) -> bool:
+    """Whether the tool's friction is :func:`omnirotor.sim.contact.friction_step`'s (else MuJoCo's cone)."""
+    return params.tool_compliant and params.friction_law == "stick-slip"
+
+
+def _ee_sensors(body_xml: str, explicit_friction: bool) -> str:
     """One contact sensor per EE geom: net force, torque and centroid of its contacts (the truth's contact wrench).
 
-    Read by :func:`omnirotor.sim.contact.contact_wrench`.
+    Read by :func:`omnirotor.sim.contact.contact_wrench`. With the tool's own friction law also a per-contact
+    sensor per EE geom (force, position, normal of each) and the tool body's velocity, read by
+    :func:`omnirotor.sim.contact.friction_step`.
     """
     out = []
     for geom in (EE_TIP_GEOM, EE_ROD_GEOM):
@@ -242,6 +266,16 @@ def _ee_sensors(body_xml: str) -> str:
                 f'<contact name="{ee_contact_sensor(geom)}" geom1="{geom}" data="found force torque pos" '
                 'reduce="netforce"/>'
             )
+            if explicit_friction:
+                out.append(
+                    f'<contact name="{ee_contacts_sensor(geom)}" geom1="{geom}" data="found force pos normal" '
+                    f'num="{FRICTION_SLOTS}"/>'
+                )
+    if explicit_friction:
+        lin, ang, pos = TOOL_SENSORS
+        out.append(f'<framelinvel name="{lin}" objtype="body" objname="{TOOL_BODY}"/>')
+        out.append(f'<frameangvel name="{ang}" objtype="body" objname="{TOOL_BODY}"/>')
+        out.append(f'<framepos name="{pos}" objtype="body" objname="{TOOL_BODY}"/>')
     return "\n    ".join(out)
 
 
@@ -312,7 +346,7 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     </body>
   </worldbody>
   <sensor>
-    {_ee_sensors(body)}
+    {_ee_sensors(body, bool(tool) and _explicit_friction(params))}
   </sensor>
 </mujoco>
 """

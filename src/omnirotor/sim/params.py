@@ -333,6 +333,10 @@ class SceneParams:
         contact_dampratio: MuJoCo ``solref`` damping ratio of contacts [A: 1, critically damped].
         friction_cone: MuJoCo's friction cone, "elliptic" (Coulomb's cone) or "pyramidal" (its linearisation,
             with which the tip sliding over the pipe leaves it for single steps more often: docs/fidelity.md).
+        friction_law: friction of the compliant tool's contacts: "stick-slip" (Coulomb's law applied as a force
+            on the tool, :func:`omnirotor.sim.contact.friction_step`: no normal coupling) or "mujoco" (MuJoCo's
+            ``friction_cone``, whose convex relaxation lifts a sliding tip off the surface: docs/fidelity.md). The
+            rigid tool and every other contact always use MuJoCo's cone.
         tool_compliant: mount the tool (rod and tip) on the vehicle through a compliant coupling (paper §5.3: "a
             coupling between the EE and body ... to reduce vibrations"); False: the tool is part of the rigid body.
         tool_mass: moving mass of the tool, lumped at the tip [kg] [A: 10 g, a 3D-printed tip (~5 g) plus the
@@ -371,6 +375,7 @@ class SceneParams:
     contact_timeconst: float = 0.005
     contact_dampratio: float = 1.0
     friction_cone: str = "elliptic"
+    friction_law: str = "stick-slip"
     tool_compliant: bool = True
     tool_mass: float = 0.010
     tool_axial_stiffness: float = 4000.0
@@ -408,6 +413,8 @@ class SceneParams:
         _check_nonneg("scene.tool_damping_ratio", self.tool_damping_ratio)
         if self.friction_cone not in ("elliptic", "pyramidal"):
             raise InputError(f"scene.friction_cone must be elliptic or pyramidal, got {self.friction_cone!r}")
+        if self.friction_law not in ("stick-slip", "mujoco"):
+            raise InputError(f"scene.friction_law must be stick-slip or mujoco, got {self.friction_law!r}")
         if self.funnel_entrance_diameter < self.hole_diameter:
             raise InputError("scene.funnel_entrance_diameter must be >= scene.hole_diameter")
         if self.ring_segments < 6:

@@ -35,7 +35,7 @@ from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import step as _step
 from omnirotor.sim.aero import make_aero
 from omnirotor.sim.airflow import AirflowForce
-from omnirotor.sim.contact import EeContact, other_contact
+from omnirotor.sim.contact import EeContact, friction_reset, friction_step, other_contact
 from omnirotor.sim.faults import FaultSchedule
 from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
 from omnirotor.sim.params import SimParams
@@ -178,7 +178,10 @@ class Simulator:
         )
         self.imu = self.sensors.imu
         self.mocap = self.sensors.mocap
-        self.contact = EeContact(m, par=rec["contact_par"])
+        self.contact = EeContact(
+            m, par=rec["contact_par"], friction=rec["friction"], data=self.data, mu=p.scene.friction,
+            tool_mass=p.scene.tool_mass,
+        )  # fmt: skip
         self.faults = FaultSchedule(
             vehicle.n_rotors, float(vehicle.omega_min_hz), float(vehicle.omega_max_hz), rec["faults"]
         )
@@ -275,7 +278,9 @@ class Simulator:
         self.faults.reset()
         self.airflow.reset()
         self._apply_wrench(recompute_rotors=True)
+        friction_reset(self._rec["friction"][0])
         mujoco.mj_forward(m, d)
+        self._friction_step()
         self.sensors.refill()
         _step.observe(self._rec, 0, self.dt, self._frame_buf, self._row)
         return SensorFrame.from_packed(self._frame_buf)
@@ -369,10 +374,19 @@ class Simulator:
                     self.airflow.step()
                 self._apply_wrench(recompute_rotors=i == self._last_substep)
                 mujoco.mj_forward(m, d)
+                self._friction_step()
             _step.observe(self._rec, self._k + 1, self.dt, self._frame_buf, self._row)
         self._k += 1
         self._truth = None
         return SensorFrame.from_packed(self._frame_buf)
+
+    def _friction_step(self) -> None:
+        """The tool's friction after ``mj_forward`` (:func:`omnirotor.sim.contact.friction_step`), in ``qacc``."""
+        m, d = self.model, self.data
+        if friction_step(self._rec["friction"][0], d.sensordata):
+            mujoco.mj_fwdAcceleration(m, d)
+            mujoco.mj_fwdConstraint(m, d)
+            mujoco.mj_sensorAcc(m, d)
 
     def _apply_wrench(self, recompute_rotors: bool) -> None:
         """Write rotor and external wrenches at the CoM, world frame, into ``xfrc_applied``."""

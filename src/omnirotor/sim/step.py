@@ -6,7 +6,8 @@ fault schedule (:mod:`omnirotor.sim.faults`) checks the command, stops failed ro
 reversals, thrust fluctuation) and the truth aerodynamics (:func:`aero_wrench` of the fluctuating inputs
 ``u_eff_hz2``) give the new rotor wrench ``w_B``, and the airflow block
 (:func:`omnirotor.sim.airflow.airflow_step`) its force at the CoM; :func:`apply_wrench` puts them and the
-external wrench into ``xfrc_applied``; ``mj_forward``), then :func:`observe` at the new time: the sensors
+external wrench into ``xfrc_applied``; ``mj_forward``; the tool's friction,
+:func:`omnirotor.sim.contact.friction_step`), then :func:`observe` at the new time: the sensors
 (:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts,
 corruptions), the truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`)
 adds the EE contact wrench to it.
@@ -46,6 +47,9 @@ mj_Euler = mujoco_function("mj_Euler")
 """MuJoCo's ``void mj_Euler(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
 mj_forward = mujoco_function("mj_forward")
 """MuJoCo's ``void mj_forward(const mjModel* m, mjData* d)``, callable from kernels with the two addresses."""
+mj_fwdAcceleration = mujoco_function("mj_fwdAcceleration")
+mj_fwdConstraint = mujoco_function("mj_fwdConstraint")
+mj_sensorAcc = mujoco_function("mj_sensorAcc")
 
 MJ_DTYPE = np.dtype(
     [
@@ -84,6 +88,7 @@ SIM_DTYPE = np.dtype(
         ("rotors", rotors.STATE_DTYPE),
         ("sensors", sensors.STATE_DTYPE),
         ("contact_par", contact.PARAMS_DTYPE),
+        ("friction", contact.FRICTION_DTYPE),
         ("faults", faults.STATE_DTYPE),
         ("airflow_par", airflow.PARAMS_DTYPE),
         ("airflow", airflow.STATE_DTYPE),
@@ -190,7 +195,7 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
     for i in range(s["rotor_par"]["n_rotors"]):
         row[TRUTH_ROW_SIZE + i] = omega_hz[i]
     touching = contact.contact_wrench(
-        s["contact_par"], f64_at(mj["sensordata"], mj["n_sensordata"]), row[_ROW_P_E : _ROW_P_E + 3],
+        s["contact_par"], s["friction"], f64_at(mj["sensordata"], mj["n_sensordata"]), row[_ROW_P_E : _ROW_P_E + 3],
         row[_ROW_F : _ROW_F + 3], row[_ROW_M : _ROW_M + 3],
     )  # fmt: skip
     row[_ROW_FLAG] = 1.0 if touching else 0.0
@@ -227,6 +232,7 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
     cmd = faults.faults_command(s["faults"], t, cmd_hz)
     faults.faults_wrench(s["faults"], t, ext)
     substeps = mj["substeps"]
+    sensordata = f64_at(mj["sensordata"], mj["n_sensordata"])
     for i in range(substeps):
         mj_Euler(m, d)
         if i == substeps - 1:
@@ -235,4 +241,8 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
             aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
         apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc)
         mj_forward(m, d)
+        if contact.friction_step(s["friction"], sensordata):  # the tool's friction over the next physics step
+            mj_fwdAcceleration(m, d)
+            mj_fwdConstraint(m, d)
+            mj_sensorAcc(m, d)
     observe(sim, k + 1, dt, frame, row)
