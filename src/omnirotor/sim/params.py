@@ -280,7 +280,7 @@ class AirflowParams:
     Attributes:
         force_std: standard deviation of each world axis of the force [N] (calibrated on Table 1's straight
             point-contact row, measured on the believed pose as the paper does, by ``omnirotor
-            calibrate-disturbances``, with the accelerometer vibration: 0.72 N, full protocols; docs/fidelity.md,
+            calibrate-disturbances``, with the accelerometer vibration: 0.68 N, full protocols; docs/fidelity.md,
             docs/data/disturbance-calibration.json).
         corner_hz: corner frequency of its first-order spectrum [Hz] [A: 1 Hz: eddies of the vehicle's size,
             ~1 m, carried at the ~1 m/s of a wake that has spread over the floor and the wall].
@@ -290,7 +290,7 @@ class AirflowParams:
             hover equals its weight]: a 30 g quadrotor gets 1.8 % of it, not a force six times its weight.
     """
 
-    force_std: float = 0.71667
+    force_std: float = 0.68333
     corner_hz: float = 1.0
     ref_weight_N: float = 15.94125
 
