@@ -391,7 +391,7 @@ estimator = "bypass"
 duration_s = 0.6
 # the clean plant (no disturbances): the mass error's sag stands out of the noise
 sim_overrides = ["airflow.force_std=0", "rotors.thrust_noise_rel=0", "sensors.imu_vib_acc_amp=0",
-                 "sensors.imu_vib_gyro_amp=0", "sensors.mocap_latency_jitter_s=0"]
+                 "sensors.imu_vib_gyro_amp=0", "sensors.mocap_latency_jitter_s=0", "sensors.acc_vib_noise_std=0"]
 [vary.mass_error]
 dist = "constant"
 value = 0.4

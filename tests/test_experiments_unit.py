@@ -15,6 +15,7 @@ from omnirotor.experiments.metrics import (
     force_stats,
     high_frequency_ratio,
     pose_errors,
+    table1_errors,
 )
 from omnirotor.experiments.reproduce import claims
 from omnirotor.experiments.scenarios import (
@@ -94,7 +95,7 @@ def test_hover_protocol_attitudes_and_schedule():
         np.testing.assert_allclose(w.p_W - w.R_WB @ VEHICLE.p_E_B_array, [0, 0, 1.5], atol=1e-12)
 
 
-def synthetic_log(n=2000, dt=1e-3, contact=None, offset_cm=(1.0, 0, 0), tilt_deg=0.0):
+def synthetic_log(n=2000, dt=1e-3, contact=None, offset_cm=(1.0, 0, 0), tilt_deg=0.0, believed_cm=None):
     t = np.arange(n) * dt
     R = np.repeat(np.eye(3)[None], n, axis=0)
     Rr = np.repeat(rot_x(math.radians(tilt_deg))[None], n, axis=0)
@@ -107,6 +108,8 @@ def synthetic_log(n=2000, dt=1e-3, contact=None, offset_cm=(1.0, 0, 0), tilt_deg
         t=t,
         p_E_W=p,
         R_WE=R,
+        p_E_est_W=p if believed_cm is None else p_r + np.array(believed_cm) / 100,
+        R_WE_est=R,
         p_Er_W=p_r,
         R_WEr=Rr,
         p_Ed_W=p_r,
@@ -129,6 +132,17 @@ def test_error_metrics_in_table1_units():
     assert rms["pitch_deg"] == pytest.approx(0) and rms["yaw_deg"] == pytest.approx(0)
     e = pose_errors(log)
     assert e.shape == (2000, 6) and np.all(e[:, 3] > 0)  # actual roll below the reference: sign of e_R
+
+
+def test_table1_errors_use_the_believed_pose_and_keep_the_true_one():
+    # the robot believes it sits 0.5 cm off in z while it truly sits 2 cm off in x (a motion-capture error)
+    log = synthetic_log(offset_cm=(2.0, 0, 0), believed_cm=(0, 0, 0.5))
+    errs = table1_errors(log)
+    assert errs["ee_rms_error"]["x_cm"] == pytest.approx(0.0) and errs["ee_rms_error"]["z_cm"] == pytest.approx(0.5)
+    assert errs["ee_rms_error_true"]["x_cm"] == pytest.approx(2.0) and errs["ee_max_error_true"]["z_cm"] == 0.0
+    assert errs["ee_rms_error"] == error_stats(log)[0]  # the default is the paper's: the believed pose
+    with pytest.raises(ValueError, match="pose must be one of"):
+        pose_errors(log, "measured")
 
 
 def test_contact_loss_detection():

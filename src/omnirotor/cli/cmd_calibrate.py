@@ -60,8 +60,8 @@ def calibrate_disturbances_cmd(
     grid: Annotated[
         str | None,
         typer.Option(
-            help="Points mocap_drift_pos_std:mocap_drift_att_std:force_std [m:rad:N] flown on the calibration "
-            "row, comma-separated (default: 0, 7, 14 mm x 0, 4, 8 mrad x 0, 0.5, 1 N)."
+            help="Points acc_vib_noise_std:force_std:mocap_drift_pos_std [m/s²:N:m] flown on the calibration "
+            "row, comma-separated (default: 0, 4, 8 m/s² x 0, 0.5, 1 N x 0, 7, 14 mm)."
         ),
     ] = None,
     quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,

@@ -2,7 +2,8 @@
 
 Tasks: ``hover`` and the paper's experiments (``identify-flights``, ``hover-validation``, ``point-contact``,
 ``point-contact-tilted``, ``sliding``, ``peg-in-hole``), from :data:`omnirotor.experiments.closed_loop.TASKS`.
-Errors are those of SPEC §6 (true EE pose against the compliant EE reference).
+Errors are those of SPEC §6 (the believed EE pose against the compliant EE reference, as the paper's; the
+true pose's too).
 """
 
 from __future__ import annotations
@@ -189,8 +190,10 @@ def _print_table(task: str, rep: dict) -> None:
     table.add_column("EE error")
     for name in ("x (cm)", "y (cm)", "z (cm)", "roll (deg)", "pitch (deg)", "yaw (deg)"):
         table.add_column(name, justify="right")
-    for label, key in (("RMS", "ee_rms_error"), ("max", "ee_max_error")):
-        table.add_row(label, *(f"{v:.3f}" for v in rep[key].values()))
+    rows = (("RMS", "ee_rms_error"), ("max", "ee_max_error"), ("RMS, true", "ee_rms_error_true"))
+    for label, key in rows:
+        if key in rep:
+            table.add_row(label, *(f"{v:.3f}" for v in rep[key].values()))
     con.print(table)
     if "contact" in rep:
         c, f = rep["contact"], rep["force"]

@@ -39,7 +39,7 @@ from omnirotor.experiments.closed_loop import (
     video_sink,
 )
 from omnirotor.experiments.faults import PlantPerturbation, plant_simulator, safety_stats
-from omnirotor.experiments.metrics import RunLog, contact_stats, error_stats, force_stats, held_contact
+from omnirotor.experiments.metrics import RunLog, contact_stats, force_stats, held_contact, table1_errors
 from omnirotor.experiments.scenarios import (
     Scenario,
     ScenarioParams,
@@ -238,13 +238,14 @@ def base_metrics(
     duration_s: float,
     step_us: np.ndarray,
     vehicle: VehicleParams,
-    errors: tuple[dict, dict] | None = None,
+    errors: dict[str, dict] | None = None,
 ) -> dict:
     """The metrics every task reports: its options, EE errors after settling, step time, flags, safety.
 
     ``errors``: the EE errors from :func:`_metrics_from` if computed already.
     """
-    rms, mx = errors if errors is not None else error_stats(log, log.t >= _metrics_from(duration_s))
+    if errors is None:
+        errors = table1_errors(log, log.t >= _metrics_from(duration_s))
     flags = log.status.astype(int)
     return {
         "task": task,
@@ -257,8 +258,7 @@ def base_metrics(
         "estimator": opts.estimator,
         "solver": opts.solver,
         "duration_s": duration_s,
-        "ee_rms_error": rms,
-        "ee_max_error": mx,
+        **errors,
         "controller_step_us_median": float(np.median(step_us)),
         "steps_flagged": int(np.count_nonzero(flags)),
         "map_switches": int(np.count_nonzero(np.diff(log.region))),
@@ -514,7 +514,7 @@ def hover(options: TaskOptions, progress=None) -> ExperimentResult:
         metrics_from_s=_metrics_from(duration),
     )
     log = run_log(ctl_log, truth_log)
-    errors = error_stats(log, log.t >= result.metrics_from_s)  # once, for both parts of the summary
+    errors = table1_errors(log, log.t >= result.metrics_from_s)  # once, for both parts of the summary
     m = result.summary_of(log, errors)
     m.update(base_metrics("hover", opts, log, duration, truth_log.group("controller_step_us"), vehicle, errors))
     m["success"] = bool(max(m["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) <= HOVER_SUCCESS_CM)
