@@ -44,6 +44,26 @@ def test_numerical_warnings_of_a_success_are_one_note_and_others_are_dropped(mon
     assert err[0].startswith("omnirotor: note: 3 numerical warning(s)") and "divide" in err[0]
 
 
+def test_ctrl_c_during_a_compiled_modules_import_is_exit_130_with_one_line(monkeypatch, capsys):
+    # what pybind11 raises when Ctrl-C lands in a module's initialisation (seen with mujoco._specs)
+    def action():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    code, _, err = run(monkeypatch, capsys, action)
+    assert code == 130 and err == ["omnirotor: interrupted"]
+
+
+def test_a_real_import_error_is_not_taken_for_ctrl_c(monkeypatch, capsys):
+    def action():
+        raise ImportError("No module named 'nothing_here'")
+
+    with pytest.raises(ImportError, match="nothing_here"):
+        run(monkeypatch, capsys, action)
+
+
 @pytest.mark.parametrize("how", ["keyboard", "typer-exit"])
 def test_ctrl_c_is_exit_130_with_one_line(monkeypatch, capsys, how):
     import typer

@@ -99,6 +99,22 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """True if a KeyboardInterrupt is in ``exc``'s chain of causes and contexts.
+
+    A Ctrl-C that lands while a compiled extension initialises (the commands import MuJoCo and numba lazily)
+    comes out of the import as ``ImportError: initialization failed`` raised from the KeyboardInterrupt.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def _invoke(argv: list[str] | None) -> int:
     """The command's exit status, with every error path reduced to one line on stderr."""
     try:
@@ -111,6 +127,10 @@ def _invoke(argv: list[str] | None) -> int:
         return EXIT_INTERRUPTED
     except (typer.Abort, KeyboardInterrupt):
         rv = EXIT_INTERRUPTED
+    except ImportError as exc:
+        if not _caused_by_interrupt(exc):
+            raise
+        rv = EXIT_INTERRUPTED  # Ctrl-C inside a compiled module's initialisation (MuJoCo's, say)
     except typer.Exit as exc:
         rv = exc.exit_code
     except click_exc.ClickException as exc:
