@@ -816,9 +816,12 @@ def _mujoco_step_us(steps: int) -> float:
 
     sim, ctl, traj, scenario = workloads.sliding_setup("bypass", quick_scenario=True)
     run_closed_loop(sim, ctl, traj, scenario.contact_phase[0] + 1.0)
+    from omnirotor._jit import mujoco_timer_address
+
     ts = np.zeros(2, dtype=np.int64)
-    workloads.mujoco_loop(sim.model._address, sim.data._address, 10, ts)  # compile
-    return float(workloads.mujoco_loop(sim.model._address, sim.data._address, steps, ts))
+    timer = mujoco_timer_address()  # off, as in the simulator's step
+    workloads.mujoco_loop(sim.model._address, sim.data._address, 10, ts, timer)  # compile
+    return float(workloads.mujoco_loop(sim.model._address, sim.data._address, steps, ts, timer))
 
 
 def measure_breakdown(cfg: Config, sliding: dict) -> dict:

@@ -421,6 +421,28 @@ def i64_at(address: int, n: int):
     return numba.carray(_i64_pointer(address), (n,))
 
 
+@jit
+def profiler_clock_off(timer_adr: int) -> int:
+    """Clear MuJoCo's profiler clock for the calls that follow; returns what to restore.
+
+    Args:
+        timer_adr: :func:`mujoco_timer_address`, or 0 to leave the clock alone.
+    """
+    if timer_adr == 0:
+        return 0
+    timer = i64_at(timer_adr, 1)
+    clock = timer[0]
+    timer[0] = 0
+    return clock
+
+
+@jit
+def profiler_clock_restore(timer_adr: int, clock: int) -> None:
+    """Put back the clock :func:`profiler_clock_off` cleared (nothing for ``timer_adr`` 0)."""
+    if timer_adr != 0:
+        i64_at(timer_adr, 1)[0] = clock
+
+
 @jit_inline
 def i64_view(table, i: int):
     """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""

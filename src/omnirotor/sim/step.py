@@ -30,7 +30,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, f64_at, f64_at2, i64_at, jit, jit_entry, mujoco_function
+from omnirotor._jit import (
+    R9_from_quat_into,
+    f64_at,
+    f64_at2,
+    jit,
+    jit_entry,
+    mujoco_function,
+    profiler_clock_off,
+    profiler_clock_restore,
+)
 from omnirotor.sim import aero as _aero
 from omnirotor.sim import airflow, contact, faults, rotors, sensors
 
@@ -244,11 +253,7 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
     sensordata = f64_at(mj["sensordata"], mj["n_sensordata"])
     # MuJoCo's profiler clock off for these calls (module docstring), restored after them (0: no address given).
     timer_adr = mj["timer"]
-    clock = 0
-    if timer_adr != 0:
-        timer = i64_at(timer_adr, 1)
-        clock = timer[0]
-        timer[0] = 0
+    clock = profiler_clock_off(timer_adr)
     for i in range(substeps):
         mj_Euler(m, d)
         last = i == substeps - 1
@@ -264,6 +269,5 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
             mj_fwdAcceleration(m, d)
             mj_fwdConstraint(m, d)
             mj_sensorAcc(m, d)
-    if timer_adr != 0:
-        i64_at(timer_adr, 1)[0] = clock
+    profiler_clock_restore(timer_adr, clock)
     observe(sim, k + 1, dt, frame, row)
