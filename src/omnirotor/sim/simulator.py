@@ -291,10 +291,14 @@ class Simulator:
         self.sensors.reset(self._pose[0:3].copy(), self._pose[3:7].copy())
         self.faults.reset()
         self.airflow.reset()
-        self._apply_wrench(recompute_rotors=True)
-        friction_reset(self._rec["friction"][0])
-        mujoco.mj_forward(m, d)
-        self._friction_step()
+        rec = self.kernel_state
+        if rec is not None:  # the project's own rotor and truth models: one compiled call
+            _step.reset_forward(rec)
+        else:
+            self._apply_wrench(recompute_rotors=True)
+            friction_reset(self._rec["friction"][0])
+            mujoco.mj_forward(m, d)
+            self._friction_step()
         self.sensors.refill()
         _step.observe(self._rec, 0, self.dt, self._frame_buf, self._row)
         return SensorFrame.from_packed(self._frame_buf)

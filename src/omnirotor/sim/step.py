@@ -54,6 +54,7 @@ __all__ = [
     "apply_wrench",
     "aero_wrench",
     "pre_step",
+    "reset_forward",
 ]
 
 mj_Euler = mujoco_function("mj_Euler")
@@ -216,6 +217,35 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
         row[_ROW_F : _ROW_F + 3], row[_ROW_M : _ROW_M + 3],
     )  # fmt: skip
     row[_ROW_FLAG] = 1.0 if touching else 0.0
+
+
+@jit_entry
+def reset_forward(sim) -> None:
+    """The forward pass of :meth:`omnirotor.sim.simulator.Simulator.reset` once the state is set, compiled.
+
+    The rotors' wrench of their reset speeds into ``xfrc_applied`` (:func:`aero_wrench`, :func:`apply_wrench`),
+    the tool's friction forgotten, ``mj_forward``, then the friction of the contacts found (and the
+    accelerations again when it acts): what a period's last physics step does, without integrating. One
+    compiled call, so that these kernels are compiled once, for the step (a call from Python compiles a twin).
+
+    Args:
+        sim: (1,) the :data:`SIM_DTYPE` record.
+    """
+    s = sim[0]
+    mj = s["mj"]
+    pose, xfrc = f64_at(mj["pose"], 7), f64_at(mj["xfrc"], 6)
+    m, d = mj["model"], mj["data"]
+    w_B = s["w_B"]
+    aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
+    apply_wrench(pose, w_B, s["ext"], s["airflow"]["f_W"], xfrc, s["R9"])
+    contact.friction_reset(s["friction"])
+    clock = profiler_clock_off(mj["timer"])
+    mj_forward(m, d)
+    if contact.friction_step(s["friction"], f64_at(mj["sensordata"], mj["n_sensordata"])):
+        mj_fwdAcceleration(m, d)
+        mj_fwdConstraint(m, d)
+        mj_sensorAcc(m, d)
+    profiler_clock_restore(mj["timer"], clock)
 
 
 @jit_entry
