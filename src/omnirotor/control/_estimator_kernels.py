@@ -793,6 +793,12 @@ def _matched_variance(u, r, o: int, est: float, assumed: float) -> float:
 
 
 @jit
+def noise_raised(u) -> bool:
+    """True while :func:`match_noise` weighs motion capture as noisier than assumed (in either block)."""
+    return u.Rn[0, 0] != u.var_pos_assumed or u.Rn[3, 3] != u.var_att_assumed
+
+
+@jit
 def match_noise(u, r) -> None:
     """Match the motion-capture noise to the innovations (covariance matching, per block; SPEC §4.5 [A]).
 
@@ -808,7 +814,7 @@ def match_noise(u, r) -> None:
     u.noise_var_pos = _matched_variance(u, r, 0, u.noise_var_pos, u.var_pos_assumed)
     u.noise_var_att = _matched_variance(u, r, 3, u.noise_var_att, u.var_att_assumed)
     sp, sa = math.sqrt(u.Rn[0, 0]), math.sqrt(u.Rn[3, 3])
-    if u.Rn[0, 0] != u.var_pos_assumed or u.Rn[3, 3] != u.var_att_assumed:
+    if noise_raised(u):
         u.n_noise_adapted += 1
     else:
         u.noise_reset_done = 0  # back to the noise assumed: the episode is over
@@ -1020,7 +1026,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     if code & STEP_ADVANCE:
         predict(u, buf, sbuf, w, u.k - u.lag_n)
     result = code & STEP_DEGRADED
-    if u.Rn[0, 0] != u.var_pos_assumed or u.Rn[3, 3] != u.var_att_assumed:
+    if noise_raised(u):
         result |= STEP_NOISE_RAISED
     if rejected:
         u.n_rejected_inputs += 1

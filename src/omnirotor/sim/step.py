@@ -219,6 +219,19 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
     row[_ROW_FLAG] = 1.0 if touching else 0.0
 
 
+@jit
+def friction_forward(fr, m, d, sensordata) -> None:
+    """The tool's friction after ``mj_forward``, for the next physics step to integrate.
+
+    The friction of the contacts found (:func:`omnirotor.sim.contact.friction_step`) and, when it acts, the
+    accelerations and their sensors again (``mj_Euler`` integrates the last computed ``qacc``).
+    """
+    if contact.friction_step(fr, sensordata):
+        mj_fwdAcceleration(m, d)
+        mj_fwdConstraint(m, d)
+        mj_sensorAcc(m, d)
+
+
 @jit_entry
 def reset_forward(sim) -> None:
     """The forward pass of :meth:`omnirotor.sim.simulator.Simulator.reset` once the state is set, compiled.
@@ -241,10 +254,7 @@ def reset_forward(sim) -> None:
     contact.friction_reset(s["friction"])
     clock = profiler_clock_off(mj["timer"])
     mj_forward(m, d)
-    if contact.friction_step(s["friction"], f64_at(mj["sensordata"], mj["n_sensordata"])):
-        mj_fwdAcceleration(m, d)
-        mj_fwdConstraint(m, d)
-        mj_sensorAcc(m, d)
+    friction_forward(s["friction"], m, d, f64_at(mj["sensordata"], mj["n_sensordata"]))
     profiler_clock_restore(mj["timer"], clock)
 
 
@@ -295,9 +305,6 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         # The sensors are read after the period only (computed on its last physics step), except by the tool's
         # friction law, which reads the EE contacts after every physics step.
         mj_forwardSkip(m, d, _MJ_STAGE_NONE, 0 if (last or friction_on) else 1)
-        if contact.friction_step(s["friction"], sensordata):  # the tool's friction over the next physics step
-            mj_fwdAcceleration(m, d)
-            mj_fwdConstraint(m, d)
-            mj_sensorAcc(m, d)
+        friction_forward(s["friction"], m, d, sensordata)  # the tool's friction over the next physics step
     profiler_clock_restore(timer_adr, clock)
     observe(sim, k + 1, dt, frame, row)
