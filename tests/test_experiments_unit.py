@@ -251,3 +251,20 @@ def test_a_run_keeps_the_configured_map_parameters_and_says_what_its_options_rep
     assert ctl.params.maps.blend == "hard"  # the run's --blend (its default) wins ...
     err = capsys.readouterr().err
     assert "maps.blend = 'smooth'" in err and "--blend 'hard'" in err and err.count("\n") == 1  # ... and says so
+
+
+def test_run_figure_error_panel_plots_the_believed_pose(tmp_path, monkeypatch):
+    # the robot believes it sits 0.5 cm off in z while it truly sits 2 cm off in x: the panel shows Table 1's errors
+    import matplotlib.pyplot as plt
+
+    from omnirotor.experiments import figures
+
+    log = synthetic_log(n=200, offset_cm=(2.0, 0, 0), believed_cm=(0, 0, 0.5))
+    kept = []
+    monkeypatch.setattr(figures.plt, "close", lambda fig=None: kept.append(fig))
+    figures.plot_run(log, "t", tmp_path / "run.png")
+    ax = kept[-1].axes[1]
+    e_x, e_z = ax.lines[0].get_ydata(), ax.lines[2].get_ydata()
+    assert np.allclose(e_x, 0.0) and np.allclose(e_z, 0.5)  # believed, not the true 2 cm in x
+    assert "believed" in ax.get_ylabel()
+    plt.close(kept[-1])

@@ -73,12 +73,12 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
     ax = axs[1]
     for k in range(3):
         ax.plot(t, e[:, k], color=colors[k], lw=1.0, label=f"e_{cols[k]}")
-    ax.set_ylabel("EE position error [cm]")
+    ax.set_ylabel("EE position error [cm]\n(believed pose, as Table 1)")
     ax.legend(ncol=3, fontsize=7)
     ax2 = ax.twinx()
     for k in range(3):
         ax2.plot(t, e[:, 3 + k], color=colors[k], lw=0.7, alpha=0.5)
-    ax2.set_ylabel("attitude error [deg] (faint)")
+    ax2.set_ylabel("attitude error [deg] (faint,\nbelieved pose)")
     ax = axs[2]
     f_true = smoothed(log.f_contact_W, t)
     for k in range(3):
