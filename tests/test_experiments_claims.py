@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from omnirotor.experiments.closed_loop import run_task
+from omnirotor.experiments.peg_wedge import wedge_jam
 from omnirotor.experiments.scenarios import ScenarioParams, hover_attitudes
 from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
 from omnirotor.identification import HoverData, identify, load_csv
@@ -201,6 +202,16 @@ def test_peg_jams_by_friction_frictionless_peg_goes_in_and_roll_settles():
 )
 def test_peg_in_hole_inserts_fully(peg_run):
     assert peg_run["insertion"]["max_depth_m"] >= 0.9 * 0.17
+
+
+def test_peg_jams_where_the_quasi_static_wedge_says(peg_run):
+    # Whitney's two-point wedge, from the paper's geometry and admittance alone (experiments.peg_wedge: rigid tool,
+    # exact observer, reference at rest), predicts the simulated jam: 12.6 cm at 8.9 deg against 12.8 cm at 9.1 deg
+    ins = peg_run["insertion"]
+    jam = wedge_jam(SimParams().scene.friction, ins["approach_tilt_deg"], ins["target_depth_m"])
+    assert jam.jammed
+    assert abs(jam.depth - ins["max_depth_m"]) < 0.005, (jam, ins)
+    assert abs(jam.roll_deg - ins["inserted_tilt_deg"]) < 0.5, (jam, ins)
 
 
 def _peg(*overrides):
