@@ -197,7 +197,7 @@ def test_peg_jams_by_friction_frictionless_peg_goes_in_and_roll_settles():
     reason="with the paper's peg (the whole tool Ø16 mm, 1.5 mm of play in the Ø19 mm bore) the tip jams at 12.8 of "
     "17 cm with the roll at 9.1 deg (approach 9.9 deg; the paper ~5 deg): friction (0.3) at the two-point contact "
     "(tip on the bore, rod on the funnel-bore junction) holds it; the peg reaches 16.5 cm only with friction <= 0.045, "
-    "below published values for printed polymers or plastic on metal (0.2-0.7); the coupling's pivot (CoM, mount) and "
+    "below published values for printed polymers or plastic on metal (0.2 and above); the coupling's pivot (CoM, mount) and "
     "stiffness change nothing (docs/fidelity.md, 'The peg: what the real robot must have had')",
 )
 def test_peg_in_hole_inserts_fully(peg_run):
