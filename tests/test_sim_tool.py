@@ -22,6 +22,7 @@ from omnirotor.sim.model import (
     TOOL_BEND_JOINTS,
     TOOL_BODY,
     build_mjcf,
+    tool_pivot_B,
 )
 from omnirotor.sim.scenes import attitude_pointing
 from omnirotor.vehicle import load_vehicle
@@ -99,11 +100,44 @@ def test_rigid_tool_option_puts_the_tip_on_the_body():
     assert m.geom_bodyid[geom(m, EE_TIP_GEOM)] == body(m, BODY_NAME)
 
 
-@pytest.mark.parametrize("direction", ["axial", "lateral"])
-def test_tool_deflects_by_force_over_stiffness(direction):
-    """Equal and opposite forces on the tip and on the vehicle at the same point: the tool settles at F / k."""
-    p = SceneParams()
-    m = model()
+@pytest.mark.parametrize("pivot", ["com", "mount", "tip"])
+def test_tool_pivot_keeps_the_vehicles_mass_centre_and_inertia(pivot):
+    """Wherever the coupling's pivot sits, the vehicle with its tool locked is the vehicle of its file."""
+    m = model(tool_pivot=pivot)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)  # identity attitude, tool at rest
+    bodies = [body(m, BODY_NAME), body(m, TOOL_BODY)]
+    origin = d.xpos[bodies[0]].copy()
+    mass = sum(m.body_mass[b] for b in bodies)
+    com = sum(m.body_mass[b] * (d.xipos[b] - origin) for b in bodies) / mass
+    J = np.zeros((3, 3))
+    for b in bodies:
+        R, r = d.ximat[b].reshape(3, 3), d.xipos[b] - origin
+        J += R @ np.diag(m.body_inertia[b]) @ R.T + m.body_mass[b] * (r @ r * np.eye(3) - np.outer(r, r))
+    assert mass == pytest.approx(V.mass, rel=1e-9)
+    assert np.linalg.norm(com) < 1e-9
+    np.testing.assert_allclose(J, V.inertia, atol=1e-8)
+    # the hinges' axes cross at the pivot, where the tool's mass sits (gravity loads no hinge)
+    for name in TOOL_BEND_JOINTS:
+        np.testing.assert_allclose(m.jnt_pos[m.joint(name).id], tool_pivot_B(V, SceneParams(tool_pivot=pivot)))
+    np.testing.assert_allclose(m.body_ipos[body(m, TOOL_BODY)], tool_pivot_B(V, SceneParams(tool_pivot=pivot)))
+    if pivot == "mount":  # where the rod leaves the cube, on the tool's axis
+        p = tool_pivot_B(V, SceneParams(tool_pivot=pivot))
+        assert np.max(np.abs(p)) == pytest.approx(0.5 * V.frame_size)
+        assert np.linalg.norm(np.cross(p, V.p_E_B_array)) < 1e-12
+
+
+@pytest.mark.parametrize(
+    ("direction", "pivot"), [("axial", "com"), ("lateral", "com"), ("lateral", "mount"), ("lateral", "tip")]
+)
+def test_tool_deflects_by_force_over_stiffness(direction, pivot):
+    """Equal and opposite forces on the tip and on the vehicle at the same point: the tool settles at F / k.
+
+    Laterally the force bends the coupling by its moment about the pivot: none with the pivot at the tip's
+    centre (a remote centre of compliance).
+    """
+    p = SceneParams(tool_pivot=pivot)
+    m = model(tool_pivot=pivot)
     m.opt.gravity[:] = 0.0
     d = mujoco.MjData(m)
     tool, veh = body(m, TOOL_BODY), body(m, BODY_NAME)
@@ -123,9 +157,13 @@ def test_tool_deflects_by_force_over_stiffness(direction):
         assert q[TOOL_AXIAL_JOINT] == pytest.approx(-F_mag / p.tool_axial_stiffness, rel=0.02)
         assert abs(q[TOOL_BEND_JOINTS[0]]) + abs(q[TOOL_BEND_JOINTS[1]]) < 1e-6
     else:
-        arm = float(np.linalg.norm(V.p_E_B_array)) - 0.008  # lever from the pivot (the CoM) to the tip's centre
+        centre = V.p_E_B_array * (1.0 - 0.008 / float(np.linalg.norm(V.p_E_B_array)))
+        arm = float(np.linalg.norm(centre - tool_pivot_B(V, p)))  # lever from the pivot to the tip's centre
         angle = math.hypot(q[TOOL_BEND_JOINTS[0]], q[TOOL_BEND_JOINTS[1]])
-        assert angle == pytest.approx(F_mag * arm / p.tool_bending_stiffness, rel=0.03)
+        if pivot == "tip":
+            assert arm == 0.0 and angle < 1e-6
+        else:
+            assert angle == pytest.approx(F_mag * arm / p.tool_bending_stiffness, rel=0.03)
 
 
 def test_simulator_reads_the_tool_contact_as_the_end_effectors():

@@ -9,11 +9,12 @@ given explicitly (the geoms carry no mass), and by default a compliant tool. Its
   shows as a contact) and one site ``rotor<i>`` whose z axis is the thrust axis;
 * the end-effector: a Ø16 mm rod from the frame to a Ø16 mm tip sphere whose outermost point is ``p_E_B``
   (SPEC §1.5; Ø16 mm is the paper's peg, SPEC §5.2), and a site ``ee`` there on the body. With
-  ``SceneParams.tool_compliant`` the rod and the tip sit on a child body ``ee_tool`` joined to the vehicle at
-  its CoM by a slide along the tool axis and two hinges across it (spring-dampers: the paper's vibration-
-  damping coupling, §5.3). The tool's mass, taken from the body's, sits at that pivot with the moment of inertia
-  of that mass at the tip, also taken from the body's, so the vehicle's mass, CoM and (tool locked) inertia stay
-  those of its file. Its joints follow the free joint in ``qpos``.
+  ``SceneParams.tool_compliant`` the rod and the tip sit on a child body ``ee_tool`` joined to the vehicle by a
+  slide along the tool axis and two hinges across it (spring-dampers: the paper's vibration-damping coupling,
+  §5.3) whose axes cross at the pivot ``SceneParams.tool_pivot`` (the vehicle's CoM by default). The tool's
+  mass, taken from the body's, sits at that pivot with the moment of inertia of that mass at the tip, also taken
+  from the body's, and the vehicle's own CoM moves against a pivot off the origin, so the vehicle's mass, CoM
+  and (tool locked) inertia stay those of its file. Its joints follow the free joint in ``qpos``.
 
 Contacts use MuJoCo's soft contact (``solref`` of ``SceneParams``) and, by default, the elliptic friction cone;
 with the compliant tool and ``SceneParams.friction_law = "stick-slip"`` (the default) the EE geoms' contacts are
@@ -51,6 +52,7 @@ __all__ = [
     "TOOL_BODY",
     "TOOL_AXIAL_JOINT",
     "TOOL_BEND_JOINTS",
+    "tool_pivot_B",
     "ee_contact_sensor",
     "ee_contacts_sensor",
     "TOOL_SENSORS",
@@ -138,8 +140,8 @@ def _perpendiculars(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(d, e1)
 
 
-def _tool_joints(d: np.ndarray, arm: float, params: SceneParams) -> list[str]:
-    """The coupling's joints at the vehicle's CoM: a slide along the tool axis ``d`` and two hinges across it.
+def _tool_joints(d: np.ndarray, arm: float, pivot_B: np.ndarray, params: SceneParams) -> list[str]:
+    """The coupling's joints: a slide along the tool axis ``d`` and two hinges across it through ``pivot_B`` [m].
 
     Damping gives each mode (the tool's mass, or its moment of inertia ``tool_mass arm²``, on the coupling's
     stiffness) the damping ratio of ``params``.
@@ -154,13 +156,42 @@ def _tool_joints(d: np.ndarray, arm: float, params: SceneParams) -> list[str]:
     ]
     for name, e in zip(TOOL_BEND_JOINTS, (e1, e2), strict=True):
         out.append(
-            f'<joint name="{name}" type="hinge" axis="{_fmt(e)}" stiffness="{k_rot:.9g}" damping="{c_rot:.9g}"/>'
+            f'<joint name="{name}" type="hinge" pos="{_fmt(pivot_B)}" axis="{_fmt(e)}" stiffness="{k_rot:.9g}" '
+            f'damping="{c_rot:.9g}"/>'
         )
     return out
 
 
+def _tool_axis(vehicle: VehicleParams) -> tuple[np.ndarray, float, np.ndarray]:
+    """The tool's axis ``d`` (unit, body axes), where the rod leaves the frame along it [m], the tip's centre [m].
+
+    The rod starts where the EE ray leaves the frame's cube (or at the CoM for a flat frame) and the tip sphere's
+    outermost point is ``p_E_B``.
+    """
+    p_E = vehicle.p_E_B_array
+    length = float(np.linalg.norm(p_E))
+    d = p_E / length
+    h = 0.5 * vehicle.frame_size
+    return d, min(h / float(np.max(np.abs(d))), length - TIP_RADIUS), p_E - TIP_RADIUS * d
+
+
+def tool_pivot_B(vehicle: VehicleParams, params: SceneParams) -> np.ndarray:
+    """(3,) the compliant coupling's bending pivot, body axes [m] (:attr:`SceneParams.tool_pivot`)."""
+    d, start_len, centre = _tool_axis(vehicle)
+    return {"com": np.zeros(3), "mount": start_len * d, "tip": centre}[params.tool_pivot]
+
+
+def _shift(r: np.ndarray) -> np.ndarray:
+    """(3, 3) ``|r|² I − r rᵀ``: what a unit mass at ``r`` adds to an inertia about the origin [m²]."""
+    return float(r @ r) * np.eye(3) - np.outer(r, r)
+
+
 def _tool_inertia(vehicle: VehicleParams, params: SceneParams) -> np.ndarray:
-    """(3, 3) inertia of the compliant tool about the vehicle's CoM, body axes [kg·m²]: ``tool_mass`` at the tip."""
+    """(3, 3) inertia of the compliant tool about its pivot, body axes [kg·m²].
+
+    That of ``tool_mass`` at the tip about the vehicle's CoM, whatever the pivot: moving the compliance centre
+    changes no inertia (the lumped tool stands for a rod along the whole length).
+    """
     p_E = vehicle.p_E_B_array
     length = float(np.linalg.norm(p_E))
     d = p_E / length
@@ -174,11 +205,15 @@ def _r9(x: float) -> float:
     return float(f"{float(x):.9g}")
 
 
-def vehicle_inertial(vehicle: VehicleParams, params: SceneParams, compliant: bool) -> tuple[float, str, tuple]:
+def vehicle_inertial(
+    vehicle: VehicleParams, params: SceneParams, compliant: bool
+) -> tuple[float, np.ndarray, str, tuple]:
     """The vehicle body's ``<inertial>``: the file's mass and inertia, less the compliant tool's (its own body's).
 
     The tool's inertia is taken from the body's as its mass is, so that the vehicle with its tool locked has
-    the inertia of its file (what the controller and the torque identification's rigid-body model assume).
+    the inertia of its file (what the controller and the torque identification's rigid-body model assume). The
+    tool's mass sits at its pivot; a pivot off the origin moves the vehicle body's own CoM the other way, so that
+    the whole stays centred on the body origin.
 
     Args:
         vehicle: the vehicle.
@@ -186,8 +221,9 @@ def vehicle_inertial(vehicle: VehicleParams, params: SceneParams, compliant: boo
         compliant: the tool is a child body of its own.
 
     Returns:
-        ``(mass [kg], "diaginertia" or "fullinertia", its 3 or 6 values [kg·m²])``, rounded as the MJCF writes
-        them (:func:`build_mjcf`; :mod:`omnirotor.sim.model_cache` gives the same numbers to a parsed model).
+        ``(mass [kg], CoM (3,) [m], "diaginertia" or "fullinertia", its 3 or 6 values [kg·m²])``, rounded as the
+        MJCF writes them (:func:`build_mjcf`; :mod:`omnirotor.sim.model_cache` gives the same numbers to a parsed
+        model).
 
     Raises:
         InputError: when the tool leaves the body half the vehicle's mass or less, or a non-physical inertia.
@@ -196,8 +232,11 @@ def vehicle_inertial(vehicle: VehicleParams, params: SceneParams, compliant: boo
     if mass <= 0.5 * vehicle.mass:
         raise InputError(f"scene.tool_mass ({params.tool_mass} kg) must be below half the vehicle's mass")
     if not compliant:
-        return _r9(mass), "diaginertia", tuple(_r9(j) for j in vehicle.inertia_diag)
-    J = vehicle.inertia - _tool_inertia(vehicle, params)
+        return _r9(mass), np.zeros(3), "diaginertia", tuple(_r9(j) for j in vehicle.inertia_diag)
+    m = params.tool_mass
+    pivot = tool_pivot_B(vehicle, params)
+    com = -m * pivot / mass + 0.0  # + 0.0: no negative zeros in the MJCF
+    J = vehicle.inertia - _tool_inertia(vehicle, params) - m * _shift(pivot) - mass * _shift(com)
     ev = np.linalg.eigvalsh(J)
     if ev[0] <= 0.0 or 2.0 * ev[-1] > ev.sum() * (1.0 + 0.02):
         raise InputError(
@@ -205,7 +244,7 @@ def vehicle_inertial(vehicle: VehicleParams, params: SceneParams, compliant: boo
             f" inertia (principal moments {ev.tolist()})"
         )
     full = (J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2])
-    return _r9(mass), "fullinertia", tuple(_r9(x) for x in full)
+    return _r9(mass), np.array([_r9(x) for x in com]), "fullinertia", tuple(_r9(x) for x in full)
 
 
 def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str], str]:
@@ -213,7 +252,7 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
 
     Returns:
         ``(elements of the vehicle body, the tool's child body or "")``: with ``params.tool_compliant`` the rod
-        and the tip sit on a child body ``ee_tool`` joined to the vehicle at its CoM.
+        and the tip sit on a child body ``ee_tool`` joined to the vehicle at :func:`tool_pivot_B`.
     """
     p_E = vehicle.p_E_B_array
     length = float(np.linalg.norm(p_E))
@@ -224,12 +263,9 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
             f'pos="{_fmt(p_E)}" rgba="{_TIP_RGBA}"/>'
         )
         return out, ""
-    d = p_E / length
-    centre = p_E - TIP_RADIUS * d
-    # The rod starts where the EE ray leaves the frame's cube (or at the CoM for a flat frame) and ends one
-    # radius short of the tip's centre, so that its cap stays inside the tip and only the tip meets a surface.
-    h = 0.5 * vehicle.frame_size
-    start_len = min(h / float(np.max(np.abs(d))), length - TIP_RADIUS)
+    d, start_len, centre = _tool_axis(vehicle)
+    # The rod ends one radius short of the tip's centre, so that its cap stays inside the tip and only the tip
+    # meets a surface.
     start = d * start_len
     rod_end = centre - ROD_RADIUS * d
     compliant = params.tool_compliant
@@ -246,13 +282,14 @@ def _ee_elements(vehicle: VehicleParams, params: SceneParams) -> tuple[list[str]
         )
     if not compliant:
         return out + tool, ""
-    # Lumped tool: its mass sits at the pivot (the vehicle's CoM, so that the vehicle's CoM stays the body
-    # origin and gravity loads no hinge) with the moment of inertia about the pivot of that mass at the tip.
+    # Lumped tool: its mass sits at the pivot (so that gravity loads no hinge; vehicle_inertial keeps the whole
+    # centred on the body origin) with the moment of inertia about the pivot of that mass at the tip.
     m = params.tool_mass
     inertia = _tool_inertia(vehicle, params)
     full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2])
-    inner = _tool_joints(d, length, params)
-    inner.append(f'<inertial pos="0 0 0" mass="{m:.9g}" fullinertia="{_fmt(full)}"/>')
+    pivot = tool_pivot_B(vehicle, params)
+    inner = _tool_joints(d, length, pivot, params)
+    inner.append(f'<inertial pos="{_fmt(pivot + 0.0)}" mass="{m:.9g}" fullinertia="{_fmt(full)}"/>')
     body = "\n        ".join(inner + tool)
     # The tool's body frame is the vehicle's at rest.
     return out, f'<body name="{TOOL_BODY}" pos="0 0 0">\n        {body}\n      </body>'
@@ -325,8 +362,8 @@ def build_mjcf(vehicle: VehicleParams, scene: str, params: SceneParams, timestep
     friction = f"{params.friction:.9g} 0.005 0.0001"
     floor = '<geom name="floor" class="env" type="plane" size="4 4 0.05" material="grid"/>' if params.floor else ""
     ee, tool = _ee_elements(vehicle, params)
-    mass, kind, moments = vehicle_inertial(vehicle, params, bool(tool))
-    inertial = f'<inertial pos="0 0 0" mass="{mass:.9g}" {kind}="{_fmt(moments)}"/>'
+    mass, com, kind, moments = vehicle_inertial(vehicle, params, bool(tool))
+    inertial = f'<inertial pos="{_fmt(com)}" mass="{mass:.9g}" {kind}="{_fmt(moments)}"/>'
     body = "\n      ".join(_frame_geoms(vehicle) + _rotor_elements(vehicle) + ee + ([tool] if tool else []))
     return f"""<mujoco model="omnirotor-{vehicle.name}-{scene}">
   <compiler angle="radian" autolimits="true" balanceinertia="true"/>

@@ -66,9 +66,10 @@ def compiled_model(vehicle: VehicleParams, scene: str, params: SceneParams, time
     else:
         _specs.move_to_end(key)
     spec, compliant = entry
-    mass, kind, moments = vehicle_inertial(vehicle, params, compliant)
+    mass, com, kind, moments = vehicle_inertial(vehicle, params, compliant)
     body = spec.body(BODY_NAME)
     body.mass = mass
+    body.ipos = com
     if kind == "fullinertia":
         body.fullinertia = moments
     else:

@@ -33,6 +33,7 @@ __all__ = [
     "SimParams",
     "load_sim_params",
     "AERO_MODELS",
+    "TOOL_PIVOTS",
 ]
 
 AERO_MODELS = ("wake", "spec7", "interference", "nominal")
@@ -300,6 +301,10 @@ class AirflowParams:
         check_positive("airflow.ref_weight_N", self.ref_weight_N)
 
 
+TOOL_PIVOTS = ("com", "mount", "tip")
+"""Where the compliant tool's bending hinges may sit (:attr:`SceneParams.tool_pivot`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneParams:
     """Geometry and contact properties of every scene (SPEC §5.2), world frame [m].
@@ -350,6 +355,12 @@ class SceneParams:
             cantilevered 0.36 m out of the frame alone is ~40x stiffer, so the coupling sets it].
         tool_damping_ratio: damping ratio of the tool's axial and bending modes [A: 0.15, half the loss factor
             ~0.3 of damping elastomers].
+        tool_pivot: where the coupling's bending hinges sit on the tool axis, its compliance centre: "com" (the
+            vehicle's CoM, the default: a modelling choice, docs/fidelity.md), "mount" (where the rod leaves the
+            frame: the paper's "coupling between the EE and body", §5.3) or "tip" (the tip sphere's centre: a
+            remote-centre-compliance device, which the paper does not describe; for studies of Whitney's
+            jamming). The tool's mass sits at the pivot and the vehicle's own CoM moves against it, so that the
+            vehicle with its tool locked keeps the CoM, mass and inertia of its file whatever the pivot.
         start_standoff: distance of the EE tip from the contact surface in the default start pose [m].
         free_start: default start position of the body in the free scene [m].
     """
@@ -381,6 +392,7 @@ class SceneParams:
     tool_axial_stiffness: float = 4000.0
     tool_bending_stiffness: float = 20.0
     tool_damping_ratio: float = 0.15
+    tool_pivot: str = "com"
     start_standoff: float = 0.3
     free_start: tuple[float, float, float] = (0.0, 0.0, 1.5)
 
@@ -415,6 +427,8 @@ class SceneParams:
             raise InputError(f"scene.friction_cone must be elliptic or pyramidal, got {self.friction_cone!r}")
         if self.friction_law not in ("stick-slip", "mujoco"):
             raise InputError(f"scene.friction_law must be stick-slip or mujoco, got {self.friction_law!r}")
+        if self.tool_pivot not in TOOL_PIVOTS:
+            raise InputError(f"scene.tool_pivot must be one of {', '.join(TOOL_PIVOTS)}, got {self.tool_pivot!r}")
         if self.funnel_entrance_diameter < self.hole_diameter:
             raise InputError("scene.funnel_entrance_diameter must be >= scene.hole_diameter")
         if self.ring_segments < 6:
