@@ -13,6 +13,7 @@ from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAer
 from omnirotor.sim.aero_calibration import (
     FIT_PARAMETERS,
     FRAME_TILT_PARAMETERS,
+    INTAKE_FIELD_PARAMETERS,
     MOMENT_WEIGHT_PER_M,
     calibrate,
     com_offset,
@@ -55,16 +56,12 @@ def reference_wake_wrench(vehicle, u, p):
             L = np.linalg.norm(P[i] - P[j])
             e = (P[i] - P[j]) / L
             a, c = d[j] @ e, d[i] @ e
-            if a <= 0:
+            if a == 0:
                 continue
-            G = (
-                p.ingest_gain
-                if c > EDGE_ON_COS
-                else p.counter_gain
-                if c < -EDGE_ON_COS
-                else 0.5 * (p.ingest_gain + p.counter_gain)
-            )
-            acc += G * a**p.aim_exponent * (L0 / L) * math.sqrt(abs(u[j]))
+            inner, outer = (p.ingest_gain, p.counter_gain) if a > 0 else (p.facing_gain, p.upstream_gain)
+            G = inner if c > EDGE_ON_COS else outer if c < -EDGE_ON_COS else 0.5 * (inner + outer)
+            side = max(abs(c), EDGE_ON_COS) ** p.side_exponent
+            acc += G * abs(a) ** p.aim_exponent * side * (L0 / L) ** p.distance_exponent * math.sqrt(abs(u[j]))
         eta = min(max(1 - acc / ni, p.eta_min), p.eta_max)
         factor[i] = eta * (1 + p.reverse_gain if u[i] < 0 else 1.0) * (1 + p.handedness_gain * vehicle.spins[i])
     A = np.zeros((6, n))
@@ -82,11 +79,17 @@ def random_inputs(rng, n_points, n=8):
     return sign * speed * speed
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_wake_model_matches_the_pair_by_pair_formula(seed):
+INTAKE_FIELD = {"facing_gain": -0.3, "upstream_gain": 0.45, "side_exponent": 0.6, "distance_exponent": 1.4}
+"""Values of the intake-field terms (off in the default) that the formula and recovery tests switch on."""
+
+
+@pytest.mark.parametrize(("seed", "intake_field"), [(0, False), (1, False), (2, False), (3, True), (4, True)])
+def test_wake_model_matches_the_pair_by_pair_formula(seed, intake_field):
     rng = np.random.default_rng(seed)
     p = AeroParams(thrust_gain=1.1, reverse_gain=0.07, ingest_gain=0.6, counter_gain=-0.4, aim_exponent=1.7,
                    handedness_gain=0.04, frame_roll_deg=0.7, frame_pitch_deg=-1.2, frame_yaw_deg=2.5)  # fmt: skip
+    if intake_field:
+        p = dataclasses.replace(p, **INTAKE_FIELD)
     aero = make_aero(V, p)
     for u in random_inputs(rng, 5):
         np.testing.assert_allclose(aero.wrench_B(u), reference_wake_wrench(V, u, p), rtol=1e-12, atol=1e-12)
@@ -137,6 +140,31 @@ def test_calibration_recovers_known_parameters_from_synthetic_data():
     fitted = fit_wake(V, data, stand_prior=False)
     for name in FIT_PARAMETERS:
         assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=1e-4, abs=1e-5), name
+
+
+def test_calibration_recovers_the_intake_field_terms_from_synthetic_data():
+    """The report's intake-field fit (facing, upstream, side and distance exponents) recovers a known model."""
+    rng = np.random.default_rng(11)
+    true = AeroParams(thrust_gain=1.16, reverse_gain=0.03, ingest_gain=0.9, counter_gain=-0.6, aim_exponent=0.8,
+                      handedness_gain=0.025, frame_yaw_deg=-4.0, **INTAKE_FIELD)  # fmt: skip
+    U = random_inputs(rng, 40)
+    w = np.zeros((40, 6))
+    w[:, :3] = model_forces(V, true, U)
+    data = HoverData(U, w, ("",) * 40, ("synthetic",) * 40)
+    names = (*FIT_PARAMETERS, *INTAKE_FIELD_PARAMETERS)
+    fitted = fit_wake(V, data, names=names, stand_prior=False)
+    for name in names:
+        assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=1e-4, abs=1e-5), name
+
+
+def test_intake_field_terms_off_leave_the_previous_model():
+    """With the intake-field terms at their neutral values, a rotor in a neighbour's intake field feels nothing."""
+    p = AeroParams()
+    assert (p.facing_gain, p.upstream_gain, p.side_exponent, p.distance_exponent) == (0.0, 0.0, 0.0, 1.0)
+    aero = make_aero(V, p)
+    on = make_aero(V, dataclasses.replace(p, facing_gain=0.4))
+    u = np.full(8, 140.0**2)
+    assert not np.allclose(on.efficiency(u), aero.efficiency(u))
 
 
 def test_com_offset_balances_the_hover_moments():

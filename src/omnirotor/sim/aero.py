@@ -219,7 +219,15 @@ class WakeAero(_CompiledAero):
         self.A_true *= gains[None, :]
         """(6, n) map of the rotors as built; the truth is ``A_true (kappa eta_rev eta * u)``."""
         self.pair_weights = wake_pair_weights(
-            self.positions_B, self.axes_B, p.ingest_gain, p.counter_gain, p.aim_exponent
+            self.positions_B,
+            self.axes_B,
+            p.ingest_gain,
+            p.counter_gain,
+            p.aim_exponent,
+            p.facing_gain,
+            p.upstream_gain,
+            p.side_exponent,
+            p.distance_exponent,
         )
         """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` for the sign blocks (u_i < 0, u_j < 0) = (b // 2, b % 2)."""
         self._model = pack_wake(self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max)
@@ -539,14 +547,31 @@ def wake_pair_geometry(positions_B: np.ndarray, axes_B: np.ndarray) -> tuple[np.
 
 
 def wake_pair_weights(
-    positions_B: np.ndarray, axes_B: np.ndarray, ingest_gain: float, counter_gain: float, aim_exponent: float
+    positions_B: np.ndarray,
+    axes_B: np.ndarray,
+    ingest_gain: float,
+    counter_gain: float,
+    aim_exponent: float,
+    facing_gain: float = 0.0,
+    upstream_gain: float = 0.0,
+    side_exponent: float = 0.0,
+    distance_exponent: float = 1.0,
 ) -> np.ndarray:
-    """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` of the rotor-wake model (module docstring)."""
+    """(4, n, n) ``G(a_ij, c_ij) |a_ij|^m max(|c_ij|, band)^q (L0 / L_ij)^k`` of the rotor-wake model.
+
+    ``G`` by the flow configuration (module docstring): ``a_ij > 0`` (j's wake comes towards i) with
+    ``ingest_gain`` / ``counter_gain`` on i's intake / outlet side, ``a_ij < 0`` (i in j's intake field) with
+    ``facing_gain`` / ``upstream_gain``; edge-on (``|c_ij| <= band``) the mean of the two; ``a_ij = 0`` nothing.
+    """
     aim, side, closeness = wake_pair_geometry(positions_B, axes_B)
-    gain = np.where(side > EDGE_ON_COS, ingest_gain, np.where(side < -EDGE_ON_COS, counter_gain, 0.0))
-    gain = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (ingest_gain + counter_gain), gain)
-    reach = np.where(aim > 0.0, np.abs(aim), 0.0) ** aim_exponent * (aim > 0.0)
-    return gain * reach * closeness[None]
+    toward = np.where(side > EDGE_ON_COS, ingest_gain, np.where(side < -EDGE_ON_COS, counter_gain, 0.0))
+    toward = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (ingest_gain + counter_gain), toward)
+    away = np.where(side > EDGE_ON_COS, facing_gain, np.where(side < -EDGE_ON_COS, upstream_gain, 0.0))
+    away = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (facing_gain + upstream_gain), away)
+    gain = np.where(aim > 0.0, toward, np.where(aim < 0.0, away, 0.0))
+    reach = np.abs(aim) ** aim_exponent * (aim != 0.0)
+    side_factor = np.maximum(np.abs(side), EDGE_ON_COS) ** side_exponent
+    return gain * reach * side_factor * closeness[None] ** distance_exponent
 
 
 def pack_wake(pair_weights: np.ndarray, A_kappa: np.ndarray, reverse_gain: float, eta_lo: float, eta_hi: float):
