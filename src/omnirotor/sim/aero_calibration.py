@@ -608,6 +608,7 @@ def write_truth_toml(path: str | Path, params: AeroParams) -> None:
     lines.append('model = "wake"')
     names = (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS, *INTAKE_FIELD_PARAMETERS)
     lines += [f"{n} = {getattr(params, n):.6g}" for n in names]
+    lines.append(f"wake_coupling = {'true' if params.wake_coupling else 'false'}")
     tmp = p.with_name(p.name + ".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(p)

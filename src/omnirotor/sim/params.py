@@ -125,6 +125,9 @@ class AeroParams:
             seen along the pair's line [-] (0: every side counts alike, the previous model).
         distance_exponent: wake model: ``k`` of the distance factor ``(L0 / L_ij)^k`` [-] (1: the previous
             model).
+        wake_coupling: wake model: a neighbour's slipstream strength is ``n_j sqrt(factor_j)`` (True: momentum
+            theory, the slipstream speed scales like the square root of the rotor's thrust, which its own
+            neighbours reduce; ``factor_j`` to first order) or ``n_j`` (False: the previous model).
         handedness_gain: wake model: relative thrust difference of the two propeller handednesses: a rotor
             with drag-torque sign ``k_i = +1`` (SPEC §1.2) makes ``1 + handedness_gain``, one with ``k_i = -1``
             ``1 - handedness_gain`` times the common thrust [-] (fitted; the two are mirror-image propellers).
@@ -148,19 +151,20 @@ class AeroParams:
     """
 
     model: str = "wake"
-    thrust_gain: float = 1.16303
-    reverse_gain: float = 0.0227739
-    ingest_gain: float = 0.909313
-    counter_gain: float = -0.730288
-    aim_exponent: float = 0.753233
-    handedness_gain: float = 0.0258951
+    thrust_gain: float = 1.16097
+    reverse_gain: float = 0.0199277
+    ingest_gain: float = 0.914641
+    counter_gain: float = -0.761531
+    aim_exponent: float = 0.858829
+    handedness_gain: float = 0.027829
     facing_gain: float = 0.0
     upstream_gain: float = 0.0
     side_exponent: float = 0.0
     distance_exponent: float = 1.0
+    wake_coupling: bool = True
     frame_roll_deg: float = 0.0
     frame_pitch_deg: float = 0.0
-    frame_yaw_deg: float = -4.88669
+    frame_yaw_deg: float = -5.11308
     kappa0: float = 1.18
     gamma: float = 4.0
     rho: float = 1.225
