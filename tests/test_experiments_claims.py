@@ -53,8 +53,7 @@ def test_hover_bias_about_2N_with_nominal_removed_by_optimized_maps(truth_maps):
     for r, f in nominal.items():
         assert f[2] > 1.5 and f[2] < 2.6, (r, f)
     # the piecewise maps remove it; the global map only outperforms the nominal one (the paper's hypothesis):
-    # under the calibrated rotor-wake truth one map cannot fit R1 and R3 at once (R1: f_z -0.54 N measured; -0.60 N
-    # without the wake coupling)
+    # under the calibrated rotor-wake truth one map cannot fit R1 and R3 at once (R1: f_z -0.54 N measured)
     for r, f in hover_fz("piecewise", truth_maps).items():
         assert abs(f[2]) < 0.25 * nominal[r][2], ("piecewise", r, f)
         assert np.linalg.norm(f) < 0.5, ("piecewise", r, f)
