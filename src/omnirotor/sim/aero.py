@@ -11,13 +11,18 @@ distance, the pair's geometry and flow directions give
   like a rotor in climb: less thrust), ``< -0.05`` it meets i's *outlet* (j's wake blows against i's own
   slipstream), otherwise it passes edge-on;
 
-and the wake's axial speed at i scales like j's induced speed, i.e. like ``n_j`` (momentum theory). With the
-propeller law linear in the advance ratio (SPEC §7, item 4) the efficiency of rotor i is
+and the wake's axial speed at i scales like j's induced speed (momentum theory): ``sqrt(T_j / (2 rho A))``,
+i.e. like ``s_j = n_j sqrt(factor_j)`` where ``factor_j`` is j's thrust over its isolated thrust at ``n_j``.
+With the propeller law linear in the advance ratio (SPEC §7, item 4) the efficiency of rotor i is
 
-    eta_i = clip(1 - sum_j G(c_ij) max(a_ij, 0)^m (L0 / L_ij) n_j / n_i, eta_min, eta_max),
+    eta_i = clip(1 - sum_j G(a_ij, c_ij) |a_ij|^m max(|c_ij|, 0.05)^q (L0 / L_ij)^k s_j / n_i, eta_min, eta_max),
 
-``G = ingest_gain`` (intake), ``counter_gain`` (outlet) or their mean (edge-on), ``m = aim_exponent`` (the
-wake's angular spread), ``L0`` the shortest rotor distance (the cube side). A reversed rotor (``u_i < 0``)
+``G = ingest_gain`` (intake), ``counter_gain`` (outlet) or their mean (edge-on) when j's wake comes towards i;
+``facing_gain`` / ``upstream_gain`` / their mean when i sits in j's intake field (``a_ij < 0``; 0 by default);
+``m = aim_exponent`` (the wake's angular spread), ``q = side_exponent`` and ``k = distance_exponent`` (0 and 1 by
+default), ``L0`` the shortest rotor distance (the cube side). ``factor_j`` in ``s_j`` is the first-order one
+(every ``s = n``; the fixed point differs by less than 0.005 N of force RMS on the authors' data);
+``wake_coupling = False`` takes ``s_j = n_j``, the previous model (docs/fidelity.md). A reversed rotor (``u_i < 0``)
 makes ``(1 + reverse_gain)`` times the thrust of a forward one (bidirectional propellers are not quite
 symmetric in reverse). The two propeller handednesses (drag-torque sign ``k_i = ±1``, SPEC §1.2: rotors 1, 3,
 5, 7 against 2, 4, 6, 8) are mirror-image propellers whose thrust coefficients differ by ``± handedness_gain``.
@@ -26,8 +31,8 @@ The true wrench is ``A_built (kappa eta (1 + reverse_gain [u < 0]) * u)`` where 
 ``Rz(frame_yaw_deg) Ry(frame_pitch_deg) Rx(frame_roll_deg)``: the rotation between the rotors' frame and the
 measured (motion-capture) body frame, which the real data are expressed in (see ``docs/fidelity.md``). The
 rotation turns positions and axes alike, so the pair geometry does not change. Every geometric term is
-precomputed for the four sign combinations of (u_i, u_j), so a call is one compiled pass over an (n, n)
-pattern (:func:`wake_wrench`, no allocation).
+precomputed for the four sign combinations of (u_i, u_j), so a call is two compiled passes over an (n, n)
+pattern (:func:`wake_wrench`, no allocation: the strengths go to scratch rows of the packed model).
 
 **SPEC §7 model** (``model = "spec7"``, also accepted as ``"interference"``): rotor j with input ``u_j`` [Hz²]
 has an isolated thrust ``T_j = kappa0 c_f |u_j|``, a disk induced speed ``v_j = sqrt(T_j / (2 rho pi R²))``
@@ -219,10 +224,20 @@ class WakeAero(_CompiledAero):
         self.A_true *= gains[None, :]
         """(6, n) map of the rotors as built; the truth is ``A_true (kappa eta_rev eta * u)``."""
         self.pair_weights = wake_pair_weights(
-            self.positions_B, self.axes_B, p.ingest_gain, p.counter_gain, p.aim_exponent
+            self.positions_B,
+            self.axes_B,
+            p.ingest_gain,
+            p.counter_gain,
+            p.aim_exponent,
+            p.facing_gain,
+            p.upstream_gain,
+            p.side_exponent,
+            p.distance_exponent,
         )
         """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` for the sign blocks (u_i < 0, u_j < 0) = (b // 2, b % 2)."""
-        self._model = pack_wake(self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max)
+        self._model = pack_wake(
+            self.pair_weights, p.thrust_gain * self.A_true, p.reverse_gain, p.eta_min, p.eta_max, p.wake_coupling
+        )
         self.kernel_kind = AERO_WAKE
         """How the simulator's compiled step evaluates this model (:func:`omnirotor.sim.step.aero_wrench`)."""
         self.kernel_model = self._model
@@ -539,44 +554,62 @@ def wake_pair_geometry(positions_B: np.ndarray, axes_B: np.ndarray) -> tuple[np.
 
 
 def wake_pair_weights(
-    positions_B: np.ndarray, axes_B: np.ndarray, ingest_gain: float, counter_gain: float, aim_exponent: float
+    positions_B: np.ndarray,
+    axes_B: np.ndarray,
+    ingest_gain: float,
+    counter_gain: float,
+    aim_exponent: float,
+    facing_gain: float = 0.0,
+    upstream_gain: float = 0.0,
+    side_exponent: float = 0.0,
+    distance_exponent: float = 1.0,
 ) -> np.ndarray:
-    """(4, n, n) ``G(c_ij) max(a_ij, 0)^m L0 / L_ij`` of the rotor-wake model (module docstring)."""
+    """(4, n, n) ``G(a_ij, c_ij) |a_ij|^m max(|c_ij|, band)^q (L0 / L_ij)^k`` of the rotor-wake model.
+
+    ``G`` by the flow configuration (module docstring): ``a_ij > 0`` (j's wake comes towards i) with
+    ``ingest_gain`` / ``counter_gain`` on i's intake / outlet side, ``a_ij < 0`` (i in j's intake field) with
+    ``facing_gain`` / ``upstream_gain``; edge-on (``|c_ij| <= band``) the mean of the two; ``a_ij = 0`` nothing.
+    """
     aim, side, closeness = wake_pair_geometry(positions_B, axes_B)
-    gain = np.where(side > EDGE_ON_COS, ingest_gain, np.where(side < -EDGE_ON_COS, counter_gain, 0.0))
-    gain = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (ingest_gain + counter_gain), gain)
-    reach = np.where(aim > 0.0, np.abs(aim), 0.0) ** aim_exponent * (aim > 0.0)
-    return gain * reach * closeness[None]
+    toward = np.where(side > EDGE_ON_COS, ingest_gain, np.where(side < -EDGE_ON_COS, counter_gain, 0.0))
+    toward = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (ingest_gain + counter_gain), toward)
+    away = np.where(side > EDGE_ON_COS, facing_gain, np.where(side < -EDGE_ON_COS, upstream_gain, 0.0))
+    away = np.where(np.abs(side) <= EDGE_ON_COS, 0.5 * (facing_gain + upstream_gain), away)
+    gain = np.where(aim > 0.0, toward, np.where(aim < 0.0, away, 0.0))
+    reach = np.abs(aim) ** aim_exponent * (aim != 0.0)
+    side_factor = np.maximum(np.abs(side), EDGE_ON_COS) ** side_exponent
+    return gain * reach * side_factor * closeness[None] ** distance_exponent
 
 
-def pack_wake(pair_weights: np.ndarray, A_kappa: np.ndarray, reverse_gain: float, eta_lo: float, eta_hi: float):
-    """The (4n + 7, n) array the wake kernels read.
+def pack_wake(
+    pair_weights: np.ndarray,
+    A_kappa: np.ndarray,
+    reverse_gain: float,
+    eta_lo: float,
+    eta_hi: float,
+    wake_coupling: bool = True,
+):
+    """The (4n + 8, n + 5) array the wake kernels read (and write: two scratch parts, so one model per thread).
 
     Rows ``b n : (b+1) n``: the pair weights of sign block ``b`` (:func:`wake_pair_weights`); rows
-    ``4n : 4n+6``: ``A_kappa`` (6, n); row ``4n+6``: ``reverse_gain, eta_lo, eta_hi, n_floor``.
+    ``4n : 4n+6``: ``A_kappa`` (6, n); row ``4n+6``: ``reverse_gain, eta_lo, eta_hi, n_floor, wake_coupling``,
+    then n scratch values (the first-order factors); row ``4n+7``: scratch (the slipstream strengths).
     """
     n = A_kappa.shape[1]
-    model = np.zeros((4 * n + 7, max(n, 4)))
+    model = np.zeros((4 * n + 8, n + 5))
     model[0 : 4 * n, 0:n] = pair_weights.reshape(4 * n, n)
     model[4 * n : 4 * n + 6, 0:n] = A_kappa
-    model[4 * n + 6, 0:4] = (reverse_gain, eta_lo, eta_hi, _N_FLOOR)
+    model[4 * n + 6, 0:5] = (reverse_gain, eta_lo, eta_hi, _N_FLOOR, 1.0 if wake_coupling else 0.0)
     return model
 
 
 @jit
-def _wake_factor(u, model, i: int) -> float:
-    """Thrust factor ``eta_i (1 + reverse_gain [u_i < 0])`` of rotor i (module docstring); NaN propagates."""
-    n = u.shape[0]
+def _wake_clip(ui: float, acc: float, model, n: int) -> float:
+    """``clip(1 - acc / n_i, eta_lo, eta_hi) (1 + reverse_gain [u_i < 0])`` (NaN inputs give NaN)."""
     rev, eta_lo, eta_hi, n_floor = model[4 * n + 6, 0], model[4 * n + 6, 1], model[4 * n + 6, 2], model[4 * n + 6, 3]
-    ui = u[i]
     ni = math.sqrt(abs(ui))
     if ni < n_floor:
         ni = n_floor
-    row = i + (2 * n if ui < 0.0 else 0)
-    acc = 0.0
-    for j in range(n):
-        uj = u[j]
-        acc += model[row + (n if uj < 0.0 else 0), j] * math.sqrt(abs(uj))
     e = 1.0 - acc / ni
     if e > eta_hi:
         e = eta_hi
@@ -590,19 +623,52 @@ def _wake_factor(u, model, i: int) -> float:
 
 
 @jit
+def _wake_factor(u, model, strength, i: int) -> float:
+    """Thrust factor ``eta_i (1 + reverse_gain [u_i < 0])`` of rotor i for slipstream strengths ``strength``."""
+    n = u.shape[0]
+    row = i + (2 * n if u[i] < 0.0 else 0)
+    acc = 0.0
+    for j in range(n):
+        acc += model[row + (n if u[j] < 0.0 else 0), j] * strength[j]
+    return _wake_clip(u[i], acc, model, n)
+
+
+@jit
+def _wake_strengths(u, model):
+    """The slipstream strengths of the rotors into the model's scratch row ``4n+7``, which it returns.
+
+    ``n_j``, then with the wake coupling on (``model[4n+6, 4] != 0``) ``n_j sqrt(factor_j)``, ``factor_j`` the
+    thrust factor those first strengths give (first order). NaN propagates.
+    """
+    n = u.shape[0]
+    strength = model[4 * n + 7]
+    for j in range(n):
+        strength[j] = math.sqrt(abs(u[j]))
+    if model[4 * n + 6, 4] != 0.0:
+        first = model[4 * n + 6]  # columns 5 .. 5+n: the first-order factors (scratch)
+        for j in range(n):
+            first[5 + j] = _wake_factor(u, model, strength, j)
+        for j in range(n):
+            strength[j] *= math.sqrt(first[5 + j])
+    return strength
+
+
+@jit
 def wake_efficiency(u, model, eta) -> None:
     """Per-rotor thrust factors of the rotor-wake model into ``eta`` (n,) (model: :func:`pack_wake`)."""
+    strength = _wake_strengths(u, model)
     for i in range(u.shape[0]):
-        eta[i] = _wake_factor(u, model, i)
+        eta[i] = _wake_factor(u, model, strength, i)
 
 
 @jit
 def wake_wrench(u, model, out) -> None:
     """True body wrench ``A_kappa (factor * u)`` of the rotor-wake model into ``out`` (6,) (:func:`pack_wake`)."""
     n = u.shape[0]
+    strength = _wake_strengths(u, model)
     for r in range(6):
         out[r] = 0.0
     for i in range(n):
-        t = _wake_factor(u, model, i) * u[i]
+        t = _wake_factor(u, model, strength, i) * u[i]
         for r in range(6):
             out[r] += model[4 * n + r, i] * t

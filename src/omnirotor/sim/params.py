@@ -117,6 +117,18 @@ class AeroParams:
         counter_gain: wake model: the same when j's wake meets i's outlet [-] (fitted; < 0 is a gain).
         aim_exponent: wake model: ``m`` of the reach ``max(a_ij, 0)^m``, the wake's angular spread [-]
             (fitted; large = a narrow jet).
+        facing_gain: wake model: efficiency lost per unit ``reach n_j / n_i`` when rotor i sits in j's intake
+            field (``a_ij < 0``) with its own intake facing j (``c_ij > 0``): the two rotors draw air from the
+            region between them [-] (0: the pair does nothing, the previous model).
+        upstream_gain: wake model: the same with i's outlet facing j (``c_ij < 0``): j ingests i's wake, i is
+            upstream of it [-] (0: nothing).
+        side_exponent: wake model: ``q`` of the side factor ``max(|c_ij|, 0.05)^q``, the disk's projected area
+            seen along the pair's line [-] (0: every side counts alike, the previous model).
+        distance_exponent: wake model: ``k`` of the distance factor ``(L0 / L_ij)^k`` [-] (1: the previous
+            model).
+        wake_coupling: wake model: a neighbour's slipstream strength is ``n_j sqrt(factor_j)`` (True: momentum
+            theory, the slipstream speed scales like the square root of the rotor's thrust, which its own
+            neighbours reduce; ``factor_j`` to first order) or ``n_j`` (False: the previous model).
         handedness_gain: wake model: relative thrust difference of the two propeller handednesses: a rotor
             with drag-torque sign ``k_i = +1`` (SPEC §1.2) makes ``1 + handedness_gain``, one with ``k_i = -1``
             ``1 - handedness_gain`` times the common thrust [-] (fitted; the two are mirror-image propellers).
@@ -140,15 +152,20 @@ class AeroParams:
     """
 
     model: str = "wake"
-    thrust_gain: float = 1.16303
-    reverse_gain: float = 0.0227739
-    ingest_gain: float = 0.909313
-    counter_gain: float = -0.730288
-    aim_exponent: float = 0.753233
-    handedness_gain: float = 0.0258951
+    thrust_gain: float = 1.16097
+    reverse_gain: float = 0.0199277
+    ingest_gain: float = 0.914641
+    counter_gain: float = -0.761531
+    aim_exponent: float = 0.858829
+    handedness_gain: float = 0.027829
+    facing_gain: float = 0.0
+    upstream_gain: float = 0.0
+    side_exponent: float = 0.0
+    distance_exponent: float = 1.0
+    wake_coupling: bool = True
     frame_roll_deg: float = 0.0
     frame_pitch_deg: float = 0.0
-    frame_yaw_deg: float = -4.88669
+    frame_yaw_deg: float = -5.11308
     kappa0: float = 1.18
     gamma: float = 4.0
     rho: float = 1.225
@@ -173,6 +190,10 @@ class AeroParams:
         if not -1.0 < self.handedness_gain < 1.0:
             raise InputError(f"aero.handedness_gain must be in (-1, 1), got {self.handedness_gain}")
         _check_nonneg("aero.aim_exponent", self.aim_exponent)
+        for label in ("facing_gain", "upstream_gain"):
+            check_finite(f"aero.{label}", getattr(self, label))
+        _check_nonneg("aero.side_exponent", self.side_exponent)
+        _check_nonneg("aero.distance_exponent", self.distance_exponent)
         check_finite("aero.reverse_gain", self.reverse_gain)
         if self.reverse_gain <= -1.0:
             raise InputError(f"aero.reverse_gain must be > -1, got {self.reverse_gain}")
