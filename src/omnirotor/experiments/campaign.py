@@ -103,6 +103,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.experiments import reuse
 from omnirotor.experiments.campaign_pool import BACKENDS
 from omnirotor.experiments.campaign_report import (
     DEFINITION_FILE,
@@ -223,6 +224,7 @@ def execute_run(job: RunJob) -> dict:
     try:
         options = job.options
         with (
+            reuse.reusing(),  # the controller and truth log of this worker's previous run (experiments.reuse)
             warnings.catch_warnings(record=True) as caught,
             tempfile.TemporaryDirectory(prefix="omnirotor-campaign-")
             if job.identify_truth

@@ -37,6 +37,7 @@ from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController, load_controller_params
 from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
+from omnirotor.experiments import reuse
 from omnirotor.experiments.metrics import RunLog, table1_errors
 from omnirotor.limits import MAX_DURATION_S, MAX_SEED, MIN_DURATION_S
 from omnirotor.recorder import Recorder
@@ -140,7 +141,7 @@ def run_closed_loop(
     frame = sim.reset(p_W=p0, R_WB=R0)
     controller.log.ensure_capacity(n_steps)
     controller.reset(frame, trajectory)
-    truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+    truth_log = reuse.truth_log(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))  # a new one unless reusing
     every = max(1, n_steps // _PROGRESS_UPDATES)
     if video is None and on_step is None and isinstance(sim, Simulator):
         sim_args, ctl_args = sim.kernel_state, controller.kernel_args
