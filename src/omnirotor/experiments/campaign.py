@@ -59,9 +59,10 @@ equilibria of that run's true plant (:func:`identify_truth_maps`), so a piecewis
 
 Output folder: ``campaign.json`` (the definition and its hash; a different definition in the same folder is
 refused unless restarted), ``results.jsonl`` (one JSON line per finished run, appended and flushed as it
-arrives: a killed campaign resumes where it stopped), ``summary.json`` (success rate with its 95 % Wilson
-interval, the distribution of every metric, binned success per parameter; written before the plots, so a
-plotting failure never loses it) and ``plots/success-vs-<param>.png``.
+arrives, a worker's chunk of runs at a time (:func:`chunk_sizes`, at most :data:`CHUNK_MAX`): a killed campaign
+resumes where it stopped, flying again the runs of the chunks under way), ``summary.json`` (success rate with
+its 95 % Wilson interval, the distribution of every metric, binned success per parameter; written before the
+plots, so a plotting failure never loses it) and ``plots/success-vs-<param>.png``.
 
 Reliability (issue 14): ``.lock`` in the folder is held (``flock``) while a campaign runs, so a second
 campaign into the same folder is refused; the kernel releases it when the process dies, even by SIGKILL.
@@ -103,6 +104,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.experiments import reuse
 from omnirotor.experiments.campaign_pool import BACKENDS
 from omnirotor.experiments.campaign_report import (
     DEFINITION_FILE,
@@ -223,6 +225,7 @@ def execute_run(job: RunJob) -> dict:
     try:
         options = job.options
         with (
+            reuse.reusing(),  # the controller and truth log of this worker's previous run (experiments.reuse)
             warnings.catch_warnings(record=True) as caught,
             tempfile.TemporaryDirectory(prefix="omnirotor-campaign-")
             if job.identify_truth
@@ -267,8 +270,13 @@ LOCK_FILE = ".lock"
 
 def _append_record(path: Path, record: dict) -> None:
     """Append one JSON line with a single write, flushed to disk (never through a symbolic link)."""
-    line = (json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n").encode()
-    append_bytes(path, line)
+    _append_records(path, [record])
+
+
+def _append_records(path: Path, records: list[dict]) -> None:
+    """Append one JSON line per record with a single write, flushed to disk (never through a symbolic link)."""
+    lines = "".join(json.dumps(r, separators=(",", ":"), allow_nan=False) + "\n" for r in records)
+    append_bytes(path, lines.encode())
 
 
 @contextlib.contextmanager
@@ -540,23 +548,55 @@ def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, pro
         return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd, pool)
 
 
+CHUNK_MAX = 8
+"""Most runs sent to a worker in one request (:func:`chunk_sizes`)."""
+CHUNKS_PER_WORKER = 4
+"""A chunk is at most the runs left over this many times the workers (:func:`chunk_sizes`)."""
+
+
+def chunk_sizes(n: int, workers: int) -> list[int]:
+    """Runs per request for ``n`` runs on ``workers`` (guided self-scheduling): fewer round trips, a short tail.
+
+    Each request takes the runs left over :data:`CHUNKS_PER_WORKER` times the workers, at most :data:`CHUNK_MAX`
+    and at least one, so the requests shrink to single runs at the end and the workers finish together.
+    """
+    sizes = []
+    left = n
+    while left > 0:
+        k = max(1, min(CHUNK_MAX, -(-left // (CHUNKS_PER_WORKER * max(1, workers)))))
+        sizes.append(k)
+        left -= k
+    return sizes
+
+
+def run_chunk(run_fn: Callable[[RunJob], dict], jobs: list[RunJob]) -> list[dict]:
+    """The records of ``jobs`` run one after the other by ``run_fn`` (one request to a worker)."""
+    return [run_fn(job) for job in jobs]
+
+
 def _executor_backend(
     executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int, cancel: bool
 ):
-    """Yield records as the runs finish on warm workers, at most ``limit`` at a time, in the order of ``jobs``.
+    """Yield lists of records as chunks of runs finish on warm workers, at most ``limit`` at a time.
 
-    A ``limit`` of all the executor's workers queues every job at once, so that no worker waits for this process
-    (writing a result, say) between runs. ``cancel``: when the consumer stops early (the command hung up), the
-    runs not yet started are cancelled (a resident pool goes on serving); else the pool's owner kills it.
+    The jobs go in order, in chunks of :func:`chunk_sizes` (one request and one answer per chunk). A ``limit`` of
+    all the executor's workers queues every chunk at once, so that no worker waits for this process (writing a
+    result, say) between runs. ``cancel``: when the consumer stops early (the command hung up), the chunks not yet
+    started are cancelled (a resident pool goes on serving); else the pool's owner kills it.
     """
-    if limit >= getattr(executor, "_max_workers", limit + 1):
+    workers = getattr(executor, "_max_workers", limit)
+    if limit >= workers:
         limit = len(jobs)
-    queue = list(reversed(jobs))
+    queue, i = [], 0
+    for k in chunk_sizes(len(jobs), min(workers, limit)):
+        queue.append(jobs[i : i + k])
+        i += k
+    queue.reverse()
     pending: set[cf.Future] = set()
     try:
         while queue or pending:
             while queue and len(pending) < limit:
-                pending.add(executor.submit(run_fn, queue.pop()))
+                pending.add(executor.submit(run_chunk, run_fn, queue.pop()))
             done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
             for fut in done:
                 yield fut.result()
@@ -597,16 +637,17 @@ def _run_locked(
     with pool_cm as executor:
         if jobs:
             if backend == "local" and executor is not None:
-                stream = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers, not own)
+                batches = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers, not own)
             elif backend == "local":
-                stream = (execute_run(job) for job in jobs)
+                batches = ([execute_run(job)] for job in jobs)
             else:
-                stream = _ray_backend(ray, jobs, workers)
-            for rec in stream:
-                _append_record(out / RESULTS_FILE, rec)
-                done[rec["index"]] = rec
-                count += 1
-                report(count, n, rec)
+                batches = ([rec] for rec in _ray_backend(ray, jobs, workers))
+            for batch in batches:
+                _append_records(out / RESULTS_FILE, batch)  # one write and sync per chunk
+                for rec in batch:
+                    done[rec["index"]] = rec
+                    count += 1
+                    report(count, n, rec)
         return _finish(spec, out, n, done, len(jobs), plots, executor, workers)
 
 

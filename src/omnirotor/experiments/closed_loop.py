@@ -37,6 +37,7 @@ from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController, load_controller_params
 from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
+from omnirotor.experiments import reuse
 from omnirotor.experiments.metrics import RunLog, table1_errors
 from omnirotor.limits import MAX_DURATION_S, MAX_SEED, MIN_DURATION_S
 from omnirotor.recorder import Recorder
@@ -140,7 +141,7 @@ def run_closed_loop(
     frame = sim.reset(p_W=p0, R_WB=R0)
     controller.log.ensure_capacity(n_steps)
     controller.reset(frame, trajectory)
-    truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+    truth_log = reuse.truth_log(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))  # a new one unless reusing
     every = max(1, n_steps // _PROGRESS_UPDATES)
     if video is None and on_step is None and isinstance(sim, Simulator):
         sim_args, ctl_args = sim.kernel_state, controller.kernel_args
@@ -215,25 +216,27 @@ def _run_compiled(
 def run_log(controller_log: Recorder, truth_log: Recorder) -> RunLog:
     """The signals of a run for :mod:`omnirotor.experiments.metrics`: true and believed EE pose, references, estimates.
 
-    Rows are paired by index (row ``k`` of both logs is the same instant); the shorter log sets the length.
+    Rows are paired by index (row ``k`` of both logs is the same instant); the shorter log sets the length. The
+    signals are views of the two logs' storage (no copies; ``in_contact``, ``region`` and ``status`` are converted):
+    they show what the logs hold, so a log cleared and written again (a reused controller) changes them.
     """
     n = min(controller_log.n, truth_log.n)
     c, tr = controller_log, truth_log
     return RunLog(
-        t=c.group("t")[:n].copy(),
-        p_E_W=tr.group("p_E_W")[:n].copy(),
-        R_WE=tr.group("R_WB")[:n].reshape(n, 3, 3).copy(),  # R_E^B = I (SPEC §1.5)
-        p_E_est_W=c.group("p_E_W")[:n].copy(),
-        R_WE_est=c.group("R_WB")[:n].reshape(n, 3, 3).copy(),
-        p_Er_W=c.group("p_E_ref_W")[:n].copy(),
-        R_WEr=c.group("R_E_ref")[:n].reshape(n, 3, 3).copy(),
-        p_Ed_W=c.group("p_E_des_W")[:n].copy(),
-        f_ext_hat_W=c.group("f_ext_W")[:n].copy(),
-        m_ext_hat_B=c.group("m_ext_B")[:n].copy(),
-        f_contact_W=tr.group("contact_force_W")[:n].copy(),
+        t=c.group("t")[:n],
+        p_E_W=tr.group("p_E_W")[:n],
+        R_WE=tr.group("R_WB")[:n].reshape(n, 3, 3),  # R_E^B = I (SPEC §1.5)
+        p_E_est_W=c.group("p_E_W")[:n],
+        R_WE_est=c.group("R_WB")[:n].reshape(n, 3, 3),
+        p_Er_W=c.group("p_E_ref_W")[:n],
+        R_WEr=c.group("R_E_ref")[:n].reshape(n, 3, 3),
+        p_Ed_W=c.group("p_E_des_W")[:n],
+        f_ext_hat_W=c.group("f_ext_W")[:n],
+        m_ext_hat_B=c.group("m_ext_B")[:n],
+        f_contact_W=tr.group("contact_force_W")[:n],
         in_contact=tr.group("in_contact")[:n] > 0.5,
         region=c.group("region")[:n].astype(int),
-        omega_hz=c.group("omega_cmd_hz")[:n].copy(),
+        omega_hz=c.group("omega_cmd_hz")[:n],
         status=c.group("status")[:n].astype(int),
     )
 

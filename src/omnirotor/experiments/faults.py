@@ -345,7 +345,7 @@ def safety_stats(omega_cmd_hz: np.ndarray, status: np.ndarray, vehicle: VehicleP
     Returns:
         ``{"commands_finite", "commands_within_limits", "steps", "flags": {name: steps}}``.
     """
-    w = np.asarray(omega_cmd_hz, dtype=float)
+    w = np.ascontiguousarray(omega_cmd_hz, dtype=float)  # a log's strided view: gathered once
     bits = np.asarray(status).astype(np.int64)
     finite = bool(np.all(np.isfinite(w)))
     within = finite and bool(np.all((w >= vehicle.omega_min_hz) & (w <= vehicle.omega_max_hz)))

@@ -29,6 +29,7 @@ from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
+from omnirotor.experiments import reuse
 from omnirotor.experiments.closed_loop import (
     HOVER_DURATION_S,
     TaskOptions,
@@ -203,7 +204,8 @@ def _controller(
     zero = zero if opts.zero_observer is None else opts.zero_observer
     if zero and not params.observer.zero_at_start:
         params = dataclasses.replace(params, observer=dataclasses.replace(params.observer, zero_at_start=True))
-    return InteractionController(vehicle, params, maps)
+    # a campaign worker's previous controller when built alike (experiments.reuse), else a new one
+    return reuse.controller(vehicle, params, maps, lambda: InteractionController(vehicle, params, maps))
 
 
 def _fly(
@@ -222,6 +224,7 @@ def _fly(
     sim = plant_simulator(vehicle, scene, opts.sim_params(), opts.seed, opts.plant, controller, reset=False)
     with video_sink(sim, opts.video) as video:
         ctl_log, truth_log = run_closed_loop(sim, controller, trajectory, duration_s, progress=progress, video=video)
+    reuse.give_back_controller(controller, vehicle, controller.params, maps)
     names = tuple(maps.partition.names) if maps is not None and opts.map_mode == "piecewise" else ()
     return ctl_log, truth_log, names
 
