@@ -7,8 +7,11 @@ the last bit or within a rounding) and NumPy's error model (a division by zero g
 it never raises inside the loop). Kernels are compiled lazily, on their first call, and without the two
 wrappers numba builds by default for a call from Python and through a C pointer (:class:`KernelDispatcher`:
 a kernel called by kernels needs neither, and they cost a fifth of its compile time); a call from Python
-compiles a twin with them. Entry points Python calls once per period use :func:`jit_entry` (the wrappers,
-no twin). Small helpers called with
+compiles a twin with them. Nor does a kernel get machine code or a module-level optimisation of its own
+(:class:`LinkOnlyLibrary`): its callers link its LLVM IR into their module and optimise and compile that
+whole, so only the functions Python calls are compiled to machine code. Entry points Python calls once per
+period use :func:`jit_entry` (the Python wrapper, no twin; no function is called through a C pointer, so no
+dispatcher builds that wrapper). Small helpers called with
 constant arguments (which numba compiles once per constant value) and a few large functions that take the
 controller's tuple of arrays are inlined into their compiled callers instead (:func:`jit_inline`).
 
@@ -43,7 +46,9 @@ import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
-from numba.core.caching import FunctionCache
+from numba.core.caching import CompileResultCacheImpl, FunctionCache
+from numba.core.codegen import JITCodeLibrary
+from numba.core.compiler import Compiler, CompileResult
 from numba.core.dispatcher import Dispatcher
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
@@ -141,6 +146,118 @@ class DependencyCache(FunctionCache):
         return sig_key, magic, (*hashes, self._sources)
 
 
+_LINK_ONLY = "omnirotor-link-only"
+"""The cache's serialisation kind of a :class:`LinkOnlyLibrary`: its LLVM bitcode, no machine code."""
+
+
+class _EnvlessCodegen:
+    """numba's code generator, except that storing a link-only kernel's environment pointer is skipped.
+
+    numba stores a compiled function's environment in a global of its machine code; a
+    :class:`LinkOnlyLibrary` has none. The environment holds the Python objects a function uses (object
+    mode, printing, a raised exception's values), which a kernel of the 1 kHz loop never does.
+    """
+
+    def __init__(self, codegen) -> None:
+        self._codegen = codegen
+
+    def set_env(self, env_name, env) -> None:
+        pass
+
+    def __getattr__(self, name):
+        return getattr(self._codegen, name)
+
+
+class LinkOnlyLibrary(JITCodeLibrary):
+    """The code of a kernel only kernels call: LLVM IR that callers link in, never machine code of its own.
+
+    numba links the IR of a function's callees into the function's own module, optimises that whole module
+    and compiles it to machine code; the machine code of the callee's own module is never run when no Python
+    code calls it, and its module-level optimisation (inlining, across its own callees) is done again by
+    every caller on the linked copy. A :class:`KernelDispatcher` (no wrapper for calls from Python) therefore
+    keeps its module out of the execution engine (no machine code) and leaves it optimised per function only;
+    the entry point that links it optimises the whole call tree once. Its cache entry is the bitcode its
+    callers link (:class:`_KernelCacheImpl`). The arithmetic is IEEE without fast-math flags, which no
+    optimisation may reorder, so the results are the same, bit for bit (the tests of the compiled paths).
+    """
+
+    def _optimize_final_module(self) -> None:
+        pass
+
+    @property
+    def codegen(self):
+        return _EnvlessCodegen(self._codegen)
+
+    def _finalize_final_module(self) -> None:
+        self._finalize_dynamic_globals()
+        self._verify_declare_only_symbols()
+        self._finalized = True
+
+    def get_pointer_to_function(self, name) -> int:
+        """No machine code: 0, numba's "not defined" (a kernel's Python entry point is null already)."""
+        self._ensure_finalized()
+        return 0
+
+    def serialize_using_object_code(self):
+        """The cache's record of the library: its name, :data:`_LINK_ONLY` and the bitcode callers link."""
+        return (self.name, _LINK_ONLY, self._get_module_for_linking().as_bitcode())
+
+    @classmethod
+    def from_cache(cls, codegen, state) -> LinkOnlyLibrary:
+        """The library of a cache record written by :meth:`serialize_using_object_code`."""
+        name, _, bitcode = state
+        lib = cls(codegen, name)
+        lib._shared_module = llvmlite.binding.parse_bitcode(bitcode)
+        lib._finalized = True
+        return lib
+
+
+class _KernelCompiler(Compiler):
+    """numba's compiler pipeline, lowering into a :class:`LinkOnlyLibrary`."""
+
+    def compile_extra(self, func):
+        if self.state.library is None:
+            self.state.library = LinkOnlyLibrary(self.state.targetctx.codegen(), func.__qualname__)
+            self.state.library.enable_object_caching()
+        return super().compile_extra(func)
+
+
+class _KernelCacheImpl(CompileResultCacheImpl):
+    """numba's cache of compile results, rebuilding a kernel's :class:`LinkOnlyLibrary` from its bitcode."""
+
+    def rebuild(self, target_context, payload):
+        libdata, fndesc, env, signature, objectmode, lifted, typeann, reload_init, referenced_envs = payload
+        if libdata[1] != _LINK_ONLY:
+            return super().rebuild(target_context, payload)
+        for fn in reload_init or ():
+            fn()
+        library = LinkOnlyLibrary.from_cache(target_context.codegen(), libdata)
+        # As numba's CompileResult._rebuild, with this library; the environments are never stored (above).
+        return CompileResult(
+            target_context=target_context,
+            typing_context=target_context.typing_context,
+            library=library,
+            environment=env,
+            entry_point=target_context.get_executable(library, fndesc, env),
+            fndesc=fndesc,
+            type_annotation=typeann,
+            signature=signature,
+            objectmode=objectmode,
+            lifted=lifted,
+            typing_error=None,
+            call_helper=None,
+            metadata=None,
+            reload_init=reload_init,
+            referenced_envs=referenced_envs,
+        )
+
+
+class KernelCache(DependencyCache):
+    """:class:`DependencyCache` of a :class:`KernelDispatcher`: its entries are link-only bitcode."""
+
+    _impl_class = _KernelCacheImpl
+
+
 class KernelDispatcher(CPUDispatcher):
     """A kernel compiled for compiled callers: no Python or C-function wrapper (they cost compile time only).
 
@@ -166,7 +283,7 @@ class KernelDispatcher(CPUDispatcher):
         return self._python_twin().stats
 
 
-_njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+_njit = numba.njit(cache=True, fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
 
 
 def _leaf(signature: str):
@@ -178,11 +295,16 @@ def _leaf(signature: str):
     return numba.njit(signature, cache=True, fastmath=False, error_model="numpy")
 
 
-_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always", no_cfunc_wrapper=True)
 
 
 _njit_kernel = numba.njit(
-    cache=True, fastmath=False, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True
+    cache=True,
+    fastmath=False,
+    error_model="numpy",
+    no_cpython_wrapper=True,
+    no_cfunc_wrapper=True,
+    pipeline_class=_KernelCompiler,
 )
 
 
@@ -195,12 +317,16 @@ def jit(fn):
     d = _njit_kernel(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
         d.__class__ = KernelDispatcher
-        d._cache = DependencyCache(d.py_func, "kernel")
+        d._cache = KernelCache(d.py_func, "kernel-ir")
     return d
 
 
 def jit_entry(fn):
-    """:func:`jit` with numba's wrappers: for the entry points Python calls often (one Python call less)."""
+    """:func:`jit` with numba's Python wrapper: for the entry points Python calls often (one Python call less).
+
+    Also for a kernel Python calls (once, e.g. in a reset) with the argument types its compiled callers pass:
+    one compiled version serves both, where a :func:`jit` kernel would compile a twin for Python.
+    """
     d = _njit(fn)
     if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
         d._cache = DependencyCache(d.py_func)

@@ -316,7 +316,7 @@ def _correct_lever_arm(u, dt: float) -> None:
     a[2] -= wx * cy - wy * cx + wd0 * r1 - wd1 * r0
 
 
-@jit
+@jit_entry
 def mocap_sample_valid(p, q, tol: float) -> bool:
     """Finite position and quaternion, the quaternion's norm within ``tol`` of 1."""
     if not (math.isfinite(p[0] + p[1] + p[2]) and math.isfinite(q[0] + q[1] + q[2] + q[3])):
@@ -324,7 +324,7 @@ def mocap_sample_valid(p, q, tol: float) -> bool:
     return abs(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) <= tol
 
 
-@jit
+@jit_entry
 def imu_valid(u, gyro, acc) -> bool:
     """A finite sample within the sensor ranges of the UKF record ``u``."""
     sg, sa = gyro[0] + gyro[1] + gyro[2], acc[0] + acc[1] + acc[2]
@@ -422,7 +422,7 @@ def finish(u, out) -> int:
     return code
 
 
-@jit
+@jit_entry
 def write_estimate(u, out) -> None:
     """The estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (21,) of the output state into ``out``."""
     s = u.x_out

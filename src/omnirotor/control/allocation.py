@@ -54,7 +54,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_inline
+from omnirotor._jit import jit, jit_entry, jit_inline
 from omnirotor.blocks import register, state_array
 from omnirotor.config import check_positive
 from omnirotor.control import _qp
@@ -182,7 +182,7 @@ BEGIN_SOLVE_NEW_MAP = 1  # ready, after a new map rebuilt H (a Python backend mu
 BEGIN_HELD = 2  # an input was not finite: the last safe input is held (status NONFINITE)
 
 
-@jit
+@jit_entry
 def alloc_set_map(r, ar, A) -> None:
     """Rebuild the QP for a new wrench map ``A`` (finite), in place.
 
@@ -538,7 +538,7 @@ class Allocator:
         self._hi_all = ar.hi.copy()
         self._failed = np.zeros(n, dtype=bool)
         self._sat_margin = self.params.saturation_tol * float(self._hi_all[0] - self._lo_all[0])
-        alloc_set_map(self._rec, ar, np.asarray(vehicle.A_nom, dtype=np.float64))
+        alloc_set_map(self._rec, ar, np.ascontiguousarray(vehicle.A_nom, dtype=np.float64))
         self._refresh_bound_lists()
         self._backend = self._make_backend()
         self.reset()

@@ -31,7 +31,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import new_state
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
@@ -205,7 +205,7 @@ def _write_hold(pk, o: int, out) -> None:
         out.alpha_W[i] = pk[o + (21 + i) * nb]
 
 
-@jit
+@jit_entry
 def trajectory_sample(pk, t: float, out) -> None:
     """The reference at time ``t`` [s] of a packed trajectory (:meth:`PoseTrajectory.sample`) into record ``out``."""
     n_wp = int(pk[0])

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit
+from omnirotor._jit import R9_from_quat_into, jit, jit_entry
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
 from omnirotor.messages import (
@@ -276,7 +276,7 @@ def quat_perturb_into(q, dtheta, out) -> None:
     out[3] = rz * s
 
 
-@jit
+@jit_entry
 def mocap_push(moc, noise, t: float, due: int, p, q) -> None:
     """Queue a sample taken at ``t`` of the pose ``(p, q)``, with its noise, for delivery at step ``due``.
 
