@@ -95,6 +95,26 @@ def _module_file(module: str) -> Path | None:
 
 
 @functools.cache
+def _file_bytes(f: Path) -> bytes:
+    """A source file's bytes, read once per process: many kernels' closures share the same files."""
+    return f.read_bytes()
+
+
+@functools.cache
+def _imported_files(f: Path) -> tuple[Path, ...]:
+    """The package's source files that ``f`` imports directly (see :func:`source_closure`), parsed once."""
+    deps = []
+    for m in _IMPORT_RE.finditer(_file_bytes(f).decode()):
+        module = m.group(1) or m.group(3)
+        names = [n.split(" as ")[0].strip() for n in (m.group(2) or "").strip("()").split(",")]
+        for cand in [module] + [f"{module}.{n}" for n in names if n.isidentifier()]:
+            dep = _module_file(cand)
+            if dep is not None:
+                deps.append(dep)
+    return tuple(deps)
+
+
+@functools.cache
 def source_closure(path: str) -> tuple[Path, ...]:
     """The package's source files a module depends on: ``path`` and every package module it imports, transitively.
 
@@ -110,13 +130,7 @@ def source_closure(path: str) -> tuple[Path, ...]:
         if f in seen:
             continue
         seen.add(f)
-        for m in _IMPORT_RE.finditer(f.read_text()):
-            module = m.group(1) or m.group(3)
-            names = [n.split(" as ")[0].strip() for n in (m.group(2) or "").strip("()").split(",")]
-            for cand in [module] + [f"{module}.{n}" for n in names if n.isidentifier()]:
-                dep = _module_file(cand)
-                if dep is not None and dep not in seen:
-                    todo.append(dep)
+        todo.extend(dep for dep in _imported_files(f) if dep not in seen)
     return tuple(sorted(seen))
 
 
@@ -125,7 +139,7 @@ def _closure_hash(path: str) -> str:
     h = hashlib.sha256()
     for f in source_closure(path):
         name = f.relative_to(_PACKAGE_DIR) if f.is_relative_to(_PACKAGE_DIR) else f  # e.g. a benchmark's kernel
-        h.update(str(name).encode() + b"\0" + f.read_bytes() + b"\0")
+        h.update(str(name).encode() + b"\0" + _file_bytes(f) + b"\0")
     return h.hexdigest()
 
 
