@@ -17,7 +17,7 @@ surface sends back falls as the inverse square of the distance to the mirrored w
 is ``sigma s(p)``, with ``s² = Σ_i (l² / (l² + d_i²))²`` over the scene's large surfaces (independent eddies from
 each), ``d_i`` the distance of the CoM ``p`` from surface ``i`` and ``l`` the radius of the vehicle's wake
 source (its rotors' farthest centre plus a rotor radius: 0.32 m for the Omnirotor). ``sigma`` is thus the
-force next to one surface; in the paper's point contact (CoM 0.5 m off the wall) ``s`` is 0.30, in free hover
+force next to one surface; in the paper's point contact (CoM 0.5 m off the wall) ``s`` is 0.29, in free hover
 1.5 m above the floor 0.04. The surfaces (:func:`scene_surfaces`) are planes (``d = n · (p - p0)``) and the
 pipe's cylinder (``d = |p - c|_perp - r``), both taken as unbounded [A]; a block given no surface keeps
 ``s = 1`` (the force of ``sigma`` everywhere, the model before the surfaces; ``AirflowParams.near_surfaces``
