@@ -15,7 +15,8 @@ import pytest
 
 from omnirotor.messages import FRAME_ACC_B, FRAME_GYRO_B, frame_size
 from omnirotor.sim import AirflowParams, SimParams, Simulator, prng
-from omnirotor.sim.airflow import AirflowForce
+from omnirotor.sim.airflow import AirflowForce, scene_surfaces, surface_scale, wake_radius
+from omnirotor.sim.params import SceneParams
 from omnirotor.sim.rotors import RotorBank
 from omnirotor.sim.sensors import STATE_NONE, Sensors, mocap_step, sense
 from omnirotor.vehicle import load_vehicle
@@ -103,6 +104,60 @@ def test_airflow_force_scales_with_the_vehicle_weight():
         ref.step()
         light.step()
     np.testing.assert_allclose(light.f_W, 0.02 * ref.f_W, rtol=1e-9)
+
+
+def _wall_force(p_W, near_surfaces: bool = True) -> AirflowForce:
+    sp = SceneParams()
+    params = AirflowParams(force_std=2.0, corner_hz=1.0, near_surfaces=near_surfaces)
+    return AirflowForce(params, DT, seed=4, surfaces=scene_surfaces("wall", sp), wake_radius_m=wake_radius(V))
+
+
+def test_airflow_force_falls_with_the_distance_from_the_surfaces():
+    """s² = Σ (l² / (l² + d²))² over the floor and the wall, l the wake radius; the variance follows s²."""
+    sp = SceneParams()
+    l_m = wake_radius(V)
+    assert l_m == pytest.approx(math.sqrt(3) * 0.125 + 0.1016, abs=1e-4)  # the cube's corner plus a rotor radius
+    wall_y = sp.wall_point[1]
+
+    def s_expected(p):
+        g = [l_m**2 / (l_m**2 + d**2) for d in (p[2], p[1] - wall_y)]  # floor z = 0; wall normal +y
+        return math.sqrt(sum(x * x for x in g))
+
+    b = _wall_force(None)
+    par = b.par[0]
+    for p in ((0.6, wall_y + 0.5, 1.43), (0.6, wall_y + 1.5, 1.5), (0.0, wall_y + 0.05, 0.3)):
+        assert surface_scale(par, np.array(p)) == pytest.approx(s_expected(p), rel=1e-12)
+    # Behind a surface (inside the wall) counts as on it; a pipe's distance is from its cylinder.
+    assert surface_scale(par, np.array([0.6, wall_y - 0.2, 1e3])) == pytest.approx(1.0, abs=1e-5)
+    pipe = AirflowForce(AirflowParams(), DT, surfaces=scene_surfaces("pipe", sp), wake_radius_m=l_m).par[0]
+    c = np.asarray(sp.pipe_centre)
+    p = c + np.array([5.0, -(sp.pipe_radius + 0.4) * math.cos(0.3), (sp.pipe_radius + 0.4) * math.sin(0.3)])
+    g_pipe, g_floor = l_m**2 / (l_m**2 + 0.4**2), l_m**2 / (l_m**2 + p[2] ** 2)
+    assert surface_scale(pipe, p) == pytest.approx(math.hypot(g_pipe, g_floor), rel=1e-12)
+    # The stationary standard deviation at a fixed place is force_std * s: 0.3 of it in the paper's point contact.
+    p_contact = np.array([0.6, wall_y + 0.5, 1.43])
+    steps = 300_000
+    f = np.empty((steps, 3))
+    for k in range(steps):
+        b.step(p_contact)
+        f[k] = b.f_W
+    assert b.scale == pytest.approx(s_expected(p_contact))
+    assert 0.28 < b.scale < 0.31
+    assert np.all(np.abs(f[5000:].std(axis=0) / (2.0 * b.scale) - 1.0) < 0.1)
+    # Without surfaces (or switched off) the force keeps force_std everywhere.
+    off = _wall_force(None, near_surfaces=False)
+    assert off.par["n_surfaces"][0] == 0
+    off.step(p_contact)
+    assert off.scale == 1.0
+
+
+def test_simulator_gives_the_airflow_its_scene_surfaces():
+    """Free hover 1.5 m above the floor feels 4 % of the force next to a surface; the wall scene adds the wall."""
+    free = Simulator(V, "free", SimParams(), seed=1, reset=False)
+    wall = Simulator(V, "wall", SimParams(), seed=1, reset=False)
+    assert free.airflow.par["n_surfaces"][0] == 1 and wall.airflow.par["n_surfaces"][0] == 2
+    assert surface_scale(free.airflow.par[0], np.array([0.0, 0.0, 1.5])) == pytest.approx(0.043, abs=0.001)
+    assert not SimParams().undisturbed().airflow.force_std
 
 
 def test_no_fluctuation_when_off():

@@ -122,6 +122,19 @@ def test_tilted_surface_normal_force_is_underestimated(point_contact_runs):
     assert nf["underestimate_N"] > 0.3, nf
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="calibrated rotor-wake truth: with no disturbance the observer errs by 0.94 N RMS against the true "
+    "contact force in straight point contact (quick, bypass; full protocol, UKF, seeds 0-3: 0.87-0.90 N): the "
+    "nominal map's error at the contact's rotor speeds, which the start-attitude zeroing cannot know "
+    "(docs/fidelity.md); the goal 0.5 N",
+)
+def test_observer_error_in_point_contact_within_half_a_newton(point_contact_runs):
+    # issue 12 item 4: the observer's RMS error against the true contact force (the paper's ATI sensor) <= 0.5 N
+    err = point_contact_runs["point-contact"]["force"]["estimate_rms_error_N"]
+    assert err <= 0.5, err
+
+
 @pytest.fixture(scope="module")
 def sliding_runs(truth_maps):
     return {

@@ -61,7 +61,7 @@ def calibrate_disturbances_cmd(
         str | None,
         typer.Option(
             help="Points acc_vib_noise_std:force_std:mocap_drift_pos_std [m/s²:N:m] flown on the calibration "
-            "row, comma-separated (default: 0, 4, 8 m/s² x 0, 0.5, 1 N x 0, 7, 14 mm)."
+            "row, comma-separated (default: 0, 2, 4 m/s² x 0, 2, 4 N next to a surface x 0, 10, 20 mm)."
         ),
     ] = None,
     quick: Annotated[bool, typer.Option(help="Shortened protocols.")] = False,

@@ -59,7 +59,7 @@ PARAMETERS = ("sensors.acc_vib_noise_std", "airflow.force_std", "sensors.mocap_d
 """The calibrated scalars (:class:`omnirotor.sim.params.SensorParams`, ``AirflowParams``)."""
 UNITS = ("m/s²", "N", "m")
 """Their units."""
-DEFAULT_GRID = tuple((a, b, c) for a in (0.0, 4.0, 8.0) for b in (0.0, 0.5, 1.0) for c in (0.0, 0.007, 0.014))
+DEFAULT_GRID = tuple((a, b, c) for a in (0.0, 2.0, 4.0) for b in (0.0, 2.0, 4.0) for c in (0.0, 0.01, 0.02))
 """The values of :data:`PARAMETERS` flown on the calibration row by default (a 3 x 3 x 3 grid)."""
 RATIO_BAND = (0.5, 2.0)
 """The issue's band for ours/paper."""

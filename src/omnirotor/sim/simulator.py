@@ -35,7 +35,7 @@ from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand, SensorFrame, frame_size
 from omnirotor.sim import step as _step
 from omnirotor.sim.aero import make_aero
-from omnirotor.sim.airflow import AirflowForce
+from omnirotor.sim.airflow import AirflowForce, scene_surfaces, wake_radius
 from omnirotor.sim.contact import EeContact, friction_reset, friction_step, other_contact
 from omnirotor.sim.faults import FaultSchedule
 from omnirotor.sim.model import BODY_NAME, EE_ROD_GEOM, EE_SITE, EE_TIP_GEOM, build_mjcf
@@ -182,7 +182,10 @@ class Simulator:
         self.aero = make_aero(vehicle, p.aero)
         self.rotors = RotorBank(vehicle, p.rotors, p.dt, seed=self.seed)
         self.rotors.adopt(rec["rotor_par"], rec["rotors"])
-        self.airflow = AirflowForce(p.airflow, p.dt, seed=self.seed, weight_N=vehicle.weight)
+        self.airflow = AirflowForce(
+            p.airflow, p.dt, seed=self.seed, weight_N=vehicle.weight, surfaces=scene_surfaces(scene, p.scene),
+            wake_radius_m=wake_radius(vehicle),
+        )  # fmt: skip
         self.airflow.adopt(rec["airflow_par"], rec["airflow"])
         self.sensors = Sensors(
             p.sensors, vehicle.gravity, p.dt, vehicle.n_rotors, state_mode, self.seed, rec["sensors"]
@@ -389,7 +392,7 @@ class Simulator:
                 mujoco.mj_Euler(m, d)
                 if i == self._last_substep:
                     self.rotors.step(rotor_cmd)
-                    self.airflow.step()
+                    self.airflow.step(self._pose)
                 self._apply_wrench(recompute_rotors=i == self._last_substep)
                 mujoco.mj_forward(m, d)
                 self._friction_step()

@@ -299,7 +299,7 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         last = i == substeps - 1
         if last:
             rotors.rotor_step(s["rotor_par"], s["rotors"], cmd)
-            airflow.airflow_step(s["airflow_par"], s["airflow"])
+            airflow.airflow_step(s["airflow_par"], s["airflow"], pose)
             aero_wrench(s["aero"], s["rotors"]["u_eff_hz2"][: s["rotor_par"]["n_rotors"]], w_B)
         apply_wrench(pose, w_B, ext, s["airflow"]["f_W"], xfrc, s["R9"])
         # The sensors are read after the period only (computed on its last physics step), except by the tool's
