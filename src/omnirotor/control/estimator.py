@@ -116,7 +116,8 @@ the samples until its weight falls to ``1 / mocap_adapt_samples``: the fewest fo
 raised by its first sample with a probability below 1e-5 (its mean must exceed ``MATCH_ON_RATIO``² = 4: P(χ²₃ >
 30) = 1.4e-6). A noise five times the assumed is then matched from the first samples on, before the velocity and
 the biases are fitted to it (7 prior samples, which no single clipped sample can move past the threshold, left
-the closed-loop hover 1.3 to 1.7 times the error of a filter told the noise at 2 to 20 mm; 2 left 1.07). A gross
+the closed-loop hover up to 1.35 times the error of a filter told the noise at 3 to 20 mm and 1.74 at 2 mm; 2 leave
+at most 1.07, docs/reliability.md). A gross
 outlier as the very first sample raises the noise to at most 3 times the one sigma for under twenty samples."""
 _F64 = np.dtype(np.float64)  # the dtype of every array the compiled step takes
 
