@@ -13,23 +13,11 @@ import json
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.faults import mocap_noise_hover
 
 
 def hover(matching: bool, seed: int = 0, noise_m: float = 0.01, told_m: float = 0.001):
-    overrides = [f"estimator.mocap_pos_std={told_m}"]
-    if not matching:
-        overrides.append("estimator.mocap_adapt_noise=false")
-    options = ExperimentOptions(
-        duration_s=10.0,
-        disturbances=False,
-        seed=seed,
-        overrides=tuple(overrides),
-        sim_overrides=(f"sensors.mocap_pos_noise_std={noise_m}",),
-    )
-    m = run_task("hover", options).metrics
-    return max(m["ee_rms_error"][k] for k in ("x_cm", "y_cm", "z_cm")), m["safety"]
+    return mocap_noise_hover(noise_m, told_m, matching, seed)
 
 
 def test_a_hover_on_a_motion_capture_ten_times_noisier_than_assumed_holds_its_place():
