@@ -322,6 +322,103 @@ def test_matching_stays_within_its_bounds_and_ends_with_the_noise():
     assert math.sqrt(u["Rn"][3, 3]) == pytest.approx(math.radians(0.5))  # the attitude: never raised
 
 
+@pytest.mark.parametrize("sigma", [2e-3, 5e-3, 20e-3])
+def test_matched_filter_flies_as_one_told_the_noise_from_the_start(sigma):
+    """2 to 20 times the assumed noise (1 mm), seeds 0 to 2, the start-up included: the noise is matched within a
+    few samples, before the velocity and biases are fitted to it, so the filter flies as one told the noise and
+    gates nothing out. Before (a slow start, P reset to P0 past 5 times the assumed sigma, no hysteresis) 5 mm
+    gated 17 samples out and was reset mid-start, and 2 mm, switched on and off about the threshold, flew 1.2 to
+    1.35 times the error of the filter told the noise."""
+    n_samples = None
+    for seed in range(3):
+        fl = make_flight(T=5.0, pos_sigma=sigma, seed=seed)
+        after = fl.ts > 0.5
+        est, out = run(fl.frames)
+        est_told, out_told = run(fl.frames, EstimatorParams(mocap_pos_std=sigma))
+        e_p = rms(errors(fl, out)[0][after])
+        e_told = rms(errors(fl, out_told)[0][after])
+        assert e_p < 1.1 * e_told  # measured 1.00 to 1.02 times
+        # a few samples gated out before the noise is found (20 mm: up to 3; before: 17 at 5 mm)
+        assert est.rejected_mocap <= est_told.rejected_mocap + 3 and est.n_reinit == 0
+        n_samples = sum(f.mocap_new for f in fl.frames)
+        assert est.n_noise_adapted > n_samples - 10  # raised within a few samples and held (the hysteresis)
+        assert 0.8 * sigma < est.mocap_noise_std[0] < 1.2 * sigma
+
+
+def test_told_more_noise_than_there_is_the_filter_runs_as_without_matching():
+    """Told 5 mm of a 1 mm motion capture: the matching never acts (the estimate starts at the assumed noise and
+    only raises it), so the filter is not made worse: to the last bit, as without the matching."""
+    fl = make_flight(T=4.0, pos_sigma=1e-3)
+    told = EstimatorParams(mocap_pos_std=5e-3)
+    est, out = run(fl.frames, told)
+    _, out_off = run(fl.frames, dataclasses.replace(told, mocap_adapt_noise=False))
+    for a, b in zip(out, out_off, strict=True):
+        assert np.array_equal(a.p_W, b.p_W) and np.array_equal(a.v_W, b.v_W) and np.array_equal(a.R_WB, b.R_WB)
+    assert est.n_noise_adapted == 0
+
+
+def _fed(est, sigmas, seed=4):
+    """Feed ``match_noise`` innovations of the position noise ``sigmas[k]`` on a certain state; the noise in use."""
+    u = est.state[0]
+    rng = np.random.default_rng(seed)
+    r = np.zeros(6)
+    used = []
+    for sigma in sigmas:
+        r[:3] = rng.normal(0.0, sigma, 3)
+        r[3:] = rng.normal(0.0, math.radians(0.1), 3)
+        u["P"][:] = 0.0
+        _ek.match_noise(u, r)
+        used.append(math.sqrt(u["Rn"][0, 0]))
+    return np.array(used)
+
+
+def test_matching_starts_fast_and_holds_a_noise_about_its_threshold():
+    est = UKFEstimator(VEHICLE)
+    est.reset(flight(T=0.2).frames[LATENCY_STEPS])
+    # five times the assumed sigma: raised from the first few samples (the plain mean of the start)
+    used = _fed(est, [5e-3] * 20)
+    assert np.argmax(used > 1e-3) <= 4 and np.all(used[4:] > 2e-3)
+    # then 1.8 times: between the off (1.5) and on (2) thresholds, it stays matched instead of switching off
+    used = _fed(est, [1.8e-3] * 400)
+    assert np.all(used[200:] > 1e-3) and np.median(used[200:]) == pytest.approx(1.8e-3, rel=0.15)
+    # a gross outlier as the very first sample: at most 3 times the sigma (the clip and the start's 2 prior
+    # samples), back to the assumed within about twenty samples (17)
+    est.reset(flight(T=0.2).frames[LATENCY_STEPS])
+    used = _fed(est, [1.0] + [1e-3] * 30)
+    assert used.max() <= 3e-3 + 1e-12 and np.all(used[20:] == 1e-3)
+    # a noise as assumed: never raised from the start on
+    est.reset(flight(T=0.2).frames[LATENCY_STEPS])
+    assert np.all(_fed(est, [1e-3] * 300) == 1e-3)
+
+
+def test_covariance_is_discounted_by_the_noise_ratio_up_to_the_start_up_uncertainty():
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(15, 15))
+    P = A @ A.T * 1e-4
+    P0 = np.diag(np.diag(P) * rng.uniform(1.0, 40.0, 15))
+    d = np.minimum(9.0, np.diag(P0) / np.diag(P))
+    out = P.copy()
+    _ek.discount_covariance(out, P0, 9.0)
+    np.testing.assert_allclose(np.diag(out), np.diag(P) * d, rtol=1e-12)
+    assert np.diag(out).max() > np.diag(P).max() and np.all(np.diag(out) <= np.diag(P0) * (1 + 1e-12))
+    corr = lambda M: M / np.sqrt(np.outer(np.diag(M), np.diag(M)))  # noqa: E731
+    np.testing.assert_allclose(corr(out), corr(P), atol=1e-12)  # the correlations are kept
+    assert np.linalg.eigvalsh(out).min() > 0.0
+    # matching in a filter: the discount follows each rise of the noise in use, once per new top
+    est = UKFEstimator(VEHICLE)
+    est.reset(flight(T=0.2).frames[LATENCY_STEPS])
+    u = est.state[0]
+    u["P"][:] = np.diag(np.diag(u["P0"])) * 1e-4
+    before = u["P"][0, 0]
+    _ek.match_noise(u, np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))  # nothing raised: P untouched
+    assert u["P"][0, 0] == before and u["n_noise_discounts"] == 0
+    r = np.array([0.03, -0.03, 0.03, 0.0, 0.0, 0.0])
+    _ek.match_noise(u, r)
+    _ek.match_noise(u, r)
+    assert u["n_noise_discounts"] >= 1
+    assert u["P"][0, 0] == pytest.approx(before * u["Rn"][0, 0] / 1e-6, rel=1e-9)
+
+
 def test_persistent_offset_reinitialises_the_pose():
     shift = np.array([0.5, 0.0, 0.0])  # the rig re-zeroed by 0.5 m at t = 3 s
     fl = make_flight(T=5.0, mocap_shift=(3.0, shift))

@@ -24,7 +24,10 @@ def test_every_probe_gets_one_line_and_exit_2_and_the_doc_is_current():
     glitches = tool.run_glitches()
     assert all(all(row[2:]) for row in glitches), [row for row in glitches if not all(row[2:])]
     assert len(glitches) == 33  # every glitch of the catalogue the estimator in use reads
-    assert (ROOT / "docs" / "reliability.md").read_text() == tool.render(results, glitches), (
+    doc = (ROOT / "docs" / "reliability.md").read_text()
+    noise = tool.noise_rows_in(doc)  # measured by the tool (33 hovers); the closed-loop claim is tested elsewhere
+    assert [(t, told) for t, told, *_ in noise] == [(round(t, 9), round(told, 9)) for t, told in tool.NOISE_CASES]
+    assert doc == tool.render(results, glitches, noise), (
         "docs/reliability.md is not current: run python tools/reliability_report.py"
     )
 

@@ -108,7 +108,10 @@ UKF_DTYPE = np.dtype(
         ("n_noise_adapted", _I8),  # motion-capture samples weighed with a raised noise
         ("noise_pos_std_max", _F8),  # largest position noise one sigma used [m]
         ("noise_att_std_max", _F8),  # largest attitude noise one sigma used [rad]
-        ("noise_reset_done", _I8),  # 1 once P went back to P0 in this episode of raised noise
+        ("noise_n", _I8),  # motion-capture samples the running noise estimates have taken in
+        ("noise_var_pos_top", _F8),  # largest position noise variance used in this episode of raised noise [m²]
+        ("noise_var_att_top", _F8),  # ... attitude [rad²]
+        ("n_noise_discounts", _I8),  # times P was discounted for a raised noise
         # parameters
         ("g", _F8),  # gravity [m/s²]
         ("dt_nom", _F8),  # nominal IMU period [s]
@@ -138,9 +141,10 @@ UKF_DTYPE = np.dtype(
         ("adapt_noise", _I8),  # 1: raise Rn where the innovations show more noise than assumed
         ("adapt_alpha", _F8),  # weight of one sample in the running noise estimates
         ("adapt_on_ratio2", _F8),  # raised once the estimate exceeds this many times the assumed variance ...
+        ("adapt_off_ratio2", _F8),  # ... and back to the assumed once it falls below this many times it ...
         ("adapt_clip_ratio2", _F8),  # ... one sample counting at most this many times the variance in use ...
         ("adapt_max_ratio2", _F8),  # ... and never above this many times the assumed variance
-        ("adapt_reset_ratio2", _F8),  # raised beyond this many times the assumed variance: P back to P0
+        ("adapt_prior_n", _F8),  # the estimates start at the assumed variance, worth this many samples
         ("var_pos_assumed", _F8),  # assumed position noise variance per axis [m²]
         ("var_att_assumed", _F8),  # assumed attitude noise variance per axis [rad²]
     ]
@@ -781,11 +785,17 @@ def _matched_variance(u, r, o: int, est: float, assumed: float) -> float:
     for i in range(3):
         excess += r[o + i] * r[o + i] - P[_H_ROWS[o + i], _H_ROWS[o + i]]
     in_use = u.Rn[o, o]
+    # The weight of this sample: the plain mean of the samples so far and of adapt_prior_n samples at the assumed
+    # variance (the estimate's start), until that is less than adapt_alpha (the running average's).
+    weight = max(u.adapt_alpha, 1.0 / (u.adapt_prior_n + u.noise_n))
     # clipped to [0, adapt_clip_ratio2 * in_use]: a state less certain than its P says (just re-initialised)
     # proves nothing about the noise, and one outlier must not move the estimate far
-    est += u.adapt_alpha * (min(max(excess / 3.0, 0.0), u.adapt_clip_ratio2 * in_use) - est)
+    est += weight * (min(max(excess / 3.0, 0.0), u.adapt_clip_ratio2 * in_use) - est)
+    # raised above adapt_on_ratio2 times the assumed variance, back to it below adapt_off_ratio2 (hysteresis: a
+    # noise about the threshold is matched, not switched on and off)
+    threshold = u.adapt_on_ratio2 if in_use == assumed else u.adapt_off_ratio2
     var = assumed
-    if est > u.adapt_on_ratio2 * assumed:
+    if est > threshold * assumed:
         var = min(est, u.adapt_max_ratio2 * assumed)
     for i in range(3):
         u.Rn[o + i, o + i] = var
@@ -799,32 +809,62 @@ def noise_raised(u) -> bool:
 
 
 @jit
+def discount_covariance(P, P0, c: float) -> None:
+    """Discount the confidence in ``P`` (15, 15) for a noise ``c`` > 1 times larger than it was built with, in place.
+
+    Each error coordinate's variance is multiplied by ``d_i = min(c, P0_ii / P_ii)`` (at least 1): what the filter
+    learnt from samples it thought ``c`` times less noisy is worth ``c`` times less (a measurement-dominated
+    covariance scales with the measurement noise), but it is never less certain than at start-up (``P0``). The
+    correlations are kept: ``P <- D P D`` with ``D = diag(sqrt(d))``, which keeps ``P`` positive semi-definite.
+    """
+    n = P.shape[0]
+    for i in range(n):
+        d = 1.0
+        if P[i, i] > 0.0:
+            d = max(1.0, min(c, P0[i, i] / P[i, i]))
+        s = math.sqrt(d)
+        for j in range(n):
+            P[i, j] *= s
+            P[j, i] *= s
+
+
+@jit
 def match_noise(u, r) -> None:
     """Match the motion-capture noise to the innovations (covariance matching, per block; SPEC §4.5 [A]).
 
     A filter that assumes less noise than its motion capture has gates out most samples, re-initialises from
     single noisy ones and corrupts its bias estimates: 10 mm of noise against 1 mm assumed flew a hover tens of
     metres away. So the variance the innovation ``r`` shows beyond the state's own uncertainty, ``(|r|² -
-    tr(H P Hᵀ)) / 3`` per axis, is averaged over the samples (weight ``adapt_alpha``, before the gate: a gated
-    sample is evidence too), each sample counting at most ``adapt_clip_ratio2`` times the variance in use so
-    that single outliers barely move it. Where the average exceeds ``adapt_on_ratio2`` times the assumed
-    variance it replaces the assumed one in ``Rn`` (at most ``adapt_max_ratio2`` times it); below, ``Rn`` is
-    the assumed noise, so a filter whose noise is as assumed (or less) runs exactly as without this.
+    tr(H P Hᵀ)) / 3`` per axis, is averaged over the samples (before the gate: a gated sample is evidence too),
+    each sample counting at most ``adapt_clip_ratio2`` times the variance in use so that single outliers barely
+    move it. The average starts as ``adapt_prior_n`` samples at the assumed variance and is a plain mean until
+    its weight falls to ``adapt_alpha`` (then a running average): a wrong noise is found within a few samples,
+    before the filter has fitted its velocity and biases to it. Where the average
+    exceeds ``adapt_on_ratio2`` times the assumed variance it replaces the assumed one in ``Rn`` (at most
+    ``adapt_max_ratio2`` times it), so the gate and the update of this sample already use it, until it falls
+    below ``adapt_off_ratio2`` times the assumed (hysteresis); never raised, ``Rn`` is the assumed noise, so a
+    filter whose noise is as assumed (or less) runs exactly as without this.
+
+    Whenever the noise in use rises above the largest used so far in the episode (of raised noise), by a factor
+    ``c`` (the larger of the two blocks'), the covariance is discounted by ``c`` (:func:`discount_covariance`):
+    the confidence built on samples thought less noisy is unfounded. A rule without a threshold: the discount
+    follows the noise however far it is raised, and the noise's fluctuations about its level do not repeat it.
     """
+    u.noise_n += 1
     u.noise_var_pos = _matched_variance(u, r, 0, u.noise_var_pos, u.var_pos_assumed)
     u.noise_var_att = _matched_variance(u, r, 3, u.noise_var_att, u.var_att_assumed)
     sp, sa = math.sqrt(u.Rn[0, 0]), math.sqrt(u.Rn[3, 3])
     if noise_raised(u):
         u.n_noise_adapted += 1
-    else:
-        u.noise_reset_done = 0  # back to the noise assumed: the episode is over
-    far = u.Rn[0, 0] > u.adapt_reset_ratio2 * u.var_pos_assumed or u.Rn[3, 3] > u.adapt_reset_ratio2 * u.var_att_assumed
-    if far and u.noise_reset_done == 0:
-        # The confidence built on a noise this much smaller is unfounded (velocity and biases were fitted to
-        # noise): back to the initial covariance, so they are learnt again at the filter's start-up pace. Once
-        # per episode of raised noise: an estimate that hovers about the threshold must not reset it each time.
-        _copy2(u.P0, u.P)
-        u.noise_reset_done = 1
+        c = max(u.Rn[0, 0] / u.noise_var_pos_top, u.Rn[3, 3] / u.noise_var_att_top)
+        if c > 1.0:
+            discount_covariance(u.P, u.P0, c)
+            u.n_noise_discounts += 1
+        u.noise_var_pos_top = max(u.noise_var_pos_top, u.Rn[0, 0])
+        u.noise_var_att_top = max(u.noise_var_att_top, u.Rn[3, 3])
+    else:  # back to the noise assumed: the episode is over
+        u.noise_var_pos_top = u.var_pos_assumed
+        u.noise_var_att_top = u.var_att_assumed
     u.noise_pos_std_max = max(u.noise_pos_std_max, sp)
     u.noise_att_std_max = max(u.noise_att_std_max, sa)
 

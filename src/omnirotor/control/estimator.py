@@ -100,16 +100,25 @@ MATCH_ON_RATIO = 2.0
 """The motion-capture noise is raised once the innovations show more than this many times the assumed one sigma
 (averaged over ``mocap_adapt_samples``): a margin over the estimate's own scatter (its relative standard error
 is about sqrt(2 / (3 n)) = 0.12 for 50 samples), so a filter whose noise is as assumed is never touched."""
-MATCH_RESET_RATIO = 5.0
-"""Once the motion-capture noise in use exceeds this many times the assumed one sigma, the covariance goes back
-to the initial one (once per such episode): velocity and biases fitted while the filter trusted samples five
-times noisier than it thought are not worth the confidence it had in them (10 mm of noise against 1 mm assumed
-held a hover 1.9 cm off for seconds without this, 0.5 cm with it); a smaller mismatch is better left alone (3 mm
-against 1 mm: a reset doubles its hover error)."""
+MATCH_OFF_RATIO = 1.5
+"""Once raised, the motion-capture noise goes back to the assumed one when the innovations show less than this
+many times the assumed one sigma: a hysteresis, so that a noise about ``MATCH_ON_RATIO`` times the assumed is
+matched rather than switched on and off (2 mm against 1 mm assumed, on and off, flew 1.2-1.35 times the position
+error of a filter told the noise on the estimator's analytic flight); still far above the scatter of the estimate
+for a noise as assumed (its relative standard error is about 0.12)."""
 MATCH_CLIP_RATIO = 5.0
 """One motion-capture sample counts at most this many times the noise one sigma in use: an outlier moves the
 running estimate by at most 25 / ``mocap_adapt_samples`` of the variance, while noise ten times the assumed
 raises it by half each sample and is matched within about a dozen samples."""
+MATCH_PRIOR_SAMPLES = 2
+"""The running noise estimate starts as this many samples at the assumed variance, and is their plain mean with
+the samples until its weight falls to ``1 / mocap_adapt_samples``: the fewest for which a noise as assumed is
+raised by its first sample with a probability below 1e-5 (its mean must exceed ``MATCH_ON_RATIO``² = 4: P(χ²₃ >
+30) = 1.4e-6). A noise five times the assumed is then matched from the first samples on, before the velocity and
+the biases are fitted to it (7 prior samples, which no single clipped sample can move past the threshold, left
+the closed-loop hover up to 1.35 times the error of a filter told the noise at 3 to 20 mm and 1.74 at 2 mm; 2 leave
+at most 1.07, docs/reliability.md). A gross
+outlier as the very first sample raises the noise to at most 3 times the one sigma for under twenty samples."""
 _F64 = np.dtype(np.float64)  # the dtype of every array the compiled step takes
 
 
@@ -329,9 +338,10 @@ class UKFEstimator:
         u["adapt_noise"] = 1 if p.mocap_adapt_noise else 0
         u["adapt_alpha"] = 1.0 / p.mocap_adapt_samples
         u["adapt_on_ratio2"] = MATCH_ON_RATIO**2
+        u["adapt_off_ratio2"] = MATCH_OFF_RATIO**2
         u["adapt_clip_ratio2"] = MATCH_CLIP_RATIO**2
         u["adapt_max_ratio2"] = p.mocap_adapt_max_ratio**2
-        u["adapt_reset_ratio2"] = MATCH_RESET_RATIO**2
+        u["adapt_prior_n"] = float(MATCH_PRIOR_SAMPLES)
         u["g"] = self._g
         u["dt_nom"] = self._dt_nom
         u["gyro_range"] = p.gyro_range
@@ -359,7 +369,8 @@ class UKFEstimator:
         "omega_dot_B", "omega_B", "a_W", "t", "t_fused", "t_accept", "lpf_dt", "lam_omega", "lam_acc", "dt", "k",
         "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
         "n_nonfinite", "last_rejected", "degraded", "noise_var_pos", "noise_var_att", "n_noise_adapted",
-        "noise_pos_std_max", "noise_att_std_max", "noise_reset_done",
+        "noise_pos_std_max", "noise_att_std_max", "noise_n", "noise_var_pos_top", "noise_var_att_top",
+        "n_noise_discounts",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
 
@@ -381,6 +392,9 @@ class UKFEstimator:
         u["lam_omega"] = u["lam_acc"] = 1.0
         u["P"] = u["P0"]
         u["Rn"] = np.diag([u["var_pos_assumed"]] * 3 + [u["var_att_assumed"]] * 3)
+        # the running noise estimates start at the assumed noise (MATCH_PRIOR_SAMPLES), as its largest in use
+        u["noise_var_pos"] = u["noise_var_pos_top"] = u["var_pos_assumed"]
+        u["noise_var_att"] = u["noise_var_att_top"] = u["var_att_assumed"]
 
     def reset(self, frame: SensorFrame) -> None:
         """(Re)initialise from a frame: its motion-capture pose if it has one, else ``frame.state``.

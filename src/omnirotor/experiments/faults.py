@@ -461,3 +461,27 @@ def glitch_hover(
         "sim": sim,
         "ctl": ctl,
     }
+
+
+def mocap_noise_hover(true_m: float, told_m: float, matching: bool = True, seed: int = 0) -> tuple[float, dict]:
+    """A 10 s hover (clean plant) on a motion capture of noise ``true_m`` whose UKF is told ``told_m`` [m].
+
+    The check of the UKF's motion-capture noise matching (SPEC §4.5 [A], ``EstimatorParams.mocap_adapt_noise``;
+    off without ``matching``), in ``tests/test_mocap_noise_matching.py`` and ``tools/reliability_report.py``.
+
+    Returns:
+        The largest per-axis RMS position error of the believed pose [cm] and the run's ``safety`` metrics.
+    """
+    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import ExperimentOptions
+
+    overrides = [f"estimator.mocap_pos_std={told_m}"] + ([] if matching else ["estimator.mocap_adapt_noise=false"])
+    options = ExperimentOptions(
+        duration_s=10.0,
+        disturbances=False,
+        seed=seed,
+        overrides=tuple(overrides),
+        sim_overrides=(f"sensors.mocap_pos_noise_std={true_m}",),
+    )
+    m = run_task("hover", options).metrics
+    return max(m["ee_rms_error"][k] for k in ("x_cm", "y_cm", "z_cm")), m["safety"]
