@@ -176,7 +176,7 @@ class _EnvlessCodegen:
         self._codegen = codegen
 
     def set_env(self, env_name, env) -> None:
-        pass
+        """Store nothing: a link-only kernel has no machine code to hold the environment's pointer."""
 
     def __getattr__(self, name):
         return getattr(self._codegen, name)
@@ -196,7 +196,7 @@ class LinkOnlyLibrary(JITCodeLibrary):
     """
 
     def _optimize_final_module(self) -> None:
-        pass
+        """Skip the module-level pass: the entry point that links this kernel optimises the whole call tree once."""
 
     @property
     def codegen(self):
