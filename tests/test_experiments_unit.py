@@ -209,6 +209,18 @@ def test_claim_verdicts_follow_the_numbers():
     assert v["Hover"] == "not reproduced" and v["Slidi"] == "partly"
 
 
+@pytest.mark.parametrize("under,verdict", [(1.0, "reproduced"), (0.45, "partly"), (-0.04, "not reproduced")])
+def test_tilted_verdict_uses_the_ten_seed_goals_band(under, verdict):
+    # one run's verdict and the ten-seed goal (0.7-1.3 N, claim_seeds.GOALS) say the same thing: 0.45 N is not ~1 N
+    m = {
+        "point-contact-tilted/nominal": {
+            "normal_force": {"true_mean_N": 3.0, "estimated_mean_N": 3.0 - under, "underestimate_N": under}
+        }
+    }
+    (c,) = claims(m)
+    assert c["claim"].startswith("On the 30° tilted surface") and c["verdict"] == verdict
+
+
 def test_options_need_maps_for_optimized_modes():
     with pytest.raises(InputError, match="--maps"):
         ExperimentOptions(map_mode="piecewise")

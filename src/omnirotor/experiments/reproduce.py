@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from omnirotor.experiments.claim_seeds import GOALS
 from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
 from omnirotor.experiments.tasks import ExperimentOptions
 from omnirotor.identification import IdentificationParams, identify, load_hover_data
@@ -168,6 +169,9 @@ def reproduce(
 # -- claims and report -------------------------------------------------------------------------------------------
 
 
+_TILTED = next(g for g in GOALS if g.name == "tilted_underestimate")
+
+
 def claims(metrics: dict) -> list[dict]:
     """The paper's claims, each with our measurement and a verdict ("reproduced", "not reproduced", "partly")."""
     out = []
@@ -228,7 +232,8 @@ def claims(metrics: dict) -> list[dict]:
                 "claim": "On the 30° tilted surface the nominal map underestimates the normal force (by ~1 N)",
                 "measured": f"true {nf['true_mean_N']:.2f} N, estimated {nf['estimated_mean_N']:.2f} N "
                 f"(underestimate {under:+.2f} N)",
-                "verdict": "reproduced" if under > 0.3 else ("partly" if under > 0 else "not reproduced"),
+                # the same band as the ten-seed goal (claim_seeds.GOALS): ~1 N, not any underestimate
+                "verdict": "reproduced" if _TILTED.passes(under) else ("partly" if under > 0 else "not reproduced"),
             }
         )
     ph = get("peg-in-hole/nominal")
