@@ -221,6 +221,23 @@ def test_tilted_verdict_uses_the_ten_seed_goals_band(under, verdict):
     assert c["claim"].startswith("On the 30° tilted surface") and c["verdict"] == verdict
 
 
+@pytest.mark.parametrize(
+    "depth_cm,tilt_deg,verdict",
+    [(16.6, 5.0, "reproduced"), (15.5, 8.5, "partly"), (16.8, 9.5, "partly"), (12.0, 9.9, "not reproduced")],
+)
+def test_peg_verdict_uses_the_ten_seed_goals(depth_cm, tilt_deg, verdict):
+    # one run's verdict and the ten-seed goals (>= 16.5 cm, roll 3-7 deg) agree: 15.5 cm with the roll at 8.5 deg
+    # (which the old 90 %-of-depth rule called reproduced) is only partly the paper's result
+    ins = {
+        "max_depth_m": depth_cm / 100,
+        "target_depth_m": 0.17,
+        "approach_tilt_deg": 10.0,
+        "inserted_tilt_deg": tilt_deg,
+    }
+    (c,) = claims({"peg-in-hole/nominal": {"insertion": ins}})
+    assert c["claim"].startswith("Peg-in-hole") and c["verdict"] == verdict
+
+
 def test_options_need_maps_for_optimized_modes():
     with pytest.raises(InputError, match="--maps"):
         ExperimentOptions(map_mode="piecewise")

@@ -169,7 +169,9 @@ def reproduce(
 # -- claims and report -------------------------------------------------------------------------------------------
 
 
-_TILTED = next(g for g in GOALS if g.name == "tilted_underestimate")
+_TILTED, _PEG_DEPTH, _PEG_TILT = (
+    {g.name: g for g in GOALS}[n] for n in ("tilted_underestimate", "peg_depth", "peg_tilt")
+)
 
 
 def claims(metrics: dict) -> list[dict]:
@@ -239,8 +241,11 @@ def claims(metrics: dict) -> list[dict]:
     ph = get("peg-in-hole/nominal")
     if ph:
         ins = ph["insertion"]
-        full = ins["max_depth_m"] >= 0.9 * ins["target_depth_m"]
-        settles = ins["inserted_tilt_deg"] is not None and ins["inserted_tilt_deg"] < ins["approach_tilt_deg"] - 1.0
+        # inserted and settled as the ten-seed goals say (claim_seeds.GOALS: >= 16.5 cm, roll 3-7 deg); partly
+        # when one holds, or when the roll at least turns toward the hole axis by a degree
+        m = {"peg-in-hole/nominal": ph}
+        full, at_5 = _PEG_DEPTH.passes(_PEG_DEPTH.value(m)), _PEG_TILT.passes(_PEG_TILT.value(m))
+        turns = ins["inserted_tilt_deg"] is not None and ins["inserted_tilt_deg"] < ins["approach_tilt_deg"] - 1.0
         out.append(
             {
                 "claim": "Peg-in-hole inserts fully; the roll settles from the 10° approach misalignment towards "
@@ -248,7 +253,9 @@ def claims(metrics: dict) -> list[dict]:
                 "measured": f"depth {100 * ins['max_depth_m']:.1f} of {100 * ins['target_depth_m']:.0f} cm; peg tilt "
                 f"{ins['approach_tilt_deg']:.1f}° on approach, "
                 + (f"{ins['inserted_tilt_deg']:.1f}° inserted" if ins["inserted_tilt_deg"] is not None else "n/a"),
-                "verdict": "reproduced" if full and settles else ("partly" if (full or settles) else "not reproduced"),
+                "verdict": "reproduced"
+                if full and at_5
+                else ("partly" if (full or at_5 or turns) else "not reproduced"),
             }
         )
     return out
