@@ -169,9 +169,8 @@ def reproduce(
 # -- claims and report -------------------------------------------------------------------------------------------
 
 
-_TILTED, _PEG_DEPTH, _PEG_TILT = (
-    {g.name: g for g in GOALS}[n] for n in ("tilted_underestimate", "peg_depth", "peg_tilt")
-)
+_GOALS = {g.name: g for g in GOALS}
+_TILTED, _PEG_DEPTH, _PEG_TILT = _GOALS["tilted_underestimate"], _GOALS["peg_depth"], _GOALS["peg_tilt"]
 
 
 def claims(metrics: dict) -> list[dict]:
