@@ -226,3 +226,29 @@ def test_a_worker_that_dies_fails_the_campaign_in_one_line_and_the_next_gets_fre
     assert again.returncode == 0 and "campaign on the resident worker pool" in again.stderr, again.stderr
     new = cp.pool_status()["worker_pids"]
     assert len(new) == 2 and st["worker_pids"][0] not in new
+
+
+def test_stop_executor_kills_busy_workers_and_leaves_nothing_for_the_exit_hook_to_wake():
+    """A stopped pool's manager thread has ended and closed its wake-up pipe before ``stop_executor`` returns, so
+    Python's exit hook (which writes to that pipe) cannot race the thread closing it (a traceback after Ctrl-C)."""
+    import concurrent.futures as cf
+    import concurrent.futures.process as cfp
+    import multiprocessing as mp
+
+    executor = cf.ProcessPoolExecutor(2, mp_context=mp.get_context("fork"))
+    busy = [executor.submit(time.sleep, 60.0) for _ in range(2)]
+    waiting = executor.submit(time.sleep, 60.0)
+    deadline = time.monotonic() + 30.0
+    while not all(f.running() for f in busy) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    workers = list(executor._processes.values())
+    manager = executor._executor_manager_thread
+    wakeup = cfp._threads_wakeups[manager]
+    start = time.monotonic()
+    cp.stop_executor(executor)
+    assert time.monotonic() - start < cp.EXECUTOR_STOP_TIMEOUT_S, "the busy workers were waited for, not killed"
+    assert not manager.is_alive() and wakeup._closed
+    assert waiting.done() and (waiting.cancelled() or waiting.exception() is not None), "a waiting run still ran"
+    for proc in workers:
+        proc.join(5.0)
+        assert proc.exitcode is not None and proc.exitcode < 0, "a worker outlived the stop"

@@ -105,7 +105,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.experiments import reuse
-from omnirotor.experiments.campaign_pool import BACKENDS
+from omnirotor.experiments.campaign_pool import BACKENDS, stop_executor
 from omnirotor.experiments.campaign_report import (
     DEFINITION_FILE,
     PLOTS_DIR,
@@ -417,11 +417,10 @@ def _local_pool(jobs: list[RunJob], workers: int, lock_fd: int | None = None):
         yield pool
         finished = True
     finally:
-        if not finished:  # interrupted or failed: stop the runs under way now, not when they end
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                with contextlib.suppress(Exception):
-                    proc.kill()
-        pool.shutdown(wait=finished, cancel_futures=True)
+        if finished:
+            pool.shutdown(wait=True)
+        else:  # interrupted or failed: stop the runs under way now, not when they end
+            stop_executor(pool)
 
 
 RAY_CONNECT_TIMEOUT_S = 5.0

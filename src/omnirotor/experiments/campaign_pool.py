@@ -83,6 +83,9 @@ CONNECT_TIMEOUT_S = 2.0
 """A pool that does not answer a request within this time counts as not running [s]."""
 STOP_TIMEOUT_S = 10.0
 """How long ``workers stop`` waits for the pool to exit before it is killed [s]."""
+EXECUTOR_STOP_TIMEOUT_S = 5.0
+"""How long a stopped process pool's manager thread gets to close its pipes [s]."""
+
 _DIGEST_MODULES = ("numpy", "numba", "mujoco", "llvmlite")
 """Compiled dependencies whose installed files enter the digest (a reinstall changes their time stamps)."""
 _SOCKET_MAX = 104
@@ -90,6 +93,26 @@ _SOCKET_MAX = 104
 
 
 # -- identity ----------------------------------------------------------------------------------------------------
+
+
+def stop_executor(executor: Any, kill: bool = True) -> None:
+    """Stop a process pool at once: kill its workers, cancel what waits, let its manager thread end.
+
+    ``kill`` kills the workers' processes first (runs under way stop now); the manager thread gets
+    :data:`EXECUTOR_STOP_TIMEOUT_S`.
+
+    The wait matters at exit. Python 3.11's exit hook wakes each live manager thread through a pipe that the thread
+    closes itself as it winds down; a Ctrl-C landing between the two printed ``OSError: Bad file descriptor`` under
+    the one-line message. Once the thread has ended the hook has nothing to wake.
+    """
+    if kill:
+        for proc in list((getattr(executor, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.kill()
+    manager = getattr(executor, "_executor_manager_thread", None)  # shutdown() forgets it
+    executor.shutdown(wait=False, cancel_futures=True)
+    if manager is not None and manager is not threading.current_thread():
+        manager.join(EXECUTOR_STOP_TIMEOUT_S)
 
 
 def _package_dir() -> Path:
@@ -424,7 +447,7 @@ class _Daemon:
 
             self.state = "starting"
             if self.executor is not None:
-                self.executor.shutdown(wait=False, cancel_futures=True)
+                stop_executor(self.executor, kill=False)
             ctx = mp.get_context("fork")
             ready = ctx.Queue()
             self.executor = cf.ProcessPoolExecutor(
@@ -554,7 +577,7 @@ class _Daemon:
         except Exception as exc:  # a worker died, or a bug: say it, and give the next campaign fresh workers
             with contextlib.suppress(OSError, ValueError):
                 _send(f, {"type": "error", "kind": "internal", "message": f"{type(exc).__name__}: {exc}"})
-            self.executor.shutdown(wait=False, cancel_futures=True)
+            stop_executor(self.executor, kill=False)
             self.executor = None
             return
         _send(f, {"type": "done", "summary": summary, "out": out})
@@ -564,10 +587,7 @@ class _Daemon:
         with contextlib.suppress(OSError):
             self.server.close()
         if self.executor is not None:
-            for proc in list(getattr(self.executor, "_processes", {}).values()):
-                with contextlib.suppress(Exception):
-                    proc.kill()
-            self.executor.shutdown(wait=False, cancel_futures=True)
+            stop_executor(self.executor)
 
 
 def serve(workers: int, idle_timeout_s: float, warm: bool = True) -> int:
