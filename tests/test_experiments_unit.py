@@ -209,6 +209,28 @@ def test_claim_verdicts_follow_the_numbers():
     assert v["Hover"] == "not reproduced" and v["Slidi"] == "partly"
 
 
+@pytest.mark.parametrize(
+    "nominal,piecewise,verdict",
+    [
+        ((2.0, 2.2), (0.1, -0.2), "reproduced"),
+        ((2.0, 2.2), (0.5, -0.4), "partly"),  # the mean (+0.05 N) is small, two regions are not: the old rule passed it
+        ((1.1, 1.2), (0.1, 0.0), "not reproduced"),  # no ~2 N bias: nothing for the optimized maps to remove
+        ((0.9, 0.8), (0.6, 0.2), "not reproduced"),
+    ],
+)
+def test_hover_verdict_uses_the_ten_seed_goals(nominal, piecewise, verdict):
+    # one run's verdict and the ten-seed goals agree: nominal 1.5-2.5 N, piecewise |f_z| <= 0.3 N in every region
+    regions = {"nominal": nominal, "global": (0.0, 0.0), "piecewise": piecewise}
+    m = {
+        f"hover-validation/{mode}": {
+            "regions": {r: {"force_W_mean_N": [0, 0, z]} for r, z in zip(("R1", "R3"), fz, strict=True)}
+        }
+        for mode, fz in regions.items()
+    }
+    (c,) = claims(m)
+    assert c["claim"].startswith("Hover") and c["verdict"] == verdict
+
+
 @pytest.mark.parametrize("under,verdict", [(1.0, "reproduced"), (0.45, "partly"), (-0.04, "not reproduced")])
 def test_tilted_verdict_uses_the_ten_seed_goals_band(under, verdict):
     # one run's verdict and the ten-seed goal (0.7-1.3 N, claim_seeds.GOALS) say the same thing: 0.45 N is not ~1 N

@@ -170,6 +170,8 @@ def reproduce(
 
 
 _GOALS = {g.name: g for g in GOALS}
+_HOVER_NOMINAL, _HOVER_PIECEWISE = _GOALS["hover_bias_nominal"], _GOALS["hover_bias_piecewise"]
+_SLIDING = tuple(_GOALS[f"sliding_{n}"] for n in ("nominal_loses", "global_keeps", "piecewise_keeps"))
 _TILTED, _PEG_DEPTH, _PEG_TILT = _GOALS["tilted_underestimate"], _GOALS["peg_depth"], _GOALS["peg_tilt"]
 
 
@@ -183,23 +185,24 @@ def claims(metrics: dict) -> list[dict]:
     hv = {m: get(f"hover-validation/{m}") for m in ("nominal", "global", "piecewise")}
     if all(hv.values()):
         fz = {m: [r["force_W_mean_N"][2] for r in hv[m]["regions"].values()] for m in hv}
-        nom = float(np.mean(fz["nominal"]))
-        opt = max(abs(float(np.mean(fz["global"]))), abs(float(np.mean(fz["piecewise"]))))
-        ok = 1.0 <= nom <= 3.0 and opt < 0.3 * nom
+        # the ten-seed goals (claim_seeds.GOALS): nominal 1.5-2.5 N, piecewise |f_z| <= 0.3 N in every region
+        nom, pw = _HOVER_NOMINAL.value(metrics), _HOVER_PIECEWISE.value(metrics)
+        ok_nom, ok_pw = _HOVER_NOMINAL.passes(nom), _HOVER_PIECEWISE.passes(pw)
         out.append(
             {
                 "claim": "Hover: the nominal map shows a positive thrust-direction force bias of about 2 N; "
                 "the optimized maps nearly remove it (Fig. 3)",
                 "measured": f"mean f_z^W over regions: nominal {nom:+.2f} N, global {np.mean(fz['global']):+.2f} N, "
-                f"piecewise {np.mean(fz['piecewise']):+.2f} N",
-                "verdict": "reproduced" if ok else "not reproduced",
+                f"piecewise {np.mean(fz['piecewise']):+.2f} N (largest |f_z| of a region {pw:.2f} N)",
+                # without the bias there is nothing for the optimized maps to remove: that is not reproduced
+                "verdict": "reproduced" if ok_nom and ok_pw else ("partly" if ok_nom else "not reproduced"),
             }
         )
     sl = {m: get(f"sliding/{m}") for m in ("nominal", "global", "piecewise")}
     if all(sl.values()):
         lost = {m: sl[m]["contact"]["lost"] for m in sl}
-        ok = lost["nominal"] and not lost["global"] and not lost["piecewise"]
-        partly = not lost["piecewise"] or not lost["global"]
+        # the ten-seed goals: the nominal map loses contact, the global and piecewise maps keep it
+        held = [g.passes(g.value(metrics)) for g in _SLIDING]
         when = sl["nominal"]["contact"]["first_loss_s"]
         out.append(
             {
@@ -208,7 +211,7 @@ def claims(metrics: dict) -> list[dict]:
                 "measured": "contact lost: "
                 + ", ".join(f"{m} {'yes' if lost[m] else 'no'}" for m in lost)
                 + (f" (nominal first loss at {when:.1f} s)" if when is not None else ""),
-                "verdict": "reproduced" if ok else ("partly" if partly else "not reproduced"),
+                "verdict": "reproduced" if all(held) else ("partly" if any(held[1:]) else "not reproduced"),
             }
         )
     pc = get("point-contact/nominal")
