@@ -130,10 +130,36 @@ def _flatten(obj: Any, prefix: str = "") -> dict[str, float]:
 
 
 def metric_value(record: dict, metric: str) -> float | None:
-    """The value of a dotted metric in a run record (None when absent)."""
+    """The value of a dotted metric in a run record (None when absent).
+
+    The value ``_flatten(record["metrics"])`` holds under ``metric``, found by walking down the keys that prefix it
+    instead of flattening the whole record (a plot reads one metric of each of hundreds of records).
+    """
     if record.get("metrics") is None:
         return None
-    return _flatten(record["metrics"]).get(metric)
+    return _lookup(record["metrics"], metric)
+
+
+def _lookup(obj: Any, path: str) -> float | None:
+    """``_flatten(obj).get(path)`` for a dict ``obj``: where several keys flatten to ``path``, the last one wins."""
+    found = None
+    for k, v in obj.items():
+        key = f"{k}"
+        if path == key:
+            if _is_number(v):
+                found = float(v)
+        elif path.startswith(key + "."):
+            rest = path[len(key) + 1 :]
+            if isinstance(v, dict):
+                value = _lookup(v, rest)
+            elif isinstance(v, list) and len(v) <= 8 and all(_is_number(x) for x in v):
+                names = ("x", "y", "z") if len(v) == 3 else [str(i) for i in range(len(v))]
+                value = float(v[names.index(rest)]) if rest in names else None
+            else:
+                value = None
+            if value is not None:
+                found = value
+    return found
 
 
 def _bins(values: list[Any], k: int) -> list[tuple[Any, Any]]:
