@@ -8,6 +8,7 @@ from omnirotor.config import apply_overrides
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import load_controller_params
 from omnirotor.errors import InputError
+from omnirotor.experiments.closed_loop import _controller_params
 from omnirotor.experiments.tasks import ExperimentOptions
 from omnirotor.sim.params import AeroParams, SimParams
 
@@ -19,15 +20,9 @@ def _sim_params_anew(o: ExperimentOptions) -> SimParams:
 
 
 def _controller_params_anew(o: ExperimentOptions, admittance):
-    params = load_controller_params(o.controller_config)
-    if admittance is not None and o.controller_config is None:
-        params = dataclasses.replace(params, admittance=admittance)
-    params = dataclasses.replace(
-        params,
-        allocation=dataclasses.replace(params.allocation, solver=o.solver),
-        estimator=dataclasses.replace(params.estimator, kind=o.estimator),
-    )
-    return apply_overrides(params, list(o.overrides))
+    """Built without the cache: the file's (or the default) parameters, then the task's choices."""
+    base = load_controller_params(o.controller_config)
+    return _controller_params(base, admittance if o.controller_config is None else None, o)
 
 
 @pytest.mark.parametrize(
