@@ -404,8 +404,12 @@ def mujoco_function(name: str, int_args: int = 0):
     return types.ExternalFunction(name, types.void(types.uintp, types.uintp, *([types.int32] * int_args)))
 
 
+@functools.cache
 def mujoco_timer_address() -> int:
     """Address of MuJoCo's global ``mjcb_time`` (the clock of its profiler, ``MjData.timer``) in this process.
+
+    Looked up once per process (every simulator asks for it; the library stays loaded, at the same address in a
+    forked worker).
 
     The ``mujoco`` bindings install a default clock there whenever they create an ``MjData``; MuJoCo then reads
     it twice per pipeline stage (about 30 calls of ``clock_gettime`` per ``mj_Euler`` + ``mj_forward``). A

@@ -230,8 +230,14 @@ def wrench_map(positions_B: np.ndarray, axes_B: np.ndarray, spins: np.ndarray, c
 
 def preset_names() -> list[str]:
     """Names of the vehicle presets shipped with the package."""
+    return list(_preset_names())
+
+
+@functools.cache
+def _preset_names() -> tuple[str, ...]:
+    """:func:`preset_names`, listed once per process (:func:`load_vehicle` asks on every call)."""
     files = resources.files("omnirotor") / "presets" / "vehicles"
-    return sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml"))
+    return tuple(sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml")))
 
 
 OVERLAY_SEP = "::"
@@ -260,7 +266,7 @@ def load_vehicle(spec: str | Path = "omnirotor", overlay: str | Path | None = No
         if overlay is not None:
             raise InputError(f"vehicle {text!r}: an overlay is given twice")
         text, overlay = text.split(OVERLAY_SEP, 1)
-    if text in preset_names():
+    if text in _preset_names():
         if overlay is not None:
             raise InputError("--vehicle-overlay applies to PX4 airframe files and ULogs only")
         path = resources.files("omnirotor") / "presets" / "vehicles" / f"{text}.toml"

@@ -131,6 +131,7 @@ from omnirotor.experiments.campaign_spec import (
     RunJob,
     campaign_from_mapping,
     campaign_preset_names,
+    expected_duration_s,
     load_campaign,
     run_options,
 )
@@ -568,6 +569,20 @@ def chunk_sizes(n: int, workers: int) -> list[int]:
     return sizes
 
 
+def longest_first(jobs: list[RunJob]) -> list[RunJob]:
+    """``jobs`` in the order they are sent: the longest runs first (:func:`expected_duration_s`), else as given.
+
+    Runs of unequal length sent in index order can leave one worker stepping a long run alone at the end while
+    the others wait; sent longest first, the short ones fill the gaps (the longest-processing-time rule). Runs of
+    equal length (most campaigns) keep their index order. A run's record never depends on its place.
+    """
+    lengths = [expected_duration_s(job) for job in jobs]
+    if None in lengths or len(set(lengths)) <= 1:
+        return list(jobs)
+    order = sorted(range(len(jobs)), key=lambda i: -lengths[i])  # stable: index order among equals
+    return [jobs[i] for i in order]
+
+
 def run_chunk(run_fn: Callable[[RunJob], dict], jobs: list[RunJob]) -> list[dict]:
     """The records of ``jobs`` run one after the other by ``run_fn`` (one request to a worker)."""
     return [run_fn(job) for job in jobs]
@@ -627,6 +642,7 @@ def _run_locked(
             done[i] = rec
     count = len(done)
     report(count, n, None)
+    jobs = longest_first(jobs)
     executor, run_fn = pool
     own = backend == "local" and executor is None and bool(jobs)  # the command's own pool: runs, then plots
     if own:

@@ -45,6 +45,7 @@ __all__ = [
     "campaign_from_mapping",
     "campaign_preset_names",
     "run_options",
+    "expected_duration_s",
 ]
 
 CAMPAIGN_TASKS = CONTACT_TASKS + HOVER_TASKS + ("hover",)
@@ -579,17 +580,39 @@ class RunJob:
     identify_truth: bool = False
 
 
-def _event_window(spec: CampaignSpec, sp: ScenarioParams) -> tuple[float, float]:
+def _scenario_builder(task: str):
+    """The builder of a contact task's scenario (:mod:`omnirotor.experiments.scenarios`)."""
     from omnirotor.experiments import scenarios
 
+    return {
+        "point-contact": scenarios.point_contact,
+        "point-contact-tilted": scenarios.point_contact_tilted,
+        "sliding": scenarios.sliding,
+        "peg-in-hole": scenarios.peg_in_hole,
+    }[task]
+
+
+def expected_duration_s(job: RunJob) -> float | None:
+    """The simulated length of a job's run [s], as its task will fly it; None when the task decides alone.
+
+    Used to send the longest runs first (a campaign's runs differ in length when it varies the scenario), so that
+    no worker is left stepping a long run alone at the end. The run itself never depends on it.
+    """
+    o = job.options
+    if o.duration_s is not None:
+        return float(o.duration_s)
+    if job.task == "hover":
+        return HOVER_DURATION_S
+    if job.task in CONTACT_TASKS:
+        from omnirotor.experiments.tasks import _scenario_params  # the task's own choice of protocol
+
+        return _scenario_builder(job.task)(o.sim_params().scene, _scenario_params(o), quick=o.quick).duration_s
+    return None
+
+
+def _event_window(spec: CampaignSpec, sp: ScenarioParams) -> tuple[float, float]:
     if spec.task in CONTACT_TASKS:
-        builder = {
-            "point-contact": scenarios.point_contact,
-            "point-contact-tilted": scenarios.point_contact_tilted,
-            "sliding": scenarios.sliding,
-            "peg-in-hole": scenarios.peg_in_hole,
-        }[spec.task]
-        t0, t1 = builder(SimParams().scene, sp, quick=spec.options.quick).contact_phase
+        t0, t1 = _scenario_builder(spec.task)(SimParams().scene, sp, quick=spec.options.quick).contact_phase
     else:
         t0, t1 = HOVER_EVENT_WINDOW_S
     d = spec.options.duration_s

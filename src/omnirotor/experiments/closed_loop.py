@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -293,20 +294,48 @@ class TaskOptions:
         Args:
             admittance: the task's admittance set, applied before the file and overrides.
         """
-        params = load_controller_params(self.controller_config)
-        if admittance is not None and self.controller_config is None:
-            params = dataclasses.replace(params, admittance=admittance)
-        params = dataclasses.replace(
-            params,
-            allocation=dataclasses.replace(params.allocation, solver=self.solver),
-            estimator=dataclasses.replace(params.estimator, kind=self.estimator),
-        )
-        return apply_overrides(params, list(self.overrides))
+        if self.controller_config is None:  # the defaults: built once per process (a campaign asks every run)
+            return _default_controller_params(admittance, self.solver, self.estimator, tuple(self.overrides))
+        return _controller_params(load_controller_params(self.controller_config), None, self)
 
     def sim_params(self) -> SimParams:
         """Simulator parameters with the chosen truth aerodynamics (and without the disturbances if so chosen)."""
-        params = SimParams(aero=AeroParams(model=self.truth))
-        return params if self.disturbances else params.undisturbed()
+        return task_sim_params(self.truth, self.disturbances)
+
+
+def _controller_params(
+    params: ControllerParams, admittance: AdmittanceParams | None, opts: TaskOptions
+) -> ControllerParams:
+    """:meth:`TaskOptions.controller_params` from the file's (or the default) parameters."""
+    if admittance is not None:
+        params = dataclasses.replace(params, admittance=admittance)
+    params = dataclasses.replace(
+        params,
+        allocation=dataclasses.replace(params.allocation, solver=opts.solver),
+        estimator=dataclasses.replace(params.estimator, kind=opts.estimator),
+    )
+    return apply_overrides(params, list(opts.overrides))
+
+
+@functools.lru_cache(maxsize=64)
+def _default_controller_params(
+    admittance: AdmittanceParams | None, solver: str, estimator: str, overrides: tuple[str, ...]
+) -> ControllerParams:
+    """:meth:`TaskOptions.controller_params` without a file, once per combination (the result is frozen, shared)."""
+    opts = TaskOptions(solver=solver, estimator=estimator, overrides=overrides)
+    return _controller_params(ControllerParams(), admittance, opts)
+
+
+@functools.lru_cache(maxsize=64)
+def task_sim_params(truth: str, disturbances: bool, overrides: tuple[str, ...] = ()) -> SimParams:
+    """Simulator parameters of a task: the truth aerodynamics, the disturbances or not, then dotted overrides.
+
+    Built once per combination and process (a campaign's runs ask for them several times each); the result is
+    frozen, so its callers share it.
+    """
+    params = SimParams(aero=AeroParams(model=truth))
+    params = params if disturbances else params.undisturbed()
+    return apply_overrides(params, list(overrides)) if overrides else params
 
 
 @contextlib.contextmanager

@@ -25,8 +25,8 @@ __all__ = ["plot_run", "plot_hover_violins", "plot_table1", "save_figure"]
 _MAP_COLORS = {"nominal": "#c0392b", "global": "#2980b9", "piecewise": "#27ae60"}
 
 
-def save_figure(fig, path: str | Path, dpi: int = 120, tight: bool = True) -> Path:
-    """Write a figure atomically as PNG and close it.
+def save_figure(fig, path: str | Path, dpi: int = 120, tight: bool = True, close: bool = True) -> Path:
+    """Write a figure atomically as PNG and close it (unless ``close`` is False: the caller draws on it again).
 
     ``tight`` crops it to its contents (``bbox_inches="tight"``, which draws it twice); a figure with fixed
     margins and no layout engine is drawn once.
@@ -35,7 +35,8 @@ def save_figure(fig, path: str | Path, dpi: int = 120, tight: bool = True) -> Pa
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=dpi, bbox_inches="tight" if tight else None)
     finally:
-        plt.close(fig)
+        if close:
+            plt.close(fig)
     return Path(path)
 
 

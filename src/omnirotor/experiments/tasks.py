@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.config import apply_overrides
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
@@ -37,6 +36,7 @@ from omnirotor.experiments.closed_loop import (
     register_task,
     run_closed_loop,
     run_log,
+    task_sim_params,
     video_sink,
 )
 from omnirotor.experiments.faults import PlantPerturbation, plant_simulator, safety_stats
@@ -152,7 +152,7 @@ class ExperimentOptions(TaskOptions):
 
     def sim_params(self) -> SimParams:
         """Simulator parameters: the chosen truth aerodynamics, then ``sim_overrides``."""
-        return apply_overrides(super().sim_params(), list(self.sim_overrides))
+        return task_sim_params(self.truth, self.disturbances, tuple(self.sim_overrides))
 
     def plant_sim_params(self) -> SimParams:
         """The simulator parameters of the true plant: :meth:`sim_params` perturbed by ``plant``."""
