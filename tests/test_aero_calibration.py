@@ -317,7 +317,8 @@ def test_calibrated_default_explains_the_real_flight_data(flight_data):
     "repeat noise floor of 0.29 N per point (90 % 0.24-0.37 N), 0.17 N of it a common scale of all rotors: the rest "
     "is attitude-dependent thrust no tried physical term explains in cross-validation (frame download, intake "
     "field in four flow configurations, per-handedness reverse gain, the hover moments in the fit, speed ripple, "
-    "central-body blockage, wake contraction, vehicle downwash, reversed wake, edge-on lift: docs/fidelity.md)",
+    "central-body blockage, wake contraction, vehicle downwash, reversed wake, edge-on lift, mounts bent by their "
+    "thrust: docs/fidelity.md)",
 )
 def test_truth_model_reaches_the_issue_goal_on_the_real_flight_data(flight_data):
     assert _real_rms(flight_data, AeroParams()) <= GOAL_N
