@@ -22,7 +22,8 @@ def _sim_params_anew(o: ExperimentOptions) -> SimParams:
 def _controller_params_anew(o: ExperimentOptions, admittance):
     """Built without the cache: the file's (or the default) parameters, then the task's choices."""
     base = load_controller_params(o.controller_config)
-    return _controller_params(base, admittance if o.controller_config is None else None, o)
+    adm = admittance if o.controller_config is None else None
+    return _controller_params(base, adm, o.solver, o.estimator, tuple(o.overrides))
 
 
 @pytest.mark.parametrize(

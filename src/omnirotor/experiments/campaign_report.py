@@ -116,14 +116,22 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     return (min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half)))
 
 
+def _entry_names(obj: Any) -> tuple[str, ...] | None:
+    """The names of a short list of numbers' entries in a flattened metric (x, y, z for three); None otherwise."""
+    if isinstance(obj, list) and len(obj) <= 8 and all(_is_number(v) for v in obj):
+        return ("x", "y", "z") if len(obj) == 3 else tuple(str(i) for i in range(len(obj)))
+    return None
+
+
 def _flatten(obj: Any, prefix: str = "") -> dict[str, float]:
     out: dict[str, float] = {}
+    names = _entry_names(obj)
     if isinstance(obj, dict):
         for k, v in obj.items():
             out.update(_flatten(v, f"{prefix}{k}."))
-    elif isinstance(obj, list) and all(_is_number(v) for v in obj) and len(obj) <= 8:
-        for i, v in enumerate(obj):
-            out[f"{prefix}{'xyzabcde'[i] if len(obj) == 3 else i}"] = float(v)
+    elif names is not None:
+        for name, v in zip(names, obj, strict=True):
+            out[f"{prefix}{name}"] = float(v)
     elif _is_number(obj):
         out[prefix[:-1]] = float(obj)
     return out
@@ -150,11 +158,11 @@ def _lookup(obj: Any, path: str) -> float | None:
                 found = float(v)
         elif path.startswith(key + "."):
             rest = path[len(key) + 1 :]
+            names = _entry_names(v)
             if isinstance(v, dict):
                 value = _lookup(v, rest)
-            elif isinstance(v, list) and len(v) <= 8 and all(_is_number(x) for x in v):
-                names = ("x", "y", "z") if len(v) == 3 else [str(i) for i in range(len(v))]
-                value = float(v[names.index(rest)]) if rest in names else None
+            elif names is not None and rest in names:
+                value = float(v[names.index(rest)])
             else:
                 value = None
             if value is not None:

@@ -294,9 +294,10 @@ class TaskOptions:
         Args:
             admittance: the task's admittance set, applied before the file and overrides.
         """
+        choices = (self.solver, self.estimator, tuple(self.overrides))
         if self.controller_config is None:  # the defaults: built once per process (a campaign asks every run)
-            return _default_controller_params(admittance, self.solver, self.estimator, tuple(self.overrides))
-        return _controller_params(load_controller_params(self.controller_config), None, self)
+            return _default_controller_params(admittance, *choices)
+        return _controller_params(load_controller_params(self.controller_config), None, *choices)
 
     def sim_params(self) -> SimParams:
         """Simulator parameters with the chosen truth aerodynamics (and without the disturbances if so chosen)."""
@@ -304,17 +305,21 @@ class TaskOptions:
 
 
 def _controller_params(
-    params: ControllerParams, admittance: AdmittanceParams | None, opts: TaskOptions
+    params: ControllerParams,
+    admittance: AdmittanceParams | None,
+    solver: str,
+    estimator: str,
+    overrides: tuple[str, ...],
 ) -> ControllerParams:
     """:meth:`TaskOptions.controller_params` from the file's (or the default) parameters."""
     if admittance is not None:
         params = dataclasses.replace(params, admittance=admittance)
     params = dataclasses.replace(
         params,
-        allocation=dataclasses.replace(params.allocation, solver=opts.solver),
-        estimator=dataclasses.replace(params.estimator, kind=opts.estimator),
+        allocation=dataclasses.replace(params.allocation, solver=solver),
+        estimator=dataclasses.replace(params.estimator, kind=estimator),
     )
-    return apply_overrides(params, list(opts.overrides))
+    return apply_overrides(params, list(overrides))
 
 
 @functools.lru_cache(maxsize=64)
@@ -322,8 +327,7 @@ def _default_controller_params(
     admittance: AdmittanceParams | None, solver: str, estimator: str, overrides: tuple[str, ...]
 ) -> ControllerParams:
     """:meth:`TaskOptions.controller_params` without a file, once per combination (the result is frozen, shared)."""
-    opts = TaskOptions(solver=solver, estimator=estimator, overrides=overrides)
-    return _controller_params(ControllerParams(), admittance, opts)
+    return _controller_params(ControllerParams(), admittance, solver, estimator, overrides)
 
 
 @functools.lru_cache(maxsize=64)

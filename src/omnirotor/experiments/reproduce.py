@@ -245,8 +245,7 @@ def claims(metrics: dict) -> list[dict]:
         ins = ph["insertion"]
         # inserted and settled as the ten-seed goals say (claim_seeds.GOALS: >= 16.5 cm, roll 3-7 deg); partly
         # when one holds, or when the roll at least turns toward the hole axis by a degree
-        m = {"peg-in-hole/nominal": ph}
-        full, at_5 = _PEG_DEPTH.passes(_PEG_DEPTH.value(m)), _PEG_TILT.passes(_PEG_TILT.value(m))
+        full, at_5 = _PEG_DEPTH.passes(_PEG_DEPTH.value(metrics)), _PEG_TILT.passes(_PEG_TILT.value(metrics))
         turns = ins["inserted_tilt_deg"] is not None and ins["inserted_tilt_deg"] < ins["approach_tilt_deg"] - 1.0
         out.append(
             {
