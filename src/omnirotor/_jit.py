@@ -24,9 +24,6 @@ entries on a hash of the sources the kernel's module depends on: its file and, t
 the package it imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile
 again on its next use; an edit elsewhere (the CLI, the experiments) keeps the cache.
 
-The few SO(3) helpers both kernel modules need live here, as the simulator and the controller must not
-import each other. They follow the conventions of :mod:`omnirotor.so3` (quaternions wxyz, Hamilton).
-
 C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
 the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
 library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (the C library's
@@ -59,7 +56,6 @@ __all__ = [
     "jit_entry",
     "DependencyCache",
     "source_closure",
-    "R9_from_quat_into",
     "mujoco_function",
     "mujoco_timer_address",
     "monotonic_ns",
@@ -435,26 +431,6 @@ def monotonic_ns(ts) -> int:
     """
     _clock_gettime(_CLOCK_MONOTONIC, ts.ctypes.data)
     return ts[0] * _NS_PER_S + ts[1]
-
-
-@jit_inline
-def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
-    """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
-
-    The entries of :func:`omnirotor.so3.R_from_quat_wxyz`, as scalars.
-    """
-    xx, yy, zz = qx * qx, qy * qy, qz * qz
-    xy, xz, yz = qx * qy, qx * qz, qy * qz
-    wx, wy, wz = qw * qx, qw * qy, qw * qz
-    out[o + 0] = 1.0 - 2.0 * (yy + zz)
-    out[o + 1] = 2.0 * (xy - wz)
-    out[o + 2] = 2.0 * (xz + wy)
-    out[o + 3] = 2.0 * (xy + wz)
-    out[o + 4] = 1.0 - 2.0 * (xx + zz)
-    out[o + 5] = 2.0 * (yz - wx)
-    out[o + 6] = 2.0 * (xz - wy)
-    out[o + 7] = 2.0 * (yz + wx)
-    out[o + 8] = 1.0 - 2.0 * (xx + yy)
 
 
 # -- arrays by address: one small argument instead of many (numba unboxes every array argument on each call) ----
