@@ -5,8 +5,8 @@ import json
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments import claim_seeds as cs
-from omnirotor.experiments import reproduce as rp
+from omnirotor.experiments.paper import reproduce as rp
+from omnirotor.experiments.paper import seeds as cs
 
 
 def _metrics(lost_nominal: bool, fz_nominal: float = 2.0, underestimate: float = 1.0, depth_m: float = 0.168):

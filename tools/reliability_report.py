@@ -823,12 +823,6 @@ def render(
         " non-finite steps is a failure, a plotting failure keeps `summary.json`"
         " (`tests/test_campaign_signals.py`); a campaign on a local Ray, resumed after its driver is killed"
         " (`tests/test_campaign_ray.py`).",
-        "- the resident worker pool (`omnirotor workers`): a pool whose sources were edited since it started",
-        "  refuses and the command runs its own pool, saying so; a busy pool refuses a second command the same",
-        "  way; a command that hangs up (Ctrl-C) stops its campaign's runs not yet started; a killed worker",
-        "  fails the campaign with one line and the next campaign gets fresh workers; bad input through the pool",
-        "  is one line and exit 2, nothing written; `workers stop` and the idle timeout end the pool and its",
-        "  workers and remove the socket (`tests/test_campaign_pool.py`).",
         "",
     ]
     return "\n".join(lines)

@@ -443,7 +443,7 @@ def glitch_hover(
     from omnirotor.control.admittance import AdmittanceParams
     from omnirotor.control.controller import InteractionController
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-    from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop
+    from omnirotor.experiments.loop import TaskOptions, run_closed_loop
 
     params = TaskOptions(estimator=estimator).controller_params(AdmittanceParams.preset("free"))
     ctl = InteractionController(vehicle, params)
@@ -472,8 +472,8 @@ def mocap_noise_hover(true_m: float, told_m: float, matching: bool = True, seed:
     Returns:
         The largest per-axis RMS position error of the believed pose [cm] and the run's ``safety`` metrics.
     """
-    from omnirotor.experiments.closed_loop import run_task
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions
 
     overrides = [f"estimator.mocap_pos_std={told_m}"] + ([] if matching else ["estimator.mocap_adapt_noise=false"])
     options = ExperimentOptions(

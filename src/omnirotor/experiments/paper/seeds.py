@@ -234,7 +234,7 @@ def reproduce_seeds(
     Returns:
         :func:`evaluate_goals`'s list.
     """
-    from omnirotor.experiments.reproduce import reproduce
+    from omnirotor.experiments.paper.reproduce import reproduce
 
     out = make_dir(out_dir, "--out")
     report = progress or (lambda stage, frac: None)
