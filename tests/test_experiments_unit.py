@@ -233,7 +233,7 @@ def test_hover_verdict_uses_the_ten_seed_goals(nominal, piecewise, verdict):
 
 @pytest.mark.parametrize("under,verdict", [(1.0, "reproduced"), (0.45, "partly"), (-0.04, "not reproduced")])
 def test_tilted_verdict_uses_the_ten_seed_goals_band(under, verdict):
-    # one run's verdict and the ten-seed goal (0.7-1.3 N, paper.seeds.GOALS) say the same thing: 0.45 N is not ~1 N
+    # one run's verdict and the ten-seed goal (0.7-1.3 N, paper.claims.GOALS) say the same thing: 0.45 N is not ~1 N
     m = {
         "point-contact-tilted/nominal": {
             "normal_force": {"true_mean_N": 3.0, "estimated_mean_N": 3.0 - under, "underestimate_N": under}

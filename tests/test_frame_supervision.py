@@ -18,8 +18,9 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault, glitch_hover
+from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault
 from omnirotor.experiments.loop import TaskOptions
+from omnirotor.experiments.tasks.fault_hovers import glitch_hover
 from omnirotor.messages import (
     FRAME_ACC_B,
     FRAME_GYRO_B,

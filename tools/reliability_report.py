@@ -583,7 +583,8 @@ def run_glitches() -> list[tuple[str, str, bool, bool, bool]]:
     import numpy as np
 
     from omnirotor.control.supervisor import CAUSES
-    from omnirotor.experiments.faults import FRAME_GLITCHES, glitch_fault, glitch_hover
+    from omnirotor.experiments.faults import FRAME_GLITCHES, glitch_fault
+    from omnirotor.experiments.tasks.fault_hovers import glitch_hover
     from omnirotor.messages import ControlStatus
     from omnirotor.vehicle import load_vehicle
 
@@ -636,7 +637,7 @@ def run_noise_matching(
         the filter told the true noise, or, where it was told more than the truth, the filter without matching.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from omnirotor.experiments.faults import mocap_noise_hover
+    from omnirotor.experiments.tasks.fault_hovers import mocap_noise_hover
 
     def err(true_m: float, told_m: float, matching: bool, seed: int) -> float:
         return round(mocap_noise_hover(true_m, told_m, matching, seed)[0], 3)

@@ -472,7 +472,9 @@ def _ray_connect(workers: int | None, address: str | None):
         raise InputError("--backend ray needs the optional dependency ray: pip install 'omnirotor[ray]'") from None
     started = not ray.is_initialized()
     if started:
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        # PYTHONSAFEPATH: a worker puts no working folder first on its sys.path (no code from where Ray runs it)
+        safe = {"env_vars": {"PYTHONSAFEPATH": "1"}}
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "runtime_env": safe}
         if address is not None:
             _check_reachable(address)
             kwargs["address"] = address
