@@ -2,10 +2,10 @@
 
 Where a change goes:
 
+* :mod:`~omnirotor.experiments.metrics`: what a run's logs say (SPEC §6);
 * :mod:`~omnirotor.experiments.loop` (with its compiled stepping, :mod:`~omnirotor.experiments._loop`): the
-  closed loop of the controller and the simulator, a task's options and result;
-* :mod:`~omnirotor.experiments.metrics`, :mod:`~omnirotor.experiments.figures`: what a run's logs say (SPEC §6)
-  and its plots;
+  closed loop of the controller and the simulator, a task's options and result; beside it
+  :mod:`~omnirotor.experiments.figures`, a run's plots;
 * :mod:`~omnirotor.experiments.faults`: faults and perturbations of the plant;
 * :mod:`~omnirotor.experiments.tasks`: the tasks of ``omnirotor run`` (an explicit table, one line per task);
 * :mod:`~omnirotor.experiments.campaigns`: Monte-Carlo campaigns (the file's spec, the runner, the report);
