@@ -742,6 +742,14 @@ def _dry_run(spec: CampaignSpec) -> None:
     from omnirotor.vehicle import load_vehicle
 
     vehicle = load_vehicle(job.options.vehicle)
+    for pname, dist in spec.vary:
+        if pname == "failed_rotor":
+            beyond = [v for v in dist.support() if v > vehicle.n_rotors]
+            if beyond:
+                raise InputError(
+                    f"{spec.source} vary.failed_rotor: rotor {beyond[0]} does not exist; the vehicle "
+                    f"{vehicle.name!r} has rotors 1..{vehicle.n_rotors} (0 = none)"
+                )
     if spec.maps not in ("none", "identify-truth"):
         job.options.load_maps(vehicle)
     if job.options.plant is not None:
