@@ -69,8 +69,8 @@ def test_vehicle_round_trips_through_px4_parameters():
 @pytest.fixture(scope="module")
 def identification_flight(tmp_path_factory):
     """A short identification flight (region R1, 6 holds of 3 s): its CSV, its ULog and MCAP."""
-    from omnirotor.experiments.closed_loop import run_task
-    from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions, HoverProtocol
     from omnirotor.px4.mcap_export import write_run_mcap
     from omnirotor.px4.run_export import run_signals, write_run_ulog
 
@@ -207,7 +207,7 @@ def test_px4_omnicopter_hovers_and_holds_30_deg():
     from omnirotor.control.controller import ControllerParams, InteractionController
     from omnirotor.control.estimator import EstimatorParams
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-    from omnirotor.experiments.closed_loop import run_closed_loop, run_log
+    from omnirotor.experiments.loop import run_closed_loop, run_log
     from omnirotor.sim import SimParams, Simulator
     from omnirotor.sim.params import AeroParams
     from omnirotor.so3 import log_so3, rot_x
