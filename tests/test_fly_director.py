@@ -228,6 +228,34 @@ def test_requests_and_status_convert_to_message_fields_and_back():
         FlightRequest("fly")
 
 
+def test_requests_replies_and_status_go_through_cdr_with_the_shipped_definitions():
+    from omnirotor.rosmsg import typestore
+
+    store = typestore()
+
+    def cdr(msg, name):
+        return store.deserialize_cdr(
+            store.serialize_cdr(msg, f"omnirotor_msgs/msg/{name}"), f"omnirotor_msgs/msg/{name}"
+        )
+
+    req = FlightRequest("goto", setpoint=Setpoint((1.0, 2.0, 3.0), q_WB=(1.0, 0.0, 0.0, 0.0), duration_s=2.0))
+    assert FlightRequest.from_msg(cdr(req.to_msg(), "FlightRequest")) == req
+    push = FlightRequest("push", depth_m=0.1)
+    assert FlightRequest.from_msg(cdr(push.to_msg(), "FlightRequest")) == push
+    reply = FlightReply(False, "push", M.TRACK, M.TRACK, "not hovering (wait until the goto arrives)")
+    assert FlightReply.from_msg(cdr(reply.to_msg(), "FlightReply")) == reply
+    status = FlightStatus(
+        t=12.5, mode=M.CONTACT, failsafe=int(Failsafe.DEGRADED), cause=int(Cause.MOCAP_STALE), control_status=4,
+        preset="PC", map_mode="nominal", depth_m=0.1, target=Setpoint((0.0, 0.5, 1.0), (1.0, 0.0, 0.0, 0.0), None),
+        frames=10, steps=9, requests_accepted=3, requests_refused=1, failsafe_events=0, bad_commands=0, message="m",
+    )  # fmt: skip
+    back = cdr(status.to_msg(), "FlightStatus")
+    assert FlightStatus.from_msg(back) == status
+    assert (back.header.stamp.sec, back.header.stamp.nanosec) == (12, 500_000_000)
+    assert back.mode == back.MODE_CONTACT and back.cause == back.CAUSE_MOCAP_STALE  # the constants agree
+    assert FlightStatus.from_msg(cdr(dataclasses.replace(status, target=None).to_msg(), "FlightStatus")).target is None
+
+
 # -- flights -----------------------------------------------------------------------------------------------
 
 

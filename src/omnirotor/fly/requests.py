@@ -3,8 +3,8 @@
 Python-side types of ``omnirotor_msgs/msg/FlightRequest``, ``FlightReply``, ``FlightStatus`` and
 ``Setpoint`` (``src/omnirotor/rosmsg/omnirotor_msgs/msg/``), with conversions both ways
 (:meth:`FlightRequest.from_msg`, :meth:`FlightRequest.to_fields`, ...): the transport serialises the ROS 2
-messages (rosbags' CDR), the director works on these. Not-given numbers travel as NaN. Light to import
-(no controller, no numba): the ``ctl`` client uses it.
+messages (rosbags' CDR; ``to_msg`` builds the message objects), the director works on these. Not-given numbers
+travel as NaN. Light to import (no controller, no numba): the ``ctl`` client uses it.
 """
 
 from __future__ import annotations
@@ -14,12 +14,24 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from omnirotor.errors import InputError
 from omnirotor.fly.modes import REQUEST_IDS, REQUESTS, FlightMode
 
-__all__ = ["FlightRequest", "FlightReply", "FlightStatus", "Setpoint", "request_from"]
+__all__ = ["FlightRequest", "FlightReply", "FlightStatus", "Setpoint", "request_from", "CTL_TOPIC"]
+
+CTL_TOPIC = "/omnirotor/ctl"
+"""The request/reply topic of the flight node (FlightRequest -> FlightReply)."""
 
 _NAN = math.nan
+
+
+def _msg(type_name: str, fields: dict[str, Any]) -> Any:
+    """A message object of ``omnirotor_msgs/msg/<type_name>`` from the shipped definitions (rosbags)."""
+    from omnirotor.rosmsg import msg_type
+
+    return msg_type(f"omnirotor_msgs/msg/{type_name}")(**fields)
 
 
 def _opt(x: float) -> float | None:
@@ -59,6 +71,12 @@ class Setpoint:
             "yaw_deg": _nan(self.yaw_deg),
             "duration_s": _nan(self.duration_s),
         }
+
+    def to_msg(self) -> Any:
+        """The ``omnirotor_msgs/msg/Setpoint`` message object (rosbags)."""
+        f = self.to_fields()
+        f["p_w"], f["q_wb"] = np.array(f["p_w"]), np.array(f["q_wb"])
+        return _msg("Setpoint", f)
 
     @classmethod
     def from_fields(cls, m: Any) -> Setpoint:
@@ -110,6 +128,12 @@ class FlightRequest:
             "name": self.name,
             "force": bool(self.force),
         }
+
+    def to_msg(self) -> Any:
+        """The ``omnirotor_msgs/msg/FlightRequest`` message object (rosbags)."""
+        f = self.to_fields()
+        f["setpoint"] = (self.setpoint or Setpoint((_NAN, _NAN, _NAN))).to_msg()
+        return _msg("FlightRequest", f)
 
     @classmethod
     def from_msg(cls, m: Any) -> FlightRequest:
@@ -184,6 +208,10 @@ class FlightReply:
             "message": self.message,
         }
 
+    def to_msg(self) -> Any:
+        """The ``omnirotor_msgs/msg/FlightReply`` message object (rosbags)."""
+        return _msg("FlightReply", self.to_fields())
+
     @classmethod
     def from_msg(cls, m: Any) -> FlightReply:
         """From a ROS message object or a mapping with its field names."""
@@ -238,6 +266,18 @@ class FlightStatus:
         d["mode"] = int(self.mode)
         d["target"] = (self.target or Setpoint((_NAN, _NAN, _NAN))).to_fields()
         return d
+
+    def to_msg(self, frame_id: str = "") -> Any:
+        """The ``omnirotor_msgs/msg/FlightStatus`` message object (rosbags), stamped with :attr:`t`."""
+        from omnirotor.rosmsg import msg_type
+
+        f = self.to_fields()
+        f["target"] = (self.target or Setpoint((_NAN, _NAN, _NAN))).to_msg()
+        t = self.t if math.isfinite(self.t) and self.t >= 0.0 else 0.0
+        sec = int(t)
+        stamp = msg_type("builtin_interfaces/msg/Time")(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+        f["header"] = msg_type("std_msgs/msg/Header")(stamp=stamp, frame_id=frame_id)
+        return _msg("FlightStatus", f)
 
     @classmethod
     def from_msg(cls, m: Any) -> FlightStatus:
