@@ -45,7 +45,7 @@ import numpy as np
 from omnirotor.errors import InputError
 from omnirotor.messages import SensorFrame
 
-__all__ = ["FlightRecorder", "record_dtype", "read_recording", "TOPICS"]
+__all__ = ["FlightRecorder", "record_dtype", "read_recording", "TOPICS", "column_groups"]
 
 TOPICS = {
     "/omnirotor/frame": "omnirotor_msgs/msg/SensorFrame",
@@ -223,7 +223,7 @@ class FlightRecorder:
 # -- the writer process ------------------------------------------------------------------------------------
 
 
-def _groups(columns: list[str]) -> dict[str, np.ndarray]:
+def column_groups(columns: list[str]) -> dict[str, np.ndarray]:
     """Column indices of each group of the log (``g.x`` -> group ``g``), by name."""
     out: dict[str, list[int]] = {}
     for i, name in enumerate(columns):
@@ -248,7 +248,7 @@ def _writer_main(shm_name, descr, capacity, head, tail, status_q, stop, result_q
         ring = np.ndarray((capacity,), dtype=np.dtype(descr), buffer=shm.buf)
         store = typestore()
         T = store.types
-        groups = _groups(columns)
+        groups = column_groups(columns)
         poses = {topic: (groups[p], groups[r]) for topic, (p, r) in _POSES.items() if p in groups and r in groups}
         wrench = tuple(groups[g] for g in _WRENCH) if all(g in groups for g in _WRENCH) else None
         counts = dict.fromkeys(TOPICS, 0)
