@@ -281,11 +281,12 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
             w.writerow(row + ([region[j]] if region else []))
 
 
-def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> HoverData:
+def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_criteria=None) -> HoverData:
     """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
 
     A PX4 flight log (``.ulg``) gives one point per automatically found steady hover window
-    (:func:`omnirotor.px4.windows.load_ulog`).
+    (:func:`omnirotor.px4.windows.load_ulog`, with ``window_criteria``: a
+    :class:`~omnirotor.px4.criteria.WindowCriteria`, default its defaults).
     """
     files: list[Path] = []
     for item in paths:
@@ -312,7 +313,7 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
         elif f.suffix.lower() == ".ulg":
             from omnirotor.px4.windows import load_ulog  # pyulog only when a ULog is read
 
-            parts.append(load_ulog(f, vehicle))
+            parts.append(load_ulog(f, vehicle, window_criteria))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
