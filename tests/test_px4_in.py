@@ -434,3 +434,34 @@ def test_slow_drift_and_speed_steps_cut_windows():
     np.testing.assert_allclose(pts.u_hz2[:, 3], [100.0**2, 110.0**2], rtol=5e-5)
     untrimmed = hover_points(step, WindowCriteria(trim_s=0.0))
     assert np.abs(untrimmed.u_hz2[:, 3] / [100.0**2, 110.0**2] - 1).max() > 2e-4
+
+
+def test_no_window_exits_2_in_both_commands_with_each_criterions_rejection(tmp_path, capsys):
+    path = _need(EVENTS)
+    png = tmp_path / "w.png"
+    assert main(["hover-windows", str(path), "--out", str(png), "--min-duration", "5"]) == 2
+    err_hw = capsys.readouterr().err.strip().splitlines()
+    assert png.is_file()  # the figure shows why; no CSV of no points
+    assert main(["identify", str(path), "--min-duration", "5"]) == 2
+    err_id = capsys.readouterr().err.strip().splitlines()
+    for err in (err_hw, err_id):
+        assert err[-1].startswith("omnirotor: error:") and "no steady hover window" in err[-1]
+        rejected = {e.split(":")[2].strip() for e in err if "rejected " in e}
+        assert rejected == {"--accel-max", "--rate-max", "--spin-fraction", "landed"}, err
+        assert any("--min-duration (5 s" in e and "dropped" in e for e in err)
+
+
+def test_every_criterion_is_an_option_of_both_commands(capsys):
+    from omnirotor.px4.criteria import OPTION_OF
+
+    for command in ("hover-windows", "identify"):
+        assert main([command, "--help"]) == 0
+        text = capsys.readouterr().out
+        assert all(opt in text for opt in OPTION_OF.values()), command
+    path = _need(EVENTS)
+    # a criterion given on the command line reaches the detector: a stricter rate limit removes the window
+    assert main(["identify", str(path), "--rate-max", "0.001"]) == 2
+    assert "no steady hover window" in capsys.readouterr().err
+    assert main(["identify", str(path), "--accel-max", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--accel-max" in err[0]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -110,7 +111,12 @@ def identify_cmd(
     from rich.console import Console
     from rich.table import Table
 
-    from omnirotor.identification import IdentificationParams, identify, load_hover_data
+    from omnirotor.identification import (
+        IdentificationParams,
+        identification_warnings,
+        identify,
+        load_hover_data,
+    )
     from omnirotor.regions import load_partition
     from omnirotor.vehicle import load_vehicle
 
@@ -138,6 +144,8 @@ def identify_cmd(
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh, criteria)
     maps = identify(hover, veh, params, part, region)
+    for line in identification_warnings(hover, veh, maps, region):
+        print(f"omnirotor: warning: {line}", file=sys.stderr)
     torque_fits = {}
     if torque is not None:
         from omnirotor.torque_identification import flight_torque_rows
