@@ -14,7 +14,7 @@ Topics (ROS 2 names, in the transport's namespace; types in :mod:`omnirotor.rosm
 
 A *task* (``--task``, every task of ``omnirotor run``) runs the task function of ``omnirotor run`` unchanged —
 its plant, protocol and metrics — with the in-process controller step replaced by the wire
-(:func:`omnirotor.experiments.closed_loop.loop_override`): frame ``k`` goes out, command ``k`` comes back from the
+(:func:`omnirotor.experiments.loop.loop_override`): frame ``k`` goes out, command ``k`` comes back from the
 node (which flies the same task: ``omnirotor fly --mission-from-sim``), the plant steps under it. The controller
 object the task builds here never steps; it only holds the log rows the node sends back, from which the task
 computes its metrics as ``omnirotor run`` does.
@@ -243,14 +243,14 @@ def _percentiles_us(samples: np.ndarray) -> dict:
 
 
 def remote_loop(link: SimLink, report: SitlReport) -> Callable:
-    """A replacement of :func:`~omnirotor.experiments.closed_loop.run_closed_loop` that flies over ``link``.
+    """A replacement of :func:`~omnirotor.experiments.loop.run_closed_loop` that flies over ``link``.
 
     Same arguments and result; ``video`` is not supported (refused), ``on_step`` is called as there.
     """
 
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
         from omnirotor.experiments import reuse
-        from omnirotor.experiments.closed_loop import TRUTH_GROUPS, start_pose_of
+        from omnirotor.experiments.loop import TRUTH_GROUPS, start_pose_of
 
         if video is not None:
             raise InputError("--video is not available with the simulator served on the wire")
@@ -440,7 +440,8 @@ def serve_task(
     Raises:
         InputError: bad options, or no controller within ``serve.start_timeout_s``.
     """
-    from omnirotor.experiments.closed_loop import loop_override, run_task
+    from omnirotor.experiments.loop import loop_override
+    from omnirotor.experiments.tasks import run_task
     from omnirotor.vehicle import load_vehicle
 
     vehicle = load_vehicle(options.vehicle)
