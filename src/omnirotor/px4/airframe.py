@@ -26,6 +26,7 @@ import numpy as np
 
 from omnirotor.config import from_mapping, load_toml
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_ROTORS
 from omnirotor.px4.frames import vec_from_px4
 
 __all__ = ["PX4_DEFAULTS", "read_airframe_params", "is_airframe_file", "vehicle_from_px4_params"]
@@ -92,9 +93,10 @@ def _rotor_geometry(params: Mapping[str, float], where: str) -> tuple[np.ndarray
     """(n, 3) positions and axes (FRD), (n,) KM and the CA_R_REV bitmask."""
     if "CA_ROTOR_COUNT" not in params:
         raise InputError(f"{where}: no PX4 rotor geometry (parameter CA_ROTOR_COUNT missing)")
-    n = int(params["CA_ROTOR_COUNT"])
-    if n < 1:
-        raise InputError(f"{where}: CA_ROTOR_COUNT is {n}")
+    count = params["CA_ROTOR_COUNT"]
+    if not (isinstance(count, (int, float)) and 1 <= count <= MAX_ROTORS and count == int(count)):
+        raise InputError(f"{where}: CA_ROTOR_COUNT is {count}; expected a whole number from 1 to {MAX_ROTORS}")
+    n = int(count)
     pos, axis, km = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n)
     defaults = {"PX": 0.0, "PY": 0.0, "PZ": 0.0, "AX": 0.0, "AY": 0.0, "AZ": -1.0, "KM": 0.05}  # PX4's own
     missing = []
