@@ -41,6 +41,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import FRAME_T, RotorCommand
+from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -249,7 +250,6 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
     """
 
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
-        from omnirotor.experiments import reuse
         from omnirotor.experiments.loop import TRUTH_GROUPS, start_pose_of
 
         if video is not None:
@@ -267,7 +267,7 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
         log.clear()
         log.ensure_capacity(n_steps)
         have_row = np.zeros(n_steps, dtype=bool)
-        truth_log = reuse.truth_log(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+        truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
 
         def store_row(frame_seq: int, row: np.ndarray) -> None:
             j = frame_seq - 1  # the step on frame j writes the controller's log row j - 1
