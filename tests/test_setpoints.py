@@ -1,6 +1,6 @@
 """Set-points in flight, the public methods the flight node calls between steps (issue 23 item 6, issue 24 item 2).
 
-* :meth:`InteractionController.move_to` replaces the trajectory by a minimum-jerk segment from the current
+* :meth:`InteractionController.retarget` replaces the trajectory by a minimum-jerk segment from the current
   desired reference: position, velocity and acceleration continuous, the controller's time running on, the
   target reached and held;
 * :meth:`InteractionController.set_admittance` changes the admittance set (a Table 2 preset) under a pushing
@@ -56,14 +56,14 @@ def _fly(sim, ctl, cmd, steps: int):
     return cmd, np.array(des), np.array(comp), np.array(times)
 
 
-def test_move_to_continues_the_reference_and_reaches_the_target():
+def test_retarget_continues_the_reference_and_reaches_the_target():
     sim, ctl, cmd = _hover(move=(0.3, -0.2, 0.1), move_s=1.0)
     cmd, before, _, t_before = _fly(sim, ctl, cmd, 400)  # in the segment: the reference moves and accelerates
     current = ctl.desired_ee.copy()
     assert np.linalg.norm(current.v_W) > 0.1 and np.linalg.norm(current.a_W) > 0.1
     target = current.p_W + np.array([-0.2, 0.1, 0.05])
     R_target = rot_z(0.3) @ current.R_WB
-    ctl.move_to(target, R_target, duration_s=1.5)
+    ctl.retarget(target, R_target, duration_s=1.5)
     # The segment leaves exactly the reference it replaces (position, velocity, acceleration, attitude).
     start = ReferenceSample()
     segment_sample(ctl.state[0]["segment"], ctl.time, start.state[0])
@@ -82,13 +82,13 @@ def test_move_to_continues_the_reference_and_reaches_the_target():
     assert np.linalg.norm(sim.truth.p_E_W - target) < 0.02
 
 
-def test_move_to_refuses_bad_targets_and_keeps_flying():
+def test_retarget_refuses_bad_targets_and_keeps_flying():
     sim, ctl, cmd = _hover()
     cmd, *_ = _fly(sim, ctl, cmd, 10)
     before = ctl.state["segment"].copy()
     for args in (([np.nan, 0.0, 1.0], None, 1.0), ([0.0, 0.0, 1.0], np.eye(3) * 2.0, 1.0), ([0, 0, 1.0], None, 0.0)):
         with pytest.raises(InputError):
-            ctl.move_to(*args)
+            ctl.retarget(*args)
     assert ctl.state["segment"].tobytes() == before.tobytes()  # nothing half-written
 
 

@@ -21,7 +21,7 @@ its rotor speeds (the frame supervision's checked copy, whose size does not depe
 flags are float64 (1.0/0.0), so that every field of the record is a float64.
 
 The simulator's compiled step writes a ``(1,)`` array of this dtype, the controller's reads it (the closed
-loop of :mod:`omnirotor.experiments.closed_loop` runs both on one such array, without building objects);
+loop of :mod:`omnirotor.experiments.loop` runs both on one such array, without building objects);
 :meth:`SensorFrame.write_record` and :meth:`SensorFrame.from_record` convert. A robot driver may fill either
 form. On the command side the record is simply the ``(n,)`` speed array.
 """

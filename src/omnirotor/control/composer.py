@@ -7,7 +7,7 @@ their SPEC sections are in the controller's module docstring)::
                                                             │
     u_obs_hz2 (measured) or u_cmd_hz2 (last command), A ──> observer ──> f_ext_W, m_ext_B; f_filt_W, m_filt_B
     f_ext_W, m_ext_B ──> EE wrench (f_E_W, m_E_W) ──> admittance ──> xi
-    trajectory(t) ──> desired_ee ──(xi)──> compliant_ee ──(p_E_B)──> body_ref
+    trajectory(t) or set-point segment(t) ──> desired_ee ──(xi)──> compliant_ee ──(p_E_B)──> body_ref
     body_ref, estimate, f_filt_W, m_filt_B ──> pose ──> f_ref_W, m_ref_B ──> allocation (A, R_WB) ──> u_hz2 ──> omega_hz
 
 The supervisor (:mod:`omnirotor.control.supervisor`) checks the frame first: the estimator reads its checked

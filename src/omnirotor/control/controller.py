@@ -412,7 +412,7 @@ class InteractionController:
         """The controller's (trajectory) time of the last step [s]: the frame's time minus the reset frame's."""
         return float(self._own["t"])
 
-    def move_to(self, p_E_W: np.ndarray, R_WE: np.ndarray | None = None, duration_s: float = 2.0) -> None:
+    def retarget(self, p_E_W: np.ndarray, R_WE: np.ndarray | None = None, duration_s: float = 2.0) -> None:
         """Replace the trajectory, from the next step on, by a minimum-jerk segment to an EE pose at rest.
 
         The segment starts at the controller's time (:attr:`time`, which runs on continuously) from the desired
@@ -430,7 +430,7 @@ class InteractionController:
             InputError: before :meth:`reset`, or a target or duration that is not valid.
         """
         if self._trajectory is None:
-            raise InputError("InteractionController.move_to before reset(frame, trajectory)")
+            raise InputError("InteractionController.retarget before reset(frame, trajectory)")
         R = self.desired_ee.R_WB if R_WE is None else R_WE
         start_segment(self.state["segment"], self.desired_ee, self.time, p_E_W, R, duration_s)
 

@@ -32,12 +32,14 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit, jit_entry
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
+from omnirotor.frame_kernels import clear_mocap, clear_state
 from omnirotor.sim import prng
 from omnirotor.sim.params import SensorParams
 from omnirotor.sim.rotors import MAX_ROTORS
+from omnirotor.so3 import R9_from_quat_into, quat_perturb_into
 
 __all__ = [
     "NoiseStream",
@@ -247,22 +249,6 @@ def imu_vibration_add(imu, omega_hz, n: int, acc_B, gyro_B) -> None:
             gyro_B[j] += sg * dg[i, j]
 
 
-@jit
-def quat_perturb_into(q, dtheta, out) -> None:
-    """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``."""
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    a, b, c = 0.5 * dtheta[0], 0.5 * dtheta[1], 0.5 * dtheta[2]
-    rw = qw - qx * a - qy * b - qz * c
-    rx = qx + qw * a + qy * c - qz * b
-    ry = qy + qw * b + qz * a - qx * c
-    rz = qz + qw * c + qx * b - qy * a
-    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
-    out[0] = rw * s
-    out[1] = rx * s
-    out[2] = ry * s
-    out[3] = rz * s
-
-
 @jit_entry
 def mocap_push(moc, noise, t: float, due: int, p, q) -> None:
     """Queue a sample taken at ``t`` of the pose ``(p, q)``, with its noise, for delivery at step ``due``.
@@ -383,14 +369,7 @@ def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
     st = frame.state
     R = st.R_WB
     if mode == STATE_NONE:
-        st.valid = 0.0
-        for i in range(3):
-            st.p_W[i] = 0.0
-            st.v_W[i] = 0.0
-            st.a_W[i] = 0.0
-            st.omega_B[i] = 0.0
-            for j in range(3):
-                R[i, j] = 0.0
+        clear_state(st)
     else:
         st.valid = 1.0
         if mode == STATE_EXACT:
@@ -427,12 +406,7 @@ def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
         for j in range(4):
             m.q_WB[j] = s[4 + j]
     else:
-        m.new = 0.0
-        m.t = 0.0
-        for j in range(3):
-            m.p_W[j] = 0.0
-        for j in range(4):
-            m.q_WB[j] = 0.0
+        clear_mocap(m)
 
 
 # -- Python set-up ---------------------------------------------------------------------------------------------
