@@ -185,11 +185,17 @@ class Recorder:
         Returns:
             A view of the row, or None (counted as dropped) when the recorder is full (and does not grow).
         """
+        n = self.n
+        data = self._data
+        i = n - self._base
+        if i < data.shape[0]:  # the common case, inline (one call per control period)
+            self.n = n + 1
+            return data[i]
         row = self._free_row()
         if row is None:
             self.dropped += 1
             return None
-        self.n += 1
+        self.n = n + 1
         return row
 
     def column(self, name: str) -> np.ndarray:
