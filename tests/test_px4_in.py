@@ -250,7 +250,7 @@ def test_log_without_attitude_or_speeds_lists_both(tmp_path, capsys):
     from omnirotor.px4.ulog_writer import ULogWriter
 
     w = ULogWriter()
-    lp = np.zeros(10, dtype=[("timestamp", "<u8"), ("x", "<f4")])
+    lp = np.zeros(10, dtype=[("timestamp", "<u8")] + [(k, "<f4") for k in ("x", "y", "z", "vx", "vy", "vz")])
     lp["timestamp"] = np.arange(10) * 1000
     w.add_topic("vehicle_local_position", lp)
     path = tmp_path / "empty.ulg"
