@@ -23,6 +23,7 @@ TaskResult`` built on :func:`run_closed_loop`.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import dataclasses
 import functools
 import math
@@ -54,6 +55,7 @@ __all__ = [
     "video_sink",
     "TRUTH_MODELS",
     "ESTIMATORS",
+    "loop_override",
 ]
 
 _XYZ = ("x", "y", "z")
@@ -98,6 +100,24 @@ def start_pose_of(trajectory: PoseTrajectory, vehicle: VehicleParams) -> tuple[n
     return w.p_W - w.R_WB @ vehicle.p_E_B_array, w.R_WB.copy()
 
 
+_LOOP_OVERRIDE: contextvars.ContextVar[Callable | None] = contextvars.ContextVar("loop_override", default=None)
+
+
+@contextlib.contextmanager
+def loop_override(loop: Callable) -> Iterator[None]:
+    """Within the block, :func:`run_closed_loop` calls ``loop`` with its arguments instead of flying in process.
+
+    The software-in-the-loop simulator (:mod:`omnirotor.sitl`) runs a task of ``omnirotor run`` unchanged — its
+    plant, protocol and metrics — with the controller in another process: ``loop`` has the signature of
+    :func:`run_closed_loop` and returns its two logs.
+    """
+    token = _LOOP_OVERRIDE.set(loop)
+    try:
+        yield
+    finally:
+        _LOOP_OVERRIDE.reset(token)
+
+
 def run_closed_loop(
     sim: Simulator,
     controller: InteractionController,
@@ -126,6 +146,9 @@ def run_closed_loop(
     Raises:
         InputError: non-positive duration, or simulator and controller periods that differ.
     """
+    override = _LOOP_OVERRIDE.get()
+    if override is not None:
+        return override(sim, controller, trajectory, duration_s, progress=progress, video=video, on_step=on_step)
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise InputError(f"duration must be a finite number of seconds > 0, got {duration_s}")
     dt = controller.params.dt
