@@ -59,7 +59,7 @@ def trap(tmp_path_factory):
     return folder, markers, launcher
 
 
-def _omnirotor(trap, *args: str, cwd_on_path: bool = False, timeout: float = 900) -> subprocess.CompletedProcess:
+def _omnirotor(trap, *args: str, cwd_on_path: bool = False, timeout: float = 3600) -> subprocess.CompletedProcess:
     folder, markers, launcher = trap
     path = [str(SRC)] + ([str(folder)] if cwd_on_path else [])
     env = {k: v for k, v in os.environ.items() if k != "PYTHONSAFEPATH"}
