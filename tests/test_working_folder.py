@@ -87,6 +87,13 @@ def _command_paths() -> list[tuple[str, ...]]:
     return out
 
 
+def test_every_command_module_is_listed():
+    from omnirotor.cli import COMMAND_MODULES
+
+    files = sorted(p.stem for p in (SRC / "omnirotor" / "cli").glob("cmd_*.py"))
+    assert sorted(COMMAND_MODULES) == files
+
+
 def test_the_traps_fire_when_the_working_folder_is_on_the_path(trap):
     folder, markers, _ = trap
     proc = subprocess.run(
