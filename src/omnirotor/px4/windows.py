@@ -341,7 +341,7 @@ def load_ulog(path: str | Path, vehicle, criteria: WindowCriteria | None = None)
     """
     import sys
 
-    from omnirotor.identification import HoverData
+    from omnirotor.hover_data import HoverData
 
     p = Path(path)
     flight = read_flight(p, vehicle.n_rotors, vehicle.omega_max_hz)
