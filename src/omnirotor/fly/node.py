@@ -94,6 +94,7 @@ _STATE_ARMED = 1
 _STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
 _SPIN_S = 0.0003
+_LATE_POLL_S = 0.00005
 
 
 @dataclasses.dataclass(frozen=True)
@@ -508,8 +509,10 @@ class NodeLoop:
         left = due - now - _SPIN_S
         if left > 0:
             time.sleep(min(left, period))
+        elif now < due + _SPIN_S:
+            time.sleep(0)  # the frame is due: poll
         else:
-            time.sleep(0)
+            time.sleep(_LATE_POLL_S)  # it is late: poll, but leave the CPU to the threads that deliver it
 
 
 def warm_up(controller) -> None:
@@ -606,7 +609,7 @@ def fly_mission(
         controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
         warm_up(controller)
         node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
-        if realtime is not None:
+        if realtime is not None and not node_options.lockstep:  # lockstep polls without pause: no real-time class
             realtime()
         raise _MissionFlown(node.run())
 
