@@ -82,7 +82,7 @@ MISSION_OPTION_FIELDS = (
 )  # fmt: skip
 """The options of a task that travel to the node with the mission (both sides build the same task)."""
 
-_COMMAND_DEPTH = 16
+_COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
 _SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
 
