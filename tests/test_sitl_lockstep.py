@@ -12,8 +12,8 @@ import math
 import pytest
 from tests.sitl.procs import Pair
 
-from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions
 
 TIMING = {"controller_step_us_median", "sitl", "figure"}
 

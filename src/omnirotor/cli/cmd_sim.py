@@ -65,12 +65,11 @@ def sim(
         raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
     if task is None:
         raise InputError("omnirotor sim --serve needs --task TASK (a task of `omnirotor run`, e.g. hover)")
-    from omnirotor.experiments.closed_loop import TASKS, discover_tasks
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.tasks import TASKS
+    from omnirotor.experiments.tasks.common import ExperimentOptions
     from omnirotor.sitl.server import ServeOptions
     from omnirotor.transport import open_transport
 
-    discover_tasks()
     if task not in TASKS:
         raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
     if maps is not None:

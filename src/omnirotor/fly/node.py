@@ -599,15 +599,16 @@ def fly_mission(
 ) -> dict:
     """Fly the simulator's task: build its controller and trajectory as ``omnirotor run`` does, fly them here.
 
-    The task function runs with :func:`~omnirotor.experiments.closed_loop.loop_override`: where it would fly in
+    The task function runs with :func:`~omnirotor.experiments.loop.loop_override`: where it would fly in
     process, this node's loop flies its controller (``director_factory(controller, trajectory)``) against the
     remote plant, publishing its log rows; the task's metrics are then the simulator's to compute.
 
     Returns:
         The loop's summary.
     """
-    from omnirotor.experiments.closed_loop import loop_override, run_task
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.loop import loop_override
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions
 
     known = {f.name for f in dataclasses.fields(ExperimentOptions)}
     unknown = sorted(set(options) - known)

@@ -14,7 +14,7 @@ Topics (ROS 2 names, in the transport's namespace; types in :mod:`omnirotor.rosm
 
 A *task* (``--task``, every task of ``omnirotor run``) runs the task function of ``omnirotor run`` unchanged —
 its plant, protocol and metrics — with the in-process controller step replaced by the wire
-(:func:`omnirotor.experiments.closed_loop.loop_override`): frame ``k`` goes out, command ``k`` comes back from the
+(:func:`omnirotor.experiments.loop.loop_override`): frame ``k`` goes out, command ``k`` comes back from the
 node (which flies the same task: ``omnirotor fly --mission-from-sim``), the plant steps under it. The controller
 object the task builds here never steps; it only holds the log rows the node sends back, from which the task
 computes its metrics as ``omnirotor run`` does.
@@ -41,6 +41,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import FRAME_T, RotorCommand
+from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -243,14 +244,13 @@ def _percentiles_us(samples: np.ndarray) -> dict:
 
 
 def remote_loop(link: SimLink, report: SitlReport) -> Callable:
-    """A replacement of :func:`~omnirotor.experiments.closed_loop.run_closed_loop` that flies over ``link``.
+    """A replacement of :func:`~omnirotor.experiments.loop.run_closed_loop` that flies over ``link``.
 
     Same arguments and result; ``video`` is not supported (refused), ``on_step`` is called as there.
     """
 
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
-        from omnirotor.experiments import reuse
-        from omnirotor.experiments.closed_loop import TRUTH_GROUPS, start_pose_of
+        from omnirotor.experiments.loop import TRUTH_GROUPS, start_pose_of
 
         if video is not None:
             raise InputError("--video is not available with the simulator served on the wire")
@@ -267,7 +267,7 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
         log.clear()
         log.ensure_capacity(n_steps)
         have_row = np.zeros(n_steps, dtype=bool)
-        truth_log = reuse.truth_log(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+        truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
 
         def store_row(frame_seq: int, row: np.ndarray) -> None:
             j = frame_seq - 1  # the step on frame j writes the controller's log row j - 1
@@ -445,7 +445,8 @@ def serve_task(
     Raises:
         InputError: bad options, or no controller within ``serve.start_timeout_s``.
     """
-    from omnirotor.experiments.closed_loop import loop_override, run_task
+    from omnirotor.experiments.loop import loop_override
+    from omnirotor.experiments.tasks import run_task
     from omnirotor.vehicle import load_vehicle
 
     vehicle = load_vehicle(options.vehicle)
