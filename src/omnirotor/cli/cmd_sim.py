@@ -40,6 +40,9 @@ def sim(
     ] = True,
     offboard_loss: Annotated[float, typer.Option(help="No command for this long stops the rotors [s].")] = 0.5,
     wait: Annotated[float, typer.Option(help="How long to wait for the controller's first command [s].")] = 60.0,
+    fifo_priority: Annotated[
+        int, typer.Option(help="SCHED_FIFO priority of the real-time plant loop (0: do not ask).")
+    ] = 0,
     map_mode: Annotated[str, typer.Option("--map", help="Wrench map: nominal, global, piecewise.")] = "nominal",
     maps: Annotated[Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify`.")] = None,
     blend: Annotated[str, typer.Option(help="Piecewise region switching: hard or smooth.")] = "hard",
@@ -79,6 +82,8 @@ def sim(
         maps=str(maps) if maps is not None else None, blend=blend, quick=quick, zero_observer=zero,
     )  # fmt: skip
     options.controller_params()  # validate before opening anything
+    if not 0 <= fifo_priority <= 99:
+        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views
     )
@@ -86,6 +91,10 @@ def sim(
     with open_transport(domain_id=domain_id, namespace=namespace, listen=endpoints, connect=list(connect or ())) as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
+        if fifo_priority and not lockstep:
+            from omnirotor.fly.node import set_realtime
+
+            set_realtime(None, fifo_priority, lambda line: note(line))
         result, report = _serve(t, task, options, serve_opts)
     rep = result.summary()
     rep["sitl"] = report.as_dict()

@@ -83,7 +83,7 @@ MISSION_OPTION_FIELDS = (
 )  # fmt: skip
 """The options of a task that travel to the node with the mission (both sides build the same task)."""
 
-_COMMAND_DEPTH = 16
+_COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
 _SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
 
@@ -284,8 +284,11 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
         link.drain_rows(store_row)
         missing = np.flatnonzero(~have_row)
         report.log_rows_missing = int(missing.size)
-        for j in missing:  # the previous row stands in (said by the caller)
-            log.data[j] = log.data[j - 1] if j > 0 else np.nan
+        if missing.size == n_steps:
+            raise InputError("the flight node sent no controller log rows: the run has no metrics")
+        first = int(np.argmax(have_row))
+        for j in missing:  # the previous row stands in, the first received one before it (said by the caller)
+            log.data[j] = log.data[j - 1] if j > first else log.data[first]
         log.n = n_steps
         return log, truth_log
 
@@ -303,23 +306,25 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     zeros = np.zeros(link.n)
     lockstep = opts.lockstep
     held = 0
+    gc.collect()  # now, not between the first command and the first step
+    gc.freeze()
+    gc.disable()
     # wait for the node: the start frame goes out every 50 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
-    while link.cmd_frame_seq != 0:
-        now = time.monotonic()
-        if now > deadline:
-            raise InputError(f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)")
-        if now >= next_send:
-            link.send_frame(packed, 0)
-            link.send_status(float(packed[FRAME_T]), 0, 0, False, "", force=True)
-            next_send = now + 0.05
-        link.poll_commands()
-        time.sleep(0.0005)
-    gc.collect()
-    gc.freeze()
-    gc.disable()
     try:
+        while link.cmd_frame_seq != 0:
+            now = time.monotonic()
+            if now > deadline:
+                raise InputError(
+                    f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)"
+                )
+            if now >= next_send:
+                link.send_frame(packed, 0)
+                link.send_status(float(packed[FRAME_T]), 0, 0, False, "", force=True)
+                next_send = now + 0.05
+            link.poll_commands()
+            time.sleep(0.0005)
         wall0 = time.monotonic()
         sent_at = wall0
         failsafe = False
