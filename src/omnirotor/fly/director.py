@@ -593,7 +593,7 @@ class FlightDirector:
         return s + f"; {self.message}"
 
 
-_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight retarget API); the landing goes on"
+_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight move_to); the landing goes on"
 
 
 class _Refused(str):
