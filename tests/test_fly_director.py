@@ -251,6 +251,8 @@ def test_requests_replies_and_status_go_through_cdr_with_the_shipped_definitions
         frames=10, steps=9, requests_accepted=3, requests_refused=1, failsafe_events=0, bad_commands=0, message="m",
     )  # fmt: skip
     back = cdr(status.to_msg(), "FlightStatus")
+    built = store.types["omnirotor_msgs/msg/FlightStatus"](**status.to_fields())  # as the node publishes it
+    assert FlightStatus.from_msg(cdr(built, "FlightStatus")) == status
     assert FlightStatus.from_msg(back) == status
     assert (back.header.stamp.sec, back.header.stamp.nanosec) == (12, 500_000_000)
     assert back.mode == back.MODE_CONTACT and back.cause == back.CAUSE_MOCAP_STALE  # the constants agree
