@@ -348,7 +348,7 @@ def test_whole_flight_in_the_simulator(vehicle):
 
 
 def test_mission_flies_exactly_what_the_in_process_loop_flies(vehicle):
-    from omnirotor.experiments.closed_loop import start_pose_of
+    from omnirotor.experiments.loop import start_pose_of
     from omnirotor.sim import SimParams, Simulator
 
     def sim_at(traj):
