@@ -210,8 +210,10 @@ def test_every_transition_is_accepted_or_refused_with_a_reason(vehicle):
     assert r.accepted and r.message.startswith("mode hold, preset free, map nominal")
     r = d.request({"kind": 42})
     assert not r.accepted and "malformed flight request" in r.message
+    r = d.request(object())  # not a request at all: refused, never raised
+    assert not r.accepted and "malformed flight request" in r.message
     status = d.status()
-    assert status.requests_refused == 16 and status.requests_accepted == 3  # status requests are not counted
+    assert status.requests_refused == 17 and status.requests_accepted == 3  # status requests are not counted
     r = _req(d, "disarm", force=True)
     assert r.accepted and r.message == "rotors stopped in flight (forced)" and d.mode == M.DISARMED
     assert not _run(d, ctl, s, 0.002) and not d.output(None).any()

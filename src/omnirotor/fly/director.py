@@ -174,13 +174,13 @@ class FlightDirector:
             traj, self._pending = self._pending, None
             try:
                 self.inflight.start(frame, traj)
-            except InputError as exc:  # the controller refused the frame: stay on the ground
+                self._first[:] = self.controller.hold_command(t_frame).omega_hz
+            except Exception as exc:  # noqa: BLE001  (the controller refused the frame: stay on the ground, say why)
                 self.cause |= _CONTROLLER_ERROR
                 self.message = f"controller refused the take-off frame: {exc}"
                 self._disarm()
                 self._plan = _ZERO
                 return
-            self._first[:] = self.controller.hold_command(t_frame).omega_hz
             self._plan = _FIRST
             return
         if self.mode in FLYING:
@@ -246,9 +246,10 @@ class FlightDirector:
         before = self.mode
         try:
             r = request_from(req)
-        except InputError as exc:
+        except Exception as exc:  # noqa: BLE001  (anything that is not a request is refused, never raised)
             self.counts["refused"] += 1
-            return FlightReply(False, "status", before, before, str(exc))
+            why = str(exc) if isinstance(exc, InputError) else f"malformed flight request: {type(exc).__name__}"
+            return FlightReply(False, "status", before, before, why)
         try:
             why = self._check(r)
             if why is None:
@@ -257,6 +258,9 @@ class FlightDirector:
                     why = str(done)
         except InputError as exc:  # a bad value, or the controller refused the change
             why = str(exc)
+        except Exception as exc:  # noqa: BLE001  (never raised to the loop; said in the reply and the status)
+            why = f"internal error: {type(exc).__name__}: {exc}"
+            self.cause |= _CONTROLLER_ERROR
         if why is not None:
             self.counts["refused"] += 1
             return FlightReply(False, r.kind, before, self.mode, why)
@@ -539,7 +543,7 @@ class FlightDirector:
             elif level == Failsafe.LAND and self.mode != _M.LAND:
                 self._land()
                 self._failsafe_action(level, f"failsafe land ({why})")
-        except InputError as exc:  # the controller refused the change: stop trying, say so
+        except Exception as exc:  # noqa: BLE001  (the controller refused the change: stop trying, say so)
             self.cause |= _CONTROLLER_ERROR
             self.message = f"failsafe {level.name.lower()} failed: {exc}"
 
