@@ -22,6 +22,7 @@ import numpy as np
 from omnirotor._jit import jit_entry, jit_inline
 
 __all__ = [
+    "peg_depth_tilt",
     "RunLog",
     "held_contact",
     "CONTACT_WINDOW_S",
@@ -298,3 +299,14 @@ def force_stats(log: RunLog, mask: np.ndarray) -> dict:
         "estimated_mean_N": fe.mean(axis=0).tolist(),
         "estimate_rms_error_N": float(math.sqrt(np.mean(err * err))),
     }
+
+
+def peg_depth_tilt(log: RunLog, hole_entrance, axis_in=(0.0, -1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """The peg's insertion depth [m] past the hole's entrance and its tilt [deg] from the hole's inward axis.
+
+    The peg runs along the end effector's +y through the tip (SPEC §5.2); both are the true pose's, per sample.
+    """
+    a = np.asarray(axis_in, dtype=float)
+    depth = (log.p_E_W - np.asarray(hole_entrance, dtype=float)) @ a
+    tilt = np.degrees(np.arccos(np.clip(log.R_WE[:, :, 1] @ a, -1.0, 1.0)))
+    return depth, tilt
