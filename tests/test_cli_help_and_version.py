@@ -15,9 +15,8 @@ def test_version_prints_the_installed_version(capsys):
 
 
 def test_run_help_names_every_task(capsys):
-    from omnirotor.experiments.closed_loop import TASKS, discover_tasks
+    from omnirotor.experiments.tasks import TASKS
 
-    discover_tasks()
     assert main(["run", "--help"]) == 0
     text = re.sub(r"-\s+", "-", " ".join(capsys.readouterr().out.split()))  # the help wraps lines, also at hyphens
     missing = [t for t in TASKS if t not in text]

@@ -25,7 +25,7 @@ from omnirotor.control.observer import WrenchObserver
 from omnirotor.control.pose import PoseController
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TRUTH_GROUPS
+from omnirotor.experiments.loop import TRUTH_GROUPS
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, StateEstimate
 from omnirotor.recorder import Recorder
 from omnirotor.sim import SimParams, Simulator

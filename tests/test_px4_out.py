@@ -68,8 +68,8 @@ def test_vehicle_round_trips_through_px4_parameters():
 
 def _fly_identification(out, disturbances: bool, regions=("R1",), points=6):
     """An identification flight (``points`` holds of 3 s per region) and its ULog at 100 Hz."""
-    from omnirotor.experiments.closed_loop import run_task
-    from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions, HoverProtocol
     from omnirotor.px4.run_export import run_signals, write_run_ulog
 
     proto = HoverProtocol(regions=regions, points_per_region=points, transition_s=2.0, hold_s=3.0)
@@ -287,7 +287,7 @@ def test_px4_omnicopter_hovers_and_holds_30_deg():
     from omnirotor.control.controller import ControllerParams, InteractionController
     from omnirotor.control.estimator import EstimatorParams
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-    from omnirotor.experiments.closed_loop import run_closed_loop, run_log
+    from omnirotor.experiments.loop import run_closed_loop, run_log
     from omnirotor.sim import SimParams, Simulator
     from omnirotor.sim.params import AeroParams
     from omnirotor.so3 import log_so3, rot_x

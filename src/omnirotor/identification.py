@@ -31,7 +31,7 @@ import numpy as np
 
 from omnirotor.config import check_positive, parse_float
 from omnirotor.errors import InputError
-from omnirotor.limits import SPEED_MARGIN
+from omnirotor.limits import MAX_INPUT_BYTES, MAX_ULOG_BYTES, SPEED_MARGIN
 from omnirotor.regions import Partition, load_partition
 from omnirotor.safe_io import atomic_path, check_input_file, read_bytes, read_text
 from omnirotor.so3 import R_from_quat_wxyz, R_from_rpy
@@ -313,9 +313,9 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv", ".ulg"))
             if not found:
                 raise InputError(f"{p}: folder holds no .mat, .csv or .ulg hover data")
-            files.extend(check_input_file(q) for q in found)
+            files.extend(_check_data_file(q) for q in found)
         else:
-            files.append(check_input_file(p))
+            files.append(_check_data_file(p))
     if not files:
         raise InputError("no hover data given")
     parts = []
@@ -336,6 +336,11 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
     return HoverData.concatenate(parts)
+
+
+def _check_data_file(p: Path) -> Path:
+    """A hover-data file to read: a regular file within its format's size limit (a ULog's is larger)."""
+    return check_input_file(p, max_bytes=MAX_ULOG_BYTES if p.suffix.lower() == ".ulg" else MAX_INPUT_BYTES)
 
 
 def _check_speeds(data: HoverData, vehicle: VehicleParams, path: Path) -> None:

@@ -15,6 +15,9 @@ __all__ = [
     "MAX_INPUT_BYTES",
     "MAX_JSON_DEPTH",
     "SPEED_MARGIN",
+    "MAX_ULOG_BYTES",
+    "MAX_ULOG_TIME_US",
+    "MAX_ROTORS",
 ]
 
 MIN_DURATION_S = 0.01
@@ -33,3 +36,10 @@ MAX_JSON_DEPTH = 64
 """Deepest nesting of arrays and objects in an input JSON file (the wrench-map files need 4)."""
 SPEED_MARGIN = 1.05
 """Hover data whose rotor speeds exceed the vehicle's limits by more than this factor are refused."""
+MAX_ULOG_BYTES = 2 * 2**30
+"""Largest PX4 flight log read [bytes] (a long flight at PX4's highest logging rate is a few hundred MB; pyulog
+holds a log's data in memory about twice over)."""
+MAX_ULOG_TIME_US = 2**53
+"""Latest time stamp in a ULog [µs] (about year 2255 as Unix time; exact as a float64, so times convert safely)."""
+MAX_ROTORS = 64
+"""Most rotors of a vehicle (PX4's control allocation takes 12; ``CA_ROTOR_COUNT`` beyond this is refused)."""

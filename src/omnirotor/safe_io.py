@@ -102,8 +102,12 @@ def _os_error(path: Path, label: str, exc: OSError, doing: str) -> InputError:
 # -- inputs ------------------------------------------------------------------------------------------------------
 
 
-def check_input_file(path: str | Path, label: str = "") -> Path:
-    """The path of an existing regular file (symbolic links followed), else an :class:`InputError`."""
+def check_input_file(path: str | Path, label: str = "", max_bytes: int = MAX_INPUT_BYTES) -> Path:
+    """The path of an existing regular file (symbolic links followed) of at most ``max_bytes``.
+
+    Raises:
+        InputError: no such file, not a regular file, or larger than ``max_bytes``.
+    """
     p = Path(path)
     _check_name(p, label)
     try:
@@ -112,8 +116,8 @@ def check_input_file(path: str | Path, label: str = "") -> Path:
         raise _os_error(p, label, exc, "read") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{_label(p, label)}: is {_kind(st.st_mode)}, expected a regular file")
-    if st.st_size > MAX_INPUT_BYTES:
-        raise InputError(f"{_label(p, label)}: {st.st_size} bytes, larger than the limit {MAX_INPUT_BYTES}")
+    if st.st_size > max_bytes:
+        raise InputError(f"{_label(p, label)}: {st.st_size} bytes, larger than the limit {max_bytes}")
     return p
 
 

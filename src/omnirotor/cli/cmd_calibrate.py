@@ -41,9 +41,14 @@ def calibrate_truth_cmd(
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
     if report is not None and report.exists() and not report.is_dir():
         raise InputError(f"--report {report}: is a file, not a folder")
+    from omnirotor.experiments.calibration.truth import (
+        calibrate,
+        plot_measured_vs_predicted,
+        report_markdown,
+        write_truth_toml,
+    )
     from omnirotor.identification import load_hover_data
     from omnirotor.regions import load_partition
-    from omnirotor.sim.aero_calibration import calibrate, plot_measured_vs_predicted, report_markdown, write_truth_toml
     from omnirotor.vehicle import load_vehicle
 
     veh = load_vehicle(vehicle)
@@ -108,7 +113,7 @@ def calibrate_disturbances_cmd(
     to REPORT/disturbances.md (and --doc), the numbers to REPORT/disturbances.json; progress on stderr.
     """
     from omnirotor.config import parse_float
-    from omnirotor.experiments.disturbance_calibration import (
+    from omnirotor.experiments.calibration.disturbances import (
         DEFAULT_GRID,
         PARAMETERS,
         calibrate_disturbances,
@@ -145,7 +150,7 @@ def calibrate_disturbances_cmd(
     save_json(report / "disturbances.json", result)
     write_toml(out, result.value)
     if doc is not None:
-        from omnirotor.experiments.disturbance_calibration import replace_section
+        from omnirotor.experiments.calibration.disturbances import replace_section
 
         replace_section(doc, text)
     sys.stdout.write(text)

@@ -22,6 +22,8 @@ import numpy as np
 from omnirotor._jit import jit_entry, jit_inline
 
 __all__ = [
+    "PEG_DEPTH_GOAL_CM",
+    "PEG_TILT_GOAL_DEG",
     "peg_depth_tilt",
     "RunLog",
     "held_contact",
@@ -299,6 +301,12 @@ def force_stats(log: RunLog, mask: np.ndarray) -> dict:
         "estimated_mean_N": fe.mean(axis=0).tolist(),
         "estimate_rms_error_N": float(math.sqrt(np.mean(err * err))),
     }
+
+
+PEG_DEPTH_GOAL_CM = 16.5
+"""The peg-in-hole claim's depth goal [cm] (of the 17 cm insertion; paper/claims.py's ten-seed goal)."""
+PEG_TILT_GOAL_DEG = (3.0, 7.0)
+"""The band the inserted peg's tilt should settle in [deg] (paper ~5°; paper/claims.py's ten-seed goal)."""
 
 
 def peg_depth_tilt(log: RunLog, hole_entrance, axis_in=(0.0, -1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:

@@ -31,6 +31,7 @@ import numpy as np
 
 from omnirotor.config import from_mapping, load_toml
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_ROTORS
 from omnirotor.px4.frames import vec_from_px4
 
 __all__ = [
@@ -115,9 +116,12 @@ def _rotor_geometry(
             f"{where}: no PX4 rotor geometry (parameter CA_ROTOR_COUNT missing; a log from before PX4's control "
             "allocator): pass --vehicle (a preset, a vehicle TOML, a PX4 airframe or a QGroundControl .params file)"
         )
-    n = int(params["CA_ROTOR_COUNT"])
-    if n < 1:
-        raise InputError(f"{where}: CA_ROTOR_COUNT is {n}: no rotors; pass --vehicle")
+    count = params["CA_ROTOR_COUNT"]
+    if not (isinstance(count, (int, float)) and 1 <= count <= MAX_ROTORS and count == int(count)):
+        raise InputError(
+            f"{where}: CA_ROTOR_COUNT is {count}; expected a whole number from 1 to {MAX_ROTORS}; pass --vehicle"
+        )
+    n = int(count)
     pos, axis, km = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n)
     defaulted: dict[str, list[int]] = {}
     for i in range(n):

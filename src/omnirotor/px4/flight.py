@@ -93,21 +93,19 @@ class Flight:
 
 
 def open_ulog(path: str | Path, topics: list[str] | None = None, header_only: bool = False):
-    """Parse a ULog with pyulog; every failure becomes one :class:`InputError` naming the file."""
+    """Parse a ULog with pyulog once :func:`~omnirotor.px4.ulog_guard.guard` passed it; failures are InputError."""
+    import contextlib
+    import io
+
     from pyulog import ULog
 
+    from omnirotor.px4.ulog_guard import guard
+
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    guard(p)  # refuses, before pyulog allocates anything, what pyulog would not read cleanly
     try:
-        with p.open("rb") as fh:
-            magic = fh.read(7)
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
-    if magic != b"ULog\x01\x12\x35":
-        raise InputError(f"{p}: not a ULog file (no ULog header)")
-    try:
-        return ULog(str(p), topics, parse_header_only=header_only)
+        with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its warnings
+            return ULog(str(p), topics, parse_header_only=header_only)
     except Exception as exc:  # pyulog raises many kinds on corrupt files
         raise InputError(f"{p}: not a readable ULog ({type(exc).__name__}: {exc})") from None
 

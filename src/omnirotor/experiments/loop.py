@@ -1,4 +1,4 @@
-"""Closed loop of the interaction controller and the simulator at 1 kHz, its metrics, and the task registry.
+"""Closed loop of the interaction controller and the simulator at 1 kHz, its metrics, and a task's options.
 
 :func:`run_closed_loop` alternates ``sim.step(command)`` and ``controller.step(frame)`` (the first period
 flies the controller's hold command, as :meth:`~omnirotor.control.controller.InteractionController.reset`
@@ -16,14 +16,14 @@ Metrics follow SPEC §6 (Table 1), computed by :mod:`omnirotor.experiments.metri
 :func:`run_log` of the two recorders: errors of the EE pose the controller believed (the paper's) and of the
 true one against the compliant EE reference.
 
-Tasks: :data:`TASKS` maps a name to a function ``(TaskOptions, progress) -> TaskResult``; the CLI command
-``omnirotor run`` dispatches through it, and other experiment modules add tasks with
-:func:`register_task`.
+A task (:mod:`omnirotor.experiments.tasks`, an explicit table) is a function ``(TaskOptions, progress) ->
+TaskResult`` built on :func:`run_closed_loop`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import dataclasses
 import functools
 import math
@@ -38,7 +38,6 @@ from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController, load_controller_params
 from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
-from omnirotor.experiments import reuse
 from omnirotor.experiments.metrics import RunLog, table1_errors
 from omnirotor.limits import MAX_DURATION_S, MAX_SEED, MIN_DURATION_S
 from omnirotor.recorder import Recorder
@@ -52,14 +51,11 @@ __all__ = [
     "run_log",
     "TaskOptions",
     "TaskResult",
-    "TASKS",
-    "register_task",
-    "run_task",
-    "discover_tasks",
     "FrameSink",
     "video_sink",
     "TRUTH_MODELS",
     "ESTIMATORS",
+    "loop_override",
 ]
 
 _XYZ = ("x", "y", "z")
@@ -104,6 +100,24 @@ def start_pose_of(trajectory: PoseTrajectory, vehicle: VehicleParams) -> tuple[n
     return w.p_W - w.R_WB @ vehicle.p_E_B_array, w.R_WB.copy()
 
 
+_LOOP_OVERRIDE: contextvars.ContextVar[Callable | None] = contextvars.ContextVar("loop_override", default=None)
+
+
+@contextlib.contextmanager
+def loop_override(loop: Callable) -> Iterator[None]:
+    """Within the block, :func:`run_closed_loop` calls ``loop`` with its arguments instead of flying in process.
+
+    The software-in-the-loop simulator (:mod:`omnirotor.sitl`) runs a task of ``omnirotor run`` unchanged — its
+    plant, protocol and metrics — with the controller in another process: ``loop`` has the signature of
+    :func:`run_closed_loop` and returns its two logs.
+    """
+    token = _LOOP_OVERRIDE.set(loop)
+    try:
+        yield
+    finally:
+        _LOOP_OVERRIDE.reset(token)
+
+
 def run_closed_loop(
     sim: Simulator,
     controller: InteractionController,
@@ -132,6 +146,9 @@ def run_closed_loop(
     Raises:
         InputError: non-positive duration, or simulator and controller periods that differ.
     """
+    override = _LOOP_OVERRIDE.get()
+    if override is not None:
+        return override(sim, controller, trajectory, duration_s, progress=progress, video=video, on_step=on_step)
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise InputError(f"duration must be a finite number of seconds > 0, got {duration_s}")
     dt = controller.params.dt
@@ -142,7 +159,7 @@ def run_closed_loop(
     frame = sim.reset(p_W=p0, R_WB=R0)
     controller.log.ensure_capacity(n_steps)
     controller.reset(frame, trajectory)
-    truth_log = reuse.truth_log(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))  # a new one unless reusing
+    truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
     every = max(1, n_steps // _PROGRESS_UPDATES)
     if video is None and on_step is None and isinstance(sim, Simulator):
         sim_args, ctl_args = sim.kernel_state, controller.kernel_args
@@ -418,58 +435,5 @@ def _short_int(v: object) -> str:
     return f"an integer of {v.bit_length()} bits" if isinstance(v, int) and v.bit_length() > 64 else repr(v)
 
 
-NOMINAL_MAP_TASKS = frozenset({"hover"})
-"""Tasks that fly the nominal map whatever the options say (``run_task`` refuses map options for them)."""
-_MAP_OPTIONS = (("--map", "map_mode", "nominal"), ("--maps", "maps", None), ("--blend", "blend", "hard"))
-
-TASKS: dict[str, TaskFn] = {}
-"""Registered tasks of ``omnirotor run``, by name."""
-
-
-def register_task(name: str) -> Callable[[TaskFn], TaskFn]:
-    """Decorator: register a task function under ``name`` in :data:`TASKS`."""
-
-    def deco(fn: TaskFn) -> TaskFn:
-        if name in TASKS:
-            raise ValueError(f"task {name!r} registered twice")
-        TASKS[name] = fn
-        return fn
-
-    return deco
-
-
-def discover_tasks() -> dict[str, TaskFn]:
-    """Import every module of :mod:`omnirotor.experiments` so that their tasks register; returns :data:`TASKS`."""
-    import importlib
-    import pkgutil
-
-    import omnirotor.experiments as pkg
-
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
-        importlib.import_module(f"{pkg.__name__}.{info.name}")
-    return TASKS
-
-
-def run_task(
-    name: str, options: TaskOptions | None = None, progress: Callable[[float], None] | None = None
-) -> TaskResult:
-    """Run a registered task.
-
-    Raises:
-        InputError: unknown task name or bad options.
-    """
-    if name not in TASKS:
-        discover_tasks()
-    if name not in TASKS:
-        raise InputError(f"unknown task {name!r}; tasks: {', '.join(sorted(TASKS))}")
-    fn = TASKS[name]
-    if options is not None and name in NOMINAL_MAP_TASKS:
-        # the task flies the nominal map: say so rather than ignore the map options silently
-        ignored = [flag for flag, field, default in _MAP_OPTIONS if getattr(options, field, default) != default]
-        if ignored:
-            raise InputError(f"task {name!r} flies the nominal map only; {', '.join(ignored)} do(es) not apply")
-    return fn(options if options is not None else TaskOptions(), progress)
-
-
 HOVER_DURATION_S = 5.0
-"""Default length of the ``hover`` task (:func:`omnirotor.experiments.tasks.hover`) [s]."""
+"""Default length of the ``hover`` task (:func:`omnirotor.experiments.tasks.common.hover`) [s]."""

@@ -1,6 +1,6 @@
 """Reading a campaign folder, summarising its runs, and plotting success against each varied parameter.
 
-See :mod:`omnirotor.experiments.campaign` for the folder's layout. :func:`summarize` gives the success rate
+See :mod:`omnirotor.experiments.campaigns.runner` for the folder's layout. :func:`summarize` gives the success rate
 with its 95 % Wilson interval, the distribution of every numeric metric of the runs' summaries (flattened
 to dotted names, e.g. ``contact.fraction``), and the success rate per bin of each varied parameter;
 :func:`plot_campaign` and :func:`plot_comparison` draw them.
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.experiments.campaign_spec import KEY_METRICS, PARAMETERS, CampaignSpec
+from omnirotor.experiments.campaigns.spec import KEY_METRICS, PARAMETERS, CampaignSpec
 from omnirotor.safe_io import load_json, plain_json, read_bytes, truncate_file
 
 __all__ = [

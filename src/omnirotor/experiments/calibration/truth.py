@@ -677,7 +677,8 @@ def report_markdown(result: CalibrationResult) -> str:
         "# Truth-model calibration\n\n"
         f"{len(result.regions)} hover points; force RMS [N] of each model against the measured body force:\n\n"
         + "\n".join(rows)
-        + "\n\nCalibrated rotor-wake parameters (bounds from physics, `omnirotor.sim.aero_calibration.BOUNDS`):\n\n"
+        + "\n\nCalibrated rotor-wake parameters (bounds from physics, "
+        "`omnirotor.experiments.calibration.truth.BOUNDS`):\n\n"
         "| parameter | value | bounds |\n|---|---|---|\n" + par + "\n\n"
         "Leave-one-region-out cross-validation (fitted without the region, scored on it):\n\n"
         "| held-out region | CV RMS [N] | in-sample RMS [N] | parameters without it ("

@@ -36,10 +36,10 @@ from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TaskOptions, register_task, run_closed_loop, run_log
 from omnirotor.experiments.faults import plant_simulator
-from omnirotor.experiments.scenarios import body_to_ee_waypoint
-from omnirotor.experiments.tasks import ExperimentOptions, ExperimentResult, base_metrics
+from omnirotor.experiments.loop import TaskOptions, run_closed_loop, run_log
+from omnirotor.experiments.tasks.common import ExperimentOptions, ExperimentResult, base_metrics
+from omnirotor.experiments.tasks.scenarios import body_to_ee_waypoint
 from omnirotor.messages import FRAME_GYRO_B, FRAME_ROTOR_HZ, FRAME_T, RotorCommand, SensorFrame
 from omnirotor.regions import load_partition
 from omnirotor.sim import default_start_pose, scene_anchors
@@ -251,13 +251,11 @@ class _FrameTap:
         self.k += 1
 
 
-@register_task("identify-dynamic")
 def identify_dynamic(options: TaskOptions, progress=None) -> ExperimentResult:
     """Fly the attitude excitation and write ``flight.csv`` into the out folder (module docstring)."""
     return fly_sweeps(options, None, progress)
 
 
-@register_task("identify-dynamic-cells")
 def identify_dynamic_cells(options: TaskOptions, progress=None) -> ExperimentResult:
     """The same excitation at the base of every flown cell (:data:`CELL_BASES`); samples labelled by cell."""
     return fly_sweeps(options, None, progress, "cells")

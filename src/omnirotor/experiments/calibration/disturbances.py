@@ -193,8 +193,8 @@ def _overrides(value: Sequence[float]) -> tuple[str, ...]:
 
 
 def _fly_calibration_row(value: tuple[float, ...], quick: bool, seed: int) -> tuple[tuple[float, ...], dict]:
-    from omnirotor.experiments.closed_loop import run_task
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions
 
     opts = ExperimentOptions(quick=quick, seed=seed, sim_overrides=_overrides(value))
     return value, run_task("point-contact", opts).summary()["ee_rms_error"]
@@ -240,7 +240,7 @@ def calibrate_disturbances(
     value = tuple(round(v, 5) for v in best_value(coef, PAPER_TABLE1[CALIBRATION_ROW]["rms"], upper))
     _, check = _fly_calibration_row(value, quick, seed)
     say(f"calibrated {_overrides(value)}: mean log(ours/paper) = {log_ratio(check):+.3f}")
-    from omnirotor.experiments.reproduce import reproduce
+    from omnirotor.experiments.paper.reproduce import reproduce
 
     metrics = reproduce(
         out_dir, quick=quick, seed=seed, workers=workers, sim_overrides=_overrides(value),

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.experiments.claim_seeds import GOALS
 from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.paper.claims import GOALS
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.identification import IdentificationParams, identify, load_hover_data
 from omnirotor.safe_io import make_dir, route_mujoco_log, write_json_atomic, write_text_atomic
 from omnirotor.vehicle import load_vehicle
@@ -52,7 +52,7 @@ def plan() -> Plan:
 
 def run_one(task: str, options: ExperimentOptions) -> tuple[str, dict, dict | None]:
     """Run one task in this process; returns (key, metrics JSON, hover force samples or None)."""
-    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import run_task
 
     result = run_task(task, options)
     samples = getattr(result, "force_samples", None)  # only experiment results carry them
@@ -95,7 +95,7 @@ def reproduce(
         progress: called with (stage description, fraction of the campaign done).
         disturbances: fly the simulator's calibrated disturbances (False: the clean plant, ``--no-disturbances``).
         sim_overrides: dotted ``key=value`` simulator overrides applied to every run alike (the calibration of
-            the disturbances, :mod:`omnirotor.experiments.disturbance_calibration`).
+            the disturbances, :mod:`omnirotor.experiments.calibration.disturbances`).
     """
     out = make_dir(out_dir, "--out")
     route_mujoco_log(out)  # MuJoCo's log goes under the output folder (the workers inherit it)
@@ -185,7 +185,7 @@ def claims(metrics: dict) -> list[dict]:
     hv = {m: get(f"hover-validation/{m}") for m in ("nominal", "global", "piecewise")}
     if all(hv.values()):
         fz = {m: [r["force_W_mean_N"][2] for r in hv[m]["regions"].values()] for m in hv}
-        # the ten-seed goals (claim_seeds.GOALS): nominal 1.5-2.5 N, piecewise |f_z| <= 0.3 N in every region
+        # the ten-seed goals (paper.claims.GOALS): nominal 1.5-2.5 N, piecewise |f_z| <= 0.3 N in every region
         nom, pw = _HOVER_NOMINAL.value(metrics), _HOVER_PIECEWISE.value(metrics)
         ok_nom, ok_pw = _HOVER_NOMINAL.passes(nom), _HOVER_PIECEWISE.passes(pw)
         out.append(
@@ -236,14 +236,14 @@ def claims(metrics: dict) -> list[dict]:
                 "claim": "On the 30° tilted surface the nominal map underestimates the normal force (by ~1 N)",
                 "measured": f"true {nf['true_mean_N']:.2f} N, estimated {nf['estimated_mean_N']:.2f} N "
                 f"(underestimate {under:+.2f} N)",
-                # the same band as the ten-seed goal (claim_seeds.GOALS): ~1 N, not any underestimate
+                # the same band as the ten-seed goal (paper.claims.GOALS): ~1 N, not any underestimate
                 "verdict": "reproduced" if _TILTED.passes(under) else ("partly" if under > 0 else "not reproduced"),
             }
         )
     ph = get("peg-in-hole/nominal")
     if ph:
         ins = ph["insertion"]
-        # inserted and settled as the ten-seed goals say (claim_seeds.GOALS: >= 16.5 cm, roll 3-7 deg); partly
+        # inserted and settled as the ten-seed goals say (paper.claims.GOALS: >= 16.5 cm, roll 3-7 deg); partly
         # when one holds, or when the roll at least turns toward the hole axis by a degree
         full, at_5 = _PEG_DEPTH.passes(_PEG_DEPTH.value(metrics)), _PEG_TILT.passes(_PEG_TILT.value(metrics))
         turns = ins["inserted_tilt_deg"] is not None and ins["inserted_tilt_deg"] < ins["approach_tilt_deg"] - 1.0

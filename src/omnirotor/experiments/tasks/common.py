@@ -1,6 +1,6 @@
 """The paper's experiments as tasks of ``omnirotor run`` (SPEC §3.4, §5; issue "Experiments").
 
-Every task flies a :class:`~omnirotor.experiments.scenarios.Scenario` (or a hover schedule) in the simulator
+Every task flies a :class:`~omnirotor.experiments.tasks.scenarios.Scenario` (or a hover schedule) in the simulator
 with the interaction controller and returns an :class:`ExperimentResult` whose :meth:`~ExperimentResult.summary`
 is the run's JSON: Table 1 errors (SPEC §6), contact and force metrics from the simulator's ground truth,
 a task-specific verdict (``success``) and, for the hover tasks, per-region statistics. Tasks:
@@ -28,19 +28,19 @@ from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments import reuse
-from omnirotor.experiments.closed_loop import (
+from omnirotor.experiments.faults import PlantPerturbation, plant_simulator, safety_stats
+from omnirotor.experiments.loop import (
     HOVER_DURATION_S,
     TaskOptions,
     TaskResult,
-    register_task,
     run_closed_loop,
     run_log,
     task_sim_params,
     video_sink,
 )
-from omnirotor.experiments.faults import PlantPerturbation, plant_simulator, safety_stats
 from omnirotor.experiments.metrics import (
+    PEG_DEPTH_GOAL_CM,
+    PEG_TILT_GOAL_DEG,
     RunLog,
     contact_stats,
     force_stats,
@@ -48,7 +48,7 @@ from omnirotor.experiments.metrics import (
     peg_depth_tilt,
     table1_errors,
 )
-from omnirotor.experiments.scenarios import (
+from omnirotor.experiments.tasks.scenarios import (
     Scenario,
     ScenarioParams,
     hover_attitudes,
@@ -211,8 +211,7 @@ def _controller(
     zero = zero if opts.zero_observer is None else opts.zero_observer
     if zero and not params.observer.zero_at_start:
         params = dataclasses.replace(params, observer=dataclasses.replace(params.observer, zero_at_start=True))
-    # a campaign worker's previous controller when built alike (experiments.reuse), else a new one
-    return reuse.controller(vehicle, params, maps, lambda: InteractionController(vehicle, params, maps))
+    return InteractionController(vehicle, params, maps)
 
 
 def _fly(
@@ -231,7 +230,6 @@ def _fly(
     sim = plant_simulator(vehicle, scene, opts.sim_params(), opts.seed, opts.plant, controller, reset=False)
     with video_sink(sim, opts.video) as video:
         ctl_log, truth_log = run_closed_loop(sim, controller, trajectory, duration_s, progress=progress, video=video)
-    reuse.give_back_controller(controller, vehicle, controller.params, maps)
     names = tuple(maps.partition.names) if maps is not None and opts.map_mode == "piecewise" else ()
     return ctl_log, truth_log, names
 
@@ -383,12 +381,9 @@ def _figures(result: ExperimentResult) -> None:
     normal = result.metrics.get("normal_force")
     peg = None
     if result.task == "peg-in-hole":
-        from omnirotor.experiments.claim_seeds import GOALS
-
-        goal = {g.name: g for g in GOALS}
         depth, tilt = peg_depth_tilt(result.log, opts.plant_sim_params().scene.hole_entrance)
-        peg = PegPanel(depth, tilt, result.metrics["insertion"]["target_depth_m"], goal["peg_depth"].lo / 100.0,
-                       (goal["peg_tilt"].lo, goal["peg_tilt"].hi))  # fmt: skip
+        target = result.metrics["insertion"]["target_depth_m"]
+        peg = PegPanel(depth, tilt, target, PEG_DEPTH_GOAL_CM / 100.0, PEG_TILT_GOAL_DEG)
     plot_run(
         result.log,
         title,
@@ -401,8 +396,24 @@ def _figures(result: ExperimentResult) -> None:
     result.metrics["figure"] = str(path)
 
 
-for _name in CONTACT_TASKS:
-    register_task(_name)(lambda options, progress=None, _n=_name: _run_contact(_n, options, progress))
+def point_contact_task(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Push on the wall with the tool tip (SPEC §5.2)."""
+    return _run_contact("point-contact", options, progress)
+
+
+def point_contact_tilted_task(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Push on the 30° surface (SPEC §5.2)."""
+    return _run_contact("point-contact-tilted", options, progress)
+
+
+def sliding_task(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Slide over the pipe to 45° of roll and back (SPEC §5.2)."""
+    return _run_contact("sliding", options, progress)
+
+
+def peg_in_hole_task(options: TaskOptions, progress=None) -> ExperimentResult:
+    """Insert the peg into the hole (SPEC §5.2)."""
+    return _run_contact("peg-in-hole", options, progress)
 
 
 # -- hover protocols ------------------------------------------------------------------------------------------
@@ -429,7 +440,6 @@ def _hover_run(opts: TaskOptions, progress, seed_offset: int, per_region_attr: s
     return opts, vehicle, proto, log, ctl_log, truth_log, windows, duration, attitudes
 
 
-@register_task("identify-flights")
 def identify_flights(options: TaskOptions, progress=None) -> ExperimentResult:
     """Fly the identification protocol and write ``hover_points.csv`` into the out folder (SPEC §3.4).
 
@@ -465,7 +475,6 @@ def identify_flights(options: TaskOptions, progress=None) -> ExperimentResult:
     )
 
 
-@register_task("hover-validation")
 def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
     """Hover at new random attitudes per region and record the estimated external wrench (paper Fig. 3).
 
@@ -513,7 +522,6 @@ def hover_validation(options: TaskOptions, progress=None) -> ExperimentResult:
     )
 
 
-@register_task("hover")
 def hover(options: TaskOptions, progress=None) -> ExperimentResult:
     """Start at rest at the free scene's start pose and hold it (free-flight admittance), on the true plant.
 

@@ -71,14 +71,13 @@ The pool's workers ignore Ctrl-C (the main process stops them) and die with the 
 (``PR_SET_PDEATHSIG``, and a watchdog thread polling the parent's pid). A run whose summary holds
 non-finite values (its state blew up) is a failure, with the non-finite metrics named in ``failure``.
 Backends: ``local`` (a :class:`concurrent.futures.ProcessPoolExecutor` whose workers are forked from this process,
-so they share its imports, and load the compiled kernels on a 10 ms run before their first job:
-:func:`warm_up`, then draw the plots in parallel; a run's results never depend on which worker flew it, tested
-against the one-run path; or the warm workers of a resident pool, ``executor``:
-:mod:`omnirotor.experiments.campaign_pool`) or ``ray`` (the optional ``ray`` extra; a local Ray the campaign
-starts, or a running cluster given by address, whose nodes need omnirotor installed).
+so they share its imports, and pay their start-up once, in the pool's initializer: they load the compiled kernels
+on a 10 ms run before their first job (:func:`warm_up`), then draw the plots in parallel; a run's results never
+depend on which worker flew it, tested against the one-run path) or ``ray`` (the optional ``ray`` extra; a local
+Ray the campaign starts, or a running cluster given by address, whose nodes need omnirotor installed).
 
-This module runs campaigns; :mod:`omnirotor.experiments.campaign_spec` reads their files and draws each
-run's options, :mod:`omnirotor.experiments.campaign_report` summarises and plots a campaign folder (their
+This module runs campaigns; :mod:`omnirotor.experiments.campaigns.spec` reads their files and draws each
+run's options, :mod:`omnirotor.experiments.campaigns.report` summarises and plots a campaign folder (their
 public names are re-exported here). The tasks are those of SPEC §5.2; the truth model varied is SPEC §7.
 """
 
@@ -104,9 +103,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.experiments import reuse
-from omnirotor.experiments.campaign_pool import BACKENDS, stop_executor
-from omnirotor.experiments.campaign_report import (
+from omnirotor.experiments.campaigns.report import (
     DEFINITION_FILE,
     PLOTS_DIR,
     RESULTS_FILE,
@@ -120,7 +117,7 @@ from omnirotor.experiments.campaign_report import (
     summarize,
     wilson_interval,
 )
-from omnirotor.experiments.campaign_spec import (
+from omnirotor.experiments.campaigns.spec import (
     CAMPAIGN_TASKS,
     KEY_METRICS,
     PARAMETERS,
@@ -135,7 +132,7 @@ from omnirotor.experiments.campaign_spec import (
     load_campaign,
     run_options,
 )
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.limits import MIN_DURATION_S
 from omnirotor.safe_io import append_bytes, load_json, make_dir, note, route_mujoco_log, write_json_atomic
 
@@ -185,7 +182,7 @@ def identify_truth_maps(options: ExperimentOptions, seed: int = 0):
     Returns:
         The :class:`~omnirotor.wrench_maps.WrenchMapSet`.
     """
-    from omnirotor.experiments.scenarios import hover_attitudes
+    from omnirotor.experiments.tasks.scenarios import hover_attitudes
     from omnirotor.identification import HoverData, identify
     from omnirotor.regions import load_partition
     from omnirotor.sim.aero import hover_equilibrium, make_aero
@@ -218,7 +215,7 @@ def execute_run(job: RunJob) -> dict:
     ``failure`` (why a finished run failed whatever the task's verdict) and ``warnings`` (the Python warnings
     the run raised, counted here instead of printed on the terminal by a worker).
     """
-    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import run_task
 
     tic = time.perf_counter()
     record: dict[str, Any] = {"index": job.index, "params": job.params, "derived": job.derived}
@@ -226,7 +223,6 @@ def execute_run(job: RunJob) -> dict:
     try:
         options = job.options
         with (
-            reuse.reusing(),  # the controller and truth log of this worker's previous run (experiments.reuse)
             warnings.catch_warnings(record=True) as caught,
             tempfile.TemporaryDirectory(prefix="omnirotor-campaign-")
             if job.identify_truth
@@ -345,6 +341,30 @@ def _prepare_folder(spec: CampaignSpec, out: Path, restart: bool, check_only: bo
 # -- running -----------------------------------------------------------------------------------------------------
 
 
+BACKENDS = ("local", "ray")
+"""Where a campaign's runs fly: ``local`` (a process pool on this machine) or ``ray``."""
+
+EXECUTOR_STOP_TIMEOUT_S = 5.0
+"""How long a stopped pool's manager thread gets to end [s] (:func:`stop_executor`)."""
+
+
+def stop_executor(executor: cf.ProcessPoolExecutor) -> None:
+    """Stop a process pool at once: kill its workers (processes it started), cancel what waits, let it wind down.
+
+    The wait for the pool's manager thread matters at exit. Python 3.11's exit hook wakes each live manager thread
+    through a pipe that the thread closes itself as it winds down; a Ctrl-C landing between the two printed
+    ``OSError: Bad file descriptor`` under the one-line message. Once the thread has ended the hook has nothing
+    to wake.
+    """
+    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            proc.kill()
+    manager = getattr(executor, "_executor_manager_thread", None)  # shutdown() forgets it
+    executor.shutdown(wait=False, cancel_futures=True)
+    if manager is not None and manager is not threading.current_thread():
+        manager.join(EXECUTOR_STOP_TIMEOUT_S)
+
+
 PARENT_POLL_S = 0.5
 """How often a pool worker checks that the campaign's main process is alive [s]."""
 
@@ -452,7 +472,9 @@ def _ray_connect(workers: int | None, address: str | None):
         raise InputError("--backend ray needs the optional dependency ray: pip install 'omnirotor[ray]'") from None
     started = not ray.is_initialized()
     if started:
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        # PYTHONSAFEPATH: a worker puts no working folder first on its sys.path (no code from where Ray runs it)
+        safe = {"env_vars": {"PYTHONSAFEPATH": "1"}}
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "runtime_env": safe}
         if address is not None:
             _check_reachable(address)
             kwargs["address"] = address
@@ -493,8 +515,6 @@ def run_campaign(
     restart: bool = False,
     progress: Callable[[int, int, dict | None], None] | None = None,
     plots: bool = True,
-    executor: cf.Executor | None = None,
-    run_fn: Callable[[RunJob], dict] = execute_run,
 ) -> dict:
     """Run the runs of a campaign not yet in ``out_dir``, then summarise and plot.
 
@@ -509,10 +529,6 @@ def run_campaign(
         restart: discard the folder's results first (also when its definition differs).
         progress: called with (runs done, runs requested, the record just finished or None).
         plots: write the PNG plots.
-        executor: warm workers to run on instead of a new pool (local backend; the resident pool of
-            :mod:`omnirotor.experiments.campaign_pool`): at most ``workers`` runs at a time, and the plots drawn
-            there too.
-        run_fn: what runs a job on ``executor`` (picklable; the record of :func:`execute_run`).
 
     Returns:
         The summary (also in ``DIR/summary.json``), with ``executed``: the runs this call ran.
@@ -534,18 +550,18 @@ def run_campaign(
         raise InputError(f"--out {out}: exists and is not a folder")
     ray, started = _ray_connect(workers, address) if backend == "ray" else (None, False)
     try:
-        return _run(spec, out, n, backend, workers, ray, restart, progress, plots, (executor, run_fn))
+        return _run(spec, out, n, backend, workers, ray, restart, progress, plots)
     finally:
         if started:
             ray.shutdown()
 
 
-def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool, pool) -> dict:
-    """:func:`run_campaign` once the backend is up (``pool``: its executor and run function)."""
+def _run(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots: bool) -> dict:
+    """:func:`run_campaign` once the backend is up."""
     _prepare_folder(spec, out, restart, check_only=True)  # refuse before writing anything
     make_dir(out, "--out")
     with _folder_lock(out) as lock_fd:
-        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd, pool)
+        return _run_locked(spec, out, n, backend, workers, ray, restart, progress, plots, lock_fd)
 
 
 CHUNK_MAX = 8
@@ -588,15 +604,12 @@ def run_chunk(run_fn: Callable[[RunJob], dict], jobs: list[RunJob]) -> list[dict
     return [run_fn(job) for job in jobs]
 
 
-def _executor_backend(
-    executor: cf.Executor, run_fn: Callable[[RunJob], dict], jobs: list[RunJob], limit: int, cancel: bool
-):
-    """Yield lists of records as chunks of runs finish on warm workers, at most ``limit`` at a time.
+def _executor_backend(executor: cf.Executor, jobs: list[RunJob], limit: int):
+    """Yield lists of records as chunks of runs finish on the pool's workers, at most ``limit`` at a time.
 
     The jobs go in order, in chunks of :func:`chunk_sizes` (one request and one answer per chunk). A ``limit`` of
     all the executor's workers queues every chunk at once, so that no worker waits for this process (writing a
-    result, say) between runs. ``cancel``: when the consumer stops early (the command hung up), the chunks not yet
-    started are cancelled (a resident pool goes on serving); else the pool's owner kills it.
+    result, say) between runs. When the consumer stops early, the pool's owner kills the pool.
     """
     workers = getattr(executor, "_max_workers", limit)
     if limit >= workers:
@@ -607,23 +620,15 @@ def _executor_backend(
         i += k
     queue.reverse()
     pending: set[cf.Future] = set()
-    try:
-        while queue or pending:
-            while queue and len(pending) < limit:
-                pending.add(executor.submit(run_chunk, run_fn, queue.pop()))
-            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-            for fut in done:
-                yield fut.result()
-    except GeneratorExit:
-        if cancel:
-            for fut in pending:
-                fut.cancel()
-        raise
+    while queue or pending:
+        while queue and len(pending) < limit:
+            pending.add(executor.submit(run_chunk, execute_run, queue.pop()))
+        done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+        for fut in done:
+            yield fut.result()
 
 
-def _run_locked(
-    spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd, pool
-) -> dict:
+def _run_locked(spec, out: Path, n: int, backend: str, workers, ray, restart: bool, progress, plots, lock_fd) -> dict:
     """:func:`_run` holding the folder's lock."""
     _prepare_folder(spec, out, restart)
     route_mujoco_log(out)  # the workers inherit it
@@ -643,16 +648,14 @@ def _run_locked(
     count = len(done)
     report(count, n, None)
     jobs = longest_first(jobs)
-    executor, run_fn = pool
-    own = backend == "local" and executor is None and bool(jobs)  # the command's own pool: runs, then plots
-    if own:
+    if backend == "local" and jobs:  # the command's own pool: runs, then plots
         pool_cm = _local_pool(jobs, workers or min(len(jobs), os.cpu_count() or 1), lock_fd)
     else:
-        pool_cm = contextlib.nullcontext(executor)
+        pool_cm = contextlib.nullcontext(None)
     with pool_cm as executor:
         if jobs:
             if backend == "local" and executor is not None:
-                batches = _executor_backend(executor, run_fn, jobs, workers or executor._max_workers, not own)
+                batches = _executor_backend(executor, jobs, workers or executor._max_workers)
             elif backend == "local":
                 batches = ([execute_run(job)] for job in jobs)
             else:

@@ -1,6 +1,6 @@
 """Campaign definitions: the varied parameters, their distributions, the file, and each run's options.
 
-The file format, the parameters and the seeding are documented in :mod:`omnirotor.experiments.campaign`;
+The file format, the parameters and the seeding are documented in :mod:`omnirotor.experiments.campaigns.runner`;
 this module reads a campaign file into a :class:`CampaignSpec` (every mistake an
 :class:`~omnirotor.errors.InputError`) and turns run ``i`` into its options (:func:`run_options`): the
 drawn values go to a :class:`~omnirotor.experiments.faults.PlantPerturbation` (the plant), to the
@@ -23,10 +23,10 @@ import numpy as np
 
 from omnirotor.config import apply_overrides, from_mapping, load_toml
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import HOVER_DURATION_S
 from omnirotor.experiments.faults import MocapDropout, PlantPerturbation, RotorFailure, WindGust
-from omnirotor.experiments.scenarios import ScenarioParams
-from omnirotor.experiments.tasks import CONTACT_TASKS, HOVER_TASKS, MAP_MODES, ExperimentOptions
+from omnirotor.experiments.loop import HOVER_DURATION_S
+from omnirotor.experiments.tasks.common import CONTACT_TASKS, HOVER_TASKS, MAP_MODES, ExperimentOptions
+from omnirotor.experiments.tasks.scenarios import ScenarioParams
 from omnirotor.limits import MAX_CAMPAIGN_RUNS, MAX_SEED
 from omnirotor.safe_io import check_input_file
 from omnirotor.sim.params import SensorParams, SimParams
@@ -581,8 +581,8 @@ class RunJob:
 
 
 def _scenario_builder(task: str):
-    """The builder of a contact task's scenario (:mod:`omnirotor.experiments.scenarios`)."""
-    from omnirotor.experiments import scenarios
+    """The builder of a contact task's scenario (:mod:`omnirotor.experiments.tasks.scenarios`)."""
+    from omnirotor.experiments.tasks import scenarios
 
     return {
         "point-contact": scenarios.point_contact,
@@ -604,7 +604,7 @@ def expected_duration_s(job: RunJob) -> float | None:
     if job.task == "hover":
         return HOVER_DURATION_S
     if job.task in CONTACT_TASKS:
-        from omnirotor.experiments.tasks import _scenario_params  # the task's own choice of protocol
+        from omnirotor.experiments.tasks.common import _scenario_params  # the task's own choice of protocol
 
         return _scenario_builder(job.task)(o.sim_params().scene, _scenario_params(o), quick=o.quick).duration_s
     return None
@@ -742,6 +742,14 @@ def _dry_run(spec: CampaignSpec) -> None:
     from omnirotor.vehicle import load_vehicle
 
     vehicle = load_vehicle(job.options.vehicle)
+    for pname, dist in spec.vary:
+        if pname == "failed_rotor":
+            beyond = [v for v in dist.support() if v > vehicle.n_rotors]
+            if beyond:
+                raise InputError(
+                    f"{spec.source} vary.failed_rotor: rotor {beyond[0]} does not exist; the vehicle "
+                    f"{vehicle.name!r} has rotors 1..{vehicle.n_rotors} (0 = none)"
+                )
     if spec.maps not in ("none", "identify-truth"):
         job.options.load_maps(vehicle)
     if job.options.plant is not None:
