@@ -244,10 +244,12 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
 def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_criteria=None) -> HoverData:
     """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
 
-    A PX4 flight log (``.ulg``) gives one point per automatically found steady hover window
-    (:func:`omnirotor.px4.windows.load_ulog`, with ``window_criteria``: a
+    A PX4 flight log (``.ulg``) or a ROS 2 bag folder gives one point per automatically found steady hover window
+    (:func:`omnirotor.px4.windows.load_flight_log`, with ``window_criteria``: a
     :class:`~omnirotor.px4.criteria.WindowCriteria`, default its defaults).
     """
+    from omnirotor.px4.rosbag_io import is_rosbag
+
     files: list[Path] = []
     for item in paths:
         p = Path(item)
@@ -255,7 +257,9 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
             is_dir = p.is_dir()
         except OSError:  # e.g. a name too long: check_input_file says so
             is_dir = False
-        if is_dir:
+        if is_dir and is_rosbag(p):
+            files.append(p)
+        elif is_dir:
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv", ".ulg"))
             if not found:
                 raise InputError(f"{p}: folder holds no .mat, .csv or .ulg hover data")
@@ -266,14 +270,18 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
         raise InputError("no hover data given")
     parts = []
     for f in files:
-        if f.suffix.lower() == ".mat":
+        if is_rosbag(f):
+            from omnirotor.px4.windows import load_flight_log  # rosbags only when a bag is read
+
+            parts.append(load_flight_log(f, vehicle, window_criteria))
+        elif f.suffix.lower() == ".mat":
             parts.append(load_mat(f, vehicle.n_rotors))
         elif f.suffix.lower() == ".csv":
             parts.append(load_csv(f, vehicle))
         elif f.suffix.lower() == ".ulg":
-            from omnirotor.px4.windows import load_ulog  # pyulog only when a ULog is read
+            from omnirotor.px4.windows import load_flight_log  # pyulog only when a ULog is read
 
-            parts.append(load_ulog(f, vehicle, window_criteria))
+            parts.append(load_flight_log(f, vehicle, window_criteria))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)

@@ -79,8 +79,26 @@ app = typer.Typer(
 )
 
 
+def _version(value: bool) -> None:
+    """``--version``: the installed package's version (its metadata; the source's when run from a checkout)."""
+    if not value:
+        return
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = version("omnirotor")
+    except PackageNotFoundError:
+        text = "unknown (not installed)"
+    print(f"omnirotor {text}")
+    raise typer.Exit(0)
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    show_version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
     """Sensorless 6-D physical interaction with omnidirectional multirotors."""
 
 

@@ -40,7 +40,16 @@ from omnirotor.experiments.loop import (
     task_sim_params,
     video_sink,
 )
-from omnirotor.experiments.metrics import RunLog, contact_stats, force_stats, held_contact, table1_errors
+from omnirotor.experiments.metrics import (
+    PEG_DEPTH_GOAL_CM,
+    PEG_TILT_GOAL_DEG,
+    RunLog,
+    contact_stats,
+    force_stats,
+    held_contact,
+    peg_depth_tilt,
+    table1_errors,
+)
 from omnirotor.experiments.tasks.scenarios import (
     Scenario,
     ScenarioParams,
@@ -346,12 +355,7 @@ def _task_verdict(task, log: RunLog, phase, scenario: Scenario, sp: ScenarioPara
         out["success"] = bool(not c["lost"] and c["fraction"] > 0.9)
     elif task == "peg-in-hole":
         scene = opts.plant_sim_params().scene  # the true hole, wherever the plan thought it was
-        entrance = np.asarray(scene.hole_entrance, dtype=float)
-        axis_in = np.array([0.0, -1.0, 0.0])
-        depth = (log.p_E_W - entrance) @ axis_in
-        # angle between the peg (body +y through the tip) and the hole's inward axis
-        peg_dir = log.R_WE[:, :, 1]
-        tilt = np.degrees(np.arccos(np.clip(peg_dir @ axis_in, -1.0, 1.0)))
+        depth, tilt = peg_depth_tilt(log, scene.hole_entrance)
         inserted = log.window(scenario.waypoints[5].t, scenario.waypoints[6].t)
         approach = log.window(scenario.waypoints[2].t, scenario.waypoints[3].t)
         out["insertion"] = {
@@ -378,12 +382,26 @@ def _figures(result: ExperimentResult) -> None:
     opts = result.options
     if not isinstance(opts, ExperimentOptions) or opts.out_dir is None or result.log is None:
         return
-    from omnirotor.experiments.figures import plot_run
+    from omnirotor.experiments.figures import PegPanel, plot_run
 
     marks = result.scenario.marks if result.scenario is not None else ()
     title = f"{result.task} — {opts.map_mode} map"
     path = Path(opts.out_dir) / f"{result.task}-{opts.map_mode}.png"
-    plot_run(result.log, title, path, marks=marks, region_names=result.region_names)
+    normal = result.metrics.get("normal_force")
+    peg = None
+    if result.task == "peg-in-hole":
+        depth, tilt = peg_depth_tilt(result.log, opts.plant_sim_params().scene.hole_entrance)
+        target = result.metrics["insertion"]["target_depth_m"]
+        peg = PegPanel(depth, tilt, target, PEG_DEPTH_GOAL_CM / 100.0, PEG_TILT_GOAL_DEG)
+    plot_run(
+        result.log,
+        title,
+        path,
+        marks=marks,
+        region_names=result.region_names,
+        force_target_N=normal["expected_N"] if normal else None,
+        peg=peg,
+    )
     result.metrics["figure"] = str(path)
 
 
