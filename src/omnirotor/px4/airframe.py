@@ -71,13 +71,10 @@ def is_airframe_file(path: Path) -> bool:
 
 def read_airframe_params(path: str | Path) -> dict[str, float]:
     """The parameters an airframe file sets (``param set-default NAME VALUE``; later lines win)."""
+    from omnirotor.safe_io import read_text
+
     p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: cannot read as a PX4 airframe file ({exc})") from None
+    text = read_text(p)  # a regular file within MAX_INPUT_BYTES, UTF-8
     out: dict[str, float] = {}
     for line in text.splitlines():
         m = _PARAM_LINE.match(line.split("#", 1)[0])
@@ -87,6 +84,11 @@ def read_airframe_params(path: str | Path) -> dict[str, float]:
             except ValueError:
                 continue  # a value PX4 takes from a shell variable: not one of ours
     return out
+
+
+_RANGES = {"PX": (-100.0, 100.0), "PY": (-100.0, 100.0), "PZ": (-100.0, 100.0), "KM": (-1.0, 1.0)}
+_RANGES.update({k: (-100.0, 100.0) for k in ("AX", "AY", "AZ")})
+"""The range PX4's parameter definitions give each ``CA_ROTORn_*`` value (NaN and inf fall outside)."""
 
 
 def _rotor_geometry(params: Mapping[str, float], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -106,7 +108,11 @@ def _rotor_geometry(params: Mapping[str, float], where: str) -> tuple[np.ndarray
             name = f"CA_ROTOR{i}_{key}"
             if name not in params:
                 missing.append(name)
-            vals[key] = float(params.get(name, dflt))
+            value = params.get(name, dflt)
+            lo, hi = _RANGES[key]
+            if not (isinstance(value, (int, float)) and lo <= value <= hi):
+                raise InputError(f"{where}: {name} is {value}; PX4 allows {lo:g} to {hi:g}")
+            vals[key] = float(value)
         pos[i] = (vals["PX"], vals["PY"], vals["PZ"])
         axis[i] = (vals["AX"], vals["AY"], vals["AZ"])
         km[i] = vals["KM"]
@@ -163,8 +169,11 @@ def vehicle_from_px4_params(
     omega_max = pick("omega_max_hz", PX4_DEFAULTS["omega_max_hz"])
     try:
         mass_f, c_f_f, omega_max_f = float(mass), float(c_f), float(omega_max)
-    except (TypeError, ValueError):
-        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers within a float's range") from None
+    for key, value in (("mass", mass_f), ("c_f", c_f_f), ("omega_max_hz", omega_max_f)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"vehicle overlay: {key} is {value}; expected a finite number > 0")
     lo = -omega_max_f if all(reversible) else PX4_DEFAULTS["omega_min_hz_unidirectional"]
     omega_min = pick("omega_min_hz", lo)
     if "c_tau" in overlay:
