@@ -58,8 +58,6 @@ def profile(args: tuple[str, ...]) -> dict:
     """Run ``omnirotor ARGS`` here, cold, and return the profile (module docstring)."""
     from numba.core import event
 
-    from omnirotor._jit import KernelDispatcher
-
     phase_s: dict[str, float] = collections.defaultdict(float)
     phase_n: collections.Counter = collections.Counter()
     _time_phases(phase_s, phase_n)
@@ -75,7 +73,7 @@ def profile(args: tuple[str, ...]) -> dict:
             incl = time.process_time() - t0
             if stack:
                 stack[-1][2] += incl
-            kind = "kernel" if isinstance(d, KernelDispatcher) else "entry"
+            kind = "inline" if d.targetoptions.get("inline") == "always" else "jit"
             row = funcs.setdefault(
                 (f"{d.py_func.__module__}.{d.py_func.__qualname__}", kind), {"n": 0, "excl_s": 0.0, "incl_s": 0.0}
             )

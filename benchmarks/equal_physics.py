@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parent.parent
 
 PROBE = """
 import json, resource
-from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions
 
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)

@@ -35,7 +35,7 @@ from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-from omnirotor.experiments.closed_loop import run_closed_loop
+from omnirotor.experiments.loop import run_closed_loop
 from omnirotor.messages import RotorCommand
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.params import RotorDynamicsParams

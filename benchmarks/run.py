@@ -60,25 +60,7 @@ GOALS = {
     "closed_loop_rtf_ukf": ("closed loop, sliding task, UKF", 40.0, "min", "× real time"),
     "closed_loop_rtf_fast": ("closed loop, sliding task, bypass estimator", 40.0, "min", "× real time"),
     "rtf_ratio_vs_rotorpy": ("quadrotor hover, RTF ours / RotorPy", 300.0, "min", "×"),
-    "campaign_throughput_over_marginal_rtf": (
-        "`campaign hover --runs 200 --workers 2 --quick` (start-up included) / one run's marginal RTF",
-        1.8,
-        "min",
-        "×",
-    ),
     "campaign_sliding_speedup_2_workers": ("20 sliding runs: 2 workers over 1 (whole command)", 1.8, "min", "×"),
-    "campaign_throughput_warm_over_marginal_rtf": (
-        "the same hover campaign on the resident worker pool (`omnirotor workers start` before) / marginal RTF",
-        1.8,
-        "min",
-        "×",
-    ),
-    "campaign_sliding_speedup_2_workers_warm": (
-        "20 sliding runs on the resident pool: 2 workers over 1",
-        1.8,
-        "min",
-        "×",
-    ),
     "cli_help_s": ("`omnirotor --help` and `omnirotor identify --help` (median, slower of the two)", 0.3, "max", "s"),
     "first_run_compile_s": ("first run on a fresh machine: compilation (cold numba cache)", 60.0, "max", "s"),
 }
@@ -314,7 +296,7 @@ def measure_identify_region(repeats: int, data_dir: Path = DATA_DIR) -> tuple[fl
     On the real flight data (the region with most points) if ``data_dir`` exists, else on synthetic hover
     points: 16 attitudes of region R1 with the nominal hover inputs perturbed by 5 %.
     """
-    from omnirotor.experiments.scenarios import hover_attitudes
+    from omnirotor.experiments.tasks.scenarios import hover_attitudes
     from omnirotor.identification import HoverData, IdentificationParams, assign_regions, load_hover_data, solve_map
     from omnirotor.regions import load_partition
     from omnirotor.vehicle import load_vehicle
@@ -642,16 +624,13 @@ def _campaign_command(
     duration_s: float | None,
     drop: tuple[str, ...],
     own_file: bool,
-    pool_env: dict[str, str] | None = None,
 ) -> dict:
     """``omnirotor campaign TASK --runs N --workers W --quick`` in a fresh process, timed whole (start-up included).
 
     ``own_file`` (or a ``duration_s``): the default preset written out less ``drop``, with that duration.
-    ``pool_env``: run on the resident worker pool of that environment (:func:`resident_pool`), else on the
-    command's own pool (``--no-resident``). Returns ``command`` (as a user types it), ``sim_s``, ``wall_s``,
-    ``cpu_s`` (user + system time of the command's whole process tree, and of the resident pool's processes
-    during the command: on a shared machine the wall time measures the load as much as the code), ``match`` (of
-    the ``throughput:`` line) and ``records`` (the results file's lines).
+    Returns ``command`` (as a user types it), ``sim_s``, ``wall_s``, ``cpu_s`` (user + system time of the
+    command's whole process tree: on a shared machine the wall time measures the load as much as the code),
+    ``match`` (of the ``throughput:`` line) and ``records`` (the results file's lines).
     """
     import resource
     import tempfile
@@ -664,66 +643,27 @@ def _campaign_command(
             f = Path(tmp) / "campaign.toml"
             f.write_text(_campaign_file(duration_s, drop, task))
             cmd += ["--campaign", str(f)]
-        if pool_env is None:
-            cmd.append("--no-resident")
-        pool_cpu0 = _pool_cpu_s(pool_env) if pool_env is not None else 0.0
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         tic = time.perf_counter()
-        proc = subprocess.run(
-            cmd, capture_output=True, text=True, env=pool_env or _env_with_src(), check=False, timeout=7200
-        )
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env_with_src(), check=False, timeout=7200)
         wall = time.perf_counter() - tic
         ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        pool_cpu = _pool_cpu_s(pool_env) - pool_cpu0 if pool_env is not None else 0.0
         if proc.returncode != 0:
             raise RuntimeError(f"campaign failed ({proc.returncode}): {proc.stderr.strip()[-300:]}")
-        if pool_env is not None and "resident worker pool" not in proc.stderr:
-            raise RuntimeError(f"the campaign did not run on the resident pool: {proc.stderr.strip()[-300:]}")
         m = THROUGHPUT_RE.search(proc.stdout)
         if m is None:
             raise RuntimeError(f"campaign printed no throughput line: {proc.stdout.strip()[-300:]}")
         records = [json.loads(x) for x in (Path(tmp) / "c" / "results.jsonl").read_text().splitlines() if x]
     command = " ".join(["omnirotor", *cmd[len(cli) :]]).replace(tmp, "TMP")
-    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime) + pool_cpu
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     sim_s = float(m.group(1))
     return {"command": command, "sim_s": sim_s, "wall_s": wall, "cpu_s": cpu, "match": m, "records": records}
 
 
-def _pool_cli(env: dict[str, str], *args: str) -> str:
-    cli = [sys.executable, "-c", "import sys; from omnirotor.cli import main; sys.exit(main())"]
-    return subprocess.run([*cli, "workers", *args], capture_output=True, text=True, env=env, check=True).stdout
-
-
-def _pool_cpu_s(env: dict[str, str]) -> float:
-    """CPU time so far of the resident pool's processes (its own and its workers') [s]."""
-    return float(json.loads(_pool_cli(env, "status", "--json"))["cpu_s"])
-
-
-@contextlib.contextmanager
-def resident_pool(workers: int = 2):
-    """A resident worker pool (``omnirotor workers start``) in a private cache folder; yields its environment.
-
-    Its start (imports, kernel loading) is not timed: it is paid once, before the campaigns that use it.
-    """
-    import shutil
-    import tempfile
-
-    folder = tempfile.mkdtemp(prefix="omr-bench-", dir="/tmp")  # short: Unix socket paths are limited
-    env = dict(_env_with_src(), XDG_CACHE_HOME=folder)
-    try:
-        _pool_cli(env, "start", "--workers", str(workers), "--idle-timeout", "3600")
-        yield env
-    finally:
-        with contextlib.suppress(subprocess.SubprocessError, OSError):
-            _pool_cli(env, "stop")
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def measure_sliding_workers(cfg: Config, pool_env: dict[str, str] | None = None) -> dict | None:
+def measure_sliding_workers(cfg: Config) -> dict | None:
     """``omnirotor campaign sliding --runs N --quick`` with 1 and 2 workers, alternating; the speedup of 2 over 1.
 
-    Each campaign is a fresh process timed whole (start-up, summary and plots included), the default preset;
-    ``pool_env``: on that resident pool (one or both of its workers), else on the command's own pool.
+    Each campaign is a fresh process timed whole (start-up, summary and plots included), the default preset.
     """
     if cfg.sliding_campaign_runs == 0:
         return None
@@ -734,7 +674,7 @@ def measure_sliding_workers(cfg: Config, pool_env: dict[str, str] | None = None)
     for rep in range(cfg.sliding_campaign_repeats):
         for workers in (1, 2) if rep % 2 == 0 else (2, 1):
             c = _campaign_command(
-                "sliding", cfg.sliding_campaign_runs, workers, cfg.sliding_campaign_duration_s, (), False, pool_env
+                "sliding", cfg.sliding_campaign_runs, workers, cfg.sliding_campaign_duration_s, (), False
             )
             walls[workers].append(c["wall_s"])
             cpus[workers].append(c["cpu_s"])
@@ -742,7 +682,7 @@ def measure_sliding_workers(cfg: Config, pool_env: dict[str, str] | None = None)
     w1, w2 = _median(walls[1]), _median(walls[2])
     return {
         "command": command.replace("--workers 2", "--workers W"),
-        "mode": "warm (resident pool)" if pool_env is not None else "cold",
+        "mode": "cold",
         "runs": cfg.sliding_campaign_runs,
         "sim_s": sim_s,
         "wall_s": {"1": walls[1], "2": walls[2]},
@@ -753,27 +693,24 @@ def measure_sliding_workers(cfg: Config, pool_env: dict[str, str] | None = None)
     }
 
 
-def measure_campaign_throughput(
-    cfg: Config, marginal_rtf: float, without_faults: bool = False, pool_env: dict[str, str] | None = None
-) -> dict | None:
+def measure_campaign_throughput(cfg: Config, marginal_rtf: float, without_faults: bool = False) -> dict | None:
     """``omnirotor campaign hover --runs N --workers 2 --quick`` in a fresh process, start-up included.
 
     ``sim_s_per_s`` is the simulated seconds of the runs over the wall time of the whole command (interpreter
     start, imports, the pool's workers and their kernel loading, every run, the summary and its plots);
     ``line`` is the command's own ``throughput:`` line (timed inside the command). Compared with the marginal
     real-time factor of one hover run on one core (``scaling.fit``). ``without_faults``: the default campaign
-    less its timed faults (:data:`TIMED_FAULTS`), whose runs take the compiled loop. ``pool_env``: on that
-    resident pool (warm: its start-up paid before), else cold (the command's own pool, everything included).
+    less its timed faults (:data:`TIMED_FAULTS`), whose runs take the compiled loop.
     """
     if cfg.campaign_runs == 0:
         return None
     drop = TIMED_FAULTS if without_faults else ()
-    c = _campaign_command("hover", cfg.campaign_runs, 2, cfg.campaign_duration_s, drop, without_faults, pool_env)
+    c = _campaign_command("hover", cfg.campaign_runs, 2, cfg.campaign_duration_s, drop, without_faults)
     sim_s, wall, m, records = c["sim_s"], c["wall_s"], c["match"], c["records"]
     run_walls = [r["elapsed_s"] for r in records]
     return {
         "command": c["command"],
-        "mode": "warm (resident pool)" if pool_env is not None else "cold",
+        "mode": "cold",
         "load_avg_1min": _load1(),
         "campaign": "default preset less timed faults" if without_faults else "default preset",
         "runs": cfg.campaign_runs,
@@ -812,7 +749,7 @@ def _mujoco_step_us(steps: int) -> float:
     The state is the sliding run's just after the tip touched the pipe; the rotor wrench is held, so the state
     drifts little over ``steps`` periods.
     """
-    from omnirotor.experiments.closed_loop import run_closed_loop
+    from omnirotor.experiments.loop import run_closed_loop
 
     sim, ctl, traj, scenario = workloads.sliding_setup("bypass", quick_scenario=True)
     run_closed_loop(sim, ctl, traj, scenario.contact_phase[0] + 1.0)
@@ -933,16 +870,6 @@ def collect(
     sl = measure_sliding_workers(cfg)
     out["campaign_sliding_workers"] = sl
     out["campaign_sliding_speedup_2_workers"] = sl["speedup_2_workers"] if sl else None
-    if cfg.campaign_runs:
-        note("the same campaigns on a resident worker pool (omnirotor workers start)")
-        with resident_pool() as env:
-            warm = measure_campaign_throughput(cfg, marginal, pool_env=env)
-            out["campaign_throughput_warm"] = warm
-            out["campaign_throughput_warm_sim_s_per_s"] = warm["sim_s_per_s"]
-            out["campaign_throughput_warm_over_marginal_rtf"] = warm["ratio_to_marginal_rtf"]
-            slw = measure_sliding_workers(cfg, pool_env=env)
-            out["campaign_sliding_workers_warm"] = slw
-            out["campaign_sliding_speedup_2_workers_warm"] = slw["speedup_2_workers"] if slw else None
     note("start-up of a campaign worker: imports, kernel loading, set-up")
     out["startup"] = measure_startup()
 
@@ -1247,10 +1174,9 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
     if ct:
         su = r.get("startup") or {}
         nf = r.get("campaign_throughput_no_faults") or {}
-        wm = r.get("campaign_throughput_warm") or {}
 
         def both(fn) -> list[str]:
-            return [fn(ct), fn(wm) if wm else "—", fn(nf) if nf else "—"]
+            return [fn(ct), fn(nf) if nf else "—"]
 
         trow = [
             ["command", *both(lambda c: f"`{c['command']}`")],
@@ -1260,21 +1186,21 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
             ],
             ["1-minute load average at the end", *both(lambda c: _f(c.get("load_avg_1min"), 1))],
             ["simulated / wall, whole command [s]", *both(lambda c: f"{_f(c['sim_s'])} / {_f(c['wall_s'], 2)}")],
-            ["CPU of the whole command (all processes; warm: and the pool's) [s]", *both(lambda c: _f(c["cpu_s"], 2))],
+            ["CPU of the whole command (all processes) [s]", *both(lambda c: _f(c["cpu_s"], 2))],
             ["**throughput**, start-up included [sim. s per wall s]", *both(lambda c: f"**{_f(c['sim_s_per_s'])}**")],
             ["the command's own throughput line", *both(lambda c: _f(c["line"]["sim_s_per_s"]))],
             ["throughput / marginal RTF of one run (goal ≥ 1.8)", *both(lambda c: f"{c['ratio_to_marginal_rtf']:.2f}")],
             ["median wall per run in a worker (all of it) [s]", *both(lambda c: f"{c['run_wall_median_s']:.2f}")],
-            ["marginal RTF of one hover run on one core (scaling fit)", _f(ct["marginal_rtf_one_core"]), "", ""],
+            ["marginal RTF of one hover run on one core (scaling fit)", _f(ct["marginal_rtf_one_core"]), ""],
         ]
         if su:
             trow += [
-                ["fresh process: imports (numpy, MuJoCo, numba, omnirotor) [s]", _f(su["imports_s"], 2), "", ""],
-                ["fresh process: kernel loading (first run less second) [s]", _f(su["kernel_loading_s"], 2), "", ""],
-                ["one run's set-up (simulator, controller, logs) [s]", _f(su["setup_s"], 3), "", ""],
-                ["stepping, wall per simulated second [s]", _f(su["stepping_s_per_sim_s"], 4), "", ""],
+                ["fresh process: imports (numpy, MuJoCo, numba, omnirotor) [s]", _f(su["imports_s"], 2), ""],
+                ["fresh process: kernel loading (first run less second) [s]", _f(su["kernel_loading_s"], 2), ""],
+                ["one run's set-up (simulator, controller, logs) [s]", _f(su["setup_s"], 3), ""],
+                ["stepping, wall per simulated second [s]", _f(su["stepping_s_per_sim_s"], 4), ""],
             ]
-        sl, slw = r.get("campaign_sliding_workers"), r.get("campaign_sliding_workers_warm")
+        sl = r.get("campaign_sliding_workers")
 
         def sliding(x: dict | None) -> str:
             if not x:
@@ -1287,7 +1213,6 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
                 [
                     f"{sl['runs']} sliding runs (`{sl['command']}`): 2 workers over 1, whole command (goal ≥ 1.8)",
                     sliding(sl),
-                    sliding(slw),
                     "",
                 ]
             )
@@ -1298,7 +1223,6 @@ def _rows(result: dict) -> list[tuple[str, list[list[str]], list[str]]]:
                 [
                     "",
                     "default campaign (the issue's command), cold",
-                    "the same on the resident pool (warm)",
                     "less its timed faults, cold",
                 ],
             )

@@ -21,8 +21,9 @@ from omnirotor.control.admittance import AdmittanceParams  # noqa: E402
 from omnirotor.control.controller import ControllerParams, InteractionController  # noqa: E402
 from omnirotor.control.estimator import EstimatorParams  # noqa: E402
 from omnirotor.control.trajectory import PoseTrajectory  # noqa: E402
-from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task  # noqa: E402
-from omnirotor.experiments.scenarios import sliding  # noqa: E402
+from omnirotor.experiments.loop import TaskOptions, run_closed_loop  # noqa: E402
+from omnirotor.experiments.tasks import run_task  # noqa: E402
+from omnirotor.experiments.tasks.scenarios import sliding  # noqa: E402
 from omnirotor.sim import SimParams, Simulator  # noqa: E402
 from omnirotor.sim.step import mj_Euler, mj_forward  # noqa: E402
 from omnirotor.vehicle import load_vehicle  # noqa: E402
@@ -123,10 +124,9 @@ def startup_profile() -> dict:
     ``stepping_s_per_sim_s`` ((long - second) / (long - short simulated)), ``setup_s`` (a run's set-up: the
     second run less its stepping).
     """
-    from omnirotor.experiments import campaign  # noqa: F401  (what a campaign worker imports)
-    from omnirotor.experiments.closed_loop import discover_tasks
+    from omnirotor.experiments.campaigns import runner  # noqa: F401  (what a campaign worker imports)
+    from omnirotor.experiments.tasks import common  # noqa: F401  (the tasks' module a worker imports)
 
-    discover_tasks()
     imports = time.perf_counter() - _T_START
     walls = []
     for d in (STARTUP_SHORT_S, STARTUP_SHORT_S, STARTUP_LONG_S):

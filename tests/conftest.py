@@ -16,9 +16,3 @@ def flight_data() -> Path:
     if not (FLIGHT_DATA / "wrenchMap_reg1.mat").is_file():
         pytest.skip(f"real flight data not found at {FLIGHT_DATA} (../shared is not beside the checkout)")
     return FLIGHT_DATA
-
-
-@pytest.fixture(autouse=True)
-def _no_user_worker_pool(monkeypatch, tmp_path_factory):
-    """Keep every test away from the user's resident worker pool (``omnirotor workers``): a private cache folder."""
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.getbasetemp() / "xdg-cache"))

@@ -7,10 +7,7 @@ import numpy as np
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.identification import HoverData, load_hover_data
-from omnirotor.sim import step
-from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAero, frame_rotation, make_aero
-from omnirotor.sim.aero_calibration import (
+from omnirotor.experiments.calibration.truth import (
     FIT_PARAMETERS,
     FRAME_TILT_PARAMETERS,
     INTAKE_FIELD_PARAMETERS,
@@ -23,6 +20,9 @@ from omnirotor.sim.aero_calibration import (
     moment_residual,
     repeat_noise_floor,
 )
+from omnirotor.identification import HoverData, load_hover_data
+from omnirotor.sim import step
+from omnirotor.sim.aero import AERO_WAKE, EDGE_ON_COS, InterferenceAero, WakeAero, frame_rotation, make_aero
 from omnirotor.sim.params import AeroParams, load_sim_params
 from omnirotor.vehicle import load_vehicle
 

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 from omnirotor.cli import main
 from omnirotor.control.controller import ControllerParams, load_controller_params
 from omnirotor.errors import InputError
-from omnirotor.experiments.campaign import load_campaign
+from omnirotor.experiments.campaigns.runner import load_campaign
 from omnirotor.identification import load_csv, load_mat, write_csv
 from omnirotor.regions import load_partition
 from omnirotor.sim.params import SimParams, load_sim_params

@@ -10,7 +10,7 @@ import pytest
 
 from omnirotor.cli import main
 from omnirotor.errors import InputError
-from omnirotor.experiments.campaign import (
+from omnirotor.experiments.campaigns.runner import (
     PARAMETERS,
     execute_run,
     identify_truth_maps,
@@ -22,7 +22,7 @@ from omnirotor.experiments.campaign import (
     wilson_interval,
 )
 from omnirotor.experiments.faults import MocapDropout, RotorFailure, WindGust
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.vehicle import load_vehicle
 
 TINY = """
@@ -214,7 +214,7 @@ def test_changed_definition_is_refused_unless_restarted(tmp_path):
 
 def test_execute_run_is_deterministic_and_records_failures():
     spec_opts = ExperimentOptions(quick=True, estimator="bypass", duration_s=0.2)
-    from omnirotor.experiments.campaign import RunJob
+    from omnirotor.experiments.campaigns.runner import RunJob
 
     job = RunJob(0, "point-contact", spec_opts, {}, {"sim_seed": 3})
     a, b = execute_run(job), execute_run(job)
@@ -363,7 +363,7 @@ def test_ray_backend_matches_local(tmp_path):
 
 
 def test_unreachable_ray_address_is_refused_quickly():
-    from omnirotor.experiments.campaign import _check_reachable
+    from omnirotor.experiments.campaigns.runner import _check_reachable
 
     with pytest.raises(InputError, match="cannot reach the Ray cluster"):
         _check_reachable("127.0.0.1:1")
@@ -399,7 +399,7 @@ value = 0.4
 
 
 def test_hover_campaign_flies_the_perturbed_plant_and_ends_with_its_throughput(tmp_path, capsys):
-    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import run_task
 
     camp = tmp_path / "hover.toml"
     camp.write_text(HOVER)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from omnirotor.experiments.campaign import CHUNK_MAX, chunk_sizes, run_chunk
+from omnirotor.experiments.campaigns.runner import CHUNK_MAX, chunk_sizes, run_chunk
 
 
 @pytest.mark.parametrize("workers", [1, 2, 3, 8])

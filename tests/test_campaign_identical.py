@@ -11,9 +11,9 @@ import json
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments.campaign import load_campaign, run_campaign, run_options
-from omnirotor.experiments.campaign_report import jsonable, load_results
-from omnirotor.experiments.closed_loop import run_task
+from omnirotor.experiments.campaigns.report import jsonable, load_results
+from omnirotor.experiments.campaigns.runner import load_campaign, run_campaign, run_options
+from omnirotor.experiments.tasks import run_task
 
 TIMING = ("controller_step_us_median",)
 """Summary keys measured by the wall clock (never reproducible)."""

@@ -1,6 +1,6 @@
 """Runs of unequal length are sent longest first (issue 16): no worker is left alone with a long run at the end."""
 
-from omnirotor.experiments.campaign import (
+from omnirotor.experiments.campaigns.runner import (
     campaign_from_mapping,
     execute_run,
     expected_duration_s,

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from omnirotor.experiments.campaign_report import _flatten, metric_value
+from omnirotor.experiments.campaigns.report import _flatten, metric_value
 
 EDGES = {
     "a": {"b": 1.0, "c": [1, 2, 3], "d": [4, 5], "e": [1, "x"], "f": True, "g": None, "h": "text"},
@@ -31,7 +31,7 @@ def test_lookup_equals_the_flattened_value(metrics):
 
 
 def test_lookup_equals_the_flattened_value_on_a_run_record(tmp_path: Path):
-    from omnirotor.experiments.campaign import execute_run, load_campaign, run_options
+    from omnirotor.experiments.campaigns.runner import execute_run, load_campaign, run_options
 
     spec = load_campaign(None, "hover", quick=True)
     job = run_options(spec, 3)

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from omnirotor.experiments.campaign import load_campaign
-from omnirotor.experiments.campaign_report import plot_parameter, plot_parameters
+from omnirotor.experiments.campaigns.report import plot_parameter, plot_parameters
+from omnirotor.experiments.campaigns.runner import load_campaign
 
 
 def _records(spec, n: int = 60) -> list[dict]:

@@ -22,8 +22,8 @@ from pathlib import Path
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments import campaign as campaign_mod
-from omnirotor.experiments.campaign import execute_run, load_campaign, run_campaign, run_options
+from omnirotor.experiments.campaigns import runner as campaign_mod
+from omnirotor.experiments.campaigns.runner import execute_run, load_campaign, run_campaign, run_options
 from test_campaign import tiny
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -165,7 +165,7 @@ def test_workers_die_with_a_killed_main_process_and_the_campaign_resumes(tmp_pat
 
 def fake_task(monkeypatch, summary):
     """Replace the closed-loop task by one that returns ``summary`` at once."""
-    from omnirotor.experiments import closed_loop
+    from omnirotor.experiments import loop as closed_loop
 
     class Result:
         def summary(self):

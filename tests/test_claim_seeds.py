@@ -5,8 +5,8 @@ import json
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments import claim_seeds as cs
-from omnirotor.experiments import reproduce as rp
+from omnirotor.experiments.paper import claims
+from omnirotor.experiments.paper import reproduce as rp
 
 
 def _metrics(lost_nominal: bool, fz_nominal: float = 2.0, underestimate: float = 1.0, depth_m: float = 0.168):
@@ -36,8 +36,8 @@ def _by_name(goals):
 
 
 def test_sliding_loss_needs_eight_of_ten():
-    eight = _by_name(cs.evaluate_goals({s: _metrics(lost_nominal=s < 8) for s in range(10)}))
-    seven = _by_name(cs.evaluate_goals({s: _metrics(lost_nominal=s < 7) for s in range(10)}))
+    eight = _by_name(claims.evaluate_goals({s: _metrics(lost_nominal=s < 8) for s in range(10)}))
+    seven = _by_name(claims.evaluate_goals({s: _metrics(lost_nominal=s < 7) for s in range(10)}))
     assert eight["sliding_nominal_loses"]["passes"] == 8 and eight["sliding_nominal_loses"]["met"]
     assert seven["sliding_nominal_loses"]["passes"] == 7 and not seven["sliding_nominal_loses"]["met"]
     assert eight["sliding_piecewise_keeps"]["met"] and eight["sliding_global_keeps"]["need"] == 10
@@ -46,7 +46,7 @@ def test_sliding_loss_needs_eight_of_ten():
 def test_band_goals_and_missing_runs():
     per_seed = {0: _metrics(True, fz_nominal=2.6), 1: _metrics(True, underestimate=0.69), 2: _metrics(True)}
     del per_seed[2]["peg-in-hole/nominal"]
-    g = _by_name(cs.evaluate_goals(per_seed))
+    g = _by_name(claims.evaluate_goals(per_seed))
     assert g["hover_bias_nominal"]["passed"] == [False, True, True]
     assert not g["hover_bias_nominal"]["met"]  # 2 < ceil(0.8 × 3)
     assert g["tilted_underestimate"]["passed"] == [True, False, True]

@@ -13,8 +13,9 @@ from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_log, run_task
+from omnirotor.experiments.loop import TaskOptions, run_closed_loop, run_log
 from omnirotor.experiments.metrics import error_stats
+from omnirotor.experiments.tasks import run_task
 from omnirotor.messages import ControlStatus
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.params import AeroParams

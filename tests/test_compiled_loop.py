@@ -27,8 +27,8 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory
-from omnirotor.experiments.closed_loop import run_closed_loop
 from omnirotor.experiments.faults import MocapDropout, SensorCorruption, install_faults
+from omnirotor.experiments.loop import run_closed_loop
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.vehicle import load_vehicle

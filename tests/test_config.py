@@ -73,7 +73,7 @@ def test_overrides_batched_equal_one_at_a_time_later_keys_winning():
 
 
 def test_campaign_plant_overrides_batched_equal_one_at_a_time():
-    from omnirotor.experiments.campaign import load_campaign, run_options
+    from omnirotor.experiments.campaigns.runner import load_campaign, run_options
     from omnirotor.sim.params import SimParams
 
     spec = load_campaign(None, "hover", quick=True)

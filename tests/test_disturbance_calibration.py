@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from omnirotor.experiments import disturbance_calibration as dc
-from omnirotor.experiments.claim_seeds import GOALS
+from omnirotor.experiments.calibration import disturbances as dc
 from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
+from omnirotor.experiments.paper.claims import GOALS
 from omnirotor.sim import SimParams, load_sim_params
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -151,7 +151,7 @@ def test_claims_over_seeds_counts_each_claim_and_names_the_seeds(tmp_path):
     ]  # fmt: skip
     (folder / "results.jsonl").write_text("\n".join(reversed(lines)) + "\n")
     rows = {c["claim"]: c for c in tool.claims(tmp_path)}
-    assert set(rows) == {g.name for g in GOALS}  # the goals are claim_seeds.GOALS, stated once
+    assert set(rows) == {g.name for g in GOALS}  # the goals are paper.claims.GOALS, stated once
     c = rows["sliding_nominal_loses"]
     assert (c["runs"], c["meets"], c["need"], c["verdict"]) == (10, 7, 8, "not reproduced")
     assert [v["seed"] for v in c["values"]] == list(range(100, 110))  # in run order

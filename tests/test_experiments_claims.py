@@ -11,10 +11,10 @@ if the disagreement disappears).
 import numpy as np
 import pytest
 
-from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.peg_wedge import wedge_jam
-from omnirotor.experiments.scenarios import ScenarioParams, hover_attitudes
-from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
+from omnirotor.experiments.paper.peg_wedge import wedge_jam
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions, HoverProtocol
+from omnirotor.experiments.tasks.scenarios import ScenarioParams, hover_attitudes
 from omnirotor.identification import HoverData, identify, load_csv
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams

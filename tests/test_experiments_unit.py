@@ -17,8 +17,9 @@ from omnirotor.experiments.metrics import (
     pose_errors,
     table1_errors,
 )
-from omnirotor.experiments.reproduce import claims
-from omnirotor.experiments.scenarios import (
+from omnirotor.experiments.paper.reproduce import claims
+from omnirotor.experiments.tasks.common import ExperimentOptions
+from omnirotor.experiments.tasks.scenarios import (
     ScenarioParams,
     hover_attitudes,
     hover_schedule,
@@ -27,7 +28,6 @@ from omnirotor.experiments.scenarios import (
     point_contact_tilted,
     sliding,
 )
-from omnirotor.experiments.tasks import ExperimentOptions
 from omnirotor.regions import load_partition
 from omnirotor.sim import SimParams
 from omnirotor.so3 import rot_x, rot_z
@@ -233,7 +233,7 @@ def test_hover_verdict_uses_the_ten_seed_goals(nominal, piecewise, verdict):
 
 @pytest.mark.parametrize("under,verdict", [(1.0, "reproduced"), (0.45, "partly"), (-0.04, "not reproduced")])
 def test_tilted_verdict_uses_the_ten_seed_goals_band(under, verdict):
-    # one run's verdict and the ten-seed goal (0.7-1.3 N, claim_seeds.GOALS) say the same thing: 0.45 N is not ~1 N
+    # one run's verdict and the ten-seed goal (0.7-1.3 N, paper.claims.GOALS) say the same thing: 0.45 N is not ~1 N
     m = {
         "point-contact-tilted/nominal": {
             "normal_force": {"true_mean_N": 3.0, "estimated_mean_N": 3.0 - under, "underestimate_N": under}
@@ -290,7 +290,7 @@ def test_run_bad_input_exits_2(tmp_path, capsys, args, needle):
 
 
 def test_a_run_keeps_the_configured_map_parameters_and_says_what_its_options_replace(capsys):
-    from omnirotor.experiments.tasks import _controller
+    from omnirotor.experiments.tasks.common import _controller
 
     vehicle = load_vehicle()
     opts = ExperimentOptions(overrides=("maps.blend_width_deg=30",))

@@ -13,7 +13,6 @@ from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import InteractionController
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TaskOptions, run_closed_loop, run_task
 from omnirotor.experiments.faults import (
     MocapDropout,
     PlantPerturbation,
@@ -25,7 +24,9 @@ from omnirotor.experiments.faults import (
     safety_stats,
     unreachable_reference,
 )
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.loop import TaskOptions, run_closed_loop
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.messages import ControlStatus
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.so3 import log_so3

@@ -18,8 +18,9 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TaskOptions
-from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault, glitch_hover
+from omnirotor.experiments.faults import FRAME_GLITCHES, MocapDropout, SensorCorruption, glitch_fault
+from omnirotor.experiments.loop import TaskOptions
+from omnirotor.experiments.tasks.fault_hovers import glitch_hover
 from omnirotor.messages import (
     FRAME_ACC_B,
     FRAME_GYRO_B,
@@ -362,7 +363,7 @@ def test_after_a_long_dropout_the_ukf_reinitialises_from_motion_capture():
 
 @pytest.mark.parametrize("estimator", ["ukf", "bypass"])
 def test_a_clean_contact_run_is_never_flagged(estimator):
-    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import run_task
 
     res = run_task("point-contact", TaskOptions(duration_s=6.0, estimator=estimator))
     log = res.controller_log

@@ -17,7 +17,6 @@ import math
 import numpy as np
 import pytest
 
-from omnirotor._jit import R9_from_quat_into
 from omnirotor.control import _estimator_kernels as ek
 from omnirotor.control.admittance import AdmittanceFilter, body_reference_from_ee, ee_wrench_W
 from omnirotor.control.controller import ControllerParams, InteractionController
@@ -26,14 +25,23 @@ from omnirotor.control.observer import WrenchObserver
 from omnirotor.control.pose import PoseController
 from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample, Waypoint
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import TRUTH_GROUPS
+from omnirotor.experiments.loop import TRUTH_GROUPS
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, StateEstimate
 from omnirotor.recorder import Recorder
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.aero import InterferenceAero
 from omnirotor.sim.params import AeroParams
-from omnirotor.sim.sensors import quat_perturb_into
-from omnirotor.so3 import R_from_quat_wxyz, exp_so3, log_so3, rot_x, rot_z
+from omnirotor.so3 import (
+    R9_from_quat_into,
+    R_from_quat_wxyz,
+    exp_so3,
+    exp_so3_into,
+    log_so3,
+    log_so3_into,
+    quat_perturb_into,
+    rot_x,
+    rot_z,
+)
 from omnirotor.vehicle import load_vehicle
 
 V = load_vehicle("omnirotor")
@@ -108,9 +116,9 @@ def test_so3_cholesky_and_inverse_kernels_match_numpy():
     R = np.empty((3, 3))
     out = np.empty(3)
     for phi in (rng.normal(0.0, 1.0, 3), np.array([1e-6, -2e-6, 5e-7]), np.zeros(3)):
-        ek.exp_so3_into(phi[0], phi[1], phi[2], R)
+        exp_so3_into(phi[0], phi[1], phi[2], R)
         np.testing.assert_allclose(R, exp_so3(phi), atol=1e-15)
-        ek.log_so3_into(R, out, 0)
+        log_so3_into(R, out, 0)
         np.testing.assert_allclose(out, log_so3(R), atol=1e-12)
     A = rng.normal(size=(15, 15))
     P = A @ A.T + 1e-3 * np.eye(15)

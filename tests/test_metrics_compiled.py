@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from omnirotor.experiments.closed_loop import TaskOptions, run_log, run_task
+from omnirotor.experiments.loop import TaskOptions, run_log
 from omnirotor.experiments.metrics import AXES, RunLog, error_stats, pose_errors
+from omnirotor.experiments.tasks import run_task
 
 
 def _batched(log: RunLog, pose: str) -> np.ndarray:

@@ -13,7 +13,7 @@ import json
 import pytest
 
 from omnirotor.cli import main
-from omnirotor.experiments.faults import mocap_noise_hover
+from omnirotor.experiments.tasks.fault_hovers import mocap_noise_hover
 
 
 def hover(matching: bool, seed: int = 0, noise_m: float = 0.01, told_m: float = 0.001):

@@ -13,10 +13,10 @@ import mujoco
 import numpy as np
 import pytest
 
-import omnirotor.experiments.tasks as tasks
+import omnirotor.experiments.tasks.common as tasks
 import omnirotor.sim.aero as aero
 import omnirotor.sim.simulator as simulator
-from omnirotor.experiments.campaign import execute_run, load_campaign, run_options
+from omnirotor.experiments.campaigns.runner import execute_run, load_campaign, run_options
 from omnirotor.sim import model_cache
 from omnirotor.sim.model import build_mjcf
 from omnirotor.sim.params import AeroParams, SimParams

@@ -15,7 +15,7 @@ from omnirotor.blocks import block_class, register
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-from omnirotor.experiments.closed_loop import run_closed_loop
+from omnirotor.experiments.loop import run_closed_loop
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.params import AeroParams
 from omnirotor.vehicle import load_vehicle

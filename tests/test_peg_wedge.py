@@ -1,4 +1,4 @@
-"""The quasi-static wedge of the peg in the bore (omnirotor.experiments.peg_wedge; docs/fidelity.md)."""
+"""The quasi-static wedge of the peg in the bore (omnirotor.experiments.paper.peg_wedge; docs/fidelity.md)."""
 
 import dataclasses
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from omnirotor.control.admittance import AdmittanceParams
-from omnirotor.experiments.peg_wedge import max_misalignment, wedge_jam
+from omnirotor.experiments.paper.peg_wedge import max_misalignment, wedge_jam
 from omnirotor.sim.params import SceneParams
 
 R, r = 0.0095, 0.008  # the paper's bore and peg radii (Ø19 mm, Ø16 mm)

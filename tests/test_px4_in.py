@@ -201,17 +201,113 @@ def test_hover_windows_command_writes_figure_and_csv(tmp_path, capsys):
     )
 
 
-def test_log_without_rotor_speeds_is_refused(capsys):
-    path = _need(SMALL)
+def test_log_with_only_pwm_outputs_maps_them_and_says_how(capsys):
+    path = _need(SMALL)  # real hardware: actuator_outputs only, a VTOL without CA_ROTOR* parameters
     assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no rotor speeds" in err[0] and "esc_status" in err[0]
-    assert main(["identify", str(path)]) == 2  # with the log's own vehicle, the speeds are named first
+    # the mapping is said with the log's own PWM range and thrust-model factor
+    mapping = [e for e in err if "actuator_outputs" in e]
+    assert len(mapping) == 1 and "PWM range 950-2000 µs" in mapping[0]
+    assert "THR_MDL_FAC = 0 (from the log)" in mapping[0]
+    # no hover window in the 6 s of outputs it logged: every criterion says what it rejected, then one error
+    assert any("landed" in e and "rejected" in e for e in err) and any("--accel-max" in e for e in err)
+    assert err[-1].startswith("omnirotor: error:") and "no steady hover window" in err[-1]
+    assert sum(e.startswith("omnirotor: error:") for e in err) == 1
+
+
+def test_log_without_rotor_geometry_says_to_pass_vehicle(capsys):
+    path = _need(SMALL)
+    for args in (["identify", str(path)], ["info", "--vehicle", str(path)]):
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "CA_ROTOR_COUNT" in err[0] and "pass --vehicle" in err[0]
+
+
+def test_pwm_mapping_follows_px4s_thrust_model(tmp_path, capsys):
+    from omnirotor.px4.flight import read_flight
+    from omnirotor.px4.ulog_writer import ULogWriter
+
+    n, ts = 400, np.arange(400, dtype=np.uint64) * 10_000
+    w = ULogWriter()
+    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
+    att["timestamp"], att["q"][:, 0] = ts, 1.0
+    w.add_topic("vehicle_attitude", att)
+    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
+    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, [1500.0, 1500.0, 1100.0, 2100.0]
+    w.add_topic("actuator_outputs", out)
+    for k, v in {"PWM_MIN": 1000, "PWM_MAX": 2000, "THR_MDL_FAC": 0.5, "PWM_MAIN_MIN3": 1100}.items():
+        w.add_param(k, v)
+    path = tmp_path / "pwm.ulg"
+    w.write(path)
+    flight = read_flight(path, 4, omega_max_hz=200.0)
+    assert flight.speed_source == "actuator_outputs"
+    # x = 0.5: thrust = 0.5 x² + 0.5 x = 0.375; output 3 sits at its own minimum (PWM_MAIN_MIN3), 4 above max
+    np.testing.assert_allclose(flight.omega_hz.x[0], np.sqrt([0.375, 0.375, 0.0, 1.0]) * 200.0, rtol=1e-6)
+    assert "THR_MDL_FAC = 0.5 (from the log)" in flight.notes[0] and "1100-2000 µs" in flight.notes[0]
+
+
+def test_log_without_attitude_or_speeds_lists_both(tmp_path, capsys):
+    from omnirotor.px4.ulog_writer import ULogWriter
+
+    w = ULogWriter()
+    lp = np.zeros(10, dtype=[("timestamp", "<u8")] + [(k, "<f4") for k in ("x", "y", "z", "vx", "vy", "vz")])
+    lp["timestamp"] = np.arange(10) * 1000
+    w.add_topic("vehicle_local_position", lp)
+    path = tmp_path / "empty.ulg"
+    w.write(path)
+    assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no rotor speeds" in err[0]
-    assert main(["info", "--vehicle", str(path)]) == 2  # and it has no CA_ROTOR* parameters either
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "CA_ROTOR_COUNT" in err[0]
+    assert len(err) == 1 and "no attitude" in err[0] and "no rotor speeds" in err[0]
+
+
+_X500 = """#!/bin/sh
+# A quadrotor airframe that relies on PX4's defaults: no CA_ROTORn_PZ, _AX, _AY, _AZ, no CA_R_REV
+. ${R}etc/init.d/rc.mc_defaults
+param set-default CA_AIRFRAME 0
+param set-default CA_ROTOR_COUNT 4
+param set-default CA_ROTOR0_PX 0.13
+param set-default CA_ROTOR0_PY 0.22
+param set-default CA_ROTOR0_KM 0.05
+param set-default CA_ROTOR1_PX -0.13
+param set-default CA_ROTOR1_PY -0.20
+param set-default CA_ROTOR1_KM 0.05
+param set-default CA_ROTOR2_PX 0.13
+param set-default CA_ROTOR2_PY -0.22
+param set-default CA_ROTOR2_KM -0.05
+param set-default CA_ROTOR3_PX -0.13
+param set-default CA_ROTOR3_PY 0.20
+param set-default CA_ROTOR3_KM -0.05
+"""
+
+
+def test_airframe_relying_on_px4_defaults_gets_them(tmp_path, capsys):
+    frame = tmp_path / "4001_x500_like"
+    frame.write_text(_X500)
+    assert main(["info", "--vehicle", str(frame), "--json"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["n_rotors"] == 4
+    assert "CA_ROTORn_AZ = -1 (PX4's default) for rotor(s) n = 0-3" in out.err
+    assert "CA_ROTORn_PZ = 0 (PX4's default)" in out.err and "CA_R_REV = 0" in out.err
+    # the same vehicle as one that states every value
+    explicit = tmp_path / "explicit"
+    lines = [_X500]
+    for i in range(4):
+        lines += [f"param set-default CA_ROTOR{i}_{k} {v}" for k, v in (("PZ", 0), ("AX", 0), ("AY", 0), ("AZ", -1))]
+    explicit.write_text("\n".join(lines) + "\nparam set-default CA_R_REV 0\n")
+    np.testing.assert_array_equal(load_vehicle(str(frame)).A_nom, load_vehicle(str(explicit)).A_nom)
+
+
+def test_qgroundcontrol_params_file_is_read_as_the_airframe(tmp_path, capsys):
+    path = _need(OMNICOPTER)
+    params = read_airframe_params(path)
+    qgc = tmp_path / "omnicopter.params"
+    head = "# Onboard parameters for Vehicle 1\n#\n# Stack: PX4 Pro\n#\n# Vehicle-Id Component-Id Name Value Type\n"
+    rows = [f"1\t1\t{k}\t{v:.18g}\t{6 if float(v).is_integer() else 9}" for k, v in sorted(params.items())]
+    qgc.write_text(head + "\n".join(rows) + "\n")
+    assert read_airframe_params(qgc) == params
+    np.testing.assert_array_equal(load_vehicle(str(qgc)).A_nom, load_vehicle(str(path)).A_nom)
+    assert main(["info", "--vehicle", str(qgc), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rank"] == 6
 
 
 def test_not_a_ulog_is_refused(tmp_path, capsys):
@@ -329,7 +425,7 @@ def test_slow_drift_and_speed_steps_cut_windows():
     drift = _synthetic_flight(lambda x: rot_z(math.radians(0.5 * x)), lambda x: np.full(4, 100.0), duration=13.0)
     pts = hover_points(drift)
     assert len(pts.windows) == 2 and all(5.3 < w.t1_s - w.t0_s < 6.1 for w in pts.windows)
-    # a 10 % step of one rotor's speed is beyond the 5 % spread: two windows, none across the step
+    # a 10 % step of one rotor's speed (21 % of its thrust, 20 % of the mean) is beyond the 10 % spread: two windows
     step = _synthetic_flight(lambda x: np.eye(3), lambda x: np.array([100.0, 100, 100, 110 if x > 6 else 100]))
     pts = hover_points(step, WindowCriteria(cutoff_hz=5.0))
     assert len(pts.windows) == 2 and pts.windows[0].t1_s < 5.85 and pts.windows[1].t0_s > 6.15
@@ -338,3 +434,34 @@ def test_slow_drift_and_speed_steps_cut_windows():
     np.testing.assert_allclose(pts.u_hz2[:, 3], [100.0**2, 110.0**2], rtol=5e-5)
     untrimmed = hover_points(step, WindowCriteria(trim_s=0.0))
     assert np.abs(untrimmed.u_hz2[:, 3] / [100.0**2, 110.0**2] - 1).max() > 2e-4
+
+
+def test_no_window_exits_2_in_both_commands_with_each_criterions_rejection(tmp_path, capsys):
+    path = _need(EVENTS)
+    png = tmp_path / "w.png"
+    assert main(["hover-windows", str(path), "--out", str(png), "--min-duration", "5"]) == 2
+    err_hw = capsys.readouterr().err.strip().splitlines()
+    assert png.is_file()  # the figure shows why; no CSV of no points
+    assert main(["identify", str(path), "--min-duration", "5"]) == 2
+    err_id = capsys.readouterr().err.strip().splitlines()
+    for err in (err_hw, err_id):
+        assert err[-1].startswith("omnirotor: error:") and "no steady hover window" in err[-1]
+        rejected = {e.split(":")[2].strip() for e in err if "rejected " in e}
+        assert rejected == {"--accel-max", "--rate-max", "--spin-fraction", "landed"}, err
+        assert any("--min-duration (5 s" in e and "dropped" in e for e in err)
+
+
+def test_every_criterion_is_an_option_of_both_commands(capsys):
+    from omnirotor.px4.criteria import OPTION_OF
+
+    for command in ("hover-windows", "identify"):
+        assert main([command, "--help"]) == 0
+        text = capsys.readouterr().out
+        assert all(opt in text for opt in OPTION_OF.values()), command
+    path = _need(EVENTS)
+    # a criterion given on the command line reaches the detector: a stricter rate limit removes the window
+    assert main(["identify", str(path), "--rate-max", "0.001"]) == 2
+    assert "no steady hover window" in capsys.readouterr().err
+    assert main(["identify", str(path), "--accel-max", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--accel-max" in err[0]

@@ -2,7 +2,7 @@
 
 import warnings
 
-from omnirotor.experiments import reproduce as rp
+from omnirotor.experiments.paper import reproduce as rp
 
 
 def test_worker_records_warnings_and_prints_nothing(monkeypatch, capfd):

@@ -178,7 +178,8 @@ def test_pure_python_mode_flies_the_same_run():
 
     code = (
         "import json\n"
-        "from omnirotor.experiments.closed_loop import run_task, TaskOptions\n"
+        "from omnirotor.experiments.loop import TaskOptions\n"
+        "from omnirotor.experiments.tasks import run_task\n"
         "r = run_task('hover', TaskOptions(duration_s=0.2, seed=3))\n"
         "print(json.dumps(r.truth_log.data[: r.truth_log.n, :-2].tolist()))\n"
     )

@@ -8,8 +8,8 @@ from omnirotor.config import apply_overrides
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import load_controller_params
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import _controller_params
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.loop import _controller_params
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.sim.params import AeroParams, SimParams
 
 

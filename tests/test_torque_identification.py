@@ -107,8 +107,8 @@ def test_identify_torque_cli_bad_flight_log_exits_2(tmp_path, capsys, flight_dat
 
 
 def test_shortened_sweep_flight_identifies_torque_rows_nearer_the_truth(vehicle, tmp_path):
-    from omnirotor.experiments.closed_loop import run_task
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions
     from omnirotor.sim.aero import make_aero
     from omnirotor.studies.torque_rows import truth_torque_rows
 
@@ -130,7 +130,7 @@ def test_shortened_sweep_flight_identifies_torque_rows_nearer_the_truth(vehicle,
 
 
 def test_torque_rows_study_shrinks_the_hover_moment_bias_and_the_cells_its_spread(tmp_path):
-    from omnirotor.experiments.tasks import HoverProtocol
+    from omnirotor.experiments.tasks.common import HoverProtocol
     from omnirotor.studies.torque_rows import plot_hover_moments, plot_torque_rows, torque_rows_study
 
     validation = HoverProtocol(regions=("R1", "R3"), validation_per_region=5, transition_s=2.0, hold_s=3.0)
@@ -195,8 +195,8 @@ def test_refine_maps_refuses_a_cell_across_two_regions(vehicle):
 
 def test_cells_get_their_own_torque_rows_and_the_smooth_blend_interpolates_them(vehicle):
     from omnirotor.control.maps import MapParams, MapScheduler
-    from omnirotor.experiments.identify_dynamic import CELL_BASES
-    from omnirotor.experiments.scenarios import _attitude_with_up
+    from omnirotor.experiments.tasks.identify_dynamic import CELL_BASES
+    from omnirotor.experiments.tasks.scenarios import _attitude_with_up
     from omnirotor.regions import load_partition
     from omnirotor.torque_identification import merge_torque_rows, refine_maps
 
@@ -260,7 +260,7 @@ def test_identify_torque_partition_cli(vehicle, tmp_path, capsys, flight_data):
 def test_cells_flight_protocol_and_null_space_dither(vehicle):
     import dataclasses
 
-    from omnirotor.experiments.identify_dynamic import (
+    from omnirotor.experiments.tasks.identify_dynamic import (
         CELL_BASES,
         CELL_NULL_DITHER_HZ2,
         NullSpaceDither,

@@ -15,9 +15,9 @@ import argparse
 import numpy as np
 
 from omnirotor.control.observer import ObserverParams, lowpass_coefficient
-from omnirotor.experiments.closed_loop import run_task
 from omnirotor.experiments.metrics import held_contact
-from omnirotor.experiments.tasks import ExperimentOptions
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.sim import SimParams
 from omnirotor.sim.aero import make_aero
 from omnirotor.vehicle import load_vehicle

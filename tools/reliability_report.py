@@ -583,7 +583,8 @@ def run_glitches() -> list[tuple[str, str, bool, bool, bool]]:
     import numpy as np
 
     from omnirotor.control.supervisor import CAUSES
-    from omnirotor.experiments.faults import FRAME_GLITCHES, glitch_fault, glitch_hover
+    from omnirotor.experiments.faults import FRAME_GLITCHES, glitch_fault
+    from omnirotor.experiments.tasks.fault_hovers import glitch_hover
     from omnirotor.messages import ControlStatus
     from omnirotor.vehicle import load_vehicle
 
@@ -636,7 +637,7 @@ def run_noise_matching(
         the filter told the true noise, or, where it was told more than the truth, the filter without matching.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from omnirotor.experiments.faults import mocap_noise_hover
+    from omnirotor.experiments.tasks.fault_hovers import mocap_noise_hover
 
     def err(true_m: float, told_m: float, matching: bool, seed: int) -> float:
         return round(mocap_noise_hover(true_m, told_m, matching, seed)[0], 3)
@@ -823,12 +824,6 @@ def render(
         " non-finite steps is a failure, a plotting failure keeps `summary.json`"
         " (`tests/test_campaign_signals.py`); a campaign on a local Ray, resumed after its driver is killed"
         " (`tests/test_campaign_ray.py`).",
-        "- the resident worker pool (`omnirotor workers`): a pool whose sources were edited since it started",
-        "  refuses and the command runs its own pool, saying so; a busy pool refuses a second command the same",
-        "  way; a command that hangs up (Ctrl-C) stops its campaign's runs not yet started; a killed worker",
-        "  fails the campaign with one line and the next campaign gets fresh workers; bad input through the pool",
-        "  is one line and exit 2, nothing written; `workers stop` and the idle timeout end the pool and its",
-        "  workers and remove the socket (`tests/test_campaign_pool.py`).",
         "",
     ]
     return "\n".join(lines)

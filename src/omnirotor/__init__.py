@@ -7,10 +7,11 @@ controller (:mod:`omnirotor.control`), a MuJoCo simulator standing in for the ro
 and the paper's experiments.
 """
 
-from typing import TYPE_CHECKING
-
 from omnirotor.errors import InputError, OmnirotorError
 
+# Imported before the CLI takes the working folder off sys.path (omnirotor.cli): nothing but this package here,
+# not even typing (a typing.py in the folder a command runs from would run as code).
+TYPE_CHECKING = False
 if TYPE_CHECKING:
     from omnirotor.vehicle import VehicleParams, load_vehicle
 

@@ -1,31 +1,26 @@
 """Numba set-up shared by the compiled kernels of the 1 kHz loop (the blocks of ``control/`` and ``sim/``).
 
 Every kernel is compiled with :data:`jit`: ``nopython``, ``cache=True`` (machine code is kept in the
-``__pycache__`` folder next to the module, so only the first import on a machine compiles), ``fastmath=False``
-(IEEE arithmetic in the order written, so a kernel reproduces the NumPy / Python float reference it replaces to
-the last bit or within a rounding) and NumPy's error model (a division by zero gives inf or NaN as in NumPy;
-it never raises inside the loop). Kernels are compiled lazily, on their first call, and without the two
-wrappers numba builds by default for a call from Python and through a C pointer (:class:`KernelDispatcher`:
-a kernel called by kernels needs neither, and they cost a fifth of its compile time); a call from Python
-compiles a twin with them. Nor does a kernel get machine code or a module-level optimisation of its own
-(:class:`LinkOnlyLibrary`): its callers link its LLVM IR into their module and optimise and compile that
-whole, so only the functions Python calls are compiled to machine code. Entry points Python calls once per
-period use :func:`jit_entry` (the Python wrapper, no twin; no function is called through a C pointer, so no
-dispatcher builds that wrapper). Small helpers called with
-constant arguments (which numba compiles once per constant value) and a few large functions that take the
-controller's tuple of arrays are inlined into their compiled callers instead (:func:`jit_inline`).
+``__pycache__`` folder next to the module, or under ``NUMBA_CACHE_DIR``, so only the first import on a machine
+compiles), ``fastmath=False`` (IEEE arithmetic in the order written, so a kernel reproduces the NumPy / Python
+float reference it replaces to the last bit or within a rounding) and NumPy's error model (a division by zero
+gives inf or NaN as in NumPy; it never raises inside the loop). Kernels are compiled lazily, on their first
+call. Small helpers called with constant arguments (which numba compiles once per constant value) and a few
+large functions that take many arrays are inlined into their compiled callers instead (:func:`jit_inline`).
 
 Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, coverage).
 
-No stale machine code: numba's own cache checks a kernel only against its own file (time stamp and size), so
-after an edit of a helper in *another* module a cached dependent kernel would still run the old helper (whose
-code is compiled into it). The cache of every kernel here (:class:`DependencyCache`) therefore also keys its
-entries on a hash of the sources the kernel's module depends on: its file and, transitively, every module of
-the package it imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile
-again on its next use; an edit elsewhere (the CLI, the experiments) keeps the cache.
-
-The few SO(3) helpers both kernel modules need live here, as the simulator and the controller must not
-import each other. They follow the conventions of :mod:`omnirotor.so3` (quaternions wxyz, Hamilton).
+No stale machine code (numba's open issue #1833): numba's own cache checks a kernel only against its own file,
+so after an edit of a helper in *another* module a cached dependent kernel would still run the old helper
+(whose code is compiled into it). The cache of every kernel here therefore stamps its index with a hash of
+the sources the kernel's module depends on: its file and, transitively, every module of the package it
+imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile again on its next
+use; an edit elsewhere (the CLI, the experiments) keeps the cache. This uses numba's cache-locator interface
+only (:class:`DependencyLocator`: the locators numba ships, with another ``get_source_stamp``, the method a
+locator exists to provide), through a :class:`DependencyCache` that is numba's ``FunctionCache`` with that
+locator first; the one private detail is the dispatcher's ``_cache`` attribute, which numba's own
+``enable_caching`` sets the same way. Nothing else of numba's internals is touched, so numba is pinned to a
+range (``pyproject.toml``), not one release.
 
 C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
 the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
@@ -46,11 +41,13 @@ import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
-from numba.core.caching import CompileResultCacheImpl, FunctionCache
-from numba.core.codegen import JITCodeLibrary
-from numba.core.compiler import Compiler, CompileResult
+from numba.core.caching import (
+    CompileResultCacheImpl,
+    FunctionCache,
+    InTreeCacheLocator,
+    UserProvidedCacheLocator,
+)
 from numba.core.dispatcher import Dispatcher
-from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
 __all__ = [
@@ -58,8 +55,8 @@ __all__ = [
     "jit_inline",
     "jit_entry",
     "DependencyCache",
+    "DependencyLocator",
     "source_closure",
-    "R9_from_quat_into",
     "mujoco_function",
     "mujoco_timer_address",
     "monotonic_ns",
@@ -143,161 +140,39 @@ def _closure_hash(path: str) -> str:
     return h.hexdigest()
 
 
+class DependencyLocator:
+    """Mixin of a numba cache locator whose source stamp is the hash of the kernel's :func:`source_closure`.
+
+    numba keeps one index per function and discards it when the locator's stamp differs from the one it was
+    written with; numba's locators stamp the function's own file only. The hash is taken when the kernel is
+    defined (its module imported), so it describes the sources the process compiles from even if files change
+    while it runs.
+    """
+
+    def get_source_stamp(self):
+        return ("omnirotor-closure", _closure_hash(self._py_file))
+
+
+class _UserDirDependencyLocator(DependencyLocator, UserProvidedCacheLocator):
+    """Under ``NUMBA_CACHE_DIR``, when it is set."""
+
+
+class _InTreeDependencyLocator(DependencyLocator, InTreeCacheLocator):
+    """In the ``__pycache__`` folder beside the module."""
+
+
+class _DependencyCacheImpl(CompileResultCacheImpl):
+    _locator_classes = [_UserDirDependencyLocator, _InTreeDependencyLocator, *CompileResultCacheImpl._locator_classes]
+
+
 class DependencyCache(FunctionCache):
-    """numba's function cache, with the hash of the kernel's :func:`source_closure` in every entry's key.
+    """numba's function cache, its index stamped with the hash of the kernel's sources (:class:`DependencyLocator`)."""
 
-    The hash is taken when the kernel is defined (its module imported), so it describes the sources the
-    process compiles from even if files change while it runs. ``variant`` tells apart the entries of two
-    dispatchers of one function compiled with different options (:class:`KernelDispatcher` and its twin).
-    """
-
-    def __init__(self, py_func, variant: str = "") -> None:
-        super().__init__(py_func)
-        self._sources = _closure_hash(py_func.__code__.co_filename) + variant
-
-    def _index_key(self, sig, codegen):
-        sig_key, magic, hashes = super()._index_key(sig, codegen)
-        return sig_key, magic, (*hashes, self._sources)
+    _impl_class = _DependencyCacheImpl
 
 
-_LINK_ONLY = "omnirotor-link-only"
-"""The cache's serialisation kind of a :class:`LinkOnlyLibrary`: its LLVM bitcode, no machine code."""
-
-
-class _EnvlessCodegen:
-    """numba's code generator, except that storing a link-only kernel's environment pointer is skipped.
-
-    numba stores a compiled function's environment in a global of its machine code; a
-    :class:`LinkOnlyLibrary` has none. The environment holds the Python objects a function uses (object
-    mode, printing, a raised exception's values), which a kernel of the 1 kHz loop never does.
-    """
-
-    def __init__(self, codegen) -> None:
-        self._codegen = codegen
-
-    def set_env(self, env_name, env) -> None:
-        """Store nothing: a link-only kernel has no machine code to hold the environment's pointer."""
-
-    def __getattr__(self, name):
-        return getattr(self._codegen, name)
-
-
-class LinkOnlyLibrary(JITCodeLibrary):
-    """The code of a kernel only kernels call: LLVM IR that callers link in, never machine code of its own.
-
-    numba links the IR of a function's callees into the function's own module, optimises that whole module
-    and compiles it to machine code; the machine code of the callee's own module is never run when no Python
-    code calls it, and its module-level optimisation (inlining, across its own callees) is done again by
-    every caller on the linked copy. A :class:`KernelDispatcher` (no wrapper for calls from Python) therefore
-    keeps its module out of the execution engine (no machine code) and leaves it optimised per function only;
-    the entry point that links it optimises the whole call tree once. Its cache entry is the bitcode its
-    callers link (:class:`_KernelCacheImpl`). The arithmetic is IEEE without fast-math flags, which no
-    optimisation may reorder, so the results are the same, bit for bit (the tests of the compiled paths).
-    """
-
-    def _optimize_final_module(self) -> None:
-        """Skip the module-level pass: the entry point that links this kernel optimises the whole call tree once."""
-
-    @property
-    def codegen(self):
-        return _EnvlessCodegen(self._codegen)
-
-    def _finalize_final_module(self) -> None:
-        self._finalize_dynamic_globals()
-        self._verify_declare_only_symbols()
-        self._finalized = True
-
-    def get_pointer_to_function(self, name) -> int:
-        """No machine code: 0, numba's "not defined" (a kernel's Python entry point is null already)."""
-        self._ensure_finalized()
-        return 0
-
-    def serialize_using_object_code(self):
-        """The cache's record of the library: its name, :data:`_LINK_ONLY` and the bitcode callers link."""
-        return (self.name, _LINK_ONLY, self._get_module_for_linking().as_bitcode())
-
-    @classmethod
-    def from_cache(cls, codegen, state) -> LinkOnlyLibrary:
-        """The library of a cache record written by :meth:`serialize_using_object_code`."""
-        name, _, bitcode = state
-        lib = cls(codegen, name)
-        lib._shared_module = llvmlite.binding.parse_bitcode(bitcode)
-        lib._finalized = True
-        return lib
-
-
-class _KernelCompiler(Compiler):
-    """numba's compiler pipeline, lowering into a :class:`LinkOnlyLibrary`."""
-
-    def compile_extra(self, func):
-        if self.state.library is None:
-            self.state.library = LinkOnlyLibrary(self.state.targetctx.codegen(), func.__qualname__)
-            self.state.library.enable_object_caching()
-        return super().compile_extra(func)
-
-
-class _KernelCacheImpl(CompileResultCacheImpl):
-    """numba's cache of compile results, rebuilding a kernel's :class:`LinkOnlyLibrary` from its bitcode."""
-
-    def rebuild(self, target_context, payload):
-        libdata, fndesc, env, signature, objectmode, lifted, typeann, reload_init, referenced_envs = payload
-        if libdata[1] != _LINK_ONLY:
-            return super().rebuild(target_context, payload)
-        for fn in reload_init or ():
-            fn()
-        library = LinkOnlyLibrary.from_cache(target_context.codegen(), libdata)
-        # As numba's CompileResult._rebuild, with this library; the environments are never stored (above).
-        return CompileResult(
-            target_context=target_context,
-            typing_context=target_context.typing_context,
-            library=library,
-            environment=env,
-            entry_point=target_context.get_executable(library, fndesc, env),
-            fndesc=fndesc,
-            type_annotation=typeann,
-            signature=signature,
-            objectmode=objectmode,
-            lifted=lifted,
-            typing_error=None,
-            call_helper=None,
-            metadata=None,
-            reload_init=reload_init,
-            referenced_envs=referenced_envs,
-        )
-
-
-class KernelCache(DependencyCache):
-    """:class:`DependencyCache` of a :class:`KernelDispatcher`: its entries are link-only bitcode."""
-
-    _impl_class = _KernelCacheImpl
-
-
-class KernelDispatcher(CPUDispatcher):
-    """A kernel compiled for compiled callers: no Python or C-function wrapper (they cost compile time only).
-
-    numba builds, for every compiled function, a wrapper that unboxes Python arguments and one callable
-    through a C pointer, although a kernel called from another kernel uses neither. A call from Python goes
-    to a twin of the kernel compiled with the wrappers (on its first use; cached apart), so every kernel stays
-    callable from Python, at the cost of one more Python call: entry points called from Python once per
-    period (``*_by_table``, the closed loop) are compiled with :func:`jit_entry` instead.
-    """
-
-    def _python_twin(self):
-        twin = self.__dict__.get("_twin")
-        if twin is None:
-            twin = self.__dict__["_twin"] = jit_entry(self.py_func)
-        return twin
-
-    def __call__(self, *args, **kwargs):
-        return self._python_twin()(*args, **kwargs)
-
-    @property
-    def stats(self):
-        """The cache statistics of the Python twin (the one a Python call compiles or loads)."""
-        return self._python_twin().stats
-
-
-_njit = numba.njit(cache=True, fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
+_njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 
 def _leaf(signature: str):
@@ -309,57 +184,31 @@ def _leaf(signature: str):
     return numba.njit(signature, cache=True, fastmath=False, error_model="numpy")
 
 
-_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always", no_cfunc_wrapper=True)
-
-
-_njit_kernel = numba.njit(
-    cache=True,
-    fastmath=False,
-    error_model="numpy",
-    no_cpython_wrapper=True,
-    no_cfunc_wrapper=True,
-    pipeline_class=_KernelCompiler,
-)
+def _with_dependency_cache(d):
+    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
+        d._cache = DependencyCache(d.py_func)  # what Dispatcher.enable_caching does, with this cache class
+    return d
 
 
 def jit(fn):
-    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources.
-
-    Compiled without the wrappers a call from Python needs (:class:`KernelDispatcher`); a Python call goes to
-    a twin with them.
-    """
-    d = _njit_kernel(fn)
-    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
-        d.__class__ = KernelDispatcher
-        d._cache = KernelCache(d.py_func, "kernel-ir")
-    return d
+    """The decorator of every kernel (see the module docstring): compiled, cached, keyed on its sources."""
+    return _with_dependency_cache(_njit(fn))
 
 
-def jit_entry(fn):
-    """:func:`jit` with numba's Python wrapper: for the entry points Python calls often (one Python call less).
-
-    Also for a kernel Python calls (once, e.g. in a reset) with the argument types its compiled callers pass:
-    one compiled version serves both, where a :func:`jit` kernel would compile a twin for Python.
-    """
-    d = _njit(fn)
-    if isinstance(d, Dispatcher):  # not under NUMBA_DISABLE_JIT
-        d._cache = DependencyCache(d.py_func)
-    return d
+jit_entry = jit
+"""The same as :func:`jit` (kept as the name of the kernels Python calls every period)."""
 
 
 def jit_inline(fn):
     """:func:`jit`, with the body inlined into every compiled caller (numba's ``inline="always"``).
 
-    For a few large functions that take or return the controller's tuple of some thirty arrays (a call passes
-    each array's fields as separate machine arguments and counts its references, which costs more than the
-    body it calls; inlined, the arrays stay where they are), and for small helpers called with constant
-    arguments (numba would compile one version per constant value, as literal types, and call it). Each
-    caller compiles the body again, so use it only where a benchmark shows the gain.
+    For a few large functions that take or return many arrays (a call passes each array's fields as separate
+    machine arguments and counts its references, which costs more than the body it calls; inlined, the arrays
+    stay where they are), and for small helpers called with constant arguments (numba would compile one
+    version per constant value, as literal types, and call it). Each caller compiles the body again, so use it
+    only where a benchmark shows the gain.
     """
-    d = _njit_inline(fn)
-    if isinstance(d, Dispatcher):
-        d._cache = DependencyCache(d.py_func)
-    return d
+    return _with_dependency_cache(_njit_inline(fn))
 
 
 @functools.cache
@@ -435,26 +284,6 @@ def monotonic_ns(ts) -> int:
     """
     _clock_gettime(_CLOCK_MONOTONIC, ts.ctypes.data)
     return ts[0] * _NS_PER_S + ts[1]
-
-
-@jit_inline
-def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
-    """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
-
-    The entries of :func:`omnirotor.so3.R_from_quat_wxyz`, as scalars.
-    """
-    xx, yy, zz = qx * qx, qy * qy, qz * qz
-    xy, xz, yz = qx * qy, qx * qz, qy * qz
-    wx, wy, wz = qw * qx, qw * qy, qw * qz
-    out[o + 0] = 1.0 - 2.0 * (yy + zz)
-    out[o + 1] = 2.0 * (xy - wz)
-    out[o + 2] = 2.0 * (xz + wy)
-    out[o + 3] = 2.0 * (xy + wz)
-    out[o + 4] = 1.0 - 2.0 * (xx + zz)
-    out[o + 5] = 2.0 * (yz - wx)
-    out[o + 6] = 2.0 * (xz - wy)
-    out[o + 7] = 2.0 * (yz + wx)
-    out[o + 8] = 1.0 - 2.0 * (xx + yy)
 
 
 # -- arrays by address: one small argument instead of many (numba unboxes every array argument on each call) ----

@@ -1,7 +1,5 @@
 """One exception base for the project, and the bad-input error the CLI turns into exit status 2."""
 
-from __future__ import annotations
-
 __all__ = ["OmnirotorError", "InputError"]
 
 

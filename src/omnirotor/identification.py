@@ -52,10 +52,20 @@ __all__ = [
     "identify",
     "assign_regions",
     "DEFAULT_WEIGHTS",
+    "PAPER_POINTS_PER_REGION",
+    "few_points",
+    "WEIGHT_MISS_WARN",
+    "identification_warnings",
 ]
 
 DEFAULT_WEIGHTS = (10.0, 10.0, 10.0, 1e-12, 1e-12, 1e-12)
 """Per-point weights of the wrench rows fx fy fz mx my mz (SPEC §3.2)."""
+
+PAPER_POINTS_PER_REGION = 15
+"""Hover points per region of the paper's protocol (SPEC §3.4)."""
+
+WEIGHT_MISS_WARN = 0.10
+"""Relative miss of the weight by the nominal map above which identification warns (a wrong mass or c_f)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -281,11 +291,12 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
             w.writerow(row + ([region[j]] if region else []))
 
 
-def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> HoverData:
+def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_criteria=None) -> HoverData:
     """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
 
     A PX4 flight log (``.ulg``) gives one point per automatically found steady hover window
-    (:func:`omnirotor.px4.windows.load_ulog`).
+    (:func:`omnirotor.px4.windows.load_ulog`, with ``window_criteria``: a
+    :class:`~omnirotor.px4.criteria.WindowCriteria`, default its defaults).
     """
     files: list[Path] = []
     for item in paths:
@@ -312,7 +323,7 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams) -> Hove
         elif f.suffix.lower() == ".ulg":
             from omnirotor.px4.windows import load_ulog  # pyulog only when a ULog is read
 
-            parts.append(load_ulog(f, vehicle))
+            parts.append(load_ulog(f, vehicle, window_criteria))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
@@ -482,3 +493,64 @@ def identify(
         weights=tuple(params.weights),
         rho=params.rho,
     )
+
+
+def few_points(n_rotors: int) -> int:
+    """Points per region below which identification warns: twice the ``n - 3`` its force rows need."""
+    return 2 * max(n_rotors - 3, 1)
+
+
+def identification_warnings(
+    data: HoverData,
+    vehicle: VehicleParams,
+    maps: WrenchMapSet,
+    region: str | None = None,
+) -> list[str]:
+    """What makes identified maps less meaningful than their table suggests, one line each (for stderr).
+
+    * a region fitted from fewer points than :func:`few_points` (twice the ``n - 3`` independent hover inputs its
+      force rows need, SPEC §3.2: at the minimum the points' noise goes straight into the map);
+    * the nominal map missing the weight by more than :data:`WEIGHT_MISS_WARN` at the hover points: the
+      vehicle's mass or ``c_f`` is likely off; the line gives the mass (or ``c_f``) that would explain the
+      median miss, and whether the identified global map absorbed it within Δ;
+    * ``region`` contradicting the points' attitudes (SPEC §3.3): how many points' force directions lie in
+      another region.
+    """
+    out: list[str] = []
+    n = vehicle.n_rotors
+    for name, e in maps.regions.items():
+        if e.points < few_points(n):
+            out.append(
+                f"{name}: {e.points} hover point(s); its force rows need {n - 3} independent ones and fewer than "
+                f"{few_points(n)} leave the map further from its error floor (docs/beyond-the-paper.md: the "
+                f"minimum, 30-60 % further; 10, 5-15 %; the paper flew about {PAPER_POINTS_PER_REGION} per region)"
+            )
+    weight = np.linalg.norm(data.w_B[:, :3], axis=1)
+    ok = weight > 0
+    if ok.any():
+        nominal = np.linalg.norm(data.u_hz2[ok] @ vehicle.A_nom[:3].T, axis=1)
+        ratio = float(np.median(nominal / weight[ok]))
+        if abs(ratio - 1.0) > WEIGHT_MISS_WARN:
+            fitted = np.linalg.norm(data.u_hz2[ok] @ maps.global_.A[:3].T, axis=1) if maps.global_ else nominal
+            after = float(np.median(fitted / weight[ok]))
+            verdict = (
+                f"the identified global map absorbs it within Δ ({100 * (after - 1):+.0f} %)"
+                if abs(after - 1.0) <= WEIGHT_MISS_WARN
+                else f"the bound Δ = {maps.delta:g} cannot absorb it (identified global map {100 * (after - 1):+.0f} %)"
+            )
+            out.append(
+                f"the nominal map gives {100 * (ratio - 1):+.0f} % of the weight at the hover points (median "
+                f"{float(np.median(nominal)):.2f} N for {float(np.median(weight[ok])):.2f} N): a mass of "
+                f"{vehicle.mass * ratio:.3g} kg (not {vehicle.mass:g}) or c_f = {vehicle.c_f / ratio:.3g} N/Hz² "
+                f"(not {vehicle.c_f:.3g}) would explain it; {verdict}"
+            )
+    if region is not None:
+        own = [maps.partition.name_of_direction(f) for f in data.w_B[:, :3] if np.linalg.norm(f) > 1e-9]
+        other = [r for r in own if r != region]
+        if other:
+            counts = ", ".join(f"{r}: {other.count(r)}" for r in sorted(set(other)))
+            out.append(
+                f"--region {region}: {len(other)} of {data.n_points} point(s) have attitudes of another region "
+                f"({counts}); they were fitted into {region} as asked"
+            )
+    return out

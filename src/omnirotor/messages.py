@@ -8,7 +8,7 @@ Packed frames. The same frame also has a flat float64 layout (the ``FRAME_*`` of
 entries for ``n`` rotors): time, accelerometer, gyroscope, the motion-capture flag, time, position and
 quaternion, the state flag and the 21 entries of a :class:`StateEstimate` (p, v, a, R row-major, omega), then
 the rotor speeds. Compiled code on both sides reads and writes it directly (the closed loop of
-:mod:`omnirotor.experiments.closed_loop` runs the plant and the controller on one such buffer, without building
+:mod:`omnirotor.experiments.loop` runs the plant and the controller on one such buffer, without building
 objects), and :meth:`SensorFrame.pack_into` / :meth:`SensorFrame.from_packed` convert. A robot driver may fill
 either form. On the command side the packed form is simply the ``(n,)`` speed array.
 """

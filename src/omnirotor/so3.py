@@ -6,15 +6,44 @@ Conventions fixed here once for the whole project:
 * Quaternions are Hamilton, scalar first (``wxyz``), as MuJoCo stores them. SciPy uses ``xyzw``;
   convert only through :func:`quat_wxyz_from_xyzw` / :func:`quat_xyzw_from_wxyz`.
 * Roll-pitch-yaw means the ZYX convention ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (SPEC §3.1).
+
+Two families live here, once each for the whole package:
+
+* NumPy functions (:func:`exp_so3`, :func:`R_from_quat_wxyz`, ...) for set-up, analysis and tests;
+* compiled helpers for the 1 kHz kernels of the controller and the simulator (:func:`quat_mul`,
+  :func:`quat_integrate_body_into`, :func:`quat_integrate_world_into`, :func:`R9_from_quat_into`,
+  :func:`R_from_quat_into`, :func:`exp_so3_at`, :func:`log_so3_at`, :func:`quat_perturb_into`). They take and
+  return scalars or write into caller-owned arrays (nothing allocated), and keep the operation order of the
+  kernels they replaced, so the controller reproduces its recorded reference bit for bit
+  (``tests/test_controller_reference.py``). Rotation increments follow SPEC §4.4 (the admittance filter's
+  ``R_xi <- exp([omega_xi dt]x) R_xi``, world frame) and SPEC §4.5 (the estimator's attitude ``q <- q ⊗ Exp(omega dt)``,
+  body frame).
+
+This module imports nothing of the package (it sits at the ground floor: the controller and the simulator both
+use it and must not import each other). Its compiled helpers are plain ``numba.njit`` functions with the
+package's numeric settings (IEEE arithmetic in the order written, NumPy's error model); a kernel that calls them
+compiles them into itself, and the kernel's cache key covers this file (``omnirotor._jit``).
 """
 
 from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 __all__ = [
+    "quat_mul",
+    "quat_of_rotvec",
+    "quat_integrate_body_into",
+    "quat_integrate_world_into",
+    "quat_perturb_into",
+    "R9_from_quat_into",
+    "R_from_quat_into",
+    "exp_so3_at",
+    "exp_so3_into",
+    "log_so3_at",
+    "log_so3_into",
     "hat",
     "vee",
     "rot_x",
@@ -157,3 +186,164 @@ def project_to_SO3(M: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(M)
     D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
     return U @ D @ Vt
+
+
+# -- compiled helpers of the 1 kHz kernels ----------------------------------------------------------------------
+
+_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy")
+_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
+@_kernel
+def quat_mul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float):
+    """Hamilton product ``a ⊗ b`` of two wxyz quaternions given as scalars; returns ``(w, x, y, z)``."""
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+@_kernel
+def quat_of_rotvec(px: float, py: float, pz: float):
+    """Unit quaternion ``Exp(p)`` of the rotation vector ``p`` [rad]: ``(cos(th/2), sin(th/2) p / th)``.
+
+    Below ``th = 1e-12`` the series ``(1 - th²/8, (1/2 - th²/48) p)``, equal to the closed form there in double
+    precision.
+    """
+    th2 = px * px + py * py + pz * pz
+    if th2 > 1e-24:
+        th = math.sqrt(th2)
+        c, k = math.cos(0.5 * th), math.sin(0.5 * th) / th
+    else:
+        c, k = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0
+    return c, k * px, k * py, k * pz
+
+
+@_kernel
+def quat_integrate_body_into(q, px: float, py: float, pz: float) -> None:
+    """``q <- q ⊗ Exp(p)`` normalised, in place: ``q`` (4,) wxyz turned by the body-frame rotation vector ``p``.
+
+    The estimator's attitude propagation over one IMU sample (``p = (omega_B - b_gyro) dt``, SPEC §4.5).
+    """
+    dw, dx, dy, dz = quat_of_rotvec(px, py, pz)
+    nw, nx, ny, nz = quat_mul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
+    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    q[0], q[1], q[2], q[3] = nw * inv, nx * inv, ny * inv, nz * inv
+
+
+@_kernel
+def quat_integrate_world_into(q, wx: float, wy: float, wz: float, dt: float) -> bool:
+    """``q <- Exp(omega dt) ⊗ q`` normalised, in place: ``q`` (4,) wxyz turned by the world-frame rate ``omega``.
+
+    ``omega`` [rad/s] over ``dt`` [s] (the admittance filter's ``R_xi <- exp([omega_xi dt]x) R_xi``, SPEC §4.4).
+    Leaves ``q`` as it is and returns False when the angle is zero; True when it turned.
+    """
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
+    if not angle > 0.0:
+        return False
+    sn = math.sin(0.5 * angle) / angle * dt
+    qw, qx, qy, qz = quat_mul(math.cos(0.5 * angle), sn * wx, sn * wy, sn * wz, q[0], q[1], q[2], q[3])
+    norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    q[0], q[1], q[2], q[3] = qw * norm, qx * norm, qy * norm, qz * norm
+    return True
+
+
+@_kernel
+def quat_perturb_into(q, dtheta, out) -> None:
+    """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``.
+
+    The first-order retraction of the simulated motion capture's attitude noise (written out, in the order the
+    simulator's recorded runs were made with; :func:`quat_mul` with ``b = (1, dtheta/2)`` up to rounding).
+    """
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    a, b, c = 0.5 * dtheta[0], 0.5 * dtheta[1], 0.5 * dtheta[2]
+    rw = qw - qx * a - qy * b - qz * c
+    rx = qx + qw * a + qy * c - qz * b
+    ry = qy + qw * b + qz * a - qx * c
+    rz = qz + qw * c + qx * b - qy * a
+    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    out[0] = rw * s
+    out[1] = rx * s
+    out[2] = ry * s
+    out[3] = rz * s
+
+
+@_inline
+def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -> None:
+    """Write the row-major rotation matrix of the unit quaternion ``(qw, qx, qy, qz)`` into ``out[o:o+9]``.
+
+    The entries of :func:`R_from_quat_wxyz`, as scalars. Inlined into its callers: they pass constant offsets,
+    for which numba would otherwise compile one version each.
+    """
+    xx, yy, zz = qx * qx, qy * qy, qz * qz
+    xy, xz, yz = qx * qy, qx * qz, qy * qz
+    wx, wy, wz = qw * qx, qw * qy, qw * qz
+    out[o + 0] = 1.0 - 2.0 * (yy + zz)
+    out[o + 1] = 2.0 * (xy - wz)
+    out[o + 2] = 2.0 * (xz + wy)
+    out[o + 3] = 2.0 * (xy + wz)
+    out[o + 4] = 1.0 - 2.0 * (xx + zz)
+    out[o + 5] = 2.0 * (yz - wx)
+    out[o + 6] = 2.0 * (xz - wy)
+    out[o + 7] = 2.0 * (yz + wx)
+    out[o + 8] = 1.0 - 2.0 * (xx + yy)
+
+
+@_kernel
+def R_from_quat_into(q, R) -> None:
+    """``R`` (3, 3), C-contiguous, = the rotation of the unit quaternion ``q`` (4,), wxyz."""
+    R9_from_quat_into(q[0], q[1], q[2], q[3], R.reshape(9), 0)
+
+
+@_kernel
+def exp_so3_at(p0: float, p1: float, p2: float, out, o: int) -> None:
+    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into ``out[o:o+9]``, row-major.
+
+    Rodrigues, with series near 0: ``R = I + a K + b K²``, ``K = [phi]x``, ``a = sin(th)/th``,
+    ``b = (1 - cos th)/th²``.
+    """
+    th2 = p0 * p0 + p1 * p1 + p2 * p2
+    th = math.sqrt(th2)
+    if th2 > 1e-8:  # below, the series to th² are exact in double precision
+        a = math.sin(th) / th
+        b = (1.0 - math.cos(th)) / th2
+    else:
+        a = 1.0 - th2 / 6.0
+        b = 0.5 - th2 / 24.0
+    # K = [[0, -p2, p1], [p2, 0, -p0], [-p1, p0, 0]]; R = (K K) b + K a + I, entry by entry.
+    k01, k02, k10, k12, k20, k21 = -p2, p1, p2, -p0, -p1, p0
+    out[o] = (0.0 * 0.0 + k01 * k10 + k02 * k20) * b + 0.0 * a + 1.0
+    out[o + 1] = (0.0 * k01 + k01 * 0.0 + k02 * k21) * b + k01 * a
+    out[o + 2] = (0.0 * k02 + k01 * k12 + k02 * 0.0) * b + k02 * a
+    out[o + 3] = (k10 * 0.0 + 0.0 * k10 + k12 * k20) * b + k10 * a
+    out[o + 4] = (k10 * k01 + 0.0 * 0.0 + k12 * k21) * b + 0.0 * a + 1.0
+    out[o + 5] = (k10 * k02 + 0.0 * k12 + k12 * 0.0) * b + k12 * a
+    out[o + 6] = (k20 * 0.0 + k21 * k10 + 0.0 * k20) * b + k20 * a
+    out[o + 7] = (k20 * k01 + k21 * 0.0 + 0.0 * k21) * b + k21 * a
+    out[o + 8] = (k20 * k02 + k21 * k12 + 0.0 * 0.0) * b + 0.0 * a + 1.0
+
+
+@_kernel
+def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
+    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into C-contiguous R (3, 3); :func:`exp_so3_at`."""
+    exp_so3_at(p0, p1, p2, R.reshape(9), 0)
+
+
+@_kernel
+def log_so3_at(R, oR: int, out, o: int) -> None:
+    """Rotation vector [rad] of the rotation ``R[oR:oR+9]`` (row-major) with angle below pi into ``out[o:o+3]``."""
+    w0 = (R[oR + 7] - R[oR + 5]) * 0.5  # sin(th) * axis
+    w1 = (R[oR + 2] - R[oR + 6]) * 0.5
+    w2 = (R[oR + 3] - R[oR + 1]) * 0.5
+    sn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    th = math.atan2(sn, 0.5 * (R[oR] + R[oR + 4] + R[oR + 8] - 1.0))
+    k = th / sn if sn > 1e-12 else 1.0
+    out[o], out[o + 1], out[o + 2] = w0 * k, w1 * k, w2 * k
+
+
+@_kernel
+def log_so3_into(R, out, o: int) -> None:
+    """Rotation vector [rad] of a rotation R (3, 3), C-contiguous, into ``out[o:o+3]`` (:func:`log_so3_at`)."""
+    log_so3_at(R.reshape(9), 0, out, o)

@@ -331,7 +331,7 @@ def _load_px4_vehicle(path: str, overlay: str | None, _mtime: int, _overlay_mtim
         params = read_airframe_params(p)
     vehicle, assumed = vehicle_from_px4_params(params, p.name, str(p), load_overlay(overlay))
     if assumed:
-        print(f"omnirotor: vehicle {p.name}: PX4 does not store these, assumed: {'; '.join(assumed)}", file=sys.stderr)
+        print(f"omnirotor: vehicle {p.name}: not in the file, assumed: {'; '.join(assumed)}", file=sys.stderr)
     return vehicle
 
 

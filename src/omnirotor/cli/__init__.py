@@ -5,20 +5,46 @@ every :class:`~omnirotor.errors.InputError` and usage error into one line on std
 Ctrl-C into one line and exit status 130. Python warnings (numpy's overflow or invalid-value warnings, say)
 never reach the terminal one by one: a command that fails says only its error; one that succeeds says in one
 line how many numerical (``RuntimeWarning``) ones there were and the first; others are dropped.
+
+No code from the working folder (issue 26, item 4): before anything else is imported, :func:`drop_working_folder`
+takes the folder the command runs in off ``sys.path`` (a ``numpy.py`` or ``queue.py`` there must not run as
+code). The campaign's pool workers are forked, with this ``sys.path``; a local Ray's workers start with
+``PYTHONSAFEPATH`` (:mod:`omnirotor.experiments.campaigns.runner`).
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations` here: that imports the module __future__, before the working folder
+# is off sys.path.
+import os
 import sys
-import warnings
 
-import typer
+
+def drop_working_folder(path: list[str] | None = None) -> list[str]:
+    """Remove the working folder from ``path`` (``sys.path``): ``""``, ``"."`` and any entry that resolves to it.
+
+    Returns the removed entries.
+    """
+    path = sys.path if path is None else path
+    try:
+        cwd = os.path.realpath(os.getcwd())
+    except OSError:  # the working folder was deleted: only the relative entries can point into it
+        cwd = None
+    removed = [p for p in path if p in ("", ".") or (cwd is not None and os.path.realpath(p) == cwd)]
+    path[:] = [p for p in path if p not in removed]
+    return removed
+
+
+drop_working_folder()
+
+# Everything below is imported after the working folder is off sys.path (hence E402).
+import warnings  # noqa: E402
+
+import typer  # noqa: E402
 
 # typer 0.29 vendors click; its exception classes are needed to print usage errors on one line.
-from typer._click import exceptions as click_exc
-from typer.core import TyperGroup
+from typer._click import exceptions as click_exc  # noqa: E402
+from typer.core import TyperGroup  # noqa: E402
 
-from omnirotor.errors import InputError
+from omnirotor.errors import InputError  # noqa: E402
 
 __all__ = ["app", "main", "number_option", "Interrupted", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "CommandGroup"]
 

@@ -31,9 +31,14 @@ def calibrate_truth_cmd(
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
     if report is not None and report.exists() and not report.is_dir():
         raise InputError(f"--report {report}: is a file, not a folder")
+    from omnirotor.experiments.calibration.truth import (
+        calibrate,
+        plot_measured_vs_predicted,
+        report_markdown,
+        write_truth_toml,
+    )
     from omnirotor.identification import load_hover_data
     from omnirotor.regions import load_partition
-    from omnirotor.sim.aero_calibration import calibrate, plot_measured_vs_predicted, report_markdown, write_truth_toml
     from omnirotor.vehicle import load_vehicle
 
     veh = load_vehicle(vehicle)
@@ -73,7 +78,7 @@ def calibrate_disturbances_cmd(
 ) -> None:
     """Calibrate the disturbances on Table 1's straight point-contact row; predict the other rows."""
     from omnirotor.config import parse_float
-    from omnirotor.experiments.disturbance_calibration import (
+    from omnirotor.experiments.calibration.disturbances import (
         DEFAULT_GRID,
         PARAMETERS,
         calibrate_disturbances,
@@ -110,7 +115,7 @@ def calibrate_disturbances_cmd(
     save_json(report / "disturbances.json", result)
     write_toml(out, result.value)
     if doc is not None:
-        from omnirotor.experiments.disturbance_calibration import replace_section
+        from omnirotor.experiments.calibration.disturbances import replace_section
 
         replace_section(doc, text)
     sys.stdout.write(text)

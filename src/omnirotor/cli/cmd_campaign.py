@@ -1,13 +1,12 @@
 """``omnirotor campaign``: Monte-Carlo robustness campaigns; ``omnirotor campaign-compare``: their plots.
 
-A thin layer over :mod:`omnirotor.experiments.campaign` (its docstring documents the campaign file).
+A thin layer over :mod:`omnirotor.experiments.campaigns.runner` (its docstring documents the campaign file).
 Everything is checked before the output folder is touched: a bad option leaves nothing behind.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -40,15 +39,12 @@ def campaign(
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Campaign seed (default: the file's).")] = None,
     restart: Annotated[bool, typer.Option(help="Discard the folder's results and start again.")] = False,
-    resident: Annotated[
-        bool, typer.Option(help="Run on the resident worker pool when it runs (omnirotor workers start).")
-    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON object.")] = False,
 ) -> None:
     """Run N randomised, seeded runs of a task; save each result as it arrives; summarise and plot."""
     from rich.console import Console
 
-    from omnirotor.experiments.campaign_pool import BACKENDS, resident_campaign
+    from omnirotor.experiments.campaigns.runner import BACKENDS
 
     if runs is not None and not 1 <= runs <= MAX_CAMPAIGN_RUNS:
         raise InputError(f"--runs must be >= 1 and <= {MAX_CAMPAIGN_RUNS} (omnirotor.limits), got {runs}")
@@ -68,28 +64,14 @@ def campaign(
         check_output_dir(out, "--out")
     err = Console(stderr=True)
     tic = time.perf_counter()
-    pool = None
-    if backend == "local" and resident:
-        args = {"task": task, "runs": runs, "quick": quick, "out": None if out is None else str(out),
-                "campaign_file": campaign_file, "map_mode": map_mode, "maps": maps, "seed": seed,
-                "restart": restart}  # fmt: skip
-        pool = resident_campaign(args, workers)
-    if pool is not None:
-        head = pool.start
-        out, label, total = Path(head["out"]), f"{head['task']} ({head['map']} map)", head["runs"]
-        used = f"{head['workers']} warm worker{'s' if head['workers'] != 1 else ''}"
-        if workers is not None and workers > head["workers"]:
-            used += f", not the {workers} asked: the pool has {head['workers']}"
-        note(f"campaign on the resident worker pool (pid {head['pid']}, {used})")
-    else:
-        from omnirotor.experiments.campaign import load_campaign
+    from omnirotor.experiments.campaigns.runner import load_campaign
 
-        spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
-        if out is None:
-            name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
-            out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
-        check_output_dir(out, "--out")
-        label, total = f"{spec.task} ({spec.options.map} map)", runs or spec.runs
+    spec = load_campaign(campaign_file, task, seed=seed, maps=maps, map=map_mode, quick=quick or None)
+    if out is None:
+        name = Path(campaign_file).stem if campaign_file is not None else f"{spec.task}-default"
+        out = Path("out") / "campaigns" / f"{name}-{spec.options.map}"
+    check_output_dir(out, "--out")
+    label, total = f"{spec.task} ({spec.options.map} map)", runs or spec.runs
     state = {"ok": 0, "fail": 0, "error": 0}
     simulated = [0.0]  # simulated seconds of the runs finished by this call
     with _progress_bar(err, label) as bar:
@@ -108,22 +90,16 @@ def campaign(
             )
 
         try:
-            if pool is not None:
-                summary = _follow(pool, progress)
-            else:
-                from omnirotor.experiments.campaign import run_campaign
+            from omnirotor.experiments.campaigns.runner import run_campaign
 
-                summary = run_campaign(
-                    spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
-                    progress=progress,
-                )  # fmt: skip
+            summary = run_campaign(
+                spec, out, runs=runs, backend=backend, workers=workers, address=address, restart=restart,
+                progress=progress,
+            )  # fmt: skip
         except KeyboardInterrupt:
             raise Interrupted(
                 f"the finished runs are kept in {out / 'results.jsonl'}; run the same command again to resume"
             ) from None
-        finally:
-            if pool is not None:
-                pool.close()
     wall = time.perf_counter() - tic
     line = (
         f"throughput: {simulated[0]:.1f} simulated s in {wall:.2f} s wall ({simulated[0] / max(wall, 1e-9):.1f} per s)"
@@ -156,19 +132,6 @@ def _progress_bar(err, label: str):
         console=err,
         transient=True,
     )
-
-
-def _follow(pool, progress) -> dict:
-    """Feed the resident pool's messages about a campaign to ``progress``; its summary (errors raised here)."""
-    for msg in pool.runs():
-        progress(msg["done"], msg["total"], msg["record"])
-    result = pool.result
-    if result["type"] == "done":
-        return result["summary"]
-    if result.get("kind") == "input":
-        raise InputError(result["message"])
-    print(f"omnirotor: error: the resident worker pool failed: {result['message']}", file=sys.stderr)
-    raise typer.Exit(1)
 
 
 def _print_summary(s: dict, out: Path) -> None:
@@ -224,7 +187,7 @@ def campaign_compare(
     bins: Annotated[int, typer.Option(help="Equal bins over the drawn values.")] = 6,
 ) -> None:
     """Plot the success rate of several campaigns against one parameter, on shared bins."""
-    from omnirotor.experiments.campaign import plot_comparison
+    from omnirotor.experiments.campaigns.runner import plot_comparison
 
     if not 1 <= bins <= 50:
         raise InputError(f"--bins must be in 1..50, got {bins}")

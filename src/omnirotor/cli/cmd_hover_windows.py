@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli import window_options as wo
 from omnirotor.errors import InputError
+
+D = wo.DEFAULT
 
 
 @app.command("hover-windows")
@@ -17,40 +19,58 @@ def hover_windows_cmd(
     log: Annotated[Path, typer.Argument(help="PX4 flight log (.ulg).")],
     out: Annotated[Path, typer.Option(help="Figure (PNG): speeds, attitude and motion over time, windows shaded.")],
     csv: Annotated[Path | None, typer.Option(help="Write the hover points here (the CSV of `identify`).")] = None,
-    vehicle: Annotated[str | None, typer.Option(help="Vehicle (default: the log's own CA_* parameters).")] = None,
+    vehicle: Annotated[
+        str | None,
+        typer.Option(
+            help="Preset, vehicle TOML, PX4 airframe, QGroundControl .params or ULog (default: the log's own CA_* "
+            "parameters)."
+        ),
+    ] = None,
     vehicle_overlay: Annotated[
         Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
     ] = None,
-    min_duration: Annotated[float, typer.Option(help="Shortest window [s].")] = 1.0,
-    accel_max: Annotated[float, typer.Option(help="Largest acceleration in a window [m/s²].")] = 0.3,
-    rate_max: Annotated[float, typer.Option(help="Largest angular rate in a window [rad/s].")] = 0.1,
-    drift_max: Annotated[float, typer.Option(help="Largest attitude drift within a window [deg].")] = 3.0,
+    min_duration: wo.MinDuration = D.min_duration_s,
+    accel_max: wo.AccelMax = D.accel_max,
+    rate_max: wo.RateMax = D.rate_max,
+    speed_max: wo.SpeedMax = D.speed_max,
+    drift_max: wo.DriftMax = D.drift_max_deg,
+    spread_max: wo.SpreadMax = D.spread_frac,
+    spread_min: wo.SpreadMin = D.spread_min_hz2,
+    spin_fraction: wo.SpinFraction = D.spin_fraction,
+    trim: wo.Trim = D.trim_s,
+    cutoff: wo.Cutoff = D.cutoff_hz,
+    motion_cutoff: wo.MotionCutoff = D.motion_cutoff_hz,
 ) -> None:
-    """Find steady hover windows in a PX4 log; plot them and write one hover point per window."""
+    """Find steady hover windows in a PX4 log; plot them and write one hover point per window.
+
+    Exits with status 2, as `identify` does, when no window is found; the figure is written all the same (it
+    shows why), and stderr says how much of the flight each criterion rejected.
+    """
     from omnirotor.identification import write_csv
     from omnirotor.px4.flight import check_flight_log, read_flight
-    from omnirotor.px4.windows import ACTUATOR_MOTORS_NOTE, WindowCriteria, hover_points, plot_windows
+    from omnirotor.px4.windows import hover_points, plot_windows, say_windows
+    from omnirotor.safe_io import check_output_file
     from omnirotor.vehicle import load_vehicle
 
     if out.suffix.lower() != ".png":
         raise InputError(f"--out {out}: expected a .png file name")
-    for target in (out, csv):
-        if target is not None and target.is_dir():
-            raise InputError(f"{target}: is a folder")
-    criteria = WindowCriteria(
-        accel_max=accel_max, rate_max=rate_max, drift_max_deg=drift_max, min_duration_s=min_duration
-    )
+    check_output_file(out, "--out")
+    if csv is not None:
+        check_output_file(csv, "--csv")
+    criteria = wo.criteria(
+        min_duration, accel_max, rate_max, speed_max, drift_max, spread_max, spread_min, spin_fraction, trim,
+        cutoff, motion_cutoff,
+    )  # fmt: skip
     if log.suffix.lower() != ".ulg":
         raise InputError(f"{log}: expected a PX4 flight log (.ulg)")
     check_flight_log(log)
     veh = load_vehicle(vehicle if vehicle is not None else str(log), vehicle_overlay)
     flight = read_flight(log, veh.n_rotors, veh.omega_max_hz)
     pts = hover_points(flight, criteria)
-    if flight.speed_source == "actuator_motors":
-        print(f"omnirotor: {log.name}: {ACTUATOR_MOTORS_NOTE.format(omega_max=veh.omega_max_hz)}", file=sys.stderr)
-    for note in pts.notes:
-        print(f"omnirotor: {log.name}: {note}", file=sys.stderr)
     plot_windows(flight, pts, out)
+    say_windows(flight, pts, veh)
+    if not pts.windows:
+        raise InputError(f"{log}: no steady hover window found (the figure {out} shows the flight)")
     if csv is not None:
         write_csv(csv, list(pts.R_WB), pts.omega_hz)
     for w in pts.windows:

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli import window_options as wo
 from omnirotor.config import parse_float
 from omnirotor.errors import InputError
 
@@ -89,12 +91,32 @@ def identify_cmd(
         ),
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    min_duration: wo.MinDuration = wo.DEFAULT.min_duration_s,
+    accel_max: wo.AccelMax = wo.DEFAULT.accel_max,
+    rate_max: wo.RateMax = wo.DEFAULT.rate_max,
+    speed_max: wo.SpeedMax = wo.DEFAULT.speed_max,
+    drift_max: wo.DriftMax = wo.DEFAULT.drift_max_deg,
+    spread_max: wo.SpreadMax = wo.DEFAULT.spread_frac,
+    spread_min: wo.SpreadMin = wo.DEFAULT.spread_min_hz2,
+    spin_fraction: wo.SpinFraction = wo.DEFAULT.spin_fraction,
+    trim: wo.Trim = wo.DEFAULT.trim_s,
+    cutoff: wo.Cutoff = wo.DEFAULT.cutoff_hz,
+    motion_cutoff: wo.MotionCutoff = wo.DEFAULT.motion_cutoff_hz,
 ) -> None:
-    """Identify per-region and global wrench maps from hover data (box-constrained weighted QP)."""
+    """Identify per-region and global wrench maps from hover data (box-constrained weighted QP).
+
+    A PX4 log gives one hover point per steady window found automatically (the hover-window options, the same
+    as `hover-windows`'); stderr says what each criterion rejected when few are found.
+    """
     from rich.console import Console
     from rich.table import Table
 
-    from omnirotor.identification import IdentificationParams, identify, load_hover_data
+    from omnirotor.identification import (
+        IdentificationParams,
+        identification_warnings,
+        identify,
+        load_hover_data,
+    )
     from omnirotor.regions import load_partition
     from omnirotor.vehicle import load_vehicle
 
@@ -102,6 +124,10 @@ def identify_cmd(
     if not (math.isfinite(delta_value) and delta_value > 0):
         raise InputError(f"--delta must be a finite number > 0, got {delta}")
     replacing = out is not None and check_output_file(out, "--out")
+    criteria = wo.criteria(
+        min_duration, accel_max, rate_max, speed_max, drift_max, spread_max, spread_min, spin_fraction, trim,
+        cutoff, motion_cutoff,
+    )  # fmt: skip
     if vehicle is None:  # a PX4 log carries its own rotor geometry
         vehicle = next((str(d) for d in data if d.suffix.lower() == ".ulg"), "omnirotor")
         if vehicle.endswith((".ulg", ".ULG")):
@@ -116,8 +142,10 @@ def identify_cmd(
         raise InputError("--torque-pool needs --torque-partition (the cells the flight's samples belong to)")
     cells = load_partition(torque_partition) if torque_partition is not None else None
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
-    hover = load_hover_data(data, veh)
+    hover = load_hover_data(data, veh, criteria)
     maps = identify(hover, veh, params, part, region)
+    for line in identification_warnings(hover, veh, maps, region):
+        print(f"omnirotor: warning: {line}", file=sys.stderr)
     torque_fits = {}
     if torque is not None:
         from omnirotor.torque_identification import flight_torque_rows

@@ -37,8 +37,8 @@ def reproduce(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from omnirotor.experiments.reproduce import claims
-    from omnirotor.experiments.reproduce import reproduce as run_all
+    from omnirotor.experiments.paper.reproduce import claims
+    from omnirotor.experiments.paper.reproduce import reproduce as run_all
 
     check_output_dir(out, "--out")
     if not 0 <= seed <= MAX_SEED - seeds:
@@ -67,7 +67,7 @@ def reproduce(
             disturbances=disturbances,
         )
         if seeds > 1:
-            from omnirotor.experiments.claim_seeds import reproduce_seeds
+            from omnirotor.experiments.paper.seeds import reproduce_seeds
 
             goals = reproduce_seeds(out, seeds, **common)
         else:

@@ -1,7 +1,7 @@
 """``omnirotor run TASK``: fly one task in closed loop in the simulator and report its metrics.
 
 Tasks: ``hover`` and the paper's experiments (``identify-flights``, ``hover-validation``, ``point-contact``,
-``point-contact-tilted``, ``sliding``, ``peg-in-hole``), from :data:`omnirotor.experiments.closed_loop.TASKS`.
+``point-contact-tilted``, ``sliding``, ``peg-in-hole``), from :data:`omnirotor.experiments.tasks.TASKS`.
 Errors are those of SPEC §6 (the believed EE pose against the compliant EE reference, as the paper's; the
 true pose's too).
 """
@@ -63,10 +63,9 @@ def run(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fly TASK in the simulator with the interaction controller; print its metrics."""
-    from omnirotor.experiments.closed_loop import TASKS, discover_tasks
-    from omnirotor.experiments.tasks import ExperimentOptions
+    from omnirotor.experiments.tasks import TASKS
+    from omnirotor.experiments.tasks.common import ExperimentOptions
 
-    discover_tasks()
     if task not in TASKS:
         raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
     if maps is not None:
@@ -148,7 +147,7 @@ def _fly(task: str, map_mode: str, options):
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    from omnirotor.experiments.closed_loop import run_task
+    from omnirotor.experiments.tasks import run_task
 
     err = Console(stderr=True)
     with Progress(

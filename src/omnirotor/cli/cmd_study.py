@@ -150,7 +150,7 @@ def torque_rows_cmd(
 
     import numpy as np
 
-    from omnirotor.experiments.tasks import HoverProtocol
+    from omnirotor.experiments.tasks.common import HoverProtocol
     from omnirotor.studies.torque_rows import plot_hover_moments, plot_torque_rows, torque_rows_study
     from omnirotor.vehicle import load_vehicle
 

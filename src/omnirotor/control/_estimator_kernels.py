@@ -36,8 +36,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit, jit_entry, records_at
+from omnirotor._jit import jit, jit_entry, records_at
 from omnirotor.blocks import new_records
+from omnirotor.so3 import (
+    R_from_quat_into,
+    exp_so3_into,
+    log_so3_into,
+    quat_integrate_body_into,
+    quat_mul,
+    quat_of_rotvec,
+)
 
 N_ERR = 15
 """Error-state dimension: dp, dv, dtheta, db_a, db_g."""
@@ -247,12 +255,6 @@ def lpf_gain(dt: float, cutoff_hz: float) -> float:
 
 
 @jit
-def R_from_quat_into(q, R) -> None:
-    """``R`` (3, 3) = the rotation of the unit quaternion ``q`` (4,), wxyz."""
-    R9_from_quat_into(q[0], q[1], q[2], q[3], R.reshape(9), 0)
-
-
-@jit
 def copy_nominal(src, dst) -> None:
     """``dst`` = ``src`` (:data:`NOMINAL_DTYPE` records)."""
     for i in range(3):
@@ -282,21 +284,7 @@ def propagate(s, R, dt: float, g: float, gyro, acc) -> None:
     v[0] += ax * dt
     v[1] += ay * dt
     v[2] += az * dt
-    wx, wy, wz = (gyro[0] - bg[0]) * dt, (gyro[1] - bg[1]) * dt, (gyro[2] - bg[2]) * dt
-    th2 = wx * wx + wy * wy + wz * wz
-    if th2 > 1e-24:
-        th = math.sqrt(th2)
-        c, k = math.cos(0.5 * th), math.sin(0.5 * th) / th
-    else:
-        c, k = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0
-    dx, dy, dz = k * wx, k * wy, k * wz
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    nw = qw * c - qx * dx - qy * dy - qz * dz
-    nx = qw * dx + qx * c + qy * dz - qz * dy
-    ny = qw * dy - qx * dz + qy * c + qz * dx
-    nz = qw * dz + qx * dy - qy * dx + qz * c
-    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0], q[1], q[2], q[3] = nw * inv, nx * inv, ny * inv, nz * inv
+    quat_integrate_body_into(q, (gyro[0] - bg[0]) * dt, (gyro[1] - bg[1]) * dt, (gyro[2] - bg[2]) * dt)
     R_from_quat_into(q, R)
 
 
@@ -513,58 +501,6 @@ def invert_in_place(a, out) -> bool:
 
 
 @jit
-def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
-    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into C-contiguous R (3, 3); :func:`exp_so3_at`."""
-    exp_so3_at(p0, p1, p2, R.reshape(9), 0)
-
-
-@jit
-def exp_so3_at(p0: float, p1: float, p2: float, out, o: int) -> None:
-    """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into ``out[o:o+9]``, row-major.
-
-    Rodrigues, with series near 0: ``R = I + a K + b K²``, ``K = [phi]x``, ``a = sin(th)/th``,
-    ``b = (1 - cos th)/th²``.
-    """
-    th2 = p0 * p0 + p1 * p1 + p2 * p2
-    th = math.sqrt(th2)
-    if th2 > 1e-8:  # below, the series to th² are exact in double precision
-        a = math.sin(th) / th
-        b = (1.0 - math.cos(th)) / th2
-    else:
-        a = 1.0 - th2 / 6.0
-        b = 0.5 - th2 / 24.0
-    # K = [[0, -p2, p1], [p2, 0, -p0], [-p1, p0, 0]]; R = (K K) b + K a + I, entry by entry.
-    k01, k02, k10, k12, k20, k21 = -p2, p1, p2, -p0, -p1, p0
-    out[o] = (0.0 * 0.0 + k01 * k10 + k02 * k20) * b + 0.0 * a + 1.0
-    out[o + 1] = (0.0 * k01 + k01 * 0.0 + k02 * k21) * b + k01 * a
-    out[o + 2] = (0.0 * k02 + k01 * k12 + k02 * 0.0) * b + k02 * a
-    out[o + 3] = (k10 * 0.0 + 0.0 * k10 + k12 * k20) * b + k10 * a
-    out[o + 4] = (k10 * k01 + 0.0 * 0.0 + k12 * k21) * b + 0.0 * a + 1.0
-    out[o + 5] = (k10 * k02 + 0.0 * k12 + k12 * 0.0) * b + k12 * a
-    out[o + 6] = (k20 * 0.0 + k21 * k10 + 0.0 * k20) * b + k20 * a
-    out[o + 7] = (k20 * k01 + k21 * 0.0 + 0.0 * k21) * b + k21 * a
-    out[o + 8] = (k20 * k02 + k21 * k12 + 0.0 * 0.0) * b + 0.0 * a + 1.0
-
-
-@jit
-def log_so3_into(R, out, o: int) -> None:
-    """Rotation vector [rad] of a rotation R (3, 3), C-contiguous, into ``out[o:o+3]`` (:func:`log_so3_at`)."""
-    log_so3_at(R.reshape(9), 0, out, o)
-
-
-@jit
-def log_so3_at(R, oR: int, out, o: int) -> None:
-    """Rotation vector [rad] of the rotation ``R[oR:oR+9]`` (row-major) with angle below pi into ``out[o:o+3]``."""
-    w0 = (R[oR + 7] - R[oR + 5]) * 0.5  # sin(th) * axis
-    w1 = (R[oR + 2] - R[oR + 6]) * 0.5
-    w2 = (R[oR + 3] - R[oR + 1]) * 0.5
-    sn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-    th = math.atan2(sn, 0.5 * (R[oR] + R[oR + 4] + R[oR + 8] - 1.0))
-    k = th / sn if sn > 1e-12 else 1.0
-    out[o], out[o + 1], out[o + 2] = w0 * k, w1 * k, w2 * k
-
-
-@jit
 def _copy2(src, dst) -> None:
     """``dst[...] = src`` for 2-D arrays of one shape (an explicit loop compiles much faster than a slice copy)."""
     for i in range(src.shape[0]):
@@ -731,17 +667,6 @@ def predict(u, buf, sbuf, w, k_end: int) -> None:
 
 
 @jit
-def _q_mul(aw, ax, ay, az, bw, bx, by, bz):
-    """Hamilton product ``a ⊗ b`` of wxyz quaternions."""
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-@jit
 def _repropagate(u, buf, sbuf) -> None:
     """Output state = fused state moved over the buffered samples after it (mean only)."""
     copy_nominal(u.x_fused, u.x_out)
@@ -894,7 +819,7 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     r = w.innov
     for i in range(3):
         r[i] = p_m[i] - f.p_W[i]
-    ew, ex, ey, ez = _q_mul(fq[0], -fq[1], -fq[2], -fq[3], mw, mx, my, mz)
+    ew, ex, ey, ez = quat_mul(fq[0], -fq[1], -fq[2], -fq[3], mw, mx, my, mz)
     if ew < 0.0:
         ew, ex, ey, ez = -ew, -ex, -ey, -ez
     nv = math.sqrt(ex * ex + ey * ey + ez * ez)
@@ -960,9 +885,10 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     for i in range(3):
         f.p_W[i] += dx[i]
         f.v_W[i] += dx[3 + i]
-    th = math.sqrt(dx[6] * dx[6] + dx[7] * dx[7] + dx[8] * dx[8])
-    kq = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
-    qw, qx, qy, qz = _q_mul(fq[0], fq[1], fq[2], fq[3], math.cos(0.5 * th), kq * dx[6], kq * dx[7], kq * dx[8])
+    # q <- q ⊗ Exp(dx[6:9]), normalised by a division (the order the controller reference was recorded with;
+    # so3.quat_integrate_body_into multiplies by the inverse norm instead).
+    dw, dqx, dqy, dqz = quat_of_rotvec(dx[6], dx[7], dx[8])
+    qw, qx, qy, qz = quat_mul(fq[0], fq[1], fq[2], fq[3], dw, dqx, dqy, dqz)
     qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     fq[0], fq[1], fq[2], fq[3] = qw / qn, qx / qn, qy / qn, qz / qn
     R_from_quat_into(fq, u.R_WB_fused)

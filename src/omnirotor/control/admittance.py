@@ -40,6 +40,7 @@ from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite
 from omnirotor.control.trajectory import ReferenceSample
 from omnirotor.errors import InputError
+from omnirotor.so3 import R_from_quat_into, quat_integrate_world_into
 
 __all__ = [
     "AdmittanceParams",
@@ -189,30 +190,8 @@ def admittance_step(r, f_E_W, m_E_W, dt: float) -> None:
     W[0], W[1], W[2] = wx, wy, wz
     WD[0], WD[1], WD[2] = alx, aly, alz
     # R_xi <- exp([omega dt]x) R_xi, i.e. q <- dq (x) q with dq the world-frame increment.
-    angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
-    if angle > 0.0:
-        c = math.cos(0.5 * angle)
-        sn = math.sin(0.5 * angle) / angle * dt
-        dw, dx, dy, dz = c, sn * wx, sn * wy, sn * wz
-        qw, qx, qy, qz = (
-            dw * qw - dx * qx - dy * qy - dz * qz,
-            dw * qx + dx * qw + dy * qz - dz * qy,
-            dw * qy - dx * qz + dy * qw + dz * qx,
-            dw * qz + dx * qy - dy * qx + dz * qw,
-        )
-        norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qw, qx, qy, qz = qw * norm, qx * norm, qy * norm, qz * norm
-        q[0], q[1], q[2], q[3] = qw, qx, qy, qz
-        R = r.R_xi
-        R[0, 0] = 1.0 - 2.0 * (qy * qy + qz * qz)
-        R[0, 1] = 2.0 * (qx * qy - qw * qz)
-        R[0, 2] = 2.0 * (qx * qz + qw * qy)
-        R[1, 0] = 2.0 * (qx * qy + qw * qz)
-        R[1, 1] = 1.0 - 2.0 * (qx * qx + qz * qz)
-        R[1, 2] = 2.0 * (qy * qz - qw * qx)
-        R[2, 0] = 2.0 * (qx * qz - qw * qy)
-        R[2, 1] = 2.0 * (qy * qz + qw * qx)
-        R[2, 2] = 1.0 - 2.0 * (qx * qx + qy * qy)
+    if quat_integrate_world_into(q, wx, wy, wz, dt):
+        R_from_quat_into(q, r.R_xi)
 
 
 @jit

@@ -1,33 +1,18 @@
-"""The paper's experiments in simulation: closed-loop runs, their metrics, and the tasks of ``omnirotor run``.
+"""The paper's experiments in simulation, and what is built on them.
 
-:func:`~omnirotor.experiments.closed_loop.run_closed_loop` flies an
-:class:`~omnirotor.control.controller.InteractionController` in a
-:class:`~omnirotor.sim.Simulator`; :data:`TASKS` is the registry of runnable tasks (``hover``, and those
-other modules of this package register with :func:`register_task`).
+Where a change goes:
 
-The names below are imported on first use: a module of this package that needs none of them (the resident
-pool's client, :mod:`omnirotor.experiments.campaign_pool`) loads without numpy, MuJoCo or numba.
+* :mod:`~omnirotor.experiments.metrics`: what a run's logs say (SPEC §6);
+* :mod:`~omnirotor.experiments.loop` (with its compiled stepping, :mod:`~omnirotor.experiments._loop`): the
+  closed loop of the controller and the simulator, a task's options and result; beside it
+  :mod:`~omnirotor.experiments.figures`, a run's plots;
+* :mod:`~omnirotor.experiments.faults`: faults and perturbations of the plant;
+* :mod:`~omnirotor.experiments.tasks`: the tasks of ``omnirotor run`` (an explicit table, one line per task);
+* :mod:`~omnirotor.experiments.campaigns`: Monte-Carlo campaigns (the file's spec, the runner, the report);
+* :mod:`~omnirotor.experiments.paper`: the paper's claims, ``omnirotor reproduce`` and its seeds;
+* :mod:`~omnirotor.experiments.calibration`: the truth model's fit on real hover data and the disturbances'
+  calibration.
+
+Each layer imports only those above it in this list (``tests/test_import_layout.py``: no import cycles). This
+package imports nothing itself, so ``omnirotor --help`` loads none of numpy, MuJoCo or numba.
 """
-
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from omnirotor.experiments.closed_loop import (
-        TASKS,
-        TaskOptions,
-        TaskResult,
-        register_task,
-        run_closed_loop,
-        run_log,
-        run_task,
-    )
-
-__all__ = ["TASKS", "TaskOptions", "TaskResult", "register_task", "run_closed_loop", "run_log", "run_task"]
-
-
-def __getattr__(name: str):
-    if name in __all__:
-        from omnirotor.experiments import closed_loop
-
-        return getattr(closed_loop, name)
-    raise AttributeError(f"module 'omnirotor.experiments' has no attribute {name!r}")

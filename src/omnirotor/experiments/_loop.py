@@ -1,6 +1,6 @@
 """The compiled closed loop: simulator and controller alternate inside one compiled call (no Python per step).
 
-:func:`run_steps` is the fast path of :func:`omnirotor.experiments.closed_loop.run_closed_loop`. Each step is
+:func:`run_steps` is the fast path of :func:`omnirotor.experiments.loop.run_closed_loop`. Each step is
 exactly what the Python loop does, through the same kernels: the simulator's step
 (:func:`omnirotor.sim.step.sim_step`, which calls MuJoCo's C step functions) writes the packed sensor frame
 (:mod:`omnirotor.messages`) and the truth row; the controller's step

@@ -3,8 +3,13 @@
 PX4 describes a multirotor's geometry by the parameters ``CA_ROTOR_COUNT``, per rotor ``CA_ROTORn_P{X,Y,Z}``
 (position [m], FRD body frame), ``CA_ROTORn_A{X,Y,Z}`` (thrust axis, FRD) and ``CA_ROTORn_KM`` (moment ratio
 [m], positive for a counter-clockwise rotor), and the bitmask ``CA_R_REV`` of reversible rotors. They are read
-from an airframe file (``param set-default NAME VALUE`` lines, e.g. ``10019_omnicopter``) or from a ULog's
-parameters. PX4's effectiveness of rotor i is ``f = ct a``, ``m = ct p × a − ct km a``; with our model
+from an airframe file (``param set-default NAME VALUE`` lines, e.g. ``10019_omnicopter``), from a
+QGroundControl parameter file (``.params``: tab-separated ``vehicle-id component-id NAME VALUE type`` lines, the
+usual way to share a real vehicle's parameters) or from a ULog's parameters. A parameter the source does not set
+takes PX4's own default (the control allocator's ``module.yaml``: position 0 m, axis (0, 0, -1), ``KM`` 0.05,
+``CA_R_REV`` 0), as PX4 itself does; the defaulted names are said on stderr.
+
+PX4's effectiveness of rotor i is ``f = ct a``, ``m = ct p × a − ct km a``; with our model
 ``m_i = p_i × f_i + k_i c_tau u_i z_i`` (SPEC §1.2) that gives, in our FLU body (:mod:`~omnirotor.px4.frames`),
 
     position = D p,  axis = D a,  spin k_i = −sign(km_i),  c_tau = |km| c_f.
@@ -29,7 +34,16 @@ from omnirotor.errors import InputError
 from omnirotor.limits import MAX_ROTORS
 from omnirotor.px4.frames import vec_from_px4
 
-__all__ = ["PX4_DEFAULTS", "read_airframe_params", "is_airframe_file", "vehicle_from_px4_params"]
+__all__ = [
+    "PX4_DEFAULTS",
+    "PX4_ROTOR_DEFAULTS",
+    "read_airframe_params",
+    "is_airframe_file",
+    "vehicle_from_px4_params",
+]
+
+PX4_ROTOR_DEFAULTS = {"PX": 0.0, "PY": 0.0, "PZ": 0.0, "AX": 0.0, "AY": 0.0, "AZ": -1.0, "KM": 0.05}
+"""PX4's defaults of ``CA_ROTORn_<key>`` (control_allocator/module.yaml)."""
 
 PX4_DEFAULTS: dict[str, Any] = {
     "mass": 1.5,
@@ -55,10 +69,12 @@ _OVERLAY_KEYS = (
     "frame_size",
 )
 _PARAM_LINE = re.compile(r"^\s*param\s+(?:set-default|set)\s+([A-Za-z0-9_]+)\s+(\S+)")
+_QGC_LINE = re.compile(r"^\s*\d+\s+\d+\s+([A-Za-z0-9_]+)\s+(\S+)\s+\d+\s*$")
+"""A QGroundControl ``.params`` line: vehicle id, component id, name, value, MAVLink type."""
 
 
 def is_airframe_file(path: Path) -> bool:
-    """True when the file is text with at least one ``param set[-default] CA_...`` line."""
+    """True when the file is text with a ``param set[-default] CA_...`` line or a QGroundControl ``CA_`` line."""
     try:
         with path.open("rb") as fh:
             head = fh.read(65536)
@@ -66,18 +82,23 @@ def is_airframe_file(path: Path) -> bool:
         return False
     if b"\0" in head:
         return False
-    return re.search(rb"^\s*param\s+(?:set-default|set)\s+CA_", head, re.MULTILINE) is not None
+    shell = rb"^\s*param\s+(?:set-default|set)\s+CA_"
+    qgc = rb"^\s*\d+\s+\d+\s+CA_[A-Za-z0-9_]*\s+\S+\s+\d+\s*$"
+    return re.search(shell, head, re.MULTILINE) is not None or re.search(qgc, head, re.MULTILINE) is not None
 
 
 def read_airframe_params(path: str | Path) -> dict[str, float]:
-    """The parameters an airframe file sets (``param set-default NAME VALUE``; later lines win)."""
+    """The parameters of an airframe file or a QGroundControl ``.params`` file; later lines win.
+
+    An airframe sets them by ``param set-default NAME VALUE`` lines, a ``.params`` file lists them as
+    ``vehicle-id component-id NAME VALUE type``.
+    """
     from omnirotor.safe_io import read_text
 
-    p = Path(path)
-    text = read_text(p)  # a regular file within MAX_INPUT_BYTES, UTF-8
+    text = read_text(path)
     out: dict[str, float] = {}
     for line in text.splitlines():
-        m = _PARAM_LINE.match(line.split("#", 1)[0])
+        m = _PARAM_LINE.match(line.split("#", 1)[0]) or _QGC_LINE.match(line)
         if m:
             try:
                 out[m.group(1)] = float(m.group(2))
@@ -91,23 +112,29 @@ _RANGES.update({k: (-100.0, 100.0) for k in ("AX", "AY", "AZ")})
 """The range PX4's parameter definitions give each ``CA_ROTORn_*`` value (NaN and inf fall outside)."""
 
 
-def _rotor_geometry(params: Mapping[str, float], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(n, 3) positions and axes (FRD), (n,) KM and the CA_R_REV bitmask."""
+def _rotor_geometry(
+    params: Mapping[str, float], where: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, list[str]]:
+    """(n, 3) positions and axes (FRD), (n,) KM, the CA_R_REV bitmask, and what took PX4's defaults."""
     if "CA_ROTOR_COUNT" not in params:
-        raise InputError(f"{where}: no PX4 rotor geometry (parameter CA_ROTOR_COUNT missing)")
+        raise InputError(
+            f"{where}: no PX4 rotor geometry (parameter CA_ROTOR_COUNT missing; a log from before PX4's control "
+            "allocator): pass --vehicle (a preset, a vehicle TOML, a PX4 airframe or a QGroundControl .params file)"
+        )
     count = params["CA_ROTOR_COUNT"]
     if not (isinstance(count, (int, float)) and 1 <= count <= MAX_ROTORS and count == int(count)):
-        raise InputError(f"{where}: CA_ROTOR_COUNT is {count}; expected a whole number from 1 to {MAX_ROTORS}")
+        raise InputError(
+            f"{where}: CA_ROTOR_COUNT is {count}; expected a whole number from 1 to {MAX_ROTORS}; pass --vehicle"
+        )
     n = int(count)
     pos, axis, km = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n)
-    defaults = {"PX": 0.0, "PY": 0.0, "PZ": 0.0, "AX": 0.0, "AY": 0.0, "AZ": -1.0, "KM": 0.05}  # PX4's own
-    missing = []
+    defaulted: dict[str, list[int]] = {}
     for i in range(n):
         vals = {}
-        for key, dflt in defaults.items():
+        for key, dflt in PX4_ROTOR_DEFAULTS.items():
             name = f"CA_ROTOR{i}_{key}"
             if name not in params:
-                missing.append(name)
+                defaulted.setdefault(key, []).append(i)
             value = params.get(name, dflt)
             lo, hi = _RANGES[key]
             if not (isinstance(value, (int, float)) and lo <= value <= hi):
@@ -116,9 +143,23 @@ def _rotor_geometry(params: Mapping[str, float], where: str) -> tuple[np.ndarray
         pos[i] = (vals["PX"], vals["PY"], vals["PZ"])
         axis[i] = (vals["AX"], vals["AY"], vals["AZ"])
         km[i] = vals["KM"]
-    if any(k.endswith(("_PX", "_PY", "_AX", "_AY", "_AZ")) for k in missing):
-        raise InputError(f"{where}: rotor parameter(s) missing: {', '.join(missing[:6])}")
-    return pos, axis, km, int(params.get("CA_R_REV", 0))
+    assumed = [
+        f"CA_ROTORn_{key} = {PX4_ROTOR_DEFAULTS[key]:g} (PX4's default) for rotor(s) n = {_ranges(rotors)}"
+        for key, rotors in defaulted.items()
+    ]
+    if "CA_R_REV" not in params:
+        assumed.append("CA_R_REV = 0 (PX4's default: no reversible rotor)")
+    return pos, axis, km, int(params.get("CA_R_REV", 0)), assumed
+
+
+def _ranges(idx: list[int]) -> str:
+    """'0-3, 5' for [0, 1, 2, 3, 5]."""
+    out, start = [], idx[0]
+    for a, b in zip(idx, [*idx[1:], None], strict=True):
+        if b != a + 1:
+            out.append(f"{start}" if start == a else f"{start}-{a}")
+            start = b
+    return ", ".join(out)
 
 
 def vehicle_from_px4_params(
@@ -147,7 +188,7 @@ def vehicle_from_px4_params(
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
     if unknown:
         raise InputError(f"vehicle overlay: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(_OVERLAY_KEYS)}")
-    pos_frd, axis_frd, km, rev = _rotor_geometry(params, where)
+    pos_frd, axis_frd, km, rev, assumed = _rotor_geometry(params, where)
     n = pos_frd.shape[0]
     reversible = [(rev >> i) & 1 == 1 for i in range(n)]
     if any(reversible) and not all(reversible):
@@ -156,7 +197,6 @@ def vehicle_from_px4_params(
     axis = vec_from_px4(axis_frd)
     if np.any(np.linalg.norm(axis, axis=1) < 1e-9):
         raise InputError(f"{where}: a rotor axis CA_ROTORn_A* is zero")
-    assumed: list[str] = []
 
     def pick(key: str, default: Any) -> Any:
         if key in overlay:

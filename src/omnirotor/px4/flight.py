@@ -9,11 +9,19 @@ What is read (PX4 topic → ours):
 * ``sensor_combined.gyro_rad`` (FRD) → ``omega_B`` [rad/s], else ``vehicle_angular_velocity.xyz``: optional;
 * ``vehicle_land_detected.landed``: optional.
 
-Rotor speeds from ``actuator_motors`` (when no ESC reports rpm): PX4's control allocator writes there each
-motor's normalised thrust ``c`` in [0, 1] (in [-1, 1] for reversible rotors), before the output stage applies
-its thrust curve (``THR_MDL_FAC``). With thrust proportional to the squared speed and full thrust at the
-vehicle's ``omega_max_hz``, ``omega = sign(c) sqrt(|c|) omega_max``. It ignores idle speed, the thrust curve's
-calibration and motor dynamics; the caller says on stderr that it was used.
+Rotor speeds without ESC telemetry (most logs), mapped with thrust proportional to the squared speed and full
+thrust at the vehicle's ``omega_max_hz``; the mapping is a note said on stderr, with the values it used:
+
+* ``actuator_motors.control`` (PX4's control allocator): each motor's normalised thrust ``c`` in [0, 1] (in
+  [-1, 1] for reversible rotors) before the output stage applies its thrust curve, so
+  ``omega = sign(c) sqrt(|c|) omega_max``;
+* else ``actuator_outputs.output`` (PWM [µs], the first ``n`` outputs of the first instance, or the outputs
+  whose ``PWM_MAIN_FUNCk`` is Motor 1..n): ``x = (pwm − min) / (max − min)`` clipped to [0, 1], with the log's
+  per-output ``PWM_MAIN_MINk``/``PWM_MAIN_MAXk`` (where set, ≥ 0) else ``PWM_MIN``/``PWM_MAX`` (else PX4's
+  1000/2000 µs), and PX4's thrust model ``thrust = THR_MDL_FAC x² + (1 − THR_MDL_FAC) x`` (``THR_MDL_FAC``
+  from the log, else PX4's default 0), so ``omega = sqrt(thrust) omega_max``. One-way rotors only.
+
+Both ignore idle speed, the ESCs' calibration and motor dynamics.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ _TOPICS = [
     "vehicle_attitude",
     "esc_status",
     "actuator_motors",
+    "actuator_outputs",
     "vehicle_local_position",
     "sensor_combined",
     "vehicle_angular_velocity",
@@ -60,13 +69,14 @@ class Flight:
         name: file name.
         R_WB: attitude, (N, 3, 3) samples.
         omega_hz: signed rotor speeds [Hz], (N, n).
-        speed_source: "esc_status" or "actuator_motors".
+        speed_source: "esc_status", "actuator_motors" or "actuator_outputs".
         p_W: position [m] or None.
         v_W: velocity [m/s] or None.
         a_W: acceleration [m/s²] or None.
         omega_B: body angular rate [rad/s] or None.
         landed: landed flag (0/1) or None.
         params: the log's parameters.
+        notes: what was assumed reading it (for stderr).
     """
 
     name: str
@@ -79,6 +89,7 @@ class Flight:
     omega_B: Series | None
     landed: Series | None
     params: dict
+    notes: tuple[str, ...] = ()
 
 
 def open_ulog(path: str | Path, topics: list[str] | None = None, header_only: bool = False):
@@ -118,32 +129,44 @@ def _stack(d, fmt: str, count: int) -> np.ndarray:
 
 
 def _require(ulog, p: Path, need_omega_max: bool):
-    """The attitude, ESC and motor topics of a log; refuses a log without attitude or rotor speeds."""
+    """The attitude and rotor-speed topics of a log; refuses a log without attitude or rotor speeds.
+
+    Returns ``(attitude, esc_status, actuator_motors, actuator_outputs)``, the last three None where absent.
+    """
     att = _topic(ulog, "vehicle_attitude")
-    if att is None or len(att.data["timestamp"]) < 2:
-        raise InputError(f"{p}: no attitude in the log (topic vehicle_attitude missing)")
     esc = _topic(ulog, "esc_status")
     if esc is not None and ("esc[0].esc_rpm" not in esc.data or len(esc.data["timestamp"]) < 2):
         esc = None
     motors = _topic(ulog, "actuator_motors")
     if motors is not None and len(motors.data["timestamp"]) < 2:
         motors = None
-    if esc is None and (motors is None or need_omega_max):
-        raise InputError(
-            f"{p}: no rotor speeds in the log (topic esc_status with esc_rpm missing"
-            + ("" if motors is None else "; actuator_motors needs the vehicle's omega_max_hz")
-            + ")"
+    outputs = _topic(ulog, "actuator_outputs")
+    if outputs is not None and (len(outputs.data["timestamp"]) < 2 or "output[0]" not in outputs.data):
+        outputs = None
+    missing = []
+    if att is None or len(att.data["timestamp"]) < 2:
+        missing.append("attitude (topic vehicle_attitude missing)")
+    if esc is None and motors is None and outputs is None:
+        missing.append("rotor speeds (none of esc_status with esc_rpm, actuator_motors, actuator_outputs)")
+    elif esc is None and need_omega_max:
+        missing.append(
+            "rotor speeds (no esc_status with esc_rpm; actuator_motors or actuator_outputs need the vehicle's "
+            "omega_max_hz)"
         )
-    return att, esc, motors
+    if missing:
+        raise InputError(f"{p}: no " + "; no ".join(missing) + " in the log")
+    return att, esc, motors, outputs
 
 
 def check_flight_log(path: str | Path) -> None:
     """Refuse, before anything else is read, a file that is not a ULog or has no attitude or rotor speeds.
 
-    Rotor speeds from ``actuator_motors`` count (the vehicle's ``omega_max_hz`` maps them later).
+    Rotor speeds from ``actuator_motors`` or ``actuator_outputs`` count (the vehicle's ``omega_max_hz`` maps them
+    later).
     """
     p = Path(path)
-    _require(open_ulog(p, ["vehicle_attitude", "esc_status", "actuator_motors"]), p, need_omega_max=False)
+    topics = ["vehicle_attitude", "esc_status", "actuator_motors", "actuator_outputs"]
+    _require(open_ulog(p, topics), p, need_omega_max=False)
 
 
 def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: float | None = None) -> Flight:
@@ -161,10 +184,11 @@ def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: flo
     ulog = open_ulog(p, _TOPICS)
     t0 = int(ulog.start_timestamp)
     params = dict(ulog.initial_parameters)
-    att, esc, motors = _require(ulog, p, need_omega_max=omega_max_hz is None)
+    att, esc, motors, outputs = _require(ulog, p, need_omega_max=omega_max_hz is None)
     R = Series(_time(att, t0), R_WB_from_px4_quat(_stack(att, "q[{}]", 4)))
     if n_rotors is None and "CA_ROTOR_COUNT" in params:
         n_rotors = int(params["CA_ROTOR_COUNT"])
+    notes: list[str] = []
     if esc is not None:
         n_esc = sum(1 for k in esc.data if k.startswith("esc[") and k.endswith("].esc_rpm"))
         n = n_esc if n_rotors is None else n_rotors
@@ -172,12 +196,20 @@ def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: flo
             raise InputError(f"{p}: esc_status reports {n_esc} ESCs, the vehicle has {n} rotors")
         omega = Series(_time(esc, t0), _stack(esc, "esc[{}].esc_rpm", n) / 60.0)
         source = "esc_status"
-    else:
+    elif motors is not None:
         n = n_rotors or sum(1 for k in motors.data if k.startswith("control["))
         c = _stack(motors, "control[{}]", n)
         c = np.where(np.isfinite(c), c, 0.0)  # PX4 logs NaN for a disarmed motor
         omega = Series(_time(motors, t0), np.sign(c) * np.sqrt(np.abs(c)) * omega_max_hz)
         source = "actuator_motors"
+        notes.append(
+            "no esc_rpm in the log: rotor speeds mapped from actuator_motors as "
+            f"sign(c) sqrt(|c|) x {omega_max_hz:g} Hz"
+        )
+    else:
+        omega, note = _speeds_from_pwm(outputs, params, n_rotors, omega_max_hz, t0, p)
+        source = "actuator_outputs"
+        notes.append(note)
     lp = _topic(ulog, "vehicle_local_position")
     p_W = v_W = a_W = None
     if lp is not None and len(lp.data["timestamp"]) >= 2:
@@ -195,4 +227,47 @@ def read_flight(path: str | Path, n_rotors: int | None = None, omega_max_hz: flo
         omega_B = Series(_time(av, t0), vec_from_px4(_stack(av, "xyz[{}]", 3)))
     ld = _topic(ulog, "vehicle_land_detected")
     landed = Series(_time(ld, t0), ld.data["landed"].astype(float)) if ld is not None and "landed" in ld.data else None
-    return Flight(p.name, R, omega, source, p_W, v_W, a_W, omega_B, landed, params)
+    return Flight(p.name, R, omega, source, p_W, v_W, a_W, omega_B, landed, params, tuple(notes))
+
+
+PX4_PWM_DEFAULTS = {"PWM_MIN": 1000.0, "PWM_MAX": 2000.0, "THR_MDL_FAC": 0.0}
+"""PX4's defaults of the PWM range [µs] and thrust-model factor, used when a log lacks them."""
+
+
+def _speeds_from_pwm(outputs, params: dict, n_rotors: int | None, omega_max_hz: float, t0: int, p: Path):
+    """Rotor speeds [Hz] from ``actuator_outputs`` PWM (module docstring) and the note saying how."""
+    n_out = sum(1 for k in outputs.data if k.startswith("output["))
+    funcs = {int(params[f"PWM_MAIN_FUNC{k}"]): k - 1 for k in range(1, 17) if f"PWM_MAIN_FUNC{k}" in params}
+    motors = [funcs[101 + i] for i in range(n_rotors or 0) if 101 + i in funcs]  # 101..: Motor 1..
+    n = n_rotors or n_out
+    channels = motors if n_rotors and len(motors) == n_rotors else list(range(n))
+    if max(channels, default=0) >= n_out:
+        raise InputError(f"{p}: actuator_outputs has {n_out} outputs, the vehicle has {n} rotors")
+    used, took_default = {}, []
+    for key in ("PWM_MIN", "PWM_MAX", "THR_MDL_FAC"):
+        if key in params and float(params[key]) >= 0:
+            used[key] = float(params[key])
+        else:
+            used[key] = PX4_PWM_DEFAULTS[key]
+            took_default.append(key)
+    lo = np.array([float(params.get(f"PWM_MAIN_MIN{k + 1}", -1)) for k in channels])
+    hi = np.array([float(params.get(f"PWM_MAIN_MAX{k + 1}", -1)) for k in channels])
+    lo = np.where(lo >= 0, lo, used["PWM_MIN"])
+    hi = np.where(hi >= 0, hi, used["PWM_MAX"])
+    if np.any(hi <= lo):
+        raise InputError(f"{p}: the log's PWM range is empty (PWM_MIN >= PWM_MAX) for a motor output")
+    pwm = np.column_stack([outputs.data[f"output[{k}]"].astype(float) for k in channels])
+    x = np.clip((np.where(np.isfinite(pwm), pwm, 0.0) - lo) / (hi - lo), 0.0, 1.0)
+    f = min(max(used["THR_MDL_FAC"], 0.0), 1.0)
+    thrust = f * x * x + (1.0 - f) * x
+    ranges = sorted({(float(a), float(b)) for a, b in zip(lo, hi, strict=True)})
+    note = (
+        f"no esc_rpm or actuator_motors in the log: rotor speeds mapped from actuator_outputs "
+        f"{'(outputs ' + ', '.join(str(k + 1) for k in channels) + ')'} as sqrt(thrust) x {omega_max_hz:g} Hz, "
+        f"thrust = THR_MDL_FAC x² + (1 - THR_MDL_FAC) x, x = (pwm - min)/(max - min); PWM range "
+        + ", ".join(f"{a:g}-{b:g} µs" for a, b in ranges)
+        + f", THR_MDL_FAC = {f:g}"
+        + (f" ({', '.join(took_default)}: PX4's default, not in the log)" if took_default else " (from the log)")
+        + "; idle speed and ESC calibration ignored"
+    )
+    return Series(_time(outputs, t0), np.sqrt(thrust) * omega_max_hz), note

@@ -17,7 +17,7 @@ from omnirotor.px4.frames import quat_wxyz_of
 from omnirotor.px4.run_export import RunSignals
 from omnirotor.vehicle import VehicleParams
 
-__all__ = ["FOXGLOVE_SCHEMAS", "OWN_SCHEMAS", "scene_entities", "write_run_mcap"]
+__all__ = ["FOXGLOVE_SCHEMAS", "OWN_SCHEMAS", "CHANNELS", "scene_entities", "write_run_mcap", "stamp_json", "pose_json"]
 
 _VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
 _TIME = {
@@ -103,6 +103,20 @@ OWN_SCHEMAS = {
         },
     ),
 }
+
+
+CHANNELS = {
+    "/pose": "foxglove.PoseInFrame",
+    "/pose_true": "foxglove.PoseInFrame",
+    "/tf": "foxglove.FrameTransform",
+    "/scene": "foxglove.SceneUpdate",
+    "/rotors": "omnirotor.Rotors",
+    "/imu": "omnirotor.Imu",
+    "/wrench": "omnirotor.Wrench",
+    "/reference": "omnirotor.Reference",
+    "/contact": "omnirotor.Contact",
+}
+"""The channels (topic -> schema name) of a run's MCAP, and of the flight node's live view (omnirotor.fly.live)."""
 
 
 def _stamp(t: float) -> dict:
@@ -195,20 +209,9 @@ def write_run_mcap(
         schema_ids = {}
         for name, schema in {**FOXGLOVE_SCHEMAS, **OWN_SCHEMAS}.items():
             schema_ids[name] = mw.register_schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
-        topics = {
-            "/pose": "foxglove.PoseInFrame",
-            "/pose_true": "foxglove.PoseInFrame",
-            "/tf": "foxglove.FrameTransform",
-            "/scene": "foxglove.SceneUpdate",
-            "/rotors": "omnirotor.Rotors",
-            "/imu": "omnirotor.Imu",
-            "/wrench": "omnirotor.Wrench",
-            "/reference": "omnirotor.Reference",
-            "/contact": "omnirotor.Contact",
-        }
         chan = {
             topic: mw.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[schema])
-            for topic, schema in topics.items()
+            for topic, schema in CHANNELS.items()
         }
 
         def put(topic: str, t: float, msg: dict) -> None:
@@ -264,3 +267,9 @@ def write_run_mcap(
         mw.finish()
     tmp.replace(p)
     return counts
+
+
+stamp_json = _stamp
+"""``{"sec", "nsec"}`` of a time [s] (Foxglove's timestamp)."""
+pose_json = _pose_json
+"""Foxglove's pose ``{"position", "orientation"}`` of a position [m] and a quaternion wxyz."""

@@ -3,26 +3,39 @@
 The authors picked hover windows by hand. Here a window is a stretch in which the vehicle is in force and
 moment balance, so that the rotors' force equals ``R_WBᵀ m g e3`` (SPEC §3.1). Unaccelerated flight (a steady
 climb or descent) balances the weight as hover does, up to drag, so the criteria are on acceleration, not on
-speed. On a uniform time grid (``grid_hz``), a sample is *steady* when
+speed.
 
-* the world acceleration ``|a_W|`` < ``accel_max`` (from ``vehicle_local_position`` a*, else differentiated
-  velocity; the check is skipped when the log has neither);
+**Filtered signals.** A hover point is an average over a second or more, so what matters is the vehicle's
+motion in the hover's bandwidth, not what an IMU reads instant by instant: a real accelerometer (and the
+simulator's, calibrated on the paper's robot) carries rotor-rate vibration (the rotors turn at 50-200 Hz) and
+broadband noise of 0.5-3 m/s², and the rotor speeds jitter by a few Hz while the attitude loop fights it.
+The motion criteria therefore read signals low-passed at ``motion_cutoff_hz`` = 1 Hz (zero-phase 4th-order
+Butterworth): about the position loop's bandwidth, two decades below the rotor rates, and fast enough to see
+any transition between holds (a minimum-jerk move of a second or more). The acceleration is the derivative
+of the low-passed velocity (fused with motion capture or GPS, so free of the accelerometer's bias); only a
+log without velocity uses the low-passed acceleration ``a_W`` instead.
+
+On a uniform time grid (``grid_hz``), a sample is *steady* when
+
+* the world acceleration ``|a_W|`` < ``accel_max`` (skipped when the log has neither velocity nor
+  acceleration);
 * the body rate ``|omega_B|`` < ``rate_max`` (skipped without rate data);
 * the mean rotor speed ``mean_i |omega_i|`` > ``spin_fraction`` × its 95th percentile over the flight (the
   vehicle is flying, not idling on the ground), and the log's land detector (if any) says airborne;
 * optionally the speed ``|v_W|`` < ``speed_max`` (off by default).
 
 Each run of steady samples is cut greedily into windows in which the attitude stays within ``drift_max_deg``
-of the window's first attitude and every rotor speed within ``spread_frac`` × (mean |omega|) (at least
-``spread_min_hz``) of its running window mean. ``trim_s`` is cut from both ends of each window, and windows
-shorter than ``min_duration_s`` are dropped.
+of the window's first attitude and every rotor speed (low-passed at ``motion_cutoff_hz``) within
+``spread_frac`` × (mean |omega|) (at least ``spread_min_hz``) of its running window mean. ``trim_s`` is cut
+from both ends of each window, and windows shorter than ``min_duration_s`` are dropped. How much of the flight
+each criterion rejected is kept (:attr:`HoverPoints.rejections`) and said when few or no windows are found.
 
-Rotor speeds are first smoothed by a zero-phase 4th-order Butterworth at ``cutoff_hz`` = 5 Hz (SPEC §3.1);
-rates and accelerations likewise. A signal sampled too slowly for the filter (below 2.5 × cutoff) is used
-unfiltered, and that is reported. A window's hover point is the projected mean attitude and the mean signed
-input ``u = mean(|omega| omega)`` over the window's samples; the CSV stores ``omega = sign(u) sqrt(|u|)``,
-which :func:`omnirotor.identification.load_csv` turns back into the same ``u``. (SPEC §3.1 squares the mean
-speed instead: the two differ by the speed's variance over the window, ≤ 0.01 % in steady windows.)
+A window's hover point is the projected mean attitude and the mean signed input ``u = mean(|omega| omega)``
+over the window's samples of the rotor speeds low-passed at ``cutoff_hz`` = 5 Hz (SPEC §3.1). A signal sampled
+too slowly for a filter (below 2.5 × its cutoff) is used unfiltered, and that is reported. The CSV stores
+``omega = sign(u) sqrt(|u|)``, which :func:`omnirotor.identification.load_csv` turns back into the same ``u``.
+(SPEC §3.1 squares the mean speed instead: the two differ by the speed's variance over the window, ≤ 0.01 % in
+steady windows.)
 """
 
 from __future__ import annotations
@@ -34,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.px4.criteria import OPTION_OF, WindowCriteria
 from omnirotor.px4.flight import Flight, Series, read_flight
 from omnirotor.so3 import project_to_SO3
 
@@ -45,54 +59,9 @@ __all__ = [
     "hover_points",
     "plot_windows",
     "load_ulog",
+    "say_windows",
     "on_grid",
 ]
-
-
-ACTUATOR_MOTORS_NOTE = (
-    "no esc_rpm in the log: rotor speeds mapped from actuator_motors as sign(c) sqrt(|c|) x {omega_max:g} Hz"
-)
-"""What is said on stderr when rotor speeds come from ``actuator_motors`` (:mod:`omnirotor.px4.flight`)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class WindowCriteria:
-    """Criteria of a steady hover window (module docstring).
-
-    Attributes:
-        accel_max: largest world acceleration [m/s²].
-        rate_max: largest body rate [rad/s].
-        speed_max: largest speed [m/s] (inf: unaccelerated flight counts as hover).
-        drift_max_deg: largest attitude change within a window [deg].
-        spread_frac: largest deviation of a rotor speed from its window mean, relative to the mean |omega|.
-        spread_min_hz: floor of that deviation [Hz].
-        spin_fraction: the mean |omega| must exceed this fraction of its 95th percentile over the flight.
-        min_duration_s: shortest window [s].
-        trim_s: cut from both ends of a window [s]; 0.2 s is about the settling time of the 5 Hz low-pass,
-            so a window does not average the filter's smear of the change that ended or began it.
-        cutoff_hz: zero-phase low-pass cutoff [Hz] (SPEC §3.1: 5 Hz, 4th order).
-        grid_hz: rate of the grid the criteria are evaluated on [Hz].
-    """
-
-    accel_max: float = 0.3
-    rate_max: float = 0.1
-    speed_max: float = math.inf
-    drift_max_deg: float = 3.0
-    spread_frac: float = 0.05
-    spread_min_hz: float = 1.0
-    spin_fraction: float = 0.5
-    min_duration_s: float = 1.0
-    trim_s: float = 0.2
-    cutoff_hz: float = 5.0
-    grid_hz: float = 50.0
-
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if not (v >= 0) or (f.name != "speed_max" and not math.isfinite(v)):
-                raise InputError(f"hover-window criterion {f.name} must be a finite number >= 0, got {v}")
-        if self.grid_hz <= 0 or self.cutoff_hz <= 0:
-            raise InputError("hover-window grid_hz and cutoff_hz must be > 0")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,12 +81,14 @@ class HoverPoints:
         R_WB: (k, 3, 3) mean attitude of each window.
         u_hz2: (k, n) mean signed inputs ``|omega| omega`` [Hz²].
         notes: what was assumed or skipped (for stderr).
+        rejections: one line per criterion: how much of the flight it rejected (for stderr when few windows).
     """
 
     windows: tuple[HoverWindow, ...]
     R_WB: np.ndarray
     u_hz2: np.ndarray
     notes: tuple[str, ...]
+    rejections: tuple[str, ...] = ()
 
     @property
     def omega_hz(self) -> np.ndarray:
@@ -152,55 +123,87 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
 
-def _steady_mask(flight: Flight, t: np.ndarray, c: WindowCriteria, omega: np.ndarray, notes: list[str]) -> np.ndarray:
-    ok = np.ones(t.size, dtype=bool)
-    if flight.a_W is not None:
-        a = _lowpass(flight.a_W, c.cutoff_hz, "acceleration", notes)
-        ok &= np.linalg.norm(on_grid(t, flight.a_W.t, a), axis=1) < c.accel_max
-    elif flight.v_W is not None and flight.v_W.t.size > 2:
-        a = np.gradient(_lowpass(flight.v_W, c.cutoff_hz, "velocity", notes), flight.v_W.t, axis=0)
-        ok &= np.linalg.norm(on_grid(t, flight.v_W.t, a), axis=1) < c.accel_max
+def _sample_tests(
+    flight: Flight, t: np.ndarray, c: WindowCriteria, omega: np.ndarray, notes: list[str]
+) -> dict[str, tuple[str, np.ndarray]]:
+    """Each per-sample criterion's verdict on the grid: name -> (what it demands, True where it passes)."""
+    tests: dict[str, tuple[str, np.ndarray]] = {}
+    fc = c.motion_cutoff_hz
+    if flight.v_W is not None and flight.v_W.t.size > 2:
+        v = _lowpass(flight.v_W, fc, "velocity", notes)
+        a = np.gradient(v, flight.v_W.t, axis=0)
+        a_norm = np.linalg.norm(on_grid(t, flight.v_W.t, a), axis=1)
+        tests["accel_max"] = (f"|dv/dt| < {c.accel_max:g} m/s²", a_norm < c.accel_max)
+    elif flight.a_W is not None:
+        a = _lowpass(flight.a_W, fc, "acceleration", notes)
+        a_norm = np.linalg.norm(on_grid(t, flight.a_W.t, a), axis=1)
+        tests["accel_max"] = (f"|a_W| < {c.accel_max:g} m/s²", a_norm < c.accel_max)
     else:
         notes.append("no local position in the log: the acceleration criterion was skipped")
     if math.isfinite(c.speed_max):
         if flight.v_W is None:
             raise InputError(f"{flight.name}: a speed limit needs velocity (topic vehicle_local_position missing)")
-        ok &= np.linalg.norm(on_grid(t, flight.v_W.t, flight.v_W.x), axis=1) < c.speed_max
+        speed = np.linalg.norm(on_grid(t, flight.v_W.t, flight.v_W.x), axis=1)
+        tests["speed_max"] = (f"|v_W| < {c.speed_max:g} m/s", speed < c.speed_max)
     if flight.omega_B is not None:
-        w = _lowpass(flight.omega_B, c.cutoff_hz, "angular rate", notes)
-        ok &= np.linalg.norm(on_grid(t, flight.omega_B.t, w), axis=1) < c.rate_max
+        w = _lowpass(flight.omega_B, fc, "angular rate", notes)
+        tests["rate_max"] = (
+            f"|omega_B| < {c.rate_max:g} rad/s",
+            np.linalg.norm(on_grid(t, flight.omega_B.t, w), axis=1) < c.rate_max,
+        )
     else:
         notes.append("no angular rate in the log: the rate criterion was skipped")
     spin = np.mean(np.abs(omega), axis=1)
-    ok &= spin > c.spin_fraction * np.percentile(spin, 95) if spin.size else ok
+    floor = c.spin_fraction * np.percentile(spin, 95) if spin.size else 0.0
+    demand = f"mean |omega| > {c.spin_fraction:g} x its 95th percentile ({floor:.0f} Hz)"
+    tests["spin_fraction"] = (demand, spin > floor)
     if flight.landed is not None:
         idx = np.clip(np.searchsorted(flight.landed.t, t, side="right") - 1, 0, flight.landed.t.size - 1)
-        ok &= flight.landed.x[idx] < 0.5
-    return ok
+        tests["landed"] = ("airborne (vehicle_land_detected)", flight.landed.x[idx] < 0.5)
+    return tests
 
 
-def find_hover_windows(flight: Flight, criteria: WindowCriteria | None = None) -> tuple[list[HoverWindow], list[str]]:
-    """The steady hover windows of a flight (module docstring); returns them and notes for stderr."""
+def _percent(x: float) -> str:
+    return f"{100.0 * x:.0f} %" if x >= 0.01 or x == 0 else f"{100.0 * x:.1g} %"
+
+
+def find_hover_windows(
+    flight: Flight, criteria: WindowCriteria | None = None, rejections: list[str] | None = None
+) -> tuple[list[HoverWindow], list[str]]:
+    """The steady hover windows of a flight (module docstring); returns them and notes for stderr.
+
+    ``rejections``, if given, receives one line per criterion saying how much of the flight it rejected.
+    """
     c = criteria or WindowCriteria()
     notes: list[str] = []
     t_start = max(flight.R_WB.t[0], flight.omega_hz.t[0])
     t_end = min(flight.R_WB.t[-1], flight.omega_hz.t[-1])
     if t_end - t_start < c.min_duration_s:
+        if rejections is not None:
+            rejections.append(f"the log's attitude and rotor speeds overlap for {max(t_end - t_start, 0):.2f} s only")
         return [], notes
     t = np.arange(t_start, t_end, 1.0 / c.grid_hz)
-    omega_f = _lowpass(flight.omega_hz, c.cutoff_hz, "rotor speeds", notes)
-    omega = on_grid(t, flight.omega_hz.t, omega_f)
+    omega = on_grid(t, flight.omega_hz.t, _lowpass(flight.omega_hz, c.motion_cutoff_hz, "rotor speeds", notes))
+    u = np.abs(omega) * omega  # signed inputs, proportional to the rotors' thrusts
     R = on_grid(t, flight.R_WB.t, flight.R_WB.x)
-    ok = _steady_mask(flight, t, c, omega, notes)
+    tests = _sample_tests(flight, t, c, omega, notes)
+    ok = np.ones(t.size, dtype=bool)
+    for _, passed in tests.values():
+        ok &= passed
     windows: list[HoverWindow] = []
+    cuts = {"drift_max_deg": 0, "spread_frac": 0}
+    dropped_s = [0.0]
+    dt = 1.0 / c.grid_hz
 
     def close(i0: int, i1: int) -> None:  # samples i0..i1-1
         t0, t1 = t[i0] + c.trim_s, t[i1 - 1] - c.trim_s
         if t1 - t0 >= c.min_duration_s:
             windows.append(HoverWindow(float(t0), float(t1)))
+        else:
+            dropped_s[0] += (i1 - i0) * dt
 
     i0 = None
-    total = np.zeros(omega.shape[1])
+    total = np.zeros(u.shape[1])
     for k in range(t.size):
         if not ok[k]:
             if i0 is not None:
@@ -209,23 +212,44 @@ def find_hover_windows(flight: Flight, criteria: WindowCriteria | None = None) -
             continue
         if i0 is not None:
             mean = total / (k - i0)
-            band = max(c.spread_frac * float(np.mean(np.abs(mean))), c.spread_min_hz)
-            if _angle_deg(R[i0], R[k]) > c.drift_max_deg or np.max(np.abs(omega[k] - mean)) > band:
+            band = max(c.spread_frac * float(np.mean(np.abs(mean))), c.spread_min_hz2)
+            drift = _angle_deg(R[i0], R[k]) > c.drift_max_deg
+            if drift or np.max(np.abs(u[k] - mean)) > band:
+                cuts["drift_max_deg" if drift else "spread_frac"] += 1
                 close(i0, k)
                 i0 = None
         if i0 is None:
-            i0, total = k, np.zeros(omega.shape[1])
-        total += omega[k]
+            i0, total = k, np.zeros(u.shape[1])
+        total += u[k]
     if i0 is not None:
         close(i0, t.size)
+    if rejections is not None:
+        span = t.size * dt
+        for key, (demand, passed) in tests.items():
+            rejections.append(
+                f"{OPTION_OF.get(key, key)}: {demand} rejected {_percent(1.0 - passed.mean())} of the flight "
+                f"({(~passed).sum() * dt:.1f} of {span:.1f} s)"
+            )
+        rejections.append(f"all of these together leave {ok.sum() * dt:.1f} s steady")
+        rejections.append(
+            f"{OPTION_OF['drift_max_deg']} ({c.drift_max_deg:g} deg) cut it {cuts['drift_max_deg']} time(s), "
+            f"{OPTION_OF['spread_frac']} ({c.spread_frac:g} of the mean rotor thrust, "
+            f"at least {c.spread_min_hz2:g} Hz²) "
+            f"{cuts['spread_frac']} time(s)"
+        )
+        rejections.append(
+            f"{OPTION_OF['min_duration_s']} ({c.min_duration_s:g} s after {OPTION_OF['trim_s']} {c.trim_s:g} s at "
+            f"each end) dropped {dropped_s[0]:.1f} s of steady flight in pieces too short"
+        )
     return windows, notes
 
 
 def hover_points(flight: Flight, criteria: WindowCriteria | None = None) -> HoverPoints:
     """Find the windows and average each into a hover point (mean attitude, mean signed input)."""
     c = criteria or WindowCriteria()
-    windows, notes = find_hover_windows(flight, c)
-    omega_f = _lowpass(flight.omega_hz, c.cutoff_hz, "rotor speeds", [])
+    rejections: list[str] = []
+    windows, notes = find_hover_windows(flight, c, rejections)
+    omega_f = _lowpass(flight.omega_hz, c.cutoff_hz, "rotor speeds", notes)
     u_all = np.abs(omega_f) * omega_f
     Rs, us, kept = [], [], []
     for w in windows:
@@ -238,7 +262,7 @@ def hover_points(flight: Flight, criteria: WindowCriteria | None = None) -> Hove
         kept.append(w)
     n = flight.omega_hz.x.shape[1]
     R_arr = np.array(Rs).reshape(-1, 3, 3)
-    return HoverPoints(tuple(kept), R_arr, np.array(us).reshape(-1, n), tuple(dict.fromkeys(notes)))
+    return HoverPoints(tuple(kept), R_arr, np.array(us).reshape(-1, n), tuple(dict.fromkeys(notes)), tuple(rejections))
 
 
 def plot_windows(flight: Flight, points: HoverPoints, path: str | Path) -> None:
@@ -287,11 +311,30 @@ def plot_windows(flight: Flight, points: HoverPoints, path: str | Path) -> None:
     tmp.replace(p)
 
 
+FEW_WINDOWS = 3
+"""Below this many windows the rejections of every criterion are said on stderr."""
+
+
+def say_windows(flight: Flight, pts: HoverPoints, vehicle) -> None:
+    """Say on stderr what was assumed (mapped rotor speeds, unfiltered signals) and what each criterion rejected.
+
+    The rejections are said when fewer than :data:`FEW_WINDOWS` or fewer than the vehicle's ``n - 3`` windows
+    were found.
+    """
+    import sys
+
+    lines = list(flight.notes) + list(pts.notes)
+    if len(pts.windows) < max(FEW_WINDOWS, vehicle.n_rotors - 3):
+        lines.append(f"{len(pts.windows)} hover window(s); what each criterion rejected:")
+        lines.extend(f"  {r}" for r in pts.rejections)
+    for line in lines:
+        print(f"omnirotor: {flight.name}: {line}", file=sys.stderr)
+
+
 def load_ulog(path: str | Path, vehicle, criteria: WindowCriteria | None = None):
     """Hover data of a ULog for identification: its automatic hover windows, one point each.
 
-    Says on stderr how many windows were found and what was assumed (unfiltered signals, rotor speeds mapped
-    from ``actuator_motors``).
+    Says on stderr how many windows were found and what was assumed (:func:`say_windows`).
 
     Raises:
         InputError: not a ULog, no attitude, no rotor speeds, or no hover window at all.
@@ -303,15 +346,11 @@ def load_ulog(path: str | Path, vehicle, criteria: WindowCriteria | None = None)
     p = Path(path)
     flight = read_flight(p, vehicle.n_rotors, vehicle.omega_max_hz)
     pts = hover_points(flight, criteria)
-    notes = list(pts.notes)
-    if flight.speed_source == "actuator_motors":
-        notes.insert(0, ACTUATOR_MOTORS_NOTE.format(omega_max=vehicle.omega_max_hz))
+    say_windows(flight, pts, vehicle)
     if not pts.windows:
-        raise InputError(f"{p}: no steady hover window found (criteria: {criteria or WindowCriteria()})")
+        raise InputError(f"{p}: no steady hover window found (stderr above says what each criterion rejected)")
     spans = ", ".join(f"{w.t0_s:.1f}-{w.t1_s:.1f}" for w in pts.windows[:8]) + (" ..." if len(pts.windows) > 8 else "")
     print(f"omnirotor: {p.name}: {len(pts.windows)} hover window(s) at t = {spans} s", file=sys.stderr)
-    for note in notes:
-        print(f"omnirotor: {p.name}: {note}", file=sys.stderr)
     N = len(pts.windows)
     up = np.array([0.0, 0.0, vehicle.weight])
     w_B = np.array([np.concatenate([R.T @ up, np.zeros(3)]) for R in pts.R_WB])

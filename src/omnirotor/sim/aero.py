@@ -1,7 +1,7 @@
 """Truth aerodynamics of the simulator: the rotor-wake model (default), SPEC §7's interference, or ``A_nom u``.
 
 **Rotor-wake model** (``model = "wake"``, the default; calibrated on the authors' flight data by
-:mod:`omnirotor.sim.aero_calibration`, see ``docs/fidelity.md``). Each rotor i has the input ``u_i`` [Hz²],
+:mod:`omnirotor.experiments.calibration.truth`, see ``docs/fidelity.md``). Each rotor i has the input ``u_i`` [Hz²],
 the speed ``n_i = |u_i|^(1/2)`` [rev/s] and the slipstream direction ``d_i = -sign(u_i) z_i`` (SPEC §7). For
 an ordered pair (j blows, i receives) with ``e_ji`` the unit vector from rotor j to rotor i and ``L_ij`` their
 distance, the pair's geometry and flow directions give

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import R9_from_quat_into, jit, jit_entry
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
 from omnirotor.messages import (
@@ -51,6 +51,7 @@ from omnirotor.messages import (
 from omnirotor.sim import prng
 from omnirotor.sim.params import SensorParams
 from omnirotor.sim.rotors import MAX_ROTORS
+from omnirotor.so3 import R9_from_quat_into, quat_perturb_into
 
 __all__ = [
     "NoiseStream",
@@ -258,22 +259,6 @@ def imu_vibration_add(imu, omega_hz, n: int, acc_B, gyro_B) -> None:
         for j in range(3):
             acc_B[j] += sa * da[i, j]
             gyro_B[j] += sg * dg[i, j]
-
-
-@jit
-def quat_perturb_into(q, dtheta, out) -> None:
-    """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``."""
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    a, b, c = 0.5 * dtheta[0], 0.5 * dtheta[1], 0.5 * dtheta[2]
-    rw = qw - qx * a - qy * b - qz * c
-    rx = qx + qw * a + qy * c - qz * b
-    ry = qy + qw * b + qz * a - qx * c
-    rz = qz + qw * c + qx * b - qy * a
-    s = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
-    out[0] = rw * s
-    out[1] = rx * s
-    out[2] = ry * s
-    out[3] = rz * s
 
 
 @jit_entry

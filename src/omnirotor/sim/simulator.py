@@ -118,7 +118,7 @@ class Simulator:
         seed: seed of every noise source (same seed, same run).
         reset: start at rest at the scene's start (:meth:`reset`); False leaves the first :meth:`reset` to the
             caller, before anything else (for a caller that resets at once anyway, as
-            :func:`~omnirotor.experiments.closed_loop.run_closed_loop` does: a reset draws every noise
+            :func:`~omnirotor.experiments.loop.run_closed_loop` does: a reset draws every noise
             stream's first block).
 
     Raises:

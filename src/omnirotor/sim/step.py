@@ -31,7 +31,6 @@ from __future__ import annotations
 import numpy as np
 
 from omnirotor._jit import (
-    R9_from_quat_into,
     f64_at,
     f64_at2,
     jit,
@@ -42,6 +41,7 @@ from omnirotor._jit import (
 )
 from omnirotor.sim import aero as _aero
 from omnirotor.sim import airflow, contact, faults, rotors, sensors
+from omnirotor.so3 import R9_from_quat_into
 
 __all__ = [
     "SIM_DTYPE",

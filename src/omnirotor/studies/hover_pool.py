@@ -1,7 +1,7 @@
 """Hover points of the simulator's truth aerodynamics, with measurement noise, for identification studies (SPEC §3).
 
 A *pool* holds, per region of a partition, random attitudes (the protocol's sampler
-:func:`~omnirotor.experiments.scenarios.hover_attitudes`, which rejects attitudes whose nominal hover needs a
+:func:`~omnirotor.experiments.tasks.scenarios.hover_attitudes`, which rejects attitudes whose nominal hover needs a
 rotor slower than ``min_speed_hz``) and the true steady hover inputs there: the inputs of a controller
 flying the nominal map with integral action, under the truth model
 (:func:`~omnirotor.sim.aero.hover_equilibrium` with ``make_aero(vehicle)``, the calibrated rotor-wake
@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.experiments.scenarios import hover_attitudes
+from omnirotor.experiments.tasks.scenarios import hover_attitudes
 from omnirotor.identification import HoverData
 from omnirotor.regions import Partition
 from omnirotor.sim.aero import TruthAero, hover_equilibrium

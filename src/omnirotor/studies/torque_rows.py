@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.experiments.closed_loop import run_task
-from omnirotor.experiments.identify_dynamic import (
+from omnirotor.experiments.tasks import run_task
+from omnirotor.experiments.tasks.common import ExperimentOptions, HoverProtocol
+from omnirotor.experiments.tasks.identify_dynamic import (
     CELL_BASES,
     CELL_NULL_DITHER_HZ2,
     CELL_PARTITION,
@@ -42,8 +43,7 @@ from omnirotor.experiments.identify_dynamic import (
     base_attitude,
     fly_sweeps,
 )
-from omnirotor.experiments.scenarios import hover_attitudes
-from omnirotor.experiments.tasks import ExperimentOptions, HoverProtocol
+from omnirotor.experiments.tasks.scenarios import hover_attitudes
 from omnirotor.identification import identify, load_csv
 from omnirotor.regions import load_partition
 from omnirotor.sim.aero import hover_equilibrium, make_aero

@@ -1,0 +1,110 @@
+"""``omnirotor fly``: the interaction controller as a real-time node on the flight topics (issue 24).
+
+The loop is :class:`omnirotor.fly.node.NodeLoop` around the flight director (:mod:`omnirotor.fly.director`).
+``--mission-from-sim`` flies the task ``omnirotor sim --serve --task`` serves (its options, its clock);
+otherwise the node waits for ``omnirotor ctl`` (arm, takeoff, goto, push, preset, land, disarm). Ctrl-C ends it
+with the summary of its deadline accounting.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+from typing import Annotated
+
+import typer
+
+from omnirotor.cli import app
+from omnirotor.errors import InputError
+
+DEFAULT_NODE_ENDPOINT = "tcp/127.0.0.1:7448"
+"""Where the node listens by default (loopback), for ``omnirotor ctl``."""
+
+
+def _director_factory(flight: str | None, overrides: list[str]):
+    """``(controller, trajectory) -> FlightDirector`` of the flight logic, or a clear error where it is missing."""
+    try:
+        from omnirotor.fly.director import FlightDirector
+        from omnirotor.fly.presets import load_fly_params
+    except ImportError:
+        raise InputError("the flight director (omnirotor.fly.director) is not installed in this tree") from None
+    params = load_fly_params(flight, overrides) if flight is not None else load_fly_params(overrides=overrides)
+    return lambda controller, trajectory: FlightDirector(controller, params, trajectory=trajectory)
+
+
+@app.command()
+def fly(
+    mission_from_sim: Annotated[
+        bool, typer.Option(help="Fly the task `omnirotor sim --serve --task` serves (its options and clock).")
+    ] = False,
+    connect: Annotated[
+        list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable); tcp/127.0.0.1:7447.")
+    ] = None,
+    listen: Annotated[
+        list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_NODE_ENDPOINT}.")
+    ] = None,
+    domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
+    namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
+    vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
+    config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
+    flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Flight parameter override key=value.")] = None,
+    cpu: Annotated[int | None, typer.Option(help="Pin the loop to this CPU (default: the last one).")] = None,
+    fifo_priority: Annotated[int, typer.Option(help="SCHED_FIFO priority of the loop (0: do not ask).")] = 50,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
+) -> None:
+    """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
+    import os
+
+    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, set_realtime, warm_up
+    from omnirotor.fly.node import mission_from_sim as ask
+    from omnirotor.transport import open_transport
+
+    if not 0 <= fifo_priority <= 99:
+        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
+    n_cpus = os.cpu_count() or 1
+    if cpu is not None and not 0 <= cpu < n_cpus:
+        raise InputError(f"--cpu must be in 0..{n_cpus - 1}, got {cpu}")
+    factory = _director_factory(flight, list(set_ or ()))
+
+    def say(line: str) -> None:
+        print(f"omnirotor fly: {line}", file=sys.stderr)
+
+    def realtime() -> None:
+        set_realtime(cpu if cpu is not None else n_cpus - 1, fifo_priority or None, say)
+
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    endpoints = list(connect) if connect else ["tcp/127.0.0.1:7447"]
+    listening = list(listen) if listen else [DEFAULT_NODE_ENDPOINT]
+    with open_transport(domain_id=domain_id, namespace=namespace, listen=listening, connect=endpoints) as t:
+        if mission_from_sim:
+            task, options, lockstep = ask(t, timeout_s=30.0)
+            say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
+            summary = fly_mission(t, task, options, NodeOptions(lockstep=lockstep), factory, realtime)
+        else:
+            from omnirotor.control.controller import InteractionController, load_controller_params
+            from omnirotor.vehicle import load_vehicle
+
+            veh = load_vehicle(vehicle)
+            params = load_controller_params(config) if config is not None else None
+            controller = InteractionController(veh, params)
+            warm_up(controller)
+            node = NodeLoop(t, controller, factory(controller, None), NodeOptions())
+            realtime()
+            say(f"flight node up (session {node.session_id:016x}); `omnirotor ctl` on {', '.join(listening)}")
+            summary = node.run()
+    if as_json:
+        print(json.dumps(summary))
+        return
+    _print_summary(summary)
+
+
+def _print_summary(s: dict) -> None:
+    lat = s.get("frame_to_command_us", {})
+    print(
+        f"frames {s['frames']}, periods {s['periods']}, late (> 0.5 ms) {s['periods_late']} "
+        f"({s['late_per_1e5']:.1f} per 1e5), missed {s['missed']}, overruns {s['overruns']}, "
+        f"worst lateness {s['worst_late_ms']:.2f} ms; frame to command p50 {lat.get('p50', float('nan')):.0f} µs, "
+        f"p99 {lat.get('p99', float('nan')):.0f} µs; link lost: {s['link_lost']}"
+    )

@@ -1,0 +1,125 @@
+"""``omnirotor sim --serve``: the simulator as a robot on the flight topics (software in the loop, issue 24).
+
+See :mod:`omnirotor.sitl.server` for the topics, the clocks and the failsafe. With ``--task`` the server flies
+that task of ``omnirotor run`` (same options) with the controller of ``omnirotor fly --mission-from-sim`` and
+prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from omnirotor.cli import app, number_option
+from omnirotor.errors import InputError
+from omnirotor.safe_io import check_input_file, check_output_dir, dumps_json, note
+
+DEFAULT_SIM_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where the simulator listens by default (loopback)."""
+
+
+@app.command()
+def sim(
+    serve: Annotated[
+        bool, typer.Option("--serve", help="Serve the simulator on the flight topics (required).")
+    ] = False,
+    task: Annotated[str | None, typer.Option(help="Task of `omnirotor run` to fly: hover, sliding, ...")] = None,
+    lockstep: Annotated[
+        bool, typer.Option(help="Step k+1 only when command k arrived (deterministic); default: the wall clock.")
+    ] = False,
+    listen: Annotated[
+        list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_SIM_ENDPOINT}.")
+    ] = None,
+    connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable).")] = None,
+    domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
+    namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
+    ros_views: Annotated[
+        bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
+    ] = True,
+    offboard_loss: Annotated[float, typer.Option(help="No command for this long stops the rotors [s].")] = 0.5,
+    wait: Annotated[float, typer.Option(help="How long to wait for the controller's first command [s].")] = 60.0,
+    map_mode: Annotated[str, typer.Option("--map", help="Wrench map: nominal, global, piecewise.")] = "nominal",
+    maps: Annotated[Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify`.")] = None,
+    blend: Annotated[str, typer.Option(help="Piecewise region switching: hard or smooth.")] = "hard",
+    seed: Annotated[int, typer.Option(help="Simulator noise and protocol seed.")] = 0,
+    quick: Annotated[bool, typer.Option(help="Shortened protocol.")] = False,
+    zero: Annotated[bool | None, typer.Option("--zero/--no-zero", help="Zero the observer at the start.")] = None,
+    solver: Annotated[str, typer.Option(help="Allocation QP backend.")] = "active-set",
+    estimator: Annotated[str, typer.Option(help="State estimator: ukf or bypass.")] = "ukf",
+    duration: Annotated[float | None, typer.Option(parser=number_option, help="Simulated time [s].")] = None,
+    truth: Annotated[str, typer.Option(help="Truth aerodynamics: wake, spec7, nominal.")] = "wake",
+    disturbances: Annotated[bool, typer.Option(help="The simulator's calibrated disturbances.")] = True,
+    vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
+    config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Controller parameter override key=value.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Folder for the run's JSON and truth log (truth.npz).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Serve the MuJoCo plant on the flight topics for `omnirotor fly` (software in the loop)."""
+    if not serve:
+        raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
+    if task is None:
+        raise InputError("omnirotor sim --serve needs --task TASK (a task of `omnirotor run`, e.g. hover)")
+    from omnirotor.experiments.tasks import TASKS
+    from omnirotor.experiments.tasks.common import ExperimentOptions
+    from omnirotor.sitl.server import ServeOptions
+    from omnirotor.transport import open_transport
+
+    if task not in TASKS:
+        raise InputError(f"unknown task {task!r}; tasks: {', '.join(sorted(TASKS))}")
+    if maps is not None:
+        check_input_file(maps, "--maps")
+    if out is not None:
+        check_output_dir(out, "--out")
+    options = ExperimentOptions(
+        solver=solver, estimator=estimator, duration_s=duration, seed=seed, truth=truth, disturbances=disturbances,
+        vehicle=vehicle, controller_config=config, overrides=tuple(set_ or ()), map_mode=map_mode,
+        maps=str(maps) if maps is not None else None, blend=blend, quick=quick, zero_observer=zero,
+    )  # fmt: skip
+    options.controller_params()  # validate before opening anything
+    serve_opts = ServeOptions(
+        lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views
+    )
+    endpoints = list(listen) if listen else [DEFAULT_SIM_ENDPOINT]
+    with open_transport(domain_id=domain_id, namespace=namespace, listen=endpoints, connect=list(connect or ())) as t:
+        note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
+             "`omnirotor fly --mission-from-sim`")  # fmt: skip
+        result, report = _serve(t, task, options, serve_opts)
+    rep = result.summary()
+    rep["sitl"] = report.as_dict()
+    if report.log_rows_missing:
+        note(f"{report.log_rows_missing} controller log rows did not arrive; the previous row stands in for each")
+    if report.failsafe:
+        note(f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a command")
+    if out is not None:
+        from omnirotor.safe_io import make_dir, write_json_atomic
+
+        make_dir(out, "--out")
+        write_json_atomic(out / f"{task}-sitl.json", rep)
+        result.truth_log.to_npz(out / "truth.npz")
+        result.controller_log.to_npz(out / "controller.npz")
+    if as_json:
+        print(dumps_json(rep))
+        return
+    s = report
+    print(
+        f"{task}: {s.steps} steps, real-time factor {s.real_time_factor:.2f}, commands obeyed {s.commands_obeyed}, "
+        f"held {s.commands_held}, refused {s.commands_refused}; round trip p50 "
+        f"{s.round_trip_us.get('p50', float('nan')):.0f} µs, p99 {s.round_trip_us.get('p99', float('nan')):.0f} µs"
+    )
+
+
+def _serve(transport, task, options, serve_opts):
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from omnirotor.sitl.server import serve_task
+
+    with Progress(
+        TextColumn(f"[bold]{task}[/bold] on the wire"), BarColumn(), TextColumn("{task.percentage:>5.1f} %"),
+        TimeElapsedColumn(), console=Console(stderr=True), transient=True,
+    ) as bar:  # fmt: skip
+        bar_id = bar.add_task(task, total=1.0)
+        return serve_task(transport, task, options, serve_opts, progress=lambda f: bar.update(bar_id, completed=f))

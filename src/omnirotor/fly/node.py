@@ -1,0 +1,619 @@
+"""``omnirotor fly``: the flight node's process loop (issue 24, item 2).
+
+One loop, on the monotonic clock, around a :class:`~omnirotor.fly.director.FlightDirector` (or any object with
+its ``on_frame``/``wants_step``/``output``/``request``/``status``), per sensor frame::
+
+    director.on_frame(frame, ages)
+    cmd = controller.step(frame) if director.wants_step() else None
+    publish RotorCommand(director.output(cmd), session, seq, frame_seq)
+
+Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, polled: the newest is taken, older
+ones count as missed periods), commands go to ``/omnirotor/rotor_cmd`` with this process's random session id
+and increasing sequence numbers (the plant obeys one session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl``
+requests (``/omnirotor/ctl``) are answered between frames on the loop's own thread (the director is not
+thread-safe). Status: ``/omnirotor/status`` (the director's, ``FlightStatus``) and ``/omnirotor/loop_status``
+(``LoopStatus``, the deadline accounting below) about 50 times a second; ``/omnirotor/wrench_est``
+(``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz.
+
+Real time (the default): between frames the loop sleeps until a little before the next frame is due, then
+polls; the garbage collector is frozen and disabled in the loop; the loop's thread asks for CPU affinity and
+``SCHED_FIFO`` (said on stderr where the OS refuses). A period with no frame calls the director with the
+growing link ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in
+the status, the director told (``frames_stopped``), and no command is published until frames come back.
+Deadline accounting: a period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after
+its frame was taken from the wire, when its frame came that much later than one period after the previous
+one, or when its frame was missed; an *overrun* is a period whose work took longer than the period. Counts,
+the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in the summary on exit.
+
+Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
+it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 1 s.
+
+Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
+output without a step; Ctrl-C (or ``stop``) ends it with the summary.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import gc
+import math
+import os
+import queue
+import secrets
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from omnirotor.errors import InputError
+from omnirotor.messages import SensorFrame, frame_size
+from omnirotor.rosmsg import typestore
+from omnirotor.rosmsg.convert import (
+    COMMAND,
+    CONTROLLER_LOG,
+    FRAME,
+    LOOP_STATUS,
+    SIM_STATUS,
+    WRENCH,
+    WireMessages,
+    frame_check,
+    set_stamp,
+    unpack_frame,
+)
+from omnirotor.sitl.server import TOPICS
+from omnirotor.transport import Transport
+
+try:  # the flight logic's own (helper "node"); the same three fields
+    from omnirotor.fly.failsafe import LinkAges
+except ImportError:  # pragma: no cover  (until omnirotor.fly.failsafe is in the tree)
+
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class LinkAges:  # type: ignore[no-redef]
+        """How old the node's latest inputs are (see omnirotor.fly.failsafe)."""
+
+        imu_age_s: float = 0.0
+        mocap_age_s: float = 0.0
+        frames_stopped: bool = False
+
+
+__all__ = [
+    "NodeOptions",
+    "NodeLoop",
+    "LoopStats",
+    "set_realtime",
+    "LinkAges",
+    "warm_up",
+    "mission_from_sim",
+    "fly_mission",
+]
+
+_STATE_ARMED = 1
+_STATE_STOP = 2
+_LATENCY_WINDOW = 1 << 17
+_SPIN_S = 0.0003
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeOptions:
+    """How the loop runs (module docstring).
+
+    Attributes:
+        period_s: the control period [s].
+        lockstep: answer every frame at once, no pacing (SITL lockstep).
+        link_loss_s: no frame for this long is link lost [s] (lockstep: ``lockstep_link_loss_s``).
+        lockstep_link_loss_s: the same in lockstep [s].
+        late_threshold_s: lateness beyond which a period counts late [s].
+        status_hz: status rate [Hz].
+        wrench_every: publish the wrench estimate every this many steps.
+        log_rows: publish the controller's log rows (missions of ``omnirotor sim --serve``).
+        exit_on_link_loss: end the loop when the link is lost (missions); else wait for frames again.
+        max_frames: end after this many frames (None: until stopped or the simulator says it finished).
+    """
+
+    period_s: float = 0.001
+    lockstep: bool = False
+    link_loss_s: float = 0.05
+    lockstep_link_loss_s: float = 1.0
+    late_threshold_s: float = 0.0005
+    status_hz: float = 50.0
+    wrench_every: int = 10
+    log_rows: bool = False
+    exit_on_link_loss: bool = False
+    max_frames: int | None = None
+
+
+class LoopStats:
+    """The deadline accounting of the loop (module docstring); preallocated, nothing allocated per period."""
+
+    def __init__(self, late_threshold_s: float) -> None:
+        self.late_threshold_s = late_threshold_s
+        self.frames = 0
+        self.periods = 0
+        self.late = 0
+        self.missed = 0
+        self.overruns = 0
+        self.worst_late_s = 0.0
+        self.link_losses = 0
+        self.controller_errors = 0
+        self._latency = np.zeros(_LATENCY_WINDOW)
+        self._work = np.zeros(_LATENCY_WINDOW)
+        self._i = 0
+
+    def period(self, latency_s: float, work_s: float, arrival_late_s: float, period_s: float) -> None:
+        """Account one answered frame: frame-to-command ``latency_s``, its work, how late it arrived [s]."""
+        self.periods += 1
+        lateness = max(latency_s, arrival_late_s)
+        if lateness > self.late_threshold_s:
+            self.late += 1
+        if lateness > self.worst_late_s:
+            self.worst_late_s = lateness
+        if work_s > period_s:
+            self.overruns += 1
+        i = self._i % _LATENCY_WINDOW
+        self._latency[i] = latency_s
+        self._work[i] = work_s
+        self._i += 1
+
+    def skipped(self, n: int) -> None:
+        """``n`` periods whose frames were never answered (missed): late."""
+        self.periods += n
+        self.missed += n
+        self.late += n
+
+    def latency_percentiles_us(self) -> dict:
+        """Frame-to-command latency p50/p99/max [µs] over the last window."""
+        return _percentiles(self._latency[: min(self._i, _LATENCY_WINDOW)])
+
+    def work_percentiles_us(self) -> dict:
+        """Work per answered frame p50/p99/max [µs] (director, controller step, publishing)."""
+        return _percentiles(self._work[: min(self._i, _LATENCY_WINDOW)])
+
+    def summary(self) -> dict:
+        """The exit summary as a dict."""
+        per_1e5 = 1e5 * self.late / self.periods if self.periods else 0.0
+        return {
+            "frames": self.frames,
+            "periods": self.periods,
+            "periods_late": self.late,
+            "late_per_1e5": per_1e5,
+            "missed": self.missed,
+            "overruns": self.overruns,
+            "worst_late_ms": 1000 * self.worst_late_s,
+            "frame_to_command_us": self.latency_percentiles_us(),
+            "work_us": self.work_percentiles_us(),
+            "link_losses": self.link_losses,
+            "controller_errors": self.controller_errors,
+        }
+
+
+def _percentiles(x: np.ndarray) -> dict:
+    if x.size == 0:
+        return {}
+    p50, p99 = np.percentile(x, [50, 99])
+    return {"p50": 1e6 * float(p50), "p99": 1e6 * float(p99), "max": 1e6 * float(x.max()), "n": int(x.size)}
+
+
+def set_realtime(cpu: int | None, priority: int | None, say: Callable[[str], None]) -> None:
+    """Ask for CPU affinity (``cpu``) and ``SCHED_FIFO`` at ``priority`` for the calling thread; refusals are said.
+
+    Call it after the transport is open, so the transport's own threads keep their CPUs.
+    """
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})
+        except (OSError, AttributeError, ValueError) as exc:
+            say(f"CPU affinity to CPU {cpu} not permitted ({exc.__class__.__name__}): the OS schedules the loop")
+    if priority is not None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:
+            why = "needs CAP_SYS_NICE or an rtprio limit" if isinstance(exc, PermissionError) else str(exc)
+            say(f"SCHED_FIFO not permitted ({why}): the loop runs at normal priority")
+
+
+class NodeLoop:
+    """The node's loop (module docstring).
+
+    Args:
+        transport: an open transport.
+        controller: the interaction controller the director flies.
+        director: the flight director (``on_frame``, ``wants_step``, ``output``; ``request``, ``status`` optional).
+        options: loop options.
+        say: where one-line notices go (stderr).
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        controller,
+        director,
+        options: NodeOptions | None = None,
+        say: Callable[[str], None] | None = None,
+    ) -> None:
+        self.options = o = options if options is not None else NodeOptions()
+        self.controller = controller
+        self.director = director
+        self._say = say if say is not None else (lambda line: print(f"omnirotor fly: {line}", file=sys.stderr))
+        n = controller.vehicle.n_rotors
+        self.n = n
+        self.session_id = secrets.randbits(63) | 1
+        self.msgs = WireMessages(n)
+        self.stats = LoopStats(o.late_threshold_s)
+        self._packed = np.zeros(frame_size(n))
+        self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=8, check=frame_check(n))
+        self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
+        self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND)
+        self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
+        self._pub_wrench = transport.publisher(TOPICS["wrench_est"], WRENCH)
+        self._pub_rows = transport.publisher(TOPICS["controller_log"], CONTROLLER_LOG) if o.log_rows else None
+        self._pub_status = None
+        self._flight_status_type = None
+        T = typestore().types
+        if hasattr(director, "status") and "omnirotor_msgs/msg/FlightStatus" in T:
+            self._flight_status_type = T["omnirotor_msgs/msg/FlightStatus"]
+            self._pub_status = transport.publisher(TOPICS["status"], "omnirotor_msgs/msg/FlightStatus")
+        self._requests: queue.SimpleQueue = queue.SimpleQueue()
+        if hasattr(director, "request") and "omnirotor_msgs/msg/FlightRequest" in T:
+            transport.serve(
+                TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request
+            )
+        self._row_msg = T[CONTROLLER_LOG](frame_seq=0, row=np.zeros(0)) if o.log_rows else None
+        self._loop_msg = T[LOOP_STATUS](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+            t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
+            frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
+        )  # fmt: skip
+        self.cmd_seq = 0
+        self.link_lost = False
+        self.link_lost_age_s = math.nan
+        self.finished = False
+        self._finish_seq = math.inf
+        self._last_seq = -1
+        self.last_t = math.nan
+        self._f_idx = self._m_idx = self._R_idx = None
+        log = getattr(controller, "log", None)
+        if log is not None:
+            try:
+                self._f_idx = log._slices["f_ext_W"]  # noqa: SLF001  (the log's own column map)
+                self._m_idx = log._slices["m_ext_B"]  # noqa: SLF001
+                self._R_idx = log._slices["R_WB"]  # noqa: SLF001
+            except (AttributeError, KeyError):
+                pass
+
+    # -- requests (transport thread -> loop thread) --------------------------------------------------------
+    def _on_request(self, req: Any) -> Any:
+        """The transport's handler: hand ``req`` to the loop and wait (bounded) for its reply."""
+        slot: queue.SimpleQueue = queue.SimpleQueue()
+        self._requests.put((req, slot))
+        return slot.get(timeout=1.0)  # raises queue.Empty: no reply (the client times out)
+
+    def _serve_requests(self) -> None:
+        while True:
+            try:
+                req, slot = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                reply = self.director.request(req)
+                T = typestore().types
+                fields = reply.to_fields() if hasattr(reply, "to_fields") else reply
+                slot.put(T["omnirotor_msgs/msg/FlightReply"](**fields))
+            except Exception as exc:  # noqa: BLE001  (a failing request never ends the loop)
+                self._say(f"request failed: {exc.__class__.__name__}: {exc}")
+
+    # -- publishing -------------------------------------------------------------------------------------------
+    def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int) -> None:
+        m = self.msgs.command
+        self.cmd_seq += 1
+        m.hz[:] = hz
+        m.t = t
+        set_stamp(m.header, t)
+        m.control_status = control_status
+        m.state = _STATE_ARMED if bool(np.any(hz != 0.0)) else _STATE_STOP
+        m.session_id = self.session_id
+        m.seq = self.cmd_seq
+        m.frame_seq = frame_seq
+        self._pub_cmd.put(m)
+
+    def _publish_status(self) -> None:
+        s, m = self.stats, self._loop_msg
+        m.t = self.last_t if math.isfinite(self.last_t) else 0.0
+        set_stamp(m.header, m.t)
+        m.periods, m.periods_late, m.overruns = s.periods, s.late, s.overruns
+        m.worst_late_s = s.worst_late_s
+        p99 = s.latency_percentiles_us().get("p99", 0.0) if s.periods % 50 == 0 or self.link_lost else None
+        if p99 is not None:
+            m.frame_to_command_p99_s = 1e-6 * p99
+        m.frames = s.frames
+        m.frames_bad = self._frames.n_bad
+        m.link_lost = self.link_lost
+        self._pub_loop.put(m)
+        if self._pub_status is not None:
+            try:
+                st = self.director.status()
+                fields = st.to_fields() if hasattr(st, "to_fields") else st
+                self._pub_status.put(self._flight_status_type(**fields))
+            except Exception:  # noqa: BLE001,S110  (a status that cannot be built is skipped, never fatal)
+                pass
+
+    def _publish_wrench(self, t: float) -> None:
+        log = self.controller.log
+        if self._f_idx is None or log.n == 0:
+            return
+        row = log.data[log.n - 1]
+        f = row[self._f_idx]
+        m_W = row[self._R_idx].reshape(3, 3) @ row[self._m_idx]
+        w = self.msgs.wrench
+        set_stamp(w.header, t)
+        w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(v) for v in f)
+        w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(v) for v in m_W)
+        self._pub_wrench.put(w)
+
+    def _publish_row(self, frame_seq: int) -> None:
+        log = self.controller.log
+        if log.n == 0:
+            return
+        self._row_msg.frame_seq = frame_seq
+        self._row_msg.row = log.data[log.n - 1]
+        self._pub_rows.put(self._row_msg)
+
+    # -- the loop ---------------------------------------------------------------------------------------------
+    def run(self, stop: threading.Event | None = None) -> dict:
+        """Run until ``stop`` is set, Ctrl-C, the simulator finishes a mission, or ``max_frames``; the summary."""
+        o = self.options
+        stop = stop if stop is not None else threading.Event()
+        period = o.period_s
+        loss_s = o.lockstep_link_loss_s if o.lockstep else o.link_loss_s
+        status_every = 1.0 / o.status_hz
+        mono = time.monotonic
+        director, controller, stats = self.director, self.controller, self.stats
+        frames = self._frames
+        last_seq = -1
+        last_arrival = math.nan
+        last_seen = math.nan
+        last_frame: SensorFrame | None = None
+        last_mocap_t = -math.inf
+        next_status = 0.0
+        next_gap_call = math.inf
+        steps = 0
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        try:
+            while not stop.is_set() and not self.finished:
+                msg = frames.take_latest()
+                now = mono()
+                if msg is not None and msg.seq <= last_seq:
+                    msg = None  # a repeated start frame, or an older one
+                if msg is None:
+                    if self._idle(now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call):
+                        next_gap_call = now + period
+                    if now >= next_status:
+                        next_status = now + status_every
+                        self._poll_sim_status()
+                        self._publish_status()
+                    self._serve_requests()
+                    if self.link_lost and o.exit_on_link_loss:
+                        break
+                    self._wait(now, last_arrival, period, o.lockstep)
+                    continue
+                # a new frame
+                arrival = now
+                if self.link_lost:
+                    self.link_lost = False
+                    self._say("frames are back")
+                if last_seq >= 0 and msg.seq > last_seq + 1:
+                    stats.skipped(int(msg.seq - last_seq - 1))
+                arrival_late = 0.0
+                if not o.lockstep and math.isfinite(last_arrival):
+                    arrival_late = max(0.0, arrival - last_arrival - period)
+                last_seq = self._last_seq = int(msg.seq)
+                stats.frames += 1
+                frame = SensorFrame.from_packed(unpack_frame(msg, self._packed))
+                self.last_t = frame.t
+                if frame.mocap_new:
+                    last_mocap_t = frame.mocap_t
+                mocap_age = frame.t - last_mocap_t
+                ages = LinkAges(0.0, mocap_age if mocap_age >= 0 else 0.0, False)
+                cmd = None
+                try:
+                    director.on_frame(frame, ages)
+                    if director.wants_step():
+                        cmd = controller.step(frame)
+                        steps += 1
+                except Exception:  # noqa: BLE001  (nothing raises out of the loop: the director holds)
+                    stats.controller_errors += 1
+                    cmd = None
+                hz = director.output(cmd)
+                self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0)
+                sent = mono()
+                if cmd is not None:
+                    if self._pub_rows is not None:
+                        self._publish_row(last_seq)
+                    if steps % o.wrench_every == 0:
+                        self._publish_wrench(frame.t)
+                stats.period(sent - arrival, sent - arrival, arrival_late, period)
+                last_arrival = arrival
+                last_seen = sent  # the link's age counts from when this loop could see a frame again
+                last_frame = frame
+                next_gap_call = arrival + 2 * period
+                if sent >= next_status:
+                    next_status = sent + status_every
+                    self._poll_sim_status()
+                    self._publish_status()
+                self._serve_requests()
+                if o.max_frames is not None and stats.frames >= o.max_frames:
+                    break
+                if not o.lockstep:
+                    self._wait(mono(), arrival, period, False)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            gc.enable()
+            gc.unfreeze()
+        self._publish_status()
+        out = stats.summary()
+        out["link_lost"] = self.link_lost
+        out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
+        out["commands"] = self.cmd_seq
+        out["session_id"] = f"{self.session_id:016x}"
+        return out
+
+    def _idle(self, now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call) -> bool:
+        """A period without a new frame: the director's failsafes (real time), link loss after ``loss_s``.
+
+        Returns:
+            True when the director was called for a period without a frame.
+        """
+        if last_frame is None or self.link_lost:
+            return False
+        age = now - last_seen
+        if age > loss_s:
+            self.link_lost = True
+            self.link_lost_age_s = age
+            self.stats.link_losses += 1
+            self._say(f"link lost: no sensor frame for {1000 * age:.1f} ms; rotor commands stopped")
+            self._call_director(last_frame, LinkAges(age, math.inf, True))
+            self._publish_status()
+            return False
+        if not self.options.lockstep and now >= next_gap_call:
+            mocap_age = last_frame.t - last_mocap_t + age
+            self._call_director(last_frame, LinkAges(age, mocap_age, False))
+            return True
+        return False
+
+    def _call_director(self, frame: SensorFrame, ages) -> None:
+        try:
+            self.director.on_frame(frame, ages)
+        except Exception:  # noqa: BLE001
+            self.stats.controller_errors += 1
+
+    def _poll_sim_status(self) -> None:
+        """A mission ends when the simulator says its run finished."""
+        msg = self._sim_status.take_latest()
+        if msg is not None and msg.finished and self.options.log_rows:
+            self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
+        if self._last_seq >= self._finish_seq:
+            self.finished = True
+
+    def _wait(self, now: float, last_arrival: float, period: float, lockstep: bool) -> None:
+        """Until shortly before the next frame is due: sleep, then poll (lockstep: a very short pause)."""
+        if lockstep or not math.isfinite(last_arrival):
+            time.sleep(0)
+            return
+        due = last_arrival + period
+        left = due - now - _SPIN_S
+        if left > 0:
+            time.sleep(min(left, period))
+        else:
+            time.sleep(0)
+
+
+def warm_up(controller) -> None:
+    """Compile (or load from numba's cache) the controller's kernels before the first real frame.
+
+    One reset and one step on a synthetic hover frame; the controller's next :meth:`reset` (the director's, on
+    the first real frame) starts it anew and clears its log. Best effort: a controller that refuses the
+    synthetic frame (the bypass estimator wants a state) compiles on its first real frame instead.
+    """
+    from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+
+    vehicle = controller.vehicle
+    u = vehicle.hover_input()
+    hz = np.sign(u) * np.sqrt(np.abs(u))
+    p_W = np.array([0.0, 0.0, 1.0])
+    acc = np.array([0.0, 0.0, 9.81])
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    first = SensorFrame(0.0, acc, np.zeros(3), hz.copy(), True, 0.0, p_W, q)
+    second = SensorFrame(controller.params.dt, acc, np.zeros(3), hz.copy(), False)
+    trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
+    try:
+        controller.reset(first, trajectory)
+        controller.step(second)
+    except Exception:  # noqa: BLE001,S110  (best effort, see the docstring)
+        pass
+    controller.log.clear()
+
+
+# -- missions: a task of `omnirotor sim --serve --task`, flown by the node ------------------------------------------
+
+
+class _MissionFlown(Exception):  # noqa: N818  (control flow: the task's own metrics are the simulator's to compute)
+    def __init__(self, summary: dict) -> None:
+        super().__init__("mission flown")
+        self.summary = summary
+
+
+def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str, dict, bool]:
+    """Ask the simulator which task it serves; ``(task, options as a dict, lockstep)``.
+
+    Raises:
+        InputError: no simulator answered within ``timeout_s``, or its answer is not a mission.
+    """
+    import json
+
+    T = typestore().types
+    rep = transport.request(
+        TOPICS["mission"], "std_msgs/msg/String", T["std_msgs/msg/String"](data=""), "std_msgs/msg/String", timeout_s
+    )
+    if rep is None:
+        raise InputError(
+            f"no simulator served a mission within {timeout_s:g} s (is `omnirotor sim --serve --task` up?)"
+        )
+    try:
+        mission = json.loads(rep.data)
+        task, options, lockstep = mission["task"], mission["options"], mission["lockstep"]
+        if not isinstance(task, str) or not isinstance(options, dict) or not isinstance(lockstep, bool):
+            raise TypeError
+    except (ValueError, KeyError, TypeError):
+        raise InputError("the simulator's mission is not a task and its options") from None
+    return task, options, lockstep
+
+
+def fly_mission(
+    transport: Transport,
+    task: str,
+    options: dict,
+    node_options: NodeOptions,
+    director_factory: Callable[[Any, Any], Any],
+    realtime: Callable[[], None] | None = None,
+) -> dict:
+    """Fly the simulator's task: build its controller and trajectory as ``omnirotor run`` does, fly them here.
+
+    The task function runs with :func:`~omnirotor.experiments.loop.loop_override`: where it would fly in
+    process, this node's loop flies its controller (``director_factory(controller, trajectory)``) against the
+    remote plant, publishing its log rows; the task's metrics are then the simulator's to compute.
+
+    Returns:
+        The loop's summary.
+    """
+    from omnirotor.experiments.loop import loop_override
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.experiments.tasks.common import ExperimentOptions
+
+    known = {f.name for f in dataclasses.fields(ExperimentOptions)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise InputError(f"the simulator's mission has options this node does not know: {', '.join(unknown)}")
+    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    opts = ExperimentOptions(**fields)
+    node_options = dataclasses.replace(node_options, log_rows=True, exit_on_link_loss=True)
+
+    def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
+        del sim, progress, video, on_step  # the plant is the simulator's
+        controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
+        warm_up(controller)
+        node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
+        if realtime is not None:
+            realtime()
+        raise _MissionFlown(node.run())
+
+    try:
+        with loop_override(loop):
+            run_task(task, opts)
+    except _MissionFlown as flown:
+        return flown.summary
+    raise InputError(f"task {task!r} did not fly a closed loop")

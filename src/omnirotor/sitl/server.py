@@ -1,0 +1,455 @@
+"""``omnirotor sim --serve``: the MuJoCo plant in its own process, on the flight topics (issue 24, item 3).
+
+Topics (ROS 2 names, in the transport's namespace; types in :mod:`omnirotor.rosmsg`):
+
+    /omnirotor/frame            omnirotor_msgs/msg/SensorFrame   every period: IMU, motion capture (at its rate
+                                                                 and latency), rotor speeds; float64, exact time
+    /omnirotor/imu              sensor_msgs/msg/Imu              every period (ROS view)
+    /omnirotor/mocap            geometry_msgs/msg/PoseStamped    when a motion-capture sample arrives (ROS view)
+    /omnirotor/rotor_speeds     omnirotor_msgs/msg/RotorSpeeds   every period (ROS view)
+    /omnirotor/sim_status       omnirotor_msgs/msg/SimStatus     about 50 Hz
+    /omnirotor/rotor_cmd        omnirotor_msgs/msg/RotorCommand  consumed: obeyed from the paired session only
+    /omnirotor/controller_log   omnirotor_msgs/msg/ControllerLog consumed: the node's log rows (missions)
+    /omnirotor/mission          std_msgs/msg/String (request/reply): the task this server flies, as JSON
+
+A *task* (``--task``, every task of ``omnirotor run``) runs the task function of ``omnirotor run`` unchanged —
+its plant, protocol and metrics — with the in-process controller step replaced by the wire
+(:func:`omnirotor.experiments.loop.loop_override`): frame ``k`` goes out, command ``k`` comes back from the
+node (which flies the same task: ``omnirotor fly --mission-from-sim``), the plant steps under it. The controller
+object the task builds here never steps; it only holds the log rows the node sends back, from which the task
+computes its metrics as ``omnirotor run`` does.
+
+Clocks: ``lockstep`` steps the plant when the command answering the last frame has arrived (deterministic: the
+run is the in-process run's to the last bit); otherwise the plant steps on the wall clock at its period, and a
+period without a new command holds the last one, as an ESC does. Either way the plant starts with the first
+command obeyed (it publishes its start frame until then), and when no command has been obeyed for
+``offboard_loss_s`` (0.5 s) the offboard-loss failsafe stops the rotors, says so on stderr and in its status;
+a lockstep run then goes on in real time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import gc
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from omnirotor.errors import InputError
+from omnirotor.messages import FRAME_T, RotorCommand
+from omnirotor.recorder import Recorder
+from omnirotor.rosmsg import typestore
+from omnirotor.rosmsg.convert import (
+    COMMAND,
+    CONTROLLER_LOG,
+    FRAME,
+    IMU,
+    POSE,
+    SIM_STATUS,
+    SPEEDS,
+    STRING,
+    WireMessages,
+    command_check,
+    set_stamp,
+)
+from omnirotor.sitl.gate import CommandGate
+from omnirotor.transport import Transport
+
+__all__ = ["ServeOptions", "SimLink", "SitlReport", "serve_task", "TOPICS", "MISSION_OPTION_FIELDS"]
+
+TOPICS = {
+    "frame": "/omnirotor/frame",
+    "imu": "/omnirotor/imu",
+    "mocap": "/omnirotor/mocap",
+    "rotor_speeds": "/omnirotor/rotor_speeds",
+    "sim_status": "/omnirotor/sim_status",
+    "rotor_cmd": "/omnirotor/rotor_cmd",
+    "controller_log": "/omnirotor/controller_log",
+    "mission": "/omnirotor/mission",
+    "status": "/omnirotor/status",
+    "loop_status": "/omnirotor/loop_status",
+    "wrench_est": "/omnirotor/wrench_est",
+    "ctl": "/omnirotor/ctl",
+}
+"""Every topic of the flight node and the simulator, by short name (ROS 2 names, before the namespace)."""
+
+MISSION_OPTION_FIELDS = (
+    "solver", "estimator", "duration_s", "seed", "truth", "vehicle", "controller_config", "overrides",
+    "disturbances", "map_mode", "maps", "blend", "quick", "zero_observer", "sim_overrides",
+)  # fmt: skip
+"""The options of a task that travel to the node with the mission (both sides build the same task)."""
+
+_COMMAND_DEPTH = 16
+_LOG_DEPTH = 1 << 15
+_SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
+
+
+@dataclasses.dataclass(frozen=True)
+class ServeOptions:
+    """How the server runs.
+
+    Attributes:
+        lockstep: step k+1 only when command k arrived (deterministic); False: on the wall clock.
+        offboard_loss_s: no command obeyed for this long stops the rotors [s].
+        start_timeout_s: how long to wait for the node's first command before giving up [s].
+        status_hz: SimStatus rate [Hz].
+        ros_views: also publish the standard ROS views (Imu, PoseStamped, RotorSpeeds) every period.
+        row_wait_s: at the end of a run, how long to wait for the node's last log rows [s].
+    """
+
+    lockstep: bool = False
+    offboard_loss_s: float = 0.5
+    start_timeout_s: float = 60.0
+    status_hz: float = 50.0
+    ros_views: bool = True
+    row_wait_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+
+
+@dataclasses.dataclass
+class SitlReport:
+    """What the server counted during a run (printed at its end, added to the run's JSON as ``sitl``)."""
+
+    lockstep: bool = False
+    steps: int = 0
+    commands_obeyed: int = 0
+    commands_held: int = 0
+    commands_refused: int = 0
+    foreign_sessions: int = 0
+    bad_payloads: int = 0
+    failsafe: bool = False
+    failsafe_after_s: float | None = None
+    log_rows_missing: int = 0
+    late_steps: int = 0
+    wall_s: float = 0.0
+    real_time_factor: float = 0.0
+    round_trip_us: dict = dataclasses.field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """A JSON-ready dict."""
+        return dataclasses.asdict(self)
+
+
+class SimLink:
+    """The simulator's side of the wire for one vehicle: frames out, commands in through the gate, status.
+
+    Args:
+        transport: an open transport.
+        n_rotors: the vehicle's rotors.
+        options: the server's options.
+    """
+
+    def __init__(self, transport: Transport, n_rotors: int, options: ServeOptions) -> None:
+        self.options = options
+        self.n = n_rotors
+        self.msgs = WireMessages(n_rotors)
+        self._pub_frame = transport.publisher(TOPICS["frame"], FRAME)
+        self._views = (
+            (transport.publisher(TOPICS["imu"], IMU), transport.publisher(TOPICS["mocap"], POSE),
+             transport.publisher(TOPICS["rotor_speeds"], SPEEDS))
+            if options.ros_views else None
+        )  # fmt: skip
+        self._pub_status = transport.publisher(TOPICS["sim_status"], SIM_STATUS)
+        self._sub_cmd = transport.subscriber(
+            TOPICS["rotor_cmd"], COMMAND, depth=_COMMAND_DEPTH, check=command_check(n_rotors)
+        )
+        self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
+        self.gate = CommandGate()
+        self.cmd_hz = np.zeros(n_rotors)
+        self.cmd_frame_seq = -1
+        self.cmd_wall_s = -math.inf  # monotonic time of the last obeyed command
+        self.cmd_t = 0.0
+        T = typestore().types
+        self._status = T[SIM_STATUS](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="world"),
+            t=0.0, steps=0, lockstep=options.lockstep, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
+            finished=False,
+        )  # fmt: skip
+        self._status_every_s = 1.0 / options.status_hz
+        self._status_next = 0.0
+
+    @property
+    def bad_payloads(self) -> int:
+        """Payloads on the command and log keys that did not decode or were malformed."""
+        return self._sub_cmd.n_bad + self._sub_rows.n_bad
+
+    def send_frame(self, packed: np.ndarray, seq: int) -> None:
+        """Publish a packed frame as ``SensorFrame`` number ``seq`` (and its ROS views)."""
+        self._pub_frame.put(self.msgs.fill_frame(packed, seq))
+        if self._views is not None:
+            imu, pose, speeds = self._views
+            m = self.msgs
+            m.fill_views(packed)
+            imu.put(m.imu)
+            if m.frame.mocap_new:
+                pose.put(m.pose)
+            speeds.put(m.speeds)
+
+    def poll_commands(self) -> bool:
+        """Take every queued command through the gate; True if one was obeyed (the newest obeyed is kept)."""
+        got = False
+        while (msg := self._sub_cmd.take()) is not None:
+            if self.gate.offer(int(msg.session_id), int(msg.seq)):
+                self.cmd_hz[:] = msg.hz
+                self.cmd_frame_seq = int(msg.frame_seq)
+                self.cmd_t = float(msg.t)
+                self.cmd_wall_s = time.monotonic()
+                got = True
+        return got
+
+    def drain_rows(self, store: Callable[[int, np.ndarray], None]) -> None:
+        """Hand every queued controller-log row to ``store(frame_seq, row)``."""
+        while (msg := self._sub_rows.take()) is not None:
+            store(int(msg.frame_seq), msg.row)
+
+    def send_status(self, t: float, steps: int, held: int, failsafe: bool, cause: str, finished: bool = False,
+                    force: bool = False) -> None:  # fmt: skip
+        """Publish SimStatus when due (about ``status_hz``), or now with ``force``."""
+        now = time.monotonic()
+        if not force and now < self._status_next:
+            return
+        self._status_next = now + self._status_every_s
+        s = self._status
+        s.t = t
+        set_stamp(s.header, t)
+        s.steps = steps
+        s.failsafe = 1 if failsafe else 0
+        s.cause = cause
+        s.paired_session_id = self.gate.paired
+        s.commands_obeyed = self.gate.obeyed
+        s.commands_held = held
+        s.commands_refused = self.gate.refused
+        s.foreign_sessions = self.gate.foreign_sessions
+        s.bad_payloads = self.bad_payloads
+        s.command_age_s = now - self.cmd_wall_s
+        s.finished = finished
+        self._pub_status.put(s)
+
+
+def _percentiles_us(samples: np.ndarray) -> dict:
+    if samples.size == 0:
+        return {}
+    p50, p99 = np.percentile(samples, [50, 99])
+    return {"p50": float(p50), "p99": float(p99), "max": float(samples.max()), "n": int(samples.size)}
+
+
+def remote_loop(link: SimLink, report: SitlReport) -> Callable:
+    """A replacement of :func:`~omnirotor.experiments.loop.run_closed_loop` that flies over ``link``.
+
+    Same arguments and result; ``video`` is not supported (refused), ``on_step`` is called as there.
+    """
+
+    def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
+        from omnirotor.experiments.loop import TRUTH_GROUPS, start_pose_of
+
+        if video is not None:
+            raise InputError("--video is not available with the simulator served on the wire")
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise InputError(f"duration must be a finite number of seconds > 0, got {duration_s}")
+        dt = sim.dt
+        n_steps = int(round(duration_s / dt))
+        p0, R0 = start_pose_of(trajectory, controller.vehicle)
+        # compile (or load) the plant's kernels now, not while the node waits for frame 1; reset repeats exactly
+        sim.reset(p_W=p0, R_WB=R0)
+        sim.step(RotorCommand(0.0, sim.hover_speeds_hz(R0)))
+        sim.reset(p_W=p0, R_WB=R0)
+        log = controller.log
+        log.clear()
+        log.ensure_capacity(n_steps)
+        have_row = np.zeros(n_steps, dtype=bool)
+        truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
+
+        def store_row(frame_seq: int, row: np.ndarray) -> None:
+            j = frame_seq - 1  # the step on frame j writes the controller's log row j - 1
+            if 0 <= j < n_steps and row.shape == (log.n_signals,):
+                log.data[j] = row
+                have_row[j] = True
+
+        _run(link, report, sim, n_steps, truth_log, store_row, progress, on_step)
+        # the last rows may still be on their way
+        end = time.monotonic() + link.options.row_wait_s
+        while not have_row.all() and time.monotonic() < end and not report.failsafe:
+            link.drain_rows(store_row)
+            time.sleep(0.001)
+        link.drain_rows(store_row)
+        missing = np.flatnonzero(~have_row)
+        report.log_rows_missing = int(missing.size)
+        for j in missing:  # the previous row stands in (said by the caller)
+            log.data[j] = log.data[j - 1] if j > 0 else np.nan
+        log.n = n_steps
+        return log, truth_log
+
+    return loop
+
+
+def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step) -> None:
+    """Step the plant ``n_steps`` periods over the link (module docstring), filling the truth log."""
+    opts = link.options
+    dt = sim.dt
+    packed = sim.packed_frame
+    every = max(1, n_steps // 100)
+    rtt = np.zeros(n_steps)
+    cmd = RotorCommand(0.0, link.cmd_hz)
+    zeros = np.zeros(link.n)
+    lockstep = opts.lockstep
+    held = 0
+    # wait for the node: the start frame goes out every 50 ms until a command answering it is obeyed
+    deadline = time.monotonic() + opts.start_timeout_s
+    next_send = 0.0
+    while link.cmd_frame_seq != 0:
+        now = time.monotonic()
+        if now > deadline:
+            raise InputError(f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)")
+        if now >= next_send:
+            link.send_frame(packed, 0)
+            link.send_status(float(packed[FRAME_T]), 0, 0, False, "", force=True)
+            next_send = now + 0.05
+        link.poll_commands()
+        time.sleep(0.0005)
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        wall0 = time.monotonic()
+        sent_at = wall0
+        failsafe = False
+        for k in range(n_steps):
+            # the command of frame k
+            if not failsafe:
+                if lockstep:
+                    while True:
+                        link.poll_commands()
+                        if link.cmd_frame_seq >= k:
+                            break
+                        now = time.monotonic()
+                        if now - link.cmd_wall_s > opts.offboard_loss_s:
+                            failsafe = _engage(link, report, now)
+                            break
+                        if now - sent_at > _SPIN_S:
+                            time.sleep(0.00005)
+                    rtt[k] = (link.cmd_wall_s - sent_at) * 1e6
+                else:
+                    due = wall0 + k * dt
+                    _sleep_until(due, link)
+                    now = time.monotonic()
+                    if now - due > 0.0005:
+                        report.late_steps += 1
+                    if link.cmd_frame_seq == k:
+                        rtt[k] = (link.cmd_wall_s - sent_at) * 1e6
+                    else:
+                        rtt[k] = np.nan
+                        held += 1
+                    if now - link.cmd_wall_s > opts.offboard_loss_s:
+                        failsafe = _engage(link, report, now)
+            if failsafe:
+                if lockstep:  # the rest of a lockstep run in real time, rotors stopped
+                    _sleep_until(wall0 + k * dt, None)
+                cmd = RotorCommand(cmd.t, zeros)
+            else:
+                cmd = RotorCommand(link.cmd_t, link.cmd_hz)
+            if on_step is not None:
+                on_step(sim, sim.t)
+            sim.step(cmd)
+            row = truth_log.next_row()
+            if row is not None:
+                sim.truth_row(row)
+                row[-2] = 0.0
+                row[-1] = rtt[k] if math.isfinite(rtt[k]) else 0.0
+            link.send_frame(packed, k + 1)
+            sent_at = time.monotonic()
+            link.drain_rows(store_row)
+            link.send_status(sim.t, k + 1, held, failsafe, "offboard loss" if failsafe else "")
+            if progress is not None and (k + 1) % every == 0:
+                progress((k + 1) / n_steps)
+        wall = time.monotonic() - wall0
+    finally:
+        gc.enable()
+        gc.unfreeze()
+    report.lockstep = lockstep
+    report.steps = n_steps
+    report.commands_obeyed = link.gate.obeyed
+    report.commands_held = held
+    report.commands_refused = link.gate.refused
+    report.foreign_sessions = link.gate.foreign_sessions
+    report.bad_payloads = link.bad_payloads
+    report.wall_s = wall
+    report.real_time_factor = n_steps * dt / wall if wall > 0 else math.inf
+    report.round_trip_us = _percentiles_us(rtt[np.isfinite(rtt) & (rtt > 0)])
+    for _ in range(3):  # the end, said a few times (a best-effort status)
+        link.send_status(sim.t, n_steps, held, failsafe, "offboard loss" if failsafe else "", True, force=True)
+        time.sleep(0.01)
+    if progress is not None:
+        progress(1.0)
+
+
+def _engage(link: SimLink, report: SitlReport, now: float) -> bool:
+    """The offboard-loss failsafe: rotors stopped, said once, the pairing released."""
+    age = now - link.cmd_wall_s
+    report.failsafe = True
+    report.failsafe_after_s = age
+    print(
+        f"omnirotor sim: no rotor command for {age * 1000:.0f} ms: rotors stopped (offboard-loss failsafe)",
+        file=sys.stderr,
+    )
+    link.gate.release()
+    link.send_status(float("nan"), 0, 0, True, "offboard loss", force=True)
+    return True
+
+
+def _sleep_until(when: float, link: SimLink | None) -> None:
+    """Sleep until the monotonic time ``when``, polling ``link``'s commands meanwhile; the last part spinning."""
+    while True:
+        left = when - time.monotonic()
+        if link is not None:
+            link.poll_commands()
+        if left <= 0:
+            return
+        time.sleep(min(left - _SPIN_S, 0.0005) if left > _SPIN_S else 0)
+
+
+def mission_json(task: str, options, lockstep: bool) -> str:
+    """The mission the server flies, as the JSON the node's ``--mission-from-sim`` reads."""
+    fields = {name: getattr(options, name) for name in MISSION_OPTION_FIELDS}
+    return json.dumps({"task": task, "options": fields, "lockstep": lockstep})
+
+
+def serve_task(
+    transport: Transport,
+    task: str,
+    options,
+    serve: ServeOptions,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[object, SitlReport]:
+    """Fly ``task`` (an ``omnirotor run`` task with its ``ExperimentOptions``) with the controller on the wire.
+
+    Returns:
+        ``(the task's result, the server's report)``; the result's summary is the run's JSON as ``omnirotor run``
+        gives it (its timing entries are the wire's: the truth log's ``controller_step_us`` is the frame-to-command
+        round trip).
+
+    Raises:
+        InputError: bad options, or no controller within ``serve.start_timeout_s``.
+    """
+    from omnirotor.experiments.loop import loop_override
+    from omnirotor.experiments.tasks import run_task
+    from omnirotor.vehicle import load_vehicle
+
+    vehicle = load_vehicle(options.vehicle)
+    link = SimLink(transport, vehicle.n_rotors, serve)
+    T = typestore().types
+    mission = mission_json(task, options, serve.lockstep)
+    transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
+    report = SitlReport(lockstep=serve.lockstep)
+    with loop_override(remote_loop(link, report)):
+        result = run_task(task, options, progress=progress)
+    return result, report

@@ -1,0 +1,203 @@
+"""The Zenoh transport (eclipse-zenoh), with rmw_zenoh's key expressions and attachments.
+
+Names follow ``rmw_zenoh`` (ROS 2 Humble, Jazzy, Kilted), so that a ROS 2 node using ``rmw_zenoh`` on the same
+Zenoh network hears these topics with their types:
+
+* a topic's key expression is ``<domain_id>/<fully qualified topic without its leading slash>/<type>/<hash>``,
+  e.g. ``0/omnirotor/rotor_cmd/omnirotor_msgs::msg::dds_::RotorCommand_/RIHS01_afdd...``: the type mangled as
+  ``pkg::msg::dds_::Name_`` and its RIHS01 type hash (rosbags computes it from the definitions);
+* every sample carries rmw_zenoh's attachment, written with Zenoh's own serialiser (``zenoh.ext``): the key
+  ``sequence_number`` and an int64, ``source_timestamp`` and an int64 [ns, system clock], ``source_gid`` and 16
+  bytes identifying the publisher;
+* a request/reply is a Zenoh queryable on the same kind of key (``ctl``'s ``FlightRequest``).
+
+The session is a Zenoh peer with multicast scouting off: it listens on the given endpoints (loopback by default)
+and connects to the given ones, and hears nothing else. Receiving polls a bounded ring
+(``zenoh.handlers.RingChannel``, filled by Zenoh's own threads): the newest ``depth`` samples are kept, older ones
+dropped, so a flood on a key costs its subscriber nothing but the ring. Publishers are ``express`` (no batching:
+lower latency) at real-time priority, and drop rather than block when the network is congested, so the 1 kHz
+loop never waits on a slow receiver.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import ipaddress
+import json
+import re
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+from omnirotor.errors import InputError
+from omnirotor.rosmsg import typestore
+from omnirotor.transport.base import Transport, register_transport
+
+__all__ = ["ZenohTransport", "key_expression", "dds_type_name", "ros_attachment"]
+
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(.+)$")
+_LOOPBACK_NAMES = ("localhost",)
+
+
+def dds_type_name(msgtype: str) -> str:
+    """``pkg/msg/Name`` as ROS 2's DDS-mangled type name ``pkg::msg::dds_::Name_`` (rmw_zenoh's key part)."""
+    pkg, kind, name = msgtype.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def key_expression(domain_id: int, name: str, msgtype: str) -> str:
+    """rmw_zenoh's key expression of the fully qualified topic ``name`` carrying ``msgtype`` (module docstring)."""
+    return f"{domain_id}/{name.strip('/')}/{dds_type_name(msgtype)}/{typestore().hash_rihs01(msgtype)}"
+
+
+def ros_attachment(seq: int, gid: bytes) -> bytes:
+    """rmw_zenoh's attachment of a sample: sequence number, source time stamp [ns] and the 16-byte publisher id."""
+    from zenoh.ext import Int64, z_serialize
+
+    stamp = Int64(time.time_ns())
+    return z_serialize(("sequence_number", Int64(seq), "source_timestamp", stamp, "source_gid", gid)).to_bytes()
+
+
+def _check_endpoints(what: str, endpoints: Sequence[str]) -> list[str]:
+    """Endpoints as a list; a listening one that is not on loopback is said on stderr (it is network-exposed).
+
+    Raises:
+        InputError: an endpoint that is not ``proto/address``.
+    """
+    out = []
+    for e in endpoints:
+        m = _ENDPOINT.match(str(e))
+        if m is None:
+            raise InputError(f"{what} endpoint {e!r} is not a Zenoh locator such as tcp/127.0.0.1:7447")
+        out.append(str(e))
+        if what == "listen" and m.group(1) != "unixsock-stream" and not _is_loopback(m.group(2)):
+            print(
+                f"omnirotor: listening on {e}, outside loopback: anyone on that network can publish and "
+                "subscribe unless Zenoh access control or TLS is configured (docs/fly.md)",
+                file=sys.stderr,
+            )
+    return out
+
+
+def _is_loopback(address: str) -> bool:
+    host = address.rsplit(":", 1)[0].strip("[]")
+    if host in _LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class ZenohTransport(Transport):
+    """A Zenoh peer session (module docstring).
+
+    Args:
+        domain_id: ROS 2 domain id (the first part of every key).
+        namespace: ROS 2 namespace of every topic.
+        listen: endpoints to listen on; ``()`` for none (a pure client).
+        connect: endpoints to connect to.
+        attachment: attach rmw_zenoh's sequence number, time stamp and publisher id to every sample
+            (about 7 µs per sample); False for bare payloads.
+        config: further Zenoh configuration as ``{json5 path: value}`` (e.g. access control, TLS).
+    """
+
+    def __init__(
+        self,
+        *,
+        domain_id: int = 0,
+        namespace: str = "",
+        listen: Sequence[str] = ("tcp/127.0.0.1:7447",),
+        connect: Sequence[str] = (),
+        attachment: bool = True,
+        config: dict | None = None,
+    ) -> None:
+        super().__init__(domain_id=domain_id, namespace=namespace)
+        import zenoh
+
+        self._z = zenoh
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("listen/endpoints", json.dumps(_check_endpoints("listen", listen)))
+        conf.insert_json5("connect/endpoints", json.dumps(_check_endpoints("connect", connect)))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        for path, value in (config or {}).items():
+            conf.insert_json5(path, json.dumps(value))
+        try:
+            self._session = zenoh.open(conf)
+        except Exception as exc:  # noqa: BLE001  (zenoh raises its own ZError for a port in use, etc.)
+            raise InputError(f"cannot open the Zenoh session: {str(exc).splitlines()[0]}") from None
+        self._attachment = attachment
+        self._zid = str(self._session.zid()).encode()
+        self._entities: list = []
+        self._closed = False
+
+    def _gid(self, key: str) -> bytes:
+        return hashlib.blake2b(self._zid + key.encode(), digest_size=16).digest()
+
+    def _publisher(self, name: str, msgtype: str) -> tuple[Callable[[bytes, int], None], str]:
+        z = self._z
+        key = key_expression(self.domain_id, name, msgtype)
+        pub = self._session.declare_publisher(
+            key, congestion_control=z.CongestionControl.DROP, priority=z.Priority.REAL_TIME, express=True
+        )
+        self._entities.append(pub)
+        gid = self._gid(key)
+        put = pub.put
+        if not self._attachment:
+            return (lambda payload, seq: put(payload)), key
+        return (lambda payload, seq: put(payload, attachment=ros_attachment(seq, gid))), key
+
+    def _subscriber(
+        self, name: str, msgtype: str, depth: int
+    ) -> tuple[Callable[[], bytes | None], Callable[[], None], str]:
+        key = key_expression(self.domain_id, name, msgtype)
+        sub = self._session.declare_subscriber(key, self._z.handlers.RingChannel(depth))
+        self._entities.append(sub)
+        try_recv = sub.try_recv
+
+        def poll() -> bytes | None:
+            sample = try_recv()
+            return None if sample is None else sample.payload.to_bytes()
+
+        return poll, sub.undeclare, key
+
+    def _serve(self, name: str, reqtype: str, on_request: Callable[[bytes], bytes | None]) -> None:
+        key = key_expression(self.domain_id, name, reqtype)
+
+        def answer(query) -> None:
+            payload = query.payload
+            reply = on_request(b"" if payload is None else payload.to_bytes())
+            if reply is not None:
+                query.reply(query.key_expr, reply)
+
+        self._entities.append(self._session.declare_queryable(key, answer))
+
+    def _request(self, name: str, reqtype: str, payload: bytes, timeout_s: float) -> bytes | None:
+        key = key_expression(self.domain_id, name, reqtype)
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        # a peer just connected may not have declared its queryable to us yet: ask again until the deadline
+        while True:
+            left = deadline - time.monotonic()
+            for reply in self._session.get(key, payload=payload, timeout=max(left, 0.001)):
+                if reply.ok is not None:
+                    return reply.ok.payload.to_bytes()
+            if deadline - time.monotonic() <= 0.05:
+                return None
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception:  # noqa: BLE001,S110  (already gone with a closing session)
+                pass
+        self._entities.clear()
+        self._session.close()
+
+
+register_transport("zenoh", ZenohTransport)

@@ -1,0 +1,108 @@
+"""Spawning the simulator and the flight node as real processes on loopback, for the wire's tests.
+
+Every test gets free ports and its own namespace, every wait is bounded, and children are killed on failure.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import json
+import os
+import secrets
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+CLI = "import sys; from omnirotor.cli import main; sys.argv[0] = 'omnirotor'; main()"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def env() -> dict:
+    e = dict(os.environ)
+    e["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT)] + ([e["PYTHONPATH"]] if "PYTHONPATH" in e else []))
+    e.setdefault("MUJOCO_GL", "egl")
+    return e
+
+
+def have_director() -> bool:
+    return importlib.util.find_spec("omnirotor.fly.director") is not None
+
+
+class Pair:
+    """A simulator (``omnirotor sim --serve``) and a node on a fresh port and namespace."""
+
+    def __init__(self, tmp: Path, task: str, sim_args: list[str], lockstep: bool) -> None:
+        self.port = free_port()
+        self.namespace = f"/t{secrets.token_hex(4)}"
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.tmp = tmp
+        self.out = tmp / "sim-out"
+        args = ["sim", "--serve", "--task", task, "--listen", self.endpoint, "--namespace", self.namespace, "--json"]
+        args += ["--out", str(self.out)] + (["--lockstep"] if lockstep else []) + sim_args
+        self.sim_err = open(tmp / "sim.err", "w+")  # noqa: SIM115
+        self.node_err = open(tmp / "node.err", "w+")  # noqa: SIM115
+        self.sim = subprocess.Popen(
+            [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True
+        )
+        if have_director():
+            node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
+                        "--listen", f"tcp/127.0.0.1:{free_port()}", "--namespace", self.namespace, "--json",
+                        "--fifo-priority", "0"]  # fmt: skip
+        else:
+            node_cmd = [sys.executable, "-m", "tests.sitl.node_main", self.endpoint, self.namespace]
+        self.node = subprocess.Popen(
+            node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True, cwd=str(ROOT)
+        )
+
+    def wait(self, timeout_s: float) -> tuple[dict, dict]:
+        """Both processes' JSON (the simulator's run, the node's summary) after both exit."""
+        try:
+            sim_out, _ = self.sim.communicate(timeout=timeout_s)
+            node_out, _ = self.node.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            raise AssertionError(
+                f"timed out; sim: {self.text('sim')[-2000:]}\nnode: {self.text('node')[-2000:]}"
+            ) from None
+        assert self.sim.returncode == 0, self.text("sim")[-3000:]
+        assert self.node.returncode == 0, self.text("node")[-3000:]
+        return json.loads(sim_out), json.loads(node_out.strip().splitlines()[-1])
+
+    def text(self, which: str) -> str:
+        f = self.sim_err if which == "sim" else self.node_err
+        f.flush()
+        return Path(f.name).read_text()
+
+    def kill(self) -> None:
+        for p in (self.sim, self.node):
+            if p.poll() is None:
+                p.kill()
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    p.wait(timeout=10)
+
+    def __enter__(self) -> Pair:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.kill()
+        self.sim_err.close()
+        self.node_err.close()
+
+
+def wait_until(fn, timeout_s: float, step_s: float = 0.005):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        out = fn()
+        if out:
+            return out
+        time.sleep(step_s)
+    return None

@@ -1,0 +1,114 @@
+"""The PX4 profile's mapping: speeds <-> ActuatorMotors controls, PX4's thrust model, ESC telemetry, CDR."""
+
+import math
+
+import numpy as np
+import pytest
+
+from omnirotor.errors import InputError
+from omnirotor.fly.px4 import (
+    NUM_CONTROLS,
+    PX4_PROFILE,
+    actuator_motors_msg,
+    controls_from_speeds,
+    esc_signal_from_control,
+    imu_from_sensor_combined,
+    reversible_flags,
+    rotor_hz_from_esc_status,
+    speeds_from_controls,
+)
+from omnirotor.rosmsg import msg_type, typestore
+from omnirotor.vehicle import load_vehicle
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle("omnirotor")
+
+
+def test_hover_speeds_map_to_their_normalised_thrust_and_back(vehicle):
+    w_max = vehicle.omega_max_hz
+    u = vehicle.hover_input()
+    hover = np.sign(u) * np.sqrt(np.abs(u))  # 143.8 Hz on every rotor (SPEC §1.2)
+    c = controls_from_speeds(hover, w_max)
+    assert c.shape == (NUM_CONTROLS,) and np.isnan(c[8:]).all()
+    # normalised thrust = c_f u / (c_f w_max^2): the thrust the rotor makes over its largest thrust
+    np.testing.assert_allclose(c[:8], vehicle.c_f * u / (vehicle.c_f * w_max**2), rtol=1e-14)
+    assert c[0] == pytest.approx((143.8 / 220.0) ** 2, rel=1e-3)
+    np.testing.assert_allclose(speeds_from_controls(c, w_max, 8), hover, rtol=1e-14)
+
+
+def test_signed_speeds_round_trip_through_float32_and_cdr(vehicle):
+    rng = np.random.default_rng(1)
+    w_max = vehicle.omega_max_hz
+    w = rng.uniform(-w_max, w_max, 8)
+    c = controls_from_speeds(w, w_max)
+    assert np.array_equal(np.sign(c[:8]), np.sign(w))  # reversible: the sign is the spin direction
+    msg = actuator_motors_msg(c, 1_000_000, reversible_flags(vehicle.omega_min_hz, 8))
+    store = typestore()
+    name = "px4_msgs/msg/ActuatorMotors"
+    back = store.deserialize_cdr(store.serialize_cdr(msg, name), name)
+    assert back.reversible_flags == 0xFF and back.timestamp == 1_000_000 and np.isnan(back.control[8:]).all()
+    w_back = speeds_from_controls(back.control, w_max, 8)
+    np.testing.assert_allclose(w_back, w, rtol=2e-7, atol=1e-4)  # float32 on PX4's side
+
+
+def test_out_of_range_nonfinite_and_stopped(vehicle):
+    w_max = vehicle.omega_max_hz
+    out = np.zeros(NUM_CONTROLS)
+    c = controls_from_speeds(np.array([300.0, -300.0, np.nan, 0.0]), w_max, out)
+    assert c is out and c[0] == 1.0 and c[1] == -1.0 and math.isnan(c[2]) and c[3] == 0.0
+    assert np.isnan(controls_from_speeds(np.full(8, 100.0), w_max, stopped=True)).all()
+    assert speeds_from_controls(np.full(12, np.nan), w_max, 8).tolist() == [0.0] * 8
+    assert reversible_flags(0.0, 4) == 0 and reversible_flags(-220.0, 8) == 0xFF
+    with pytest.raises(InputError, match="in \\[-1, 1\\]"):
+        actuator_motors_msg(np.full(12, 1.5), 0, 0)
+
+
+@pytest.mark.parametrize("f", [0.0, 0.3, 0.7, 1.0])
+def test_px4_thrust_model_inverse(vehicle, f):
+    w_max = vehicle.omega_max_hz
+    w = np.linspace(-w_max, w_max, NUM_CONTROLS)
+    c = controls_from_speeds(w, w_max)
+    x = esc_signal_from_control(c, f)
+    # PX4's model: |control| = f x^2 + (1 - f) |x|, the sign kept (reversible)
+    np.testing.assert_allclose(f * x * x + (1 - f) * np.abs(x), np.abs(c), atol=1e-12)
+    assert np.array_equal(np.sign(x), np.sign(c))
+    if f == 1.0:  # THR_MDL_FAC = 1: the ESC receives the commanded speed over full scale
+        np.testing.assert_allclose(x, w / w_max, atol=1e-12)
+
+
+def test_esc_status_gives_signed_speeds_by_motor_number():
+    report = msg_type("px4_msgs/msg/EscReport")
+    status = msg_type("px4_msgs/msg/EscStatus")
+    reports = [report(timestamp=0, esc_errorcount=0, esc_rpm=0, esc_voltage=0.0, esc_current=0.0, esc_temperature=0.0,
+                      motor_temperature=0, esc_state=0, actuator_function=0, failures=0, esc_power=0)
+               for _ in range(12)]  # fmt: skip
+    for k, (motor, rpm) in enumerate([(2, 6000), (1, -8580), (4, 3000)]):
+        reports[k].actuator_function = 100 + motor
+        reports[k].esc_rpm = rpm
+    msg = status(timestamp=0, counter=1, esc_count=3, esc_connectiontype=5, esc_online_flags=0b011,
+                 esc_armed_flags=0b111, esc=reports)  # fmt: skip
+    hz = rotor_hz_from_esc_status(msg, 4)
+    assert hz[0] == -143.0 and hz[1] == 100.0 and np.isnan(hz[2]) and np.isnan(hz[3])  # motor 4's ESC offline
+
+
+def test_sensor_combined_frd_to_flu():
+    msg = msg_type("px4_msgs/msg/SensorCombined")(
+        timestamp=0, gyro_rad=np.array([0.1, 0.2, 0.3], dtype=np.float32), gyro_integral_dt=0,
+        accelerometer_timestamp_relative=0, accelerometer_m_s2=np.array([0.0, 0.0, -9.81], dtype=np.float32),
+        accelerometer_integral_dt=0, accelerometer_clipping=0, gyro_clipping=0, accel_calibration_count=0,
+        gyro_calibration_count=0,
+    )  # fmt: skip
+    acc, gyro = imu_from_sensor_combined(msg)
+    np.testing.assert_allclose(acc, [0.0, 0.0, 9.81], rtol=1e-6)  # at rest the accelerometer reads +g up (FLU)
+    np.testing.assert_allclose(gyro, [0.1, -0.2, -0.3], rtol=1e-6)
+
+
+def test_profile_names_px4_topics_and_known_types():
+    known = typestore().types
+    for route in PX4_PROFILE:
+        assert route.px4_topic.startswith("/fmu/in/" if route.to_px4 else "/fmu/out/")
+    shipped = {r.msgtype for r in PX4_PROFILE if r.msgtype in known}
+    assert {"px4_msgs/msg/SensorCombined", "px4_msgs/msg/EscStatus", "px4_msgs/msg/ActuatorMotors",
+            "px4_msgs/msg/VehicleOdometry"} <= shipped  # fmt: skip

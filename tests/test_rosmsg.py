@@ -1,0 +1,157 @@
+"""The shipped ROS 2 message definitions and their rosbags type store (issue 24, item 1)."""
+
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from omnirotor.rosmsg import MSG_PACKAGES, msg_files, typestore
+
+ROOT = Path(__file__).resolve().parents[1] / "src" / "omnirotor" / "rosmsg"
+
+# The type hashes px4_msgs' own generated code carries (rosidl_generator_c's *__description.c of PX4's
+# px4_msgs for the v1.18 line): ours must be the same types, or a ROS 2 node using px4_msgs would not match.
+PX4_RIHS01 = {
+    "px4_msgs/msg/EscStatus": "85dc04703b64002f2a39e5909078ae7b7301da32ef14a04329f4ca9e40e635a2",
+    "px4_msgs/msg/EscReport": "130a8d15dc9de33bf51236702851aea8277ab76b6ce54ab07e25ba79d8911dcb",
+}
+
+
+def _example(store, name: str):
+    """A message of type ``name`` whose every field holds a non-default value (recursively)."""
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    cls = store.types[name]
+    fields = store.fielddefs[name][1]
+    values = {}
+    for fname, (kind, spec) in fields:
+        values[fname] = _value(store, kind, spec, rng)
+    return cls(**values)
+
+
+def _value(store, kind, spec, rng):
+    from rosbags.interfaces import Nodetype
+
+    if kind == Nodetype.BASE:
+        typ = spec[0]
+        if typ == "string":
+            return "cause é"
+        if typ == "bool":
+            return True
+        if typ.startswith("float"):
+            return float(rng.normal()) if typ == "float64" else float(np.float32(rng.normal()))
+        info = np.iinfo(typ if typ not in ("byte", "char", "octet") else "uint8")
+        return int(rng.integers(max(info.min, -1000), min(info.max, 1000), endpoint=True)) or 1
+    if kind == Nodetype.NAME:
+        return _example(store, spec)
+    sub_kind, sub_spec = spec[0]
+    n = spec[1] if kind == Nodetype.ARRAY else 3
+    if sub_kind == Nodetype.BASE and sub_spec[0] not in ("string", "bool"):
+        dtype = {"float64": np.float64, "float32": np.float32}.get(sub_spec[0], sub_spec[0])
+        return np.asarray([_value(store, sub_kind, sub_spec, rng) for _ in range(n)], dtype=dtype)
+    return [_value(store, sub_kind, sub_spec, rng) for _ in range(n)]
+
+
+def _equal(a, b) -> bool:
+    if hasattr(a, "__dataclass_fields__"):
+        return all(_equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__ if f != "__msgtype__")
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and np.array_equal(a, b)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def test_every_shipped_message_is_registered():
+    names = msg_files()
+    assert {n.split("/")[0] for n in names} == set(MSG_PACKAGES)
+    for required in ("SensorFrame", "RotorSpeeds", "RotorCommand", "SimStatus", "LoopStatus"):
+        assert f"omnirotor_msgs/msg/{required}" in names
+    for required in (
+        "SensorCombined", "VehicleOdometry", "EscStatus", "EscReport", "ActuatorMotors", "VehicleAttitude",
+        "VehicleLocalPosition",
+    ):  # fmt: skip
+        assert f"px4_msgs/msg/{required}" in names
+    store = typestore()
+    for name in names:
+        assert name in store.types
+    assert "geometry_msgs/msg/WrenchStamped" in store.types  # the standard types are there too
+
+
+@pytest.mark.parametrize("name", sorted(msg_files()))
+def test_cdr_round_trip_is_exact(name):
+    store = typestore()
+    msg = _example(store, name)
+    raw = store.serialize_cdr(msg, name)
+    back = store.deserialize_cdr(raw, name)
+    assert _equal(msg, back)
+    assert store.serialize_cdr(back, name) == raw
+
+
+def test_px4_subset_hashes_match_px4_msgs():
+    store = typestore()
+    for name, digest in PX4_RIHS01.items():
+        assert store.hash_rihs01(name) == f"RIHS01_{digest}"
+
+
+def test_float64_frame_time_survives_exactly():
+    """The lockstep path relies on the frame's time and numbers passing through CDR bit for bit."""
+    store = typestore()
+    name = "omnirotor_msgs/msg/SensorFrame"
+    msg = _example(store, name)
+    t = 1234.000999999999976
+    msg.t = t
+    msg.state[:] = np.nextafter(np.arange(21.0), np.inf)
+    back = store.deserialize_cdr(store.serialize_cdr(msg, name), name)
+    assert back.t == t
+    assert np.array_equal(back.state, msg.state)
+
+
+def test_field_names_follow_ros2_rules():
+    """rosidl accepts lower-case field names and upper-case constants only: a workspace must build these."""
+    field = re.compile(r"^[a-z][a-z0-9]*(_[a-z0-9]+)*$")
+    const = re.compile(r"^[A-Z][A-Z0-9_]*$")
+    for name, path in msg_files().items():
+        for line in path.read_text().splitlines():
+            body = line.split("#", 1)[0].strip()
+            if not body:
+                continue
+            parts = body.split()
+            assert len(parts) >= 2, (name, line)
+            ident = parts[1].split("=")[0]
+            if "=" in body:
+                assert const.match(ident), (name, line)
+            else:
+                assert field.match(ident), (name, line)
+
+
+def test_ros_package_is_buildable_in_form():
+    pkg = ROOT / "omnirotor_msgs"
+    tree = ET.parse(pkg / "package.xml")
+    assert tree.getroot().attrib["format"] == "3"
+    assert tree.findtext("name") == "omnirotor_msgs"
+    assert tree.find("member_of_group").text == "rosidl_interface_packages"
+    depends = {e.text for e in tree.findall("depend")}
+    cmake = (pkg / "CMakeLists.txt").read_text()
+    assert "project(omnirotor_msgs)" in cmake and "rosidl_generate_interfaces" in cmake
+    # every package a message refers to is a dependency of the package
+    used = set()
+    for path in (pkg / "msg").glob("*.msg"):
+        used |= set(re.findall(r"^([a-z_]+)/[A-Z]\w*", path.read_text(), flags=re.M))
+    assert used <= depends
+
+
+def test_independent_store_from_the_files_alone():
+    """A store built only from the shipped files (as a ROS 2 listener would) gives the same types and hashes."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for name, path in msg_files().items():
+        types.update(get_types_from_msg(path.read_text(), name))
+    store.register(types)
+    for name in msg_files():
+        assert store.hash_rihs01(name) == typestore().hash_rihs01(name)

@@ -1,0 +1,210 @@
+"""The transport interface over real Zenoh sessions on loopback (issue 24, item 1)."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from omnirotor.errors import InputError
+from omnirotor.rosmsg import typestore
+from omnirotor.transport import TRANSPORTS, Transport, key_expression, open_transport, register_transport, ros_topic
+
+SPEEDS = "omnirotor_msgs/msg/RotorSpeeds"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def speeds(t: float, n: int = 8):
+    T = typestore().types
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=0), frame_id="b")
+    return T[SPEEDS](header=header, t=t, hz=np.arange(float(n)) + t)
+
+
+def wait_for(fn, timeout_s: float = 5.0):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        out = fn()
+        if out is not None:
+            return out
+        time.sleep(0.002)
+    return None
+
+
+@pytest.fixture
+def pair():
+    port = free_port()
+    a = open_transport(listen=[f"tcp/127.0.0.1:{port}"])
+    b = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    yield a, b
+    a.close()
+    b.close()
+
+
+def connected(pub, sub) -> None:
+    """Publish until the subscriber hears (the peers' declarations take a moment to propagate)."""
+    assert wait_for(lambda: (pub.put(speeds(0.0)), sub.take())[1]) is not None
+    while sub.take() is not None:
+        pass
+
+
+def test_key_expression_follows_rmw_zenoh():
+    key = key_expression(3, "/robot1/omnirotor/rotor_cmd", "omnirotor_msgs/msg/RotorCommand")
+    parts = key.split("/")
+    assert parts[:4] == ["3", "robot1", "omnirotor", "rotor_cmd"]
+    assert parts[4] == "omnirotor_msgs::msg::dds_::RotorCommand_"
+    assert parts[5] == typestore().hash_rihs01("omnirotor_msgs/msg/RotorCommand")
+    assert parts[5].startswith("RIHS01_") and len(parts[5]) == 7 + 64
+
+
+def test_publish_subscribe_round_trip_and_bad_payloads(pair):
+    a, b = pair
+    sub = b.subscriber("/omnirotor/rotor_speeds", SPEEDS, depth=16)
+    pub = a.publisher("/omnirotor/rotor_speeds", SPEEDS)
+    connected(pub, sub)
+    pub.put(speeds(1.25))
+    pub.put_raw(b"\x00\x01junk")  # not CDR of the type
+    pub.put_raw(b"")
+    pub.put(speeds(2.5))
+    got = [wait_for(sub.take), wait_for(sub.take)]
+    assert [m.t for m in got] == [1.25, 2.5]
+    assert np.array_equal(got[1].hz, np.arange(8.0) + 2.5)
+    assert sub.n_bad == 2
+    assert sub.take() is None
+
+
+def test_take_latest_skips_older(pair):
+    a, b = pair
+    sub = b.subscriber("/x", SPEEDS, depth=8)
+    pub = a.publisher("/x", SPEEDS)
+    connected(pub, sub)
+    for k in range(5):
+        pub.put(speeds(float(k)))
+    time.sleep(0.2)
+    assert sub.take_latest().t == 4.0
+    assert sub.n_skipped == 4
+    assert sub.take_latest() is None
+
+
+def test_ring_keeps_the_newest_depth(pair):
+    a, b = pair
+    sub = b.subscriber("/x", SPEEDS, depth=3)
+    pub = a.publisher("/x", SPEEDS)
+    connected(pub, sub)
+    for k in range(50):
+        pub.put(speeds(float(k)))
+    time.sleep(0.3)
+    got = []
+    while (m := sub.take()) is not None:
+        got.append(m.t)
+    assert got == [47.0, 48.0, 49.0]
+
+
+def test_check_refuses_semantically_bad_messages(pair):
+    a, b = pair
+    sub = b.subscriber("/x", SPEEDS, check=lambda m: m.hz.shape == (8,) and bool(np.all(np.isfinite(m.hz))))
+    pub = a.publisher("/x", SPEEDS)
+    assert wait_for(lambda: (pub.put(speeds(0.0)), sub.take())[1]) is not None
+    pub.put(speeds(1.0, n=3))
+    bad = speeds(2.0)
+    bad.hz[0] = np.nan
+    pub.put(bad)
+    pub.put(speeds(3.0))
+    assert wait_for(sub.take).t == 3.0
+    assert sub.n_bad == 2
+
+
+def test_namespaces_and_domains_do_not_cross():
+    port = free_port()
+    a = open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/r1")
+    b = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/r2")
+    c = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], domain_id=7, namespace="/r1")
+    d = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/r1")
+    try:
+        subs = [t.subscriber("/x", SPEEDS) for t in (b, c, d)]
+        pub = a.publisher("/x", SPEEDS)
+        assert wait_for(lambda: (pub.put(speeds(1.0)), subs[2].take())[1]) is not None
+        time.sleep(0.2)
+        assert subs[0].take() is None and subs[1].take() is None
+    finally:
+        for t in (a, b, c, d):
+            t.close()
+
+
+def test_request_reply(pair):
+    a, b = pair
+    T = typestore().types
+
+    def handler(req):
+        if req.t < 0:
+            raise RuntimeError("refused")  # a failing handler: no reply, no crash
+        return T[SPEEDS](header=req.header, t=2 * req.t, hz=req.hz[::-1].copy())
+
+    a.serve("/omnirotor/ctl", SPEEDS, SPEEDS, handler)
+    rep = b.request("/omnirotor/ctl", SPEEDS, speeds(1.5), SPEEDS, timeout_s=3.0)
+    assert rep is not None and rep.t == 3.0 and rep.hz[0] == 7.0 + 1.5
+    assert b.request("/omnirotor/ctl", SPEEDS, speeds(-1.0), SPEEDS, timeout_s=0.3) is None
+    assert b.request("/omnirotor/nobody", SPEEDS, speeds(1.0), SPEEDS, timeout_s=0.2) is None
+
+
+def test_bad_names_and_options_are_input_errors(capsys):
+    with pytest.raises(InputError):
+        ros_topic("", "/1bad")
+    with pytest.raises(InputError):
+        ros_topic("no space", "/x")
+    assert ros_topic("/r1/", "x/y") == "/r1/x/y"
+    with pytest.raises(InputError, match="unknown transport"):
+        open_transport("carrier-pigeon")
+    with pytest.raises(InputError, match="domain id"):
+        open_transport(domain_id=233, listen=[])
+    with pytest.raises(InputError, match="locator"):
+        open_transport(listen=["127.0.0.1:7447"])
+    t = open_transport(listen=[])
+    try:
+        with pytest.raises(InputError, match="unknown message type"):
+            t.publisher("/x", "nope_msgs/msg/Nothing")
+        with pytest.raises(InputError, match="depth"):
+            t.subscriber("/x", SPEEDS, depth=0)
+    finally:
+        t.close()
+
+
+def test_listening_outside_loopback_is_said(capsys):
+    t = open_transport(listen=[f"tcp/0.0.0.0:{free_port()}"])
+    t.close()
+    assert "outside loopback" in capsys.readouterr().err
+
+
+def test_registry_takes_another_transport():
+    class Null(Transport):
+        def __init__(self, **kw):
+            super().__init__(domain_id=kw["domain_id"], namespace=kw["namespace"])
+
+        def _publisher(self, name, msgtype):
+            return (lambda payload, seq: None), name
+
+        def _subscriber(self, name, msgtype, depth):
+            return (lambda: None), (lambda: None), name
+
+        def _serve(self, name, reqtype, on_request):
+            pass
+
+        def _request(self, name, reqtype, payload, timeout_s):
+            return None
+
+        def close(self):
+            pass
+
+    register_transport("null-test", Null)
+    try:
+        t = open_transport("null-test", namespace="/n")
+        assert t.subscriber("/x", SPEEDS).take() is None
+        t.publisher("/x", SPEEDS).put(speeds(1.0))
+    finally:
+        del TRANSPORTS["null-test"]
