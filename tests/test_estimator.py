@@ -17,9 +17,9 @@ import pytest
 
 from omnirotor.config import from_mapping
 from omnirotor.control import _estimator_kernels as _ek
-from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
+from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, estimate_of, make_estimator
 from omnirotor.errors import InputError
-from omnirotor.messages import SensorFrame, StateEstimate
+from omnirotor.messages import ESTIMATE_DTYPE, SensorFrame, StateEstimate
 from omnirotor.so3 import R_from_rpy, exp_so3, log_so3, quat_wxyz_from_R, vee
 from omnirotor.vehicle import load_vehicle
 
@@ -526,14 +526,15 @@ def _reference_step(est, frame, c):
     ``est`` supplies the memory and the Python start-up (reset); its own counters are not used. ``c`` also
     counts the stale samples and the advances of the delayed state, to show what the sequence exercised.
     """
-    out = np.empty(21)
+    out_record = np.zeros(1, ESTIMATE_DTYPE)
+    out = out_record[0]
     if not est.initialised:
         if _reference_mocap_valid(frame):
             est.reset(frame)
             c.update(fused=0, rejected_mocap=0, reinit=0, rejected_inputs=0, last_rejected=False, degraded=False)
-        _ek.write_estimate(est.state[0], out)
+        _ek.write_estimate_into(est.state, out_record)
         valid = est.initialised and not c["degraded"]
-        return StateEstimate(float(frame.t), out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
+        return estimate_of(float(frame.t), out_record, valid)
     u, buf, sbuf, w = est.state[0], est.kernel_arrays.imu_buf, est.kernel_arrays.state_buf, est.kernel_arrays.work[0]
     mocap = frame.mocap_new
     code, t = _ek.imu_step(u, buf, sbuf, frame.imu_gyro_B, frame.imu_acc_B, frame.t)
@@ -568,7 +569,7 @@ def _reference_step(est, frame, c):
         c["rejected_inputs"] += 1
     c["last_rejected"] = bool(rejected)
     c["degraded"] = degraded = bool(code & _ek.STEP_DEGRADED)
-    return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], not degraded)
+    return estimate_of(t, out_record, not degraded)
 
 
 def _faulty_frames():
