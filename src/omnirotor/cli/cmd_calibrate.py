@@ -10,6 +10,7 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+from omnirotor.safe_io import write_text_atomic
 
 
 @app.command("calibrate-truth")
@@ -51,7 +52,7 @@ def calibrate_truth_cmd(
     if report is not None:
         report.mkdir(parents=True, exist_ok=True)
         plot_measured_vs_predicted(result, report / "measured-vs-predicted.png")
-        (report / "report.md").write_text(text)
+        write_text_atomic(report / "report.md", text, "--report")
     write_truth_toml(out, result.params)
     sys.stdout.write(text)
 
@@ -111,7 +112,7 @@ def calibrate_disturbances_cmd(
         report, values, quick=quick, seed=seed, workers=workers, progress=lambda line: sys.stderr.write(line + "\n")
     )
     text = report_markdown(result)
-    (report / "disturbances.md").write_text(text)
+    write_text_atomic(report / "disturbances.md", text, "--report")
     save_json(report / "disturbances.json", result)
     write_toml(out, result.value)
     if doc is not None:

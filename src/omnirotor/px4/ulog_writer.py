@@ -124,11 +124,9 @@ class ULogWriter:
             ts, ti, ri = np.concatenate(stamps), np.concatenate(topic_idx), np.concatenate(row_idx)
             order = np.lexsort((ri, ti, ts))
             out.extend(blobs[ti[k]][ri[k]].tobytes() for k in order)
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.tmp")
-        tmp.write_bytes(b"".join(out))
-        tmp.replace(p)
+        from omnirotor.safe_io import write_bytes_atomic
+
+        write_bytes_atomic(path, b"".join(out), "--ulog")
 
 
 def _packed(dtype: np.dtype) -> np.dtype:
