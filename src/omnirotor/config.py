@@ -224,3 +224,12 @@ def check_positive(name: str, value: float) -> None:
     """Raise :class:`InputError` unless ``value`` is finite and > 0."""
     if not (math.isfinite(value) and value > 0):
         raise InputError(f"{name} must be a finite number > 0, got {value}")
+
+
+def check_count(name: str, value: int, lo: int, hi: int) -> None:
+    """Raise :class:`InputError` unless ``value`` is an integer in ``[lo, hi]`` (a size built from an option).
+
+    Checked before anything is allocated or started: ``hi`` is a documented maximum of :mod:`omnirotor.limits`.
+    """
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise InputError(f"{name} must be an integer from {lo} to {hi}, got {value!r}")

@@ -39,8 +39,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from omnirotor.config import check_positive
+from omnirotor.config import check_count, check_positive
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_SIGN_BANDS, MIN_SIGN_STEP_DEG
 from omnirotor.regions import Partition, partition_from_dict
 from omnirotor.safe_io import write_text_atomic
 from omnirotor.vehicle import VehicleParams, fibonacci_sphere
@@ -212,6 +213,9 @@ def partition_from_signs(
         The partition and its costs.
     """
     check_positive("step_deg", step_deg)
+    if step_deg < MIN_SIGN_STEP_DEG:
+        raise InputError(f"--step {step_deg} deg is finer than the finest grid, {MIN_SIGN_STEP_DEG:g} deg")
+    check_count("--bands", bands, 1, MAX_SIGN_BANDS)
     n_el = round(180.0 / step_deg)
     if abs(n_el * step_deg - 180.0) > 1e-9 or n_el < 2:
         raise InputError(f"--step {step_deg} deg must divide 180 into at least 2 cells")
