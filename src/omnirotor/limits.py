@@ -53,7 +53,8 @@ MIN_SIGN_STEP_DEG = 2.5
 of the rows and the 1.7th power of the bands: on a loaded 2-core machine 5 deg and 4 bands (the defaults) took
 3 s, 2 deg 17 s, 1 deg over a minute, 2 deg and 12 bands 140 s; 0.01 deg would need 648 million cells."""
 MAX_SIGN_BANDS = 8
-"""Most elevation bands of ``regions --from-signs`` (5 deg and 12 bands took 19 s)."""
+"""Most elevation bands of ``regions --from-signs`` (5 deg and 12 bands took 19 s; the worst allowed, 2.5 deg and
+8 bands, 44 s beside a test run)."""
 MAX_STUDY_REPS = 1000
 """Most seeded repetitions of a study (``study ... --reps``)."""
 MAX_VALIDATION_ATTITUDES = 100_000
