@@ -182,7 +182,7 @@ def vehicle_from_px4_params(
         InputError: missing geometry, an unknown overlay key, mixed reversible and one-way rotors, or a
         non-physical result.
     """
-    from omnirotor.vehicle import RotorParams, VehicleParams
+    from omnirotor.vehicle_model import RotorParams, VehicleParams
 
     overlay = {**_omr_values(params), **dict(overlay or {})}
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
@@ -278,7 +278,7 @@ def _omr_values(params: Mapping[str, float]) -> dict[str, Any]:
 
 
 def _rank(pos: np.ndarray, axis: np.ndarray, spins: np.ndarray, km: float) -> int:
-    from omnirotor.vehicle import wrench_map
+    from omnirotor.vehicle_model import wrench_map
 
     a = axis / np.linalg.norm(axis, axis=1, keepdims=True)
     A = wrench_map(pos, a, spins, 1.0, km)
