@@ -11,7 +11,7 @@ import typer
 from omnirotor.cli import app
 from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
-from omnirotor.safe_io import write_text_atomic
+from omnirotor.safe_io import check_output_dir, check_output_file, write_text_atomic
 
 
 @app.command("calibrate-truth")
@@ -36,12 +36,11 @@ def calibrate_truth_cmd(
 
     stdout gets one summary line; stderr shows progress (about 90 s with --loo on the paper's 39 points).
     """
-    if out.exists() and out.is_dir():
-        raise InputError(f"--out {out}: is a folder")
     if not out.parent.exists():
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
-    if report is not None and report.exists() and not report.is_dir():
-        raise InputError(f"--report {report}: is a file, not a folder")
+    check_output_file(out, "--out")  # a folder, FIFO, device, link or unwritable folder: before the work
+    if report is not None:
+        check_output_dir(report, "--report")
     from omnirotor.experiments.calibration.truth import (
         calibrate,
         plot_measured_vs_predicted,
