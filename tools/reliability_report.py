@@ -971,12 +971,9 @@ ISSUE26 = (
 """The categories of issue 26 and where each is tried (``render`` counts probes and tests)."""
 
 
-def _tests_in(name: str) -> int | None:
-    """How many test functions a test file holds (None if it is not in the tree: not landed)."""
-    path = ROOT / "tests" / name
-    if not path.is_file():
-        return None
-    return sum(1 for line in path.read_text().splitlines() if line.startswith(("def test_", "async def test_")))
+def _landed(name: str) -> bool:
+    """Whether a test file is in the tree (a category whose tests are not has not landed)."""
+    return (ROOT / "tests" / name).is_file()
 
 
 def issue26_section(results: list[tuple[Probe, str, str]]) -> list[str]:
@@ -984,18 +981,18 @@ def issue26_section(results: list[tuple[Probe, str, str]]) -> list[str]:
     lines = [
         "## Issue 26: every category",
         "",
-        "What the attack pass on c9bdaf9 broke, category by category: the probes of this report that try it (with",
-        "their outcome) and the test files that try it more widely (each test fails if the promise breaks; the",
-        "suite runs them). A category whose tests are not in the tree has not landed.",
+        "What the attack pass on c9bdaf9 broke (685 probes, 145 failures), category by category: the probes of",
+        "this report that try it, how many gave the promised outcome, and the test files that try it more widely",
+        "(hypothesis and parametrised cases; each fails if the promise breaks, and the suite runs them). A",
+        "category whose tests are not in the tree has not landed.",
         "",
-        "| item | category | probes here | promised outcome | test files (tests) |",
+        "| item | category | probes here | promised outcome | test files |",
         "|---|---|---:|---:|---|",
     ]
     for item, what, groups, files, _who in ISSUE26:
         mine = [o for p, o, _ in results if p.group in groups]
         good = sum(o in GOOD for o in mine)
-        counts = [(f, _tests_in(f)) for f in files]
-        cells = ", ".join(f"`{f}` ({n})" if n is not None else f"`{f}`: not landed" for f, n in counts)
+        cells = ", ".join(f"`{f}`" if _landed(f) else f"`{f}`: not landed" for f in files)
         if item == "1":
             cells = (
                 "not yet done: the 13 sustained-fault scenarios of the attack pass (frozen or jumping motion "
