@@ -24,6 +24,7 @@ from omnirotor.cli import main
 from omnirotor.errors import InputError
 from omnirotor.px4.flight import read_flight
 from omnirotor.px4.ulog_guard import HEADER_BYTES, check_ulog
+from omnirotor.px4.ulog_writer import patch_format
 
 REAL = [SHARED / "data" / "px4" / n for n in ("sample_log_small.ulg", "sample_px4_events.ulg")]
 SETTINGS = settings(
@@ -36,32 +37,10 @@ SETTINGS = settings(
 
 def hover_log_bytes(tmp_path, n_rotor_count: float = 4) -> bytes:
     """A 6 s level hover at 100 Hz of a quadrotor, as the project's ULog writer writes it."""
-    from omnirotor.px4.ulog_writer import ULogWriter
+    from omnirotor.px4.ulog_writer import write_hover_log
 
-    n, ts = 600, 1_000_000 + np.arange(600, dtype=np.uint64) * 10_000
-    w = ULogWriter(start_us=1_000_000)
-    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
-    att["timestamp"], att["q"][:, 0] = ts, 1.0
-    w.add_topic("vehicle_attitude", att)
-    rep = np.dtype([("timestamp", "<u8"), ("esc_rpm", "<i4")])
-    esc = np.zeros(n, dtype=[("timestamp", "<u8"), ("esc", rep, (4,))])
-    esc["timestamp"], esc["esc"]["esc_rpm"] = ts, 6000
-    w.add_topic("esc_status", esc, {"esc": "esc_report"})
-    lp = np.zeros(n, dtype=[("timestamp", "<u8")] + [(k, "<f4") for k in ("x", "y", "z", "vx", "vy", "vz")])
-    lp["timestamp"], lp["z"] = ts, -1.0
-    w.add_topic("vehicle_local_position", lp)
-    sc = np.zeros(n, dtype=[("timestamp", "<u8"), ("gyro_rad", "<f4", (3,))])
-    sc["timestamp"] = ts
-    w.add_topic("sensor_combined", sc)
-    ld = np.zeros(4, dtype=[("timestamp", "<u8"), ("landed", "u1")])
-    ld["timestamp"] = ts[:: n // 4]
-    w.add_topic("vehicle_land_detected", ld)
-    w.add_param("CA_ROTOR_COUNT", n_rotor_count)
-    for i, (x, y, km) in enumerate([(0.2, 0.2, 0.05), (-0.2, -0.2, 0.05), (0.2, -0.2, -0.05), (-0.2, 0.2, -0.05)]):
-        for key, v in (("PX", x), ("PY", y), ("PZ", 0.0), ("KM", km), ("AX", 0.0), ("AY", 0.0), ("AZ", -1.0)):
-            w.add_param(f"CA_ROTOR{i}_{key}", v)
-    path = tmp_path / "base.ulg"
-    w.write(path)
+    path = tmp_path / f"base-{uuid.uuid4().hex}.ulg"
+    write_hover_log(path, n_rotor_count)
     return path.read_bytes()
 
 
@@ -77,18 +56,6 @@ def offsets(data: bytes) -> list[int]:
         out.append(pos)
         pos += 3 + struct.unpack_from("<H", data, pos)[0]
     return out
-
-
-def patch_format(data: bytes, topic: str, old: str, new: str) -> bytes:
-    """The log with ``old`` replaced by ``new`` in the format definition of ``topic`` (its size fixed up)."""
-    for pos in offsets(data):
-        size, kind = struct.unpack_from("<HB", data, pos)
-        payload = data[pos + 3 : pos + 3 + size]
-        if kind == ord("F") and payload.startswith(topic.encode() + b":"):
-            assert old.encode() in payload, (old, payload)
-            p2 = payload.replace(old.encode(), new.encode(), 1)
-            return data[:pos] + struct.pack("<HB", len(p2), kind) + p2 + data[pos + 3 + size :]
-    raise AssertionError(f"no format {topic}")
 
 
 def write(tmp_path, data: bytes) -> str:

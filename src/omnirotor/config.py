@@ -243,3 +243,23 @@ def check_positive(name: str, value: float) -> None:
     """Raise :class:`InputError` unless ``value`` is finite and > 0."""
     if not (math.isfinite(value) and value > 0):
         raise InputError(f"{name} must be a finite number > 0, got {value}")
+
+
+def check_count(name: str, value: int, lo: int, hi: int) -> None:
+    """Raise :class:`InputError` unless ``value`` is an integer in ``[lo, hi]`` (a size built from an option).
+
+    Checked before anything is allocated or started: ``hi`` is a documented maximum of :mod:`omnirotor.limits`.
+    """
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise InputError(f"{name} must be an integer from {lo} to {hi}, got {value!r}")
+
+
+def toml_string(text: str) -> str:
+    """``text`` as a TOML basic string: quotes, backslashes and control characters escaped, the rest as UTF-8.
+
+    JSON's escapes are TOML's, except that TOML refuses surrogate escapes (JSON's for characters beyond the
+    basic plane, avoided by writing them as UTF-8) and a raw DEL (escaped here).
+    """
+    import json
+
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")

@@ -18,6 +18,11 @@ __all__ = [
     "MAX_ULOG_BYTES",
     "MAX_ULOG_TIME_US",
     "MAX_ROTORS",
+    "MIN_SIGN_STEP_DEG",
+    "MAX_SIGN_BANDS",
+    "MAX_STUDY_REPS",
+    "MAX_VALIDATION_ATTITUDES",
+    "MAX_STUDY_POINTS",
 ]
 
 MIN_DURATION_S = 0.01
@@ -43,3 +48,16 @@ MAX_ULOG_TIME_US = 2**53
 """Latest time stamp in a ULog [µs] (about year 2255 as Unix time; exact as a float64, so times convert safely)."""
 MAX_ROTORS = 64
 """Most rotors of a vehicle (PX4's control allocation takes 12; ``CA_ROTOR_COUNT`` beyond this is refused)."""
+MIN_SIGN_STEP_DEG = 2.5
+"""Finest grid of ``regions --from-signs`` [deg] (72 x 144 cells). The search's time grows about as the square
+of the rows and the 1.7th power of the bands: on a loaded 2-core machine 5 deg and 4 bands (the defaults) took
+3 s, 2 deg 17 s, 1 deg over a minute, 2 deg and 12 bands 140 s; 0.01 deg would need 648 million cells."""
+MAX_SIGN_BANDS = 8
+"""Most elevation bands of ``regions --from-signs`` (5 deg and 12 bands took 19 s; the worst allowed, 2.5 deg and
+8 bands, 44 s beside a test run)."""
+MAX_STUDY_REPS = 1000
+"""Most seeded repetitions of a study (``study ... --reps``)."""
+MAX_VALIDATION_ATTITUDES = 100_000
+"""Most validation attitudes of a study (``--validation``)."""
+MAX_STUDY_POINTS = 10_000
+"""Most hover points per region (``study points-per-region --counts``) or in total (``study partitions --total``)."""

@@ -39,8 +39,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from omnirotor.config import check_positive
+from omnirotor.config import check_count, check_positive, toml_string
 from omnirotor.errors import InputError
+from omnirotor.limits import MAX_SIGN_BANDS, MIN_SIGN_STEP_DEG
 from omnirotor.regions import Partition, partition_from_dict
 from omnirotor.safe_io import write_text_atomic
 from omnirotor.vehicle import VehicleParams, fibonacci_sphere
@@ -213,6 +214,9 @@ def partition_from_signs(
         The partition and its costs.
     """
     check_positive("step_deg", step_deg)
+    if step_deg < MIN_SIGN_STEP_DEG:
+        raise InputError(f"--step {step_deg} deg is finer than the finest grid, {MIN_SIGN_STEP_DEG:g} deg")
+    check_count("--bands", bands, 1, MAX_SIGN_BANDS)
     n_el = round(180.0 / step_deg)
     if abs(n_el * step_deg - 180.0) > 1e-9 or n_el < 2:
         raise InputError(f"--step {step_deg} deg must divide 180 into at least 2 cells")
@@ -314,7 +318,7 @@ def write_partition_toml(path: str | Path, result: SignPartition, vehicle: Vehic
         f"# {result.n_patterns} distinct local patterns; area where the local pattern is not the region's: "
         f"{100 * result.mismatch_frac:.1f} %.",
         "# A direction belongs to the first region whose closed intervals contain it (SPEC §3.3).",
-        f'name = "{result.partition.name}"',
+        f"name = {toml_string(result.partition.name)}",
         "",
     ]
     for r, c, a in zip(result.partition.regions, result.codes, result.area_frac, strict=True):
@@ -322,7 +326,7 @@ def write_partition_toml(path: str | Path, result: SignPartition, vehicle: Vehic
         lines += [
             "[[region]]",
             f"# reversed rotors: {rev}; {100 * a:.1f} % of the sphere",
-            f'name = "{r.name}"',
+            f"name = {toml_string(r.name)}",
             "azimuth_deg = [" + ", ".join(f"[{lo:g}, {hi:g}]" for lo, hi in r.azimuth_deg) + "]",
             f"elevation_deg = [{r.elevation_deg[0]:g}, {r.elevation_deg[1]:g}]",
             "",

@@ -41,6 +41,8 @@ __all__ = [
     "check_output_dir",
     "make_dir",
     "atomic_path",
+    "reserve_temp",
+    "commit_temp",
     "write_bytes_atomic",
     "write_text_atomic",
     "write_json_atomic",
@@ -204,9 +206,12 @@ def file_mode() -> int:
 def check_output_file(path: str | Path, label: str = "--out") -> bool:
     """Check a file destination before any work: True if a regular file will be replaced.
 
+    The folder it goes in (or its nearest existing ancestor) must take a new file: one is created and removed.
+
     Raises:
-        InputError: a name too long, a folder, a device, a FIFO, a socket or a symbolic link at ``path``, or
-            a parent that is not a folder.
+        InputError: a name too long, a folder, a device, a FIFO, a socket or a symbolic link at ``path``, a
+            parent that is not a folder, or a folder that cannot be written (read-only, ``/proc``, no
+            permission).
     """
     p = Path(path)
     _check_name(p, label)
@@ -218,12 +223,30 @@ def check_output_file(path: str | Path, label: str = "--out") -> bool:
             parent = parent.parent
         if parent.exists() and not parent.is_dir():
             raise InputError(f"{_label(p, label)}: {parent} is not a folder") from None
+        _probe_writable(parent, p, label)
         return False
     except OSError as exc:
         raise _os_error(p, label, exc, "write") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{_label(p, label)}: is {_kind(st.st_mode)}; refusing to write over it")
+    _probe_writable(p.parent if str(p.parent) else Path("."), p, label)
     return True
+
+
+def _probe_writable(folder: Path, p: Path, label: str) -> None:
+    """Create and remove an empty file in ``folder``, so that a folder that cannot be written is refused early.
+
+    A read-only folder or file system, ``/proc`` or a folder without write permission is refused before any
+    work, not after it.
+    """
+    probe = folder / f".omnirotor-probe-{os.getpid()}-{os.urandom(6).hex()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    except OSError as exc:
+        raise _os_error(p, label, exc, "write") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(probe)
 
 
 def check_output_dir(path: str | Path, label: str = "--out") -> bool:
@@ -238,6 +261,7 @@ def check_output_dir(path: str | Path, label: str = "--out") -> bool:
         raise _os_error(p, label, exc, "write") from None
     if not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{_label(p, label)}: exists and is not a folder")
+    _probe_writable(p, p, label)
     return True
 
 
@@ -260,23 +284,24 @@ def _fsync_path(path: str | Path, directory: bool = False) -> None:
         os.close(fd)
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | Path, label: str = "") -> Iterator[Path]:
-    """A temporary path beside ``path`` for a writer; on success it is synced and renamed over ``path``.
+def reserve_temp(path: str | Path, label: str = "") -> Path:
+    """Create, exclusively and under an unpredictable name, an empty temporary file beside ``path``.
 
-    The temporary name keeps the destination's extension (writers pick the format from it). If the body
-    raises, the temporary file is removed and the destination is untouched.
+    The name is ``.omnirotor-<pid>-<random><k><suffix>`` in the destination's folder, created with
+    ``O_CREAT | O_EXCL | O_NOFOLLOW``: a file or link planted there in advance is never opened, let alone
+    written through. The destination's extension is kept (writers pick the format from it). Finish with
+    :func:`commit_temp` or remove it.
 
     Raises:
-        InputError: see :func:`check_output_file`; or the folder cannot be created or written.
+        InputError: see :func:`check_output_file`; or the folder cannot be created or written (read-only,
+            ``/proc``, full).
     """
     p = Path(path)
     check_output_file(p, label)
     make_dir(p.parent if str(p.parent) else Path("."), label)
     suffix = p.suffix if len(p.suffix) <= 16 else ".tmp"
-    tmp = None
     for k in range(100):
-        candidate = p.parent / f".omnirotor-{os.getpid()}-{os.urandom(4).hex()}{k}{suffix}"
+        candidate = p.parent / f".omnirotor-{os.getpid()}-{os.urandom(6).hex()}{k}{suffix}"
         try:
             fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, file_mode())
         except FileExistsError:
@@ -284,23 +309,53 @@ def atomic_path(path: str | Path, label: str = "") -> Iterator[Path]:
         except OSError as exc:
             raise _os_error(p, label, exc, "write") from None
         os.close(fd)
-        tmp = candidate
-        break
-    if tmp is None:
-        raise InputError(f"{_label(p, label)}: cannot create a temporary file beside it")
+        return candidate
+    raise InputError(f"{_label(p, label)}: cannot create a temporary file beside it")
+
+
+def commit_temp(tmp: Path, path: str | Path, label: str = "") -> Path:
+    """Sync a temporary file of :func:`reserve_temp` to disk and rename it over ``path``; on failure remove it.
+
+    Raises:
+        InputError: the destination became a link or special file meanwhile, or the disk refused the data
+            (e.g. full: nothing partial is left behind).
+    """
+    p = Path(path)
     try:
-        yield tmp
         _fsync_path(tmp)
         check_output_file(p, label)  # again: something may have appeared there meanwhile
         os.replace(tmp, p)
-        with contextlib.suppress(OSError):
-            _fsync_path(p.parent if str(p.parent) else ".", directory=True)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise _os_error(p, label, exc, "write") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    with contextlib.suppress(OSError):
+        _fsync_path(p.parent if str(p.parent) else ".", directory=True)
+    return p
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, label: str = "") -> Iterator[Path]:
+    """A temporary path beside ``path`` for a writer; on success synced and renamed over ``path``.
+
+    The file is made by :func:`reserve_temp` and put in place by :func:`commit_temp`. If the body raises, the
+    temporary file is removed and the destination is untouched.
+
+    Raises:
+        InputError: see :func:`check_output_file`; or the folder cannot be created or written.
+    """
+    tmp = reserve_temp(path, label)
+    try:
+        yield tmp
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _os_error(Path(path), label, exc, "write") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    commit_temp(tmp, path, label)
 
 
 def write_bytes_atomic(path: str | Path, data: bytes, label: str = "") -> Path:

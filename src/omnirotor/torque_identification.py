@@ -201,10 +201,9 @@ def load_flight_csv(path: str | Path, vehicle: VehicleParams) -> FlightLog:
 def write_flight_csv(path: str | Path, log: FlightLog) -> None:
     """Write a flight log in the format :func:`load_flight_csv` reads (atomically)."""
     n = log.rotor_hz.shape[1]
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    from omnirotor.safe_io import atomic_path
+
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", *_GYRO_COLS, *(f"omega{i + 1}_hz" for i in range(n)), "region"])
         for k in range(log.t_s.size):
@@ -214,7 +213,6 @@ def write_flight_csv(path: str | Path, log: FlightLog) -> None:
                 + [f"{v:.7g}" for v in log.rotor_hz[k]]
                 + [log.region[k]]
             )
-    tmp.replace(p)
 
 
 def zero_phase_derivative(x: np.ndarray, dt: float, cutoff_hz: float) -> tuple[np.ndarray, np.ndarray]:

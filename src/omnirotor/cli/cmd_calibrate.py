@@ -11,6 +11,7 @@ import typer
 from omnirotor.cli import app
 from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
+from omnirotor.safe_io import check_output_dir, check_output_file, write_text_atomic
 
 
 @app.command("calibrate-truth")
@@ -35,12 +36,11 @@ def calibrate_truth_cmd(
 
     stdout gets one summary line; stderr shows progress (about 90 s with --loo on the paper's 39 points).
     """
-    if out.exists() and out.is_dir():
-        raise InputError(f"--out {out}: is a folder")
     if not out.parent.exists():
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
-    if report is not None and report.exists() and not report.is_dir():
-        raise InputError(f"--report {report}: is a file, not a folder")
+    check_output_file(out, "--out")  # a folder, FIFO, device, link or unwritable folder: before the work
+    if report is not None:
+        check_output_dir(report, "--report")
     from omnirotor.experiments.calibration.truth import (
         calibrate,
         plot_measured_vs_predicted,
@@ -70,7 +70,7 @@ def calibrate_truth_cmd(
         report_file = report / "report.md"
     else:
         report_file = out.with_name(f"{out.stem}-report.md")
-    write_text_atomic(report_file, text)
+    write_text_atomic(report_file, text, "--report")
     write_truth_toml(out, result.params)
     rms = {name: row["all"] for name, row in result.table.items()}
     cv = max(result.cv_region.values()) if result.cv_region else float("nan")
@@ -146,7 +146,7 @@ def calibrate_disturbances_cmd(
         report, values, quick=quick, seed=seed, workers=workers, progress=lambda line: sys.stderr.write(line + "\n")
     )
     text = report_markdown(result)
-    (report / "disturbances.md").write_text(text)
+    write_text_atomic(report / "disturbances.md", text, "--report")
     save_json(report / "disturbances.json", result)
     write_toml(out, result.value)
     if doc is not None:

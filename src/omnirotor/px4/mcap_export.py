@@ -196,14 +196,13 @@ def write_run_mcap(
     """Write a run's signals as MCAP with JSON encoding (module docstring); returns messages per topic."""
     from mcap.writer import Writer
 
+    from omnirotor.safe_io import atomic_path
     from omnirotor.sim.params import SceneParams
 
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
     counts: dict[str, int] = {}
     q_est, q_true = quat_wxyz_of(s.R_WB), quat_wxyz_of(s.R_true_WB)
-    with tmp.open("wb") as fh:
+    with atomic_path(p, "--mcap") as tmp, tmp.open("wb") as fh:  # exclusive, unpredictable temporary name
         mw = Writer(fh)
         mw.start(profile="", library="omnirotor")
         schema_ids = {}
@@ -265,7 +264,6 @@ def write_run_mcap(
                 {"t_s": t, "in_contact": bool(s.in_contact[k]), "region": int(s.region[k]), "status": int(s.status[k])},
             )
         mw.finish()
-    tmp.replace(p)
     return counts
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 
-__all__ = ["ULogWriter"]
+__all__ = ["ULogWriter", "write_hover_log", "patch_format"]
 
 _MAGIC = b"ULog\x01\x12\x35"
 _C_TYPES = {
@@ -124,11 +124,9 @@ class ULogWriter:
             ts, ti, ri = np.concatenate(stamps), np.concatenate(topic_idx), np.concatenate(row_idx)
             order = np.lexsort((ri, ti, ts))
             out.extend(blobs[ti[k]][ri[k]].tobytes() for k in order)
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.tmp")
-        tmp.write_bytes(b"".join(out))
-        tmp.replace(p)
+        from omnirotor.safe_io import write_bytes_atomic
+
+        write_bytes_atomic(path, b"".join(out), "--ulog")
 
 
 def _packed(dtype: np.dtype) -> np.dtype:
@@ -140,3 +138,55 @@ def _packed(dtype: np.dtype) -> np.dtype:
         base = _packed(base) if base.names is not None else base.newbyteorder("<")
         fields.append((name, base, shape) if shape else (name, base))
     return np.dtype(fields, align=False)
+
+
+def write_hover_log(path: str | Path, rotor_count: float = 4, seconds: float = 6.0) -> None:
+    """Write a level hover of a quadrotor at 100 Hz as PX4 logs it.
+
+    Attitude, ESC reports (6000 rpm), local position, gyro, land detector and the ``CA_*`` geometry
+    (``CA_ROTOR_COUNT = rotor_count``). The base of the PX4-file fuzzing (tests/test_ulog_fuzz.py,
+    tools/reliability_report.py).
+    """
+    n = int(round(seconds * 100))
+    ts = 1_000_000 + np.arange(n, dtype=np.uint64) * 10_000
+    w = ULogWriter(start_us=1_000_000)
+    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
+    att["timestamp"], att["q"][:, 0] = ts, 1.0
+    w.add_topic("vehicle_attitude", att)
+    rep = np.dtype([("timestamp", "<u8"), ("esc_rpm", "<i4")])
+    esc = np.zeros(n, dtype=[("timestamp", "<u8"), ("esc", rep, (4,))])
+    esc["timestamp"], esc["esc"]["esc_rpm"] = ts, 6000
+    w.add_topic("esc_status", esc, {"esc": "esc_report"})
+    lp = np.zeros(n, dtype=[("timestamp", "<u8")] + [(k, "<f4") for k in ("x", "y", "z", "vx", "vy", "vz")])
+    lp["timestamp"], lp["z"] = ts, -1.0
+    w.add_topic("vehicle_local_position", lp)
+    sc = np.zeros(n, dtype=[("timestamp", "<u8"), ("gyro_rad", "<f4", (3,))])
+    sc["timestamp"] = ts
+    w.add_topic("sensor_combined", sc)
+    ld = np.zeros(4, dtype=[("timestamp", "<u8"), ("landed", "u1")])
+    ld["timestamp"] = ts[:: n // 4][:4]
+    w.add_topic("vehicle_land_detected", ld)
+    w.add_param("CA_ROTOR_COUNT", rotor_count)
+    for i, (x, y, km) in enumerate([(0.2, 0.2, 0.05), (-0.2, -0.2, 0.05), (0.2, -0.2, -0.05), (-0.2, 0.2, -0.05)]):
+        for key, v in (("PX", x), ("PY", y), ("PZ", 0.0), ("KM", km), ("AX", 0.0), ("AY", 0.0), ("AZ", -1.0)):
+            w.add_param(f"CA_ROTOR{i}_{key}", v)
+    w.write(path)
+
+
+def patch_format(data: bytes, topic: str, old: str, new: str) -> bytes:
+    """A ULog's bytes with ``old`` replaced by ``new`` in the format definition of ``topic``, its size fixed up.
+
+    For fuzzing (fields renamed, retyped, resized): the data messages are left as they were.
+
+    Raises:
+        KeyError: no format of ``topic`` holds ``old``.
+    """
+    pos = 16
+    while pos + 3 <= len(data):
+        size, kind = struct.unpack_from("<HB", data, pos)
+        payload = data[pos + 3 : pos + 3 + size]
+        if kind == ord("F") and payload.startswith(topic.encode() + b":") and old.encode() in payload:
+            p2 = payload.replace(old.encode(), new.encode(), 1)
+            return data[:pos] + struct.pack("<HB", len(p2), kind) + p2 + data[pos + 3 + size :]
+        pos += 3 + size
+    raise KeyError(f"no format {topic} with {old!r}")

@@ -322,12 +322,13 @@ def plot_windows(flight: Flight, points: HoverPoints, path: str | Path, criteria
         a.grid(alpha=0.3)
     axes[0].set_title(f"{flight.name}: {len(points.windows)} hover window(s) (shaded)")
     fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(p)
+    from omnirotor.safe_io import atomic_path
+
+    try:
+        with atomic_path(path, "--out") as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 FEW_WINDOWS = 3

@@ -21,6 +21,7 @@ import mujoco  # noqa: E402  (the GL backend must be chosen before the import)
 import numpy as np  # noqa: E402
 
 from omnirotor.errors import InputError  # noqa: E402
+from omnirotor.safe_io import commit_temp, reserve_temp  # noqa: E402
 from omnirotor.sim.params import SimParams  # noqa: E402
 from omnirotor.sim.simulator import Simulator  # noqa: E402
 from omnirotor.vehicle import VehicleParams, load_vehicle  # noqa: E402
@@ -170,12 +171,12 @@ class VideoRecorder:
         self.fps = float(fps)
         self.track = track
         self.frames = 0
+        self._tmp = reserve_temp(self.path, "--video")  # exclusive, unpredictable; its folder made
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise InputError(f"{self.path}: cannot create its folder ({exc.strerror})") from None
-        self._tmp = self.path.with_name(f".{self.path.stem}.{os.getpid()}.tmp.mp4")
-        self._renderer = _make_renderer(sim.render_model, width, height)
+            self._renderer = _make_renderer(sim.render_model, width, height)
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            raise
         self._camera = default_camera(sim)
         self._next_t = sim.t
         self._period = 1.0 / self.fps
@@ -191,6 +192,7 @@ class VideoRecorder:
             )
         except Exception as exc:
             self._renderer.close()
+            self._tmp.unlink(missing_ok=True)
             raise InputError(f"{self.path}: cannot start the video writer ({exc})") from None
         self._closed = False
 
@@ -221,11 +223,15 @@ class VideoRecorder:
             return self.path
         self._closed = True
         try:
-            self._writer.close()
-            self._renderer.close()
+            try:
+                self._writer.close()  # ffmpeg finishes the file: a full disk fails here
+            except Exception as exc:
+                raise InputError(f"{self.path}: cannot write the video ({str(exc).splitlines()[0][:200]})") from None
+            finally:
+                self._renderer.close()
             if self.frames == 0:
                 raise InputError(f"{self.path}: no frame was captured")
-            os.replace(self._tmp, self.path)
+            commit_temp(self._tmp, self.path, "--video")
         except BaseException:
             self._tmp.unlink(missing_ok=True)
             raise

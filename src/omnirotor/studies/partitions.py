@@ -25,8 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from omnirotor.config import check_count
 from omnirotor.errors import InputError
 from omnirotor.identification import IdentificationParams, identify
+from omnirotor.limits import MAX_STUDY_POINTS, MAX_STUDY_REPS, MAX_VALIDATION_ATTITUDES
 from omnirotor.regions import Partition, Region
 from omnirotor.sim.aero import TruthAero, hover_equilibrium, make_aero
 from omnirotor.studies.hover_pool import HoverNoise, build_pool, draw
@@ -63,6 +65,7 @@ def validation_set(
     vehicle: VehicleParams, aero: TruthAero, n: int, rng: np.random.Generator, min_speed_hz: float = 50.0
 ) -> ValidationSet:
     """``n`` attitudes uniform on the sphere of up directions (uniform yaw) and their truth hover inputs."""
+    check_count("--validation", n, 1, MAX_VALIDATION_ATTITUDES)
     pool = build_pool(vehicle, aero, _SPHERE, n, rng, min_speed_hz)
     return ValidationSet(pool.R_WB["all"], pool.u_hz2["all"])
 
@@ -158,6 +161,9 @@ def compare_partitions(
         Per partition: regions, points per region, force residual (mean over reps of the RMS over validation
         attitudes, and its spread), hover bias, sliding metrics; plus the nominal map's figures.
     """
+    check_count("--total", total_points, 1, MAX_STUDY_POINTS)
+    check_count("--reps", reps, 1, MAX_STUDY_REPS)
+    check_count("--validation", n_validation, 1, MAX_VALIDATION_ATTITUDES)
     aero = aero or make_aero(vehicle)
     params = IdentificationParams()
     val = validation_set(vehicle, aero, n_validation, np.random.default_rng([seed, 0]))

@@ -27,8 +27,10 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from omnirotor.config import check_count
 from omnirotor.errors import InputError
 from omnirotor.identification import IdentificationParams, solve_map
+from omnirotor.limits import MAX_STUDY_POINTS, MAX_STUDY_REPS, MAX_VALIDATION_ATTITUDES, MAX_WORKERS
 from omnirotor.regions import Partition, load_partition
 from omnirotor.sim.aero import make_aero
 from omnirotor.studies.hover_pool import NOISE_LEVELS, HoverNoise, HoverPool, build_pool, draw
@@ -101,8 +103,13 @@ def points_per_region_study(
         workers: processes (1: in this process).
         partition: regions (default the paper's ten).
     """
-    if not counts or any(isinstance(k, bool) or not isinstance(k, int) or k < 1 for k in counts):
-        raise InputError(f"points per region must be integers >= 1, got {counts}")
+    if not counts or any(
+        isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= MAX_STUDY_POINTS for k in counts
+    ):
+        raise InputError(f"points per region must be integers from 1 to {MAX_STUDY_POINTS}, got {counts}")
+    check_count("--reps", reps, 2, MAX_STUDY_REPS)
+    check_count("--validation", n_validation, 1, MAX_VALIDATION_ATTITUDES)
+    check_count("--workers", workers, 1, MAX_WORKERS)
     unknown = [n for n in noises if n not in NOISE_LEVELS]
     if unknown:
         raise InputError(f"unknown noise level(s) {', '.join(unknown)}; known: {', '.join(NOISE_LEVELS)}")

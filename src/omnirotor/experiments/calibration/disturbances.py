@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
-import json
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.experiments.metrics import AXES, PAPER_TABLE1
+from omnirotor.safe_io import read_text, write_json_atomic, write_text_atomic
 
 __all__ = [
     "CALIBRATION_ROW",
@@ -307,13 +307,13 @@ def write_toml(path: str | Path, value: Sequence[float]) -> None:
         tables.setdefault(table, []).append(f"{key} = {float(v)!r}")
     for table, keys in tables.items():
         lines += [f"[{table}]", *keys]
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n", "--out")
 
 
 def replace_section(doc: str | Path, text: str, begin: str = DOC_BEGIN, end: str = DOC_END) -> None:
     """Put ``text`` between the markers ``begin`` and ``end`` of ``doc`` (appended with them when absent)."""
     p = Path(doc)
-    body = p.read_text()
+    body = read_text(p, "--doc")
     block = f"{begin}\n{text}{end}"
     if begin in body and end in body:
         head, rest = body.split(begin, 1)
@@ -321,9 +321,9 @@ def replace_section(doc: str | Path, text: str, begin: str = DOC_BEGIN, end: str
         body = head + block + tail
     else:
         body = body.rstrip("\n") + "\n\n" + block + "\n"
-    p.write_text(body)
+    write_text_atomic(p, body, "--doc")
 
 
 def save_json(path: str | Path, res: CalibrationResult) -> None:
     """Write :meth:`CalibrationResult.to_json` to ``path``."""
-    Path(path).write_text(json.dumps(res.to_json(), indent=1) + "\n")
+    write_json_atomic(path, res.to_json(), "--report")

@@ -609,9 +609,9 @@ def write_truth_toml(path: str | Path, params: AeroParams) -> None:
     names = (*FIT_PARAMETERS, *FRAME_TILT_PARAMETERS, *INTAKE_FIELD_PARAMETERS)
     lines += [f"{n} = {getattr(params, n):.6g}" for n in names]
     lines.append(f"wake_coupling = {'true' if params.wake_coupling else 'false'}")
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(p)
+    from omnirotor.safe_io import write_text_atomic
+
+    write_text_atomic(p, "\n".join(lines) + "\n", "--out")
 
 
 def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> None:
@@ -651,8 +651,13 @@ def plot_measured_vs_predicted(result: CalibrationResult, path: str | Path) -> N
     axes[0][-1].legend(fontsize=6, ncol=2, loc="center right")
     axes[1][-1].legend(fontsize=6, ncol=2, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    from omnirotor.safe_io import atomic_path
+
+    try:
+        with atomic_path(path, "--report") as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 def report_markdown(result: CalibrationResult) -> str:
