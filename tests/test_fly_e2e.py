@@ -12,9 +12,9 @@ import subprocess
 import sys
 
 import pytest
-from tests.sitl.procs import CLI, env, free_port, wait_until
 
 from omnirotor.cli import main
+from sitl.procs import CLI, env, free_port, wait_until
 
 pytest.importorskip("zenoh")
 

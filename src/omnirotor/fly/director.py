@@ -604,7 +604,7 @@ class FlightDirector:
         return s + f"; {self.message}"
 
 
-_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight move_to); the landing goes on"
+_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight retarget); the landing goes on"
 
 
 class _Refused(str):

@@ -7,7 +7,7 @@ takes the shortest ``T`` that keeps speed, acceleration and angular rate within 
 
 In-flight API. :class:`InFlight` is what the director calls to change the controller's reference in flight
 (a minimum-jerk segment to a new pose, the admittance parameters, the map mode). It uses the controller's
-own in-flight methods where the controller has them (``InteractionController.move_to``, ``set_admittance``,
+own in-flight methods where the controller has them (``InteractionController.retarget``, ``set_admittance``,
 ``set_map_mode``: a segment that starts from the current desired reference with its velocity and
 acceleration). On a
 controller without them it falls back to what a rest-to-rest trajectory allows: the new pose is appended
@@ -82,7 +82,7 @@ class InFlight:
     def __init__(self, controller) -> None:
         self.controller = controller
         self.t0 = 0.0
-        self._native_move = getattr(controller, "move_to", None)
+        self._native_move = getattr(controller, "retarget", None)
         self._native_admittance = getattr(controller, "set_admittance", None)
         self._native_map = getattr(controller, "set_map_mode", None)
         self._sample = ReferenceSample()
@@ -139,7 +139,7 @@ class InFlight:
         """Fly ``trajectory`` on the controller's clock from the next step (the stand-in's one private touch).
 
         The controller of this version keeps its trajectory in the arguments of its compiled step, built by
-        ``_build_kernel_args``; its in-flight API (``move_to``) replaces this.
+        ``_build_kernel_args``; its in-flight API (``retarget``) replaces this.
         """
         c = self.controller
         c._trajectory = trajectory
