@@ -71,6 +71,10 @@ def test_ctl_bad_input_and_no_node_exit_2_with_one_line(served, capsys):
     _, base = served
     assert main([*base, "goto", "1", "2", "nan"]) == 2
     assert capsys.readouterr().err == "omnirotor: error: Z must be a finite number, got nan\n"
+    assert main([*base, "goto", "0.5", "-0.3", "1.2", "--yaw", "-90"]) == 1  # negative numbers are not options
+    assert capsys.readouterr().out == "refused: goto: not flying (mode disarmed): take off first\n"
+    assert main([*base, "goto", "1", "2", "3", "--bogus"]) == 2
+    assert "unexpected extra argument" in capsys.readouterr().err
     free = f"tcp/127.0.0.1:{_free_port()}"
     assert main(["ctl", "--connect", free, "--timeout", "0.3", "arm"]) == 2
     err = capsys.readouterr().err

@@ -278,7 +278,7 @@ def test_push_enters_contact_with_table_2_preset_and_leaves_it(vehicle):
     _run(d, ctl, s, 4.0)  # 0.1 m at 0.05 m/s: 3.75 s
     # The reference went 0.1 m along the tool axis (body +y, the EE offset's direction), then holds there.
     tool_W = np.array([0.0, 1.0, 0.0])
-    ref = d.inflight.reference(d._now()).p_W
+    ref = d.inflight.reference().p_W
     ee0 = s.p + vehicle.p_E_B_array + [0.0, 0.0, 0.1]  # where the take-off went
     np.testing.assert_allclose(ref, ee0 + 0.1 * tool_W, atol=1e-9)
     assert anchor.p_W == pytest.approx(tuple(ee0 + 0.1 * tool_W))
@@ -286,7 +286,7 @@ def test_push_enters_contact_with_table_2_preset_and_leaves_it(vehicle):
     assert _run(d, ctl, s, 5.0, until=lambda d: d.mode == M.HOLD)
     assert d.preset == "free"
     np.testing.assert_array_equal(ctl.admittance.state[0]["stiffness_pos"], [100.0] * 3)
-    np.testing.assert_allclose(d.inflight.reference(d._now()).p_W, ee0, atol=1e-9)
+    np.testing.assert_allclose(d.inflight.reference().p_W, ee0, atol=1e-9)
 
 
 def test_land_disarms_on_touchdown_or_after_its_bounded_time(vehicle):

@@ -110,7 +110,7 @@ def takeoff(
     _run(ctx, "takeoff", height_m=_finite("--height", height))
 
 
-@ctl_app.command()
+@ctl_app.command(context_settings={"ignore_unknown_options": True})  # negative coordinates are numbers, not options
 def goto(
     ctx: typer.Context,
     x: Annotated[float, typer.Argument(help="Tool-tip x [m], world frame.", parser=number_option)],

@@ -321,9 +321,7 @@ class FlightDirector:
         sp = r.setpoint
         if sp is None:
             return _Refused("goto needs a target position")
-        if self.mode == _M.LAND and not self.inflight.native:
-            return _Refused(_NO_ABORT)
-        ref = self.inflight.reference(self._now())
+        ref = self.inflight.reference()
         R = _attitude(sp, ref.R_WB)
         p_target = np.array(sp.p_W, dtype=float)
         contact = self.mode == _M.CONTACT
@@ -344,9 +342,7 @@ class FlightDirector:
             self._landed_at = math.inf
         return f"to {_xyz(p_target)} in {T:.1f} s" + (f" at depth {self._depth:.3f} m" if contact else "")
 
-    def _do_hold(self, r: FlightRequest) -> _Refused | str:
-        if self.mode == _M.LAND and not self.inflight.native:
-            return _Refused(_NO_ABORT)
+    def _do_hold(self, r: FlightRequest) -> str:
         return self._hold()
 
     def _do_push(self, r: FlightRequest) -> _Refused | str:
@@ -357,7 +353,7 @@ class FlightDirector:
         if self.mode == _M.HOLD:
             if d == 0.0:
                 return _Refused("not in contact (depth 0 already)")
-            ref = self.inflight.reference(self._now())
+            ref = self.inflight.reference()
             self._anchor_p[:] = ref.p_W
             self._anchor_R[:] = ref.R_WB
             self._normal_W[:] = ref.R_WB @ self._tool_B
@@ -459,32 +455,21 @@ class FlightDirector:
             self.message = f"landed: no touchdown within {p.land_timeout_s:g} s, disarmed"
 
     def _hold(self) -> str:
-        """Stop the reference: a braking segment (native API) or the end of the current segment."""
-        t = self._now()
-        ref = self.inflight.reference(t)
-        if self.inflight.native:
-            v = float(np.linalg.norm(ref.v_W))
-            T = max(self.params.min_segment_s, 2.0 * v / self.params.max_acc_mps2)
-            stop = ref.p_W + ref.v_W * (T / 2.0)  # about where a smooth braking ends
-            self._fly([_Leg(stop, ref.R_WB, T)])
-            what = f"braking to {_xyz(stop)} in {T:.1f} s"
-        else:
-            traj = self.controller.trajectory
-            self._legs = []
-            self._arrive_t = min(self._arrive_t, traj.t_end)
-            end = traj.waypoints[-1]
-            self._target = _setpoint(end.p_W, end.R_WB, max(0.0, traj.t_end - t))
-            what = f"holding at the end of the current segment, {max(0.0, traj.t_end - t):.1f} s from now"
+        """Stop the reference: a braking segment from where it is, at the acceleration limit."""
+        ref = self.inflight.reference()
+        v = float(np.linalg.norm(ref.v_W))
+        T = max(self.params.min_segment_s, 2.0 * v / self.params.max_acc_mps2)
+        stop = ref.p_W + ref.v_W * (T / 2.0)  # about where a smooth braking from v ends
+        self._fly([_Leg(stop, ref.R_WB, T)])
         if self.mode in (_M.TRACK, _M.TAKEOFF, _M.LAND):
-            self.mode = _M.TRACK if self._arrive_t > t else _M.HOLD
+            self.mode = _M.TRACK
             self._landed_at = math.inf
-        return what
+        return f"braking to {_xyz(stop)} in {T:.1f} s"
 
     def _land(self) -> str:
         """Descend to the ground height with the armed attitude (from contact: first back to the anchor)."""
         p = self.params
-        t = self._now()
-        ref = self.inflight.reference(t)
+        ref = self.inflight.reference()
         legs = []
         start_p, start_R = np.array(ref.p_W), np.array(ref.R_WB)
         if self.mode == _M.CONTACT:
@@ -602,9 +587,6 @@ class FlightDirector:
         if self.failsafe != Failsafe.NONE or self.cause:
             s += f", failsafe {self.failsafe.name.lower()} ({_cause_text(self.cause)})"
         return s + f"; {self.message}"
-
-
-_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight move_to); the landing goes on"
 
 
 class _Refused(str):
