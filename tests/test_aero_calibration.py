@@ -336,6 +336,17 @@ def test_calibrate_truth_cli_writes_a_loadable_truth_and_the_report(flight_data,
     assert "Leave-one-region-out" in text and "identified per-region maps" in text
     assert "Hover moments" in text and "forces and moments" in text
     assert "| R1 |" in text
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rotor-wake truth: force RMS") and str(out) in lines[0]
+
+
+def test_calibrate_truth_without_report_folder_writes_the_report_beside_the_table(flight_data, tmp_path, capsys):
+    out = tmp_path / "truth.toml"
+    assert main(["calibrate-truth", str(flight_data), "--out", str(out), "--no-loo"]) == 0
+    report = tmp_path / "truth-report.md"
+    assert "Leave-one-region-out" in report.read_text()
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and str(report) in lines[0]
 
 
 @pytest.mark.parametrize(

@@ -250,9 +250,9 @@ def test_log_without_attitude_or_speeds_lists_both(tmp_path, capsys):
     from omnirotor.px4.ulog_writer import ULogWriter
 
     w = ULogWriter()
-    lp = np.zeros(10, dtype=[("timestamp", "<u8")] + [(k, "<f4") for k in ("x", "y", "z", "vx", "vy", "vz")])
-    lp["timestamp"] = np.arange(10) * 1000
-    w.add_topic("vehicle_local_position", lp)
+    bat = np.zeros(10, dtype=[("timestamp", "<u8"), ("voltage_v", "<f4")])
+    bat["timestamp"] = np.arange(10) * 1000
+    w.add_topic("battery_status", bat)
     path = tmp_path / "empty.ulg"
     w.write(path)
     assert main(["identify", str(path), "--vehicle", "quadrotor"]) == 2

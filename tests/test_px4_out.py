@@ -184,6 +184,33 @@ def test_identify_from_a_disturbed_flights_ulog_recovers_the_csv(tmp_path, capsy
 
 
 @pytest.mark.slow
+def test_runs_rosbag_reads_back_with_rosbags_and_identifies_as_its_ulog(identification_flight, tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    from omnirotor.identification import load_hover_data
+    from omnirotor.px4.rosbag_io import BAG_TOPICS, write_run_rosbag
+    from omnirotor.rosmsg import typestore
+
+    out, _, signals, _ = identification_flight
+    vehicle = load_vehicle("omnirotor")
+    bag = write_run_rosbag(tmp_path / "run_bag", signals, vehicle)
+    with AnyReader([bag], default_typestore=typestore()) as reader:  # rosbags' own reader, our type store
+        found = {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
+        assert found == {topic: (msgtype, signals.t.size) for topic, msgtype in BAG_TOPICS.values()}
+        speeds = [c for c in reader.connections if c.topic == "/omnirotor/rotor_speeds"]
+        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=speeds)]
+    np.testing.assert_array_equal(np.array([m.hz for m in msgs]), signals.rotor_hz)  # float64, exact
+    np.testing.assert_array_equal([m.t for m in msgs], signals.t)
+    # identification from the bag agrees with the ULog's at the hover points (the bag's speeds are float64,
+    # the ULog's whole rpm): within 1 % of what Δ allows
+    from_bag = load_hover_data([bag], vehicle)
+    from_ulog = load_hover_data([out / "run.ulg"], vehicle)
+    assert from_bag.n_points == from_ulog.n_points
+    gaps = _maps_gap(from_ulog, from_bag, vehicle)
+    assert max(gaps.values()) < 0.01, gaps
+
+
+@pytest.mark.slow
 def test_runs_ulog_has_px4_topics_and_units(identification_flight):
     from pyulog import ULog
 
@@ -299,14 +326,15 @@ def test_run_command_flies_a_px4_vehicle_with_overlay_and_exports(tmp_path, caps
     # lower rotors to the 0.3 efficiency clip (12.4 N of thrust for 17.7 N of weight): an extrapolation, not this
     # test's subject, so the plant is the vehicle's own map.
     args += ["--truth", "nominal"]
-    assert main([*args, "--ulog", str(ulg), "--mcap", str(mc), "--json"]) == 0
+    bag = tmp_path / "r_bag"
+    assert main([*args, "--ulog", str(ulg), "--mcap", str(mc), "--rosbag", str(bag), "--json"]) == 0
     out = capsys.readouterr()
     rep = json.loads(out.out)
     assert rep["ee_max_error"]["z_cm"] < 1.0
     assert "assumed" in out.err and "mass =" not in out.err
     back = load_vehicle(str(ulg))  # the log carries the overlay's values
     assert back.mass == pytest.approx(1.8) and back.omega_max_hz == pytest.approx(240.0)
-    assert mc.stat().st_size > 0
+    assert mc.stat().st_size > 0 and (bag / "metadata.yaml").is_file()
     capsys.readouterr()
     # bad export names: one line, exit 2, nothing flown or written
     bad = tmp_path / "r.txt"

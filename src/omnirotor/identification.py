@@ -31,6 +31,7 @@ import numpy as np
 
 from omnirotor.config import check_positive, parse_float
 from omnirotor.errors import InputError
+from omnirotor.hover_data import HoverData
 from omnirotor.limits import MAX_INPUT_BYTES, MAX_ULOG_BYTES, SPEED_MARGIN
 from omnirotor.regions import Partition, load_partition
 from omnirotor.safe_io import atomic_path, check_input_file, read_bytes, read_text
@@ -93,57 +94,6 @@ class IdentificationParams:
             raise InputError(f"weights must be 6 finite numbers >= 0, got {self.weights}")
         if max(self.weights[:3]) <= 0:
             raise InputError("at least one force-row weight must be > 0")
-
-
-@dataclasses.dataclass(frozen=True)
-class HoverData:
-    """Hover points: rotor inputs and the body wrench that held the vehicle.
-
-    Attributes:
-        u_hz2: (N, n) rotor inputs ``sign(ω) ω²`` [Hz²].
-        w_B: (N, 6) body wrench at the CoM [N, N·m].
-        region: (N,) region name of each point ("" = derive from the force direction).
-        source: (N,) file each point came from.
-    """
-
-    u_hz2: np.ndarray
-    w_B: np.ndarray
-    region: tuple[str, ...]
-    source: tuple[str, ...]
-
-    def __post_init__(self) -> None:
-        if self.u_hz2.ndim != 2 or self.w_B.shape != (self.u_hz2.shape[0], 6):
-            raise InputError(f"hover data: shapes {self.u_hz2.shape} and {self.w_B.shape} do not match")
-        if not (np.all(np.isfinite(self.u_hz2)) and np.all(np.isfinite(self.w_B))):
-            raise InputError("hover data contain NaN or inf")
-
-    @property
-    def n_points(self) -> int:
-        """Number of hover points."""
-        return int(self.u_hz2.shape[0])
-
-    def subset(self, mask: np.ndarray) -> HoverData:
-        """The points selected by a boolean mask."""
-        idx = np.flatnonzero(mask)
-        return HoverData(
-            self.u_hz2[idx],
-            self.w_B[idx],
-            tuple(self.region[i] for i in idx),
-            tuple(self.source[i] for i in idx),
-        )
-
-    @staticmethod
-    def concatenate(parts: Sequence[HoverData]) -> HoverData:
-        """Join several data sets with the same number of rotors."""
-        widths = {p.u_hz2.shape[1] for p in parts}
-        if len(widths) > 1:
-            raise InputError(f"hover data files disagree on the number of rotors: {sorted(widths)}")
-        return HoverData(
-            np.vstack([p.u_hz2 for p in parts]),
-            np.vstack([p.w_B for p in parts]),
-            tuple(r for p in parts for r in p.region),
-            tuple(s for p in parts for s in p.source),
-        )
 
 
 def load_mat(path: str | Path, n_rotors: int = 8) -> HoverData:
@@ -294,10 +244,12 @@ def write_csv(path: str | Path, R_WB: Sequence[np.ndarray], omega_hz: np.ndarray
 def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_criteria=None) -> HoverData:
     """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
 
-    A PX4 flight log (``.ulg``) gives one point per automatically found steady hover window
-    (:func:`omnirotor.px4.windows.load_ulog`, with ``window_criteria``: a
+    A PX4 flight log (``.ulg``) or a ROS 2 bag folder gives one point per automatically found steady hover window
+    (:func:`omnirotor.px4.windows.flight_hover_points`, with ``window_criteria``: a
     :class:`~omnirotor.px4.criteria.WindowCriteria`, default its defaults).
     """
+    from omnirotor.px4.rosbag_io import is_rosbag
+
     files: list[Path] = []
     for item in paths:
         p = Path(item)
@@ -305,7 +257,9 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
             is_dir = p.is_dir()
         except OSError:  # e.g. a name too long: check_input_file says so
             is_dir = False
-        if is_dir:
+        if is_dir and is_rosbag(p):
+            files.append(p)
+        elif is_dir:
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".mat", ".csv", ".ulg"))
             if not found:
                 raise InputError(f"{p}: folder holds no .mat, .csv or .ulg hover data")
@@ -316,14 +270,12 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
         raise InputError("no hover data given")
     parts = []
     for f in files:
-        if f.suffix.lower() == ".mat":
+        if is_rosbag(f) or f.suffix.lower() == ".ulg":
+            parts.append(_load_flight_log(f, vehicle, window_criteria))
+        elif f.suffix.lower() == ".mat":
             parts.append(load_mat(f, vehicle.n_rotors))
         elif f.suffix.lower() == ".csv":
             parts.append(load_csv(f, vehicle))
-        elif f.suffix.lower() == ".ulg":
-            from omnirotor.px4.windows import load_ulog  # pyulog only when a ULog is read
-
-            parts.append(load_ulog(f, vehicle, window_criteria))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
@@ -333,6 +285,17 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
 def _check_data_file(p: Path) -> Path:
     """A hover-data file to read: a regular file within its format's size limit (a ULog's is larger)."""
     return check_input_file(p, max_bytes=MAX_ULOG_BYTES if p.suffix.lower() == ".ulg" else MAX_INPUT_BYTES)
+
+
+def _load_flight_log(path: Path, vehicle: VehicleParams, window_criteria) -> HoverData:
+    """One hover point per automatic hover window of a ULog or ROS 2 bag, with the hover wrench (SPEC §3.1)."""
+    from omnirotor.px4.windows import flight_hover_points  # pyulog and rosbags only when a log is read
+
+    pts = flight_hover_points(path, vehicle, window_criteria)
+    N = len(pts.windows)
+    up = np.array([0.0, 0.0, vehicle.weight])
+    w_B = np.array([np.concatenate([R.T @ up, np.zeros(3)]) for R in pts.R_WB])
+    return HoverData(pts.u_hz2, w_B, ("",) * N, (path.name,) * N)
 
 
 def _check_speeds(data: HoverData, vehicle: VehicleParams, path: Path) -> None:

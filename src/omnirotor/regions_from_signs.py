@@ -53,6 +53,7 @@ __all__ = [
     "mismatch_fraction",
     "write_partition_toml",
     "plot_sign_partition",
+    "distinct_colors",
 ]
 
 REG_LAMBDA = 1e-12
@@ -329,6 +330,25 @@ def write_partition_toml(path: str | Path, result: SignPartition, vehicle: Vehic
     write_text_atomic(path, "\n".join(lines), label)
 
 
+def distinct_colors(k: int) -> np.ndarray:
+    """(k, 3) RGB colours as far apart as a greedy choice makes them (the 57 sign patterns of the Omnirotor too).
+
+    Farthest-point selection over an 11-level RGB grid, away from white (the background) and black (the
+    figure's mismatch marks): each new colour is the one farthest from all chosen so far and from those two.
+    """
+    levels = np.linspace(0.0, 1.0, 11)
+    grid = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), axis=-1).reshape(-1, 3)
+    far = np.full(grid.shape[0], np.inf)
+    for avoid in (np.zeros(3), np.ones(3)):
+        far = np.minimum(far, np.linalg.norm(grid - avoid, axis=1))
+    chosen = []
+    for _ in range(k):
+        j = int(np.argmax(far))
+        chosen.append(grid[j])
+        far = np.minimum(far, np.linalg.norm(grid - grid[j], axis=1))
+    return np.array(chosen).reshape(k, 3)
+
+
 def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str | Path, n: int = 15000) -> None:
     """Figure: local sign patterns on an azimuth-elevation map, the regions' borders, and mismatched area."""
     import matplotlib
@@ -344,9 +364,10 @@ def plot_sign_partition(result: SignPartition, vehicle: VehicleParams, path: str
     idx = np.array([result.partition.index_of_direction(v) for v in pts])
     wrong = local != np.asarray(result.codes)[idx]
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.2), sharey=True)
-    axes[0].scatter(az, el, c=inv, s=3, cmap="tab20", rasterized=True)
+    colors = distinct_colors(int(max(inv.max(), idx.max())) + 1)
+    axes[0].scatter(az, el, c=colors[inv], s=3, rasterized=True)
     axes[0].set_title(f"local hover sign pattern ({result.n_patterns} patterns)")
-    axes[1].scatter(az, el, c=idx, s=3, cmap="tab20", rasterized=True)
+    axes[1].scatter(az, el, c=colors[idx], s=3, rasterized=True)
     axes[1].scatter(az[wrong], el[wrong], c="k", s=3, rasterized=True)
     axes[1].set_title(
         f"{len(result.partition.regions)} regions; black: pattern differs from the region's "

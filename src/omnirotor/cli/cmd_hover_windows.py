@@ -9,6 +9,7 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.cli import window_options as wo
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
 
 D = wo.DEFAULT
@@ -16,15 +17,12 @@ D = wo.DEFAULT
 
 @app.command("hover-windows")
 def hover_windows_cmd(
-    log: Annotated[Path, typer.Argument(help="PX4 flight log (.ulg).")],
+    log: Annotated[Path, typer.Argument(help="PX4 flight log (.ulg) or ROS 2 bag folder (sqlite3 or MCAP).")],
     out: Annotated[Path, typer.Option(help="Figure (PNG): speeds, attitude and motion over time, windows shaded.")],
     csv: Annotated[Path | None, typer.Option(help="Write the hover points here (the CSV of `identify`).")] = None,
     vehicle: Annotated[
         str | None,
-        typer.Option(
-            help="Preset, vehicle TOML, PX4 airframe, QGroundControl .params or ULog (default: the log's own CA_* "
-            "parameters)."
-        ),
+        typer.Option(help=VEHICLE_HELP + " Default: a ULog's own CA_* parameters; omnirotor for a bag."),
     ] = None,
     vehicle_overlay: Annotated[
         Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
@@ -47,8 +45,9 @@ def hover_windows_cmd(
     shows why), and stderr says how much of the flight each criterion rejected.
     """
     from omnirotor.identification import write_csv
-    from omnirotor.px4.flight import check_flight_log, read_flight
-    from omnirotor.px4.windows import hover_points, plot_windows, say_windows
+    from omnirotor.px4.flight import check_flight_log
+    from omnirotor.px4.rosbag_io import is_rosbag
+    from omnirotor.px4.windows import hover_points, plot_windows, read_flight_log, say_windows
     from omnirotor.safe_io import check_output_file
     from omnirotor.vehicle import load_vehicle
 
@@ -61,13 +60,15 @@ def hover_windows_cmd(
         min_duration, accel_max, rate_max, speed_max, drift_max, spread_max, spread_min, spin_fraction, trim,
         cutoff, motion_cutoff,
     )  # fmt: skip
-    if log.suffix.lower() != ".ulg":
-        raise InputError(f"{log}: expected a PX4 flight log (.ulg)")
-    check_flight_log(log)
-    veh = load_vehicle(vehicle if vehicle is not None else str(log), vehicle_overlay)
-    flight = read_flight(log, veh.n_rotors, veh.omega_max_hz)
+    bag = is_rosbag(log)
+    if log.suffix.lower() != ".ulg" and not bag:
+        raise InputError(f"{log}: expected a PX4 flight log (.ulg) or a ROS 2 bag folder (with metadata.yaml)")
+    if not bag:
+        check_flight_log(log)
+    veh = load_vehicle(vehicle if vehicle is not None else ("omnirotor" if bag else str(log)), vehicle_overlay)
+    flight = read_flight_log(log, veh.n_rotors, veh.omega_max_hz)
     pts = hover_points(flight, criteria)
-    plot_windows(flight, pts, out)
+    plot_windows(flight, pts, out, criteria)
     say_windows(flight, pts, veh)
     if not pts.windows:
         raise InputError(f"{log}: no steady hover window found (the figure {out} shows the flight)")

@@ -12,6 +12,7 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.cli import window_options as wo
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.config import parse_float
 from omnirotor.errors import InputError
 
@@ -59,13 +60,16 @@ def summary(maps: WrenchMapSet) -> dict:
 
 @app.command("identify")
 def identify_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Hover data: .mat, .csv or PX4 .ulg files, or folders of them.")],
+    data: Annotated[
+        list[Path],
+        typer.Argument(help="Hover data: .mat, .csv or PX4 .ulg files, ROS 2 bag folders, or folders of files."),
+    ],
     delta: Annotated[str, typer.Option(help="Bound on each entry's change from nominal (units of A).")] = "3e-5",
     region: Annotated[str | None, typer.Option(help="Put every point of this call in region Rk.")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the wrench-map JSON here.")] = None,
     vehicle: Annotated[
         str | None,
-        typer.Option(help="Preset, vehicle TOML, PX4 airframe or ULog (default: a ULog's own, else omnirotor)."),
+        typer.Option(help=VEHICLE_HELP + " Default: the first ULog's own, else omnirotor."),
     ] = None,
     vehicle_overlay: Annotated[
         Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.safe_io import dumps_json
 
 
@@ -44,7 +45,7 @@ def vehicle_report(spec: str, n_directions: int = 400, overlay: Path | None = No
 
 @app.command()
 def info(
-    vehicle: Annotated[str, typer.Option(help="Preset, vehicle TOML, PX4 airframe file or ULog.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     vehicle_overlay: Annotated[
         Path | None, typer.Option(help="TOML of what PX4 does not store (mass, inertia, c_f, ...).")
     ] = None,

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
 from omnirotor.safe_io import atomic_path, check_output_file, dumps_json, note
 
@@ -17,7 +18,7 @@ def regions_cmd(
     from_signs: Annotated[
         bool, typer.Option("--from-signs", help="Derive regions from which rotors spin backwards in hover.")
     ] = False,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     bands: Annotated[int, typer.Option(help="Number of elevation bands.")] = 4,
     min_area_frac: Annotated[
         float, typer.Option(help="Merge regions smaller than this fraction of the sphere.")

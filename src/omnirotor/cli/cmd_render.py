@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
 from omnirotor.safe_io import atomic_path, check_output_file, note
 
@@ -36,7 +37,7 @@ def write_png_atomic(path: str | Path, image: np.ndarray) -> Path:
 def render(
     scene: Annotated[str, typer.Argument(help="free, wall, tilted-wall, pipe or peg-in-hole.")],
     out: Annotated[Path | None, typer.Option("--out", help="PNG file (default SCENE.png).")] = None,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     width: Annotated[int, typer.Option(min=16, max=4096, help="Image width [px].")] = 960,
     height: Annotated[int, typer.Option(min=16, max=4096, help="Image height [px].")] = 720,
 ) -> None:

@@ -14,13 +14,22 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app, number_option
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file, check_output_dir, check_output_file, dumps_json, note
 
 
 @app.command()
 def run(
-    task: Annotated[str, typer.Argument(help="Task: hover, identify-flights, hover-validation, point-contact, ...")],
+    task: Annotated[
+        str,
+        typer.Argument(
+            help="Task: hover (free hover); identify-flights (the hover protocol of SPEC §3.4, writes "
+            "hover_points.csv); hover-validation (the paper's Fig. 3); point-contact, point-contact-tilted, "
+            "sliding, peg-in-hole (SPEC §5.2); identify-dynamic, identify-dynamic-cells (attitude-sweep flights "
+            "for identify --torque)."
+        ),
+    ],
     map_mode: Annotated[str, typer.Option("--map", help="Wrench map in the loop: nominal, global, piecewise.")] = (
         "nominal"
     ),
@@ -46,7 +55,7 @@ def run(
     disturbances: Annotated[
         bool, typer.Option(help="The simulator's calibrated disturbances (docs/fidelity.md); off: a clean plant.")
     ] = True,
-    vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
     set_: Annotated[
         list[str] | None,
@@ -57,6 +66,13 @@ def run(
         Path | None, typer.Option(help="Write the flight as a PX4 ULog (Flight Review, PlotJuggler, identify).")
     ] = None,
     mcap: Annotated[Path | None, typer.Option(help="Write the flight as MCAP with Foxglove schemas.")] = None,
+    rosbag: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the flight as a ROS 2 bag folder (MCAP storage) with the types the flight node publishes "
+            "(ros2 bag, PlotJuggler, identify)."
+        ),
+    ] = None,
     vehicle_overlay: Annotated[
         Path | None, typer.Option(help="TOML of what a PX4 vehicle does not store (mass, inertia, c_f, ...).")
     ] = None,
@@ -81,6 +97,13 @@ def run(
             raise InputError(f"{flag} {target}: expected a {suffix} file name")
         if target is not None and check_output_file(target, flag):
             note(f"{flag} {target}: the existing file will be replaced")
+    if rosbag is not None:
+        from omnirotor.px4.rosbag_io import is_rosbag
+
+        if rosbag.exists() and not is_rosbag(rosbag):
+            raise InputError(f"--rosbag {rosbag}: exists and is not a ROS 2 bag folder")
+        if rosbag.exists():
+            note(f"--rosbag {rosbag}: the existing bag will be replaced")
     if vehicle_overlay is not None:
         from omnirotor.vehicle import load_vehicle, vehicle_spec
 
@@ -134,8 +157,8 @@ def run(
         from omnirotor.safe_io import write_json_atomic
 
         write_json_atomic(out / f"{task}-{map_mode}.json", rep)
-    if ulog is not None or mcap is not None:
-        _export(result, options, ulog, mcap)
+    if ulog is not None or mcap is not None or rosbag is not None:
+        _export(result, options, ulog, mcap, rosbag)
     if as_json:
         print(dumps_json(rep))
         return
@@ -164,8 +187,8 @@ def _fly(task: str, map_mode: str, options):
     return result
 
 
-def _export(result, options, ulog: Path | None, mcap: Path | None) -> None:
-    """Write the run as ULog and/or MCAP (omnirotor.px4.run_export)."""
+def _export(result, options, ulog: Path | None, mcap: Path | None, rosbag: Path | None = None) -> None:
+    """Write the run as ULog, MCAP and/or a ROS 2 bag (omnirotor.px4.run_export, omnirotor.px4.rosbag_io)."""
     from omnirotor.px4.mcap_export import write_run_mcap
     from omnirotor.px4.run_export import run_signals, write_run_ulog
     from omnirotor.vehicle import load_vehicle
@@ -178,6 +201,10 @@ def _export(result, options, ulog: Path | None, mcap: Path | None) -> None:
         scenario = getattr(result, "scenario", None)
         scene = scenario.scene if scenario is not None else "free"
         write_run_mcap(mcap, signals, vehicle, scene, options.sim_params().scene)
+    if rosbag is not None:
+        from omnirotor.px4.rosbag_io import write_run_rosbag
+
+        write_run_rosbag(rosbag, signals, vehicle)
 
 
 def _print_table(task: str, rep: dict) -> None:

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import CommandGroup, app
+from omnirotor.cli.texts import VEHICLE_HELP
 from omnirotor.errors import InputError
 from omnirotor.safe_io import atomic_path, check_output_dir, dumps_json, make_dir, write_json_atomic
 
@@ -46,7 +47,7 @@ def points_per_region_cmd(
     validation: Annotated[int, typer.Option(help="Validation attitudes.")] = 300,
     workers: Annotated[int, typer.Option(help="Processes.")] = 2,
     seed: Annotated[int, typer.Option(help="Seed of the study.")] = 0,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     partition: Annotated[str, typer.Option(help="Region partition: preset name or TOML file.")] = "paper",
 ) -> None:
     """Validation error of the identified maps against hover points per region and hover noise."""
@@ -90,7 +91,7 @@ def partitions_cmd(
         bool, typer.Option("--full-sliding", help="The paper's sliding run, not the quick one.")
     ] = (False),
     seed: Annotated[int, typer.Option(help="Seed of the study.")] = 0,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
 ) -> None:
     """Compare partitions at equal total hover points: residual, hover bias, sliding (closed loop)."""
     from omnirotor.regions import load_partition
@@ -140,7 +141,7 @@ def torque_rows_cmd(
     out: Annotated[Path, typer.Option(help="Folder for the flights, maps, torque-rows.json and .png.")],
     quick: Annotated[bool, typer.Option("--quick", help="Shortened flights (R1 only for the sweeps).")] = False,
     seed: Annotated[int, typer.Option(help="Seed of the flights.")] = 0,
-    vehicle: Annotated[str, typer.Option(help="Preset name or vehicle TOML file.")] = "omnirotor",
+    vehicle: Annotated[str, typer.Option(help=VEHICLE_HELP)] = "omnirotor",
     validation_attitudes: Annotated[
         int | None, typer.Option(help="Validation attitudes per region (default: the hover protocol's, 5 or 2).")
     ] = None,

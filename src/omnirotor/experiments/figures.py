@@ -1,8 +1,10 @@
 """Figures of the experiments, as PNG (matplotlib, no display needed).
 
 * :func:`plot_run`: one interaction run: end-effector position against the compliant and desired references,
-  attitude error, the observer's force estimate against the true contact force, contact phases shaded and
-  wrench-map region switches marked (the paper's Figs. 5–9, plus the ground truth it could not show).
+  attitude error, the observer's force estimate against the true contact force (with the point contact's
+  target force, the one its claim is judged by), contact phases shaded and wrench-map region switches marked
+  (the paper's Figs. 5–9, plus the ground truth it could not show); for the peg, a fifth panel with the
+  insertion depth and the peg's tilt over time against their goals (:class:`PegPanel`).
 * :func:`plot_hover_violins`: the estimated external wrench in hover per map and region (the paper's Fig. 3).
 * :func:`plot_table1`: our Table 1 beside the paper's.
 """
@@ -10,6 +12,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib
 
@@ -20,7 +23,7 @@ import numpy as np  # noqa: E402
 from omnirotor.experiments.metrics import AXES, RunLog, held_contact, pose_errors, smoothed  # noqa: E402
 from omnirotor.safe_io import atomic_path  # noqa: E402
 
-__all__ = ["plot_run", "plot_hover_violins", "plot_table1", "save_figure"]
+__all__ = ["plot_run", "PegPanel", "plot_hover_violins", "plot_table1", "save_figure"]
 
 _MAP_COLORS = {"nominal": "#c0392b", "global": "#2980b9", "piecewise": "#27ae60"}
 
@@ -49,17 +52,75 @@ def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray) -> None:
         ax.axvspan(t[a], t[min(b, t.size - 1)], color="#f5b041", alpha=0.18, lw=0)
 
 
+def _switches(log: RunLog) -> np.ndarray:
+    """Indices where the wrench-map region changed."""
+    return np.flatnonzero(np.diff(log.region) != 0) + 1
+
+
 def _mark(ax, log: RunLog, marks, region_names) -> None:
     for tm, _label in marks:
         ax.axvline(tm, color="0.6", lw=0.8, ls=":")
-    sw = np.flatnonzero(np.diff(log.region) != 0) + 1
-    for i in sw:
+    for i in _switches(log):
         ax.axvline(log.t[i], color="#8e44ad", lw=1.0, ls="--")
 
 
-def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=()) -> Path:
-    """Four stacked panels of one run (see module docstring)."""
-    fig, axs = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
+class PegPanel(NamedTuple):
+    """What the peg's panel of :func:`plot_run` draws.
+
+    Attributes:
+        depth_m: (N,) insertion depth past the hole's entrance [m].
+        tilt_deg: (N,) the peg's angle to the hole's axis [deg].
+        target_depth_m: the planned insertion [m].
+        depth_goal_m: the depth the claim asks for [m].
+        tilt_goal_deg: (lo, hi) the band the inserted tilt should settle in [deg].
+    """
+
+    depth_m: np.ndarray
+    tilt_deg: np.ndarray
+    target_depth_m: float
+    depth_goal_m: float
+    tilt_goal_deg: tuple[float, float]
+
+
+def _peg_panel(ax, t: np.ndarray, peg: PegPanel) -> None:
+    ax.plot(t, 100 * np.maximum(peg.depth_m, 0.0), color="k", lw=1.4, label="insertion depth")
+    ax.axhline(100 * peg.target_depth_m, color="k", lw=0.8, ls=":", label=f"planned {100 * peg.target_depth_m:.0f} cm")
+    ax.axhline(100 * peg.depth_goal_m, color="k", lw=1.0, ls="--", label=f"goal ≥ {100 * peg.depth_goal_m:.1f} cm")
+    ax.set_ylabel("insertion depth [cm]")
+    ax.set_ylim(-0.5, 100 * max(peg.target_depth_m, float(np.nanmax(peg.depth_m))) * 1.5)  # room for the legend
+    tw = ax.twinx()
+    tw.plot(t, peg.tilt_deg, color="#d35400", lw=1.0, label="peg tilt to hole axis")
+    lo, hi = peg.tilt_goal_deg
+    tw.axhspan(lo, hi, color="#d35400", alpha=0.12, lw=0, label=f"tilt goal {lo:g}–{hi:g}° (inserted)")
+    tw.set_ylabel("tilt [deg]", color="#d35400")
+    tw.set_ylim(0, max(15.0, float(np.nanmax(peg.tilt_deg[t > t[0] + 1.0])) * 1.1 if t.size else 15.0))
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = tw.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper left", ncol=3)
+
+
+def plot_run(
+    log: RunLog,
+    title: str,
+    path: str | Path,
+    marks=(),
+    region_names=(),
+    force_target_N: float | None = None,
+    peg: PegPanel | None = None,
+) -> Path:
+    """Four stacked panels of one run, five with the peg's (see module docstring).
+
+    Args:
+        log: the run.
+        title: the figure's title.
+        path: PNG path.
+        marks: (time, label) of the protocol's phases (dotted lines).
+        region_names: names of the map regions (the region axis).
+        force_target_N: the contact force the task's claim is judged by (drawn on the force-norm panel).
+        peg: the peg's depth and tilt and their goals (a fifth panel).
+    """
+    rows = 5 if peg is not None else 4
+    fig, axs = plt.subplots(rows, 1, figsize=(9, 2.5 * rows), sharex=True, constrained_layout=True)
     t = log.t
     cols = ("x", "y", "z")
     colors = ("#c0392b", "#27ae60", "#2980b9")
@@ -90,6 +151,9 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
     ax = axs[3]
     ax.plot(t, np.linalg.norm(f_true, axis=1), color="k", lw=1.5, label="|true contact force| (20 ms mean)")
     ax.plot(t, np.linalg.norm(log.f_ext_hat_W, axis=1), color="0.5", lw=1.0, ls="--", label="|estimate|")
+    if force_target_N is not None:
+        ax.axhline(force_target_N, color="#1abc9c", lw=1.4, label=f"target K_E × penetration ({force_target_N:.1f} N)")
+        ax.set_ylim(top=max(ax.get_ylim()[1], 1.6 * force_target_N))  # room for the legend above the target
     ax.set_ylabel("force norm [N]")
     ax.set_xlabel("time [s]")
     if region_names and (log.region >= 0).any():
@@ -99,12 +163,17 @@ def plot_run(log: RunLog, title: str, path: str | Path, marks=(), region_names=(
         ax3.set_yticks(ticks, [region_names[i] for i in ticks])
         ax3.set_ylabel("map region", color="#8e44ad")
     ax.legend(fontsize=7, loc="upper left")
+    if peg is not None:
+        axs[3].set_xlabel("")
+        _peg_panel(axs[4], t, peg)
+        axs[4].set_xlabel("time [s]")
     held = held_contact(log.in_contact, t)
     for ax in axs:
         _shade_contact(ax, t, held)
         _mark(ax, log, marks, region_names)
         ax.grid(alpha=0.3)
-    fig.suptitle(f"{title}   (shaded: tip in contact; dashed purple: map switch)", fontsize=10)
+    legend = "shaded: tip in contact" + ("; dashed purple: map switch" if _switches(log).size else "")
+    fig.suptitle(f"{title}   ({legend})", fontsize=10)
     return save_figure(fig, path)
 
 
@@ -128,17 +197,23 @@ def plot_hover_violins(samples: dict[str, dict[str, np.ndarray]], path: str | Pa
                     pos.append(j + (i - (len(maps) - 1) / 2) * width)
                     data.append(samples[m][r][:, k])
             if data:
+                color = _MAP_COLORS.get(m, "0.5")
                 parts = ax.violinplot(data, positions=pos, widths=width * 0.95, showmedians=True)
                 for body in parts["bodies"]:
-                    body.set_facecolor(_MAP_COLORS.get(m, "0.5"))
+                    body.set_facecolor(color)
+                    body.set_edgecolor(color)
                     body.set_alpha(0.6)
+                for key in ("cmedians", "cmins", "cmaxes", "cbars"):  # the bars take the violin's colour
+                    if key in parts:
+                        parts[key].set_color(color)
         ax.axhline(0, color="k", lw=0.8)
         ax.set_xticks(range(len(regions)), regions)
         ax.set_title(f"estimated {comp}^W in hover")
         ax.grid(alpha=0.3, axis="y")
     axs[0].set_ylabel("N")
     handles = [plt.Rectangle((0, 0), 1, 1, color=_MAP_COLORS.get(m, "0.5"), alpha=0.6) for m in maps]
-    axs[2].legend(handles, maps, fontsize=8)
+    # one legend above the panels, clear of the data
+    fig.legend(handles, [f"{m} map" for m in maps], loc="outside upper center", ncol=len(maps), fontsize=9)
     return save_figure(fig, path)
 
 

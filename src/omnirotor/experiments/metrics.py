@@ -22,6 +22,9 @@ import numpy as np
 from omnirotor._jit import jit_entry, jit_inline
 
 __all__ = [
+    "PEG_DEPTH_GOAL_CM",
+    "PEG_TILT_GOAL_DEG",
+    "peg_depth_tilt",
     "RunLog",
     "held_contact",
     "CONTACT_WINDOW_S",
@@ -298,3 +301,20 @@ def force_stats(log: RunLog, mask: np.ndarray) -> dict:
         "estimated_mean_N": fe.mean(axis=0).tolist(),
         "estimate_rms_error_N": float(math.sqrt(np.mean(err * err))),
     }
+
+
+PEG_DEPTH_GOAL_CM = 16.5
+"""The peg-in-hole claim's depth goal [cm] (of the 17 cm insertion; paper/claims.py's ten-seed goal)."""
+PEG_TILT_GOAL_DEG = (3.0, 7.0)
+"""The band the inserted peg's tilt should settle in [deg] (paper ~5°; paper/claims.py's ten-seed goal)."""
+
+
+def peg_depth_tilt(log: RunLog, hole_entrance, axis_in=(0.0, -1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """The peg's insertion depth [m] past the hole's entrance and its tilt [deg] from the hole's inward axis.
+
+    The peg runs along the end effector's +y through the tip (SPEC §5.2); both are the true pose's, per sample.
+    """
+    a = np.asarray(axis_in, dtype=float)
+    depth = (log.p_E_W - np.asarray(hole_entrance, dtype=float)) @ a
+    tilt = np.degrees(np.arccos(np.clip(log.R_WE[:, :, 1] @ a, -1.0, 1.0)))
+    return depth, tilt

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import SensorFrame, frame_size
+from omnirotor.messages import SensorFrame, new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -250,7 +250,7 @@ class NodeLoop:
         self.session_id = secrets.randbits(63) | 1
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
-        self._packed = np.zeros(frame_size(n))
+        self._record = new_frame(n)
         shape_ok = frame_check(n)
 
         def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
@@ -428,7 +428,7 @@ class NodeLoop:
                     arrival_late = max(0.0, arrival - last_arrival - period)
                 last_seq = self._last_seq = int(msg.seq)
                 stats.frames += 1
-                frame = SensorFrame.from_packed(unpack_frame(msg, self._packed))
+                frame = SensorFrame.from_record(unpack_frame(msg, self._record))
                 self.last_t = frame.t
                 if frame.mocap_new:
                     last_mocap_t = frame.mocap_t

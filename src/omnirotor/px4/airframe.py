@@ -107,6 +107,11 @@ def read_airframe_params(path: str | Path) -> dict[str, float]:
     return out
 
 
+_RANGES = {"PX": (-100.0, 100.0), "PY": (-100.0, 100.0), "PZ": (-100.0, 100.0), "KM": (-1.0, 1.0)}
+_RANGES.update({k: (-100.0, 100.0) for k in ("AX", "AY", "AZ")})
+"""The range PX4's parameter definitions give each ``CA_ROTORn_*`` value (NaN and inf fall outside)."""
+
+
 def _rotor_geometry(
     params: Mapping[str, float], where: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, list[str]]:
@@ -130,7 +135,11 @@ def _rotor_geometry(
             name = f"CA_ROTOR{i}_{key}"
             if name not in params:
                 defaulted.setdefault(key, []).append(i)
-            vals[key] = float(params.get(name, dflt))
+            value = params.get(name, dflt)
+            lo, hi = _RANGES[key]
+            if not (isinstance(value, (int, float)) and lo <= value <= hi):
+                raise InputError(f"{where}: {name} is {value}; PX4 allows {lo:g} to {hi:g}")
+            vals[key] = float(value)
         pos[i] = (vals["PX"], vals["PY"], vals["PZ"])
         axis[i] = (vals["AX"], vals["AY"], vals["AZ"])
         km[i] = vals["KM"]
@@ -173,7 +182,7 @@ def vehicle_from_px4_params(
         InputError: missing geometry, an unknown overlay key, mixed reversible and one-way rotors, or a
         non-physical result.
     """
-    from omnirotor.vehicle import RotorParams, VehicleParams
+    from omnirotor.vehicle_model import RotorParams, VehicleParams
 
     overlay = {**_omr_values(params), **dict(overlay or {})}
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
@@ -200,8 +209,11 @@ def vehicle_from_px4_params(
     omega_max = pick("omega_max_hz", PX4_DEFAULTS["omega_max_hz"])
     try:
         mass_f, c_f_f, omega_max_f = float(mass), float(c_f), float(omega_max)
-    except (TypeError, ValueError):
-        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers within a float's range") from None
+    for key, value in (("mass", mass_f), ("c_f", c_f_f), ("omega_max_hz", omega_max_f)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"vehicle overlay: {key} is {value}; expected a finite number > 0")
     lo = -omega_max_f if all(reversible) else PX4_DEFAULTS["omega_min_hz_unidirectional"]
     omega_min = pick("omega_min_hz", lo)
     if "c_tau" in overlay:
@@ -266,7 +278,7 @@ def _omr_values(params: Mapping[str, float]) -> dict[str, Any]:
 
 
 def _rank(pos: np.ndarray, axis: np.ndarray, spins: np.ndarray, km: float) -> int:
-    from omnirotor.vehicle import wrench_map
+    from omnirotor.vehicle_model import wrench_map
 
     a = axis / np.linalg.norm(axis, axis=1, keepdims=True)
     A = wrench_map(pos, a, spins, 1.0, km)

@@ -58,7 +58,9 @@ __all__ = [
     "HoverPoints",
     "hover_points",
     "plot_windows",
-    "load_ulog",
+    "motion_signals",
+    "flight_hover_points",
+    "read_flight_log",
     "say_windows",
     "on_grid",
 ]
@@ -123,36 +125,46 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
 
+def motion_signals(
+    flight: Flight, t: np.ndarray, c: WindowCriteria, notes: list[str] | None = None
+) -> dict[str, tuple[str, np.ndarray, float]]:
+    """The low-passed motion the acceleration and rate criteria read, on the grid ``t`` (module docstring).
+
+    Returns:
+        criterion name -> (the signal's label, its values, the criterion's limit).
+    """
+    notes = [] if notes is None else notes
+    out: dict[str, tuple[str, np.ndarray, float]] = {}
+    fc = c.motion_cutoff_hz
+    if flight.v_W is not None and flight.v_W.t.size > 2:
+        a = np.gradient(_lowpass(flight.v_W, fc, "velocity", notes), flight.v_W.t, axis=0)
+        out["accel_max"] = ("|dv/dt|", np.linalg.norm(on_grid(t, flight.v_W.t, a), axis=1), c.accel_max)
+    elif flight.a_W is not None:
+        a = _lowpass(flight.a_W, fc, "acceleration", notes)
+        out["accel_max"] = ("|a_W|", np.linalg.norm(on_grid(t, flight.a_W.t, a), axis=1), c.accel_max)
+    else:
+        notes.append("no local position in the log: the acceleration criterion was skipped")
+    if flight.omega_B is not None:
+        w = _lowpass(flight.omega_B, fc, "angular rate", notes)
+        out["rate_max"] = ("|omega_B|", np.linalg.norm(on_grid(t, flight.omega_B.t, w), axis=1), c.rate_max)
+    else:
+        notes.append("no angular rate in the log: the rate criterion was skipped")
+    return out
+
+
 def _sample_tests(
     flight: Flight, t: np.ndarray, c: WindowCriteria, omega: np.ndarray, notes: list[str]
 ) -> dict[str, tuple[str, np.ndarray]]:
     """Each per-sample criterion's verdict on the grid: name -> (what it demands, True where it passes)."""
     tests: dict[str, tuple[str, np.ndarray]] = {}
-    fc = c.motion_cutoff_hz
-    if flight.v_W is not None and flight.v_W.t.size > 2:
-        v = _lowpass(flight.v_W, fc, "velocity", notes)
-        a = np.gradient(v, flight.v_W.t, axis=0)
-        a_norm = np.linalg.norm(on_grid(t, flight.v_W.t, a), axis=1)
-        tests["accel_max"] = (f"|dv/dt| < {c.accel_max:g} m/s²", a_norm < c.accel_max)
-    elif flight.a_W is not None:
-        a = _lowpass(flight.a_W, fc, "acceleration", notes)
-        a_norm = np.linalg.norm(on_grid(t, flight.a_W.t, a), axis=1)
-        tests["accel_max"] = (f"|a_W| < {c.accel_max:g} m/s²", a_norm < c.accel_max)
-    else:
-        notes.append("no local position in the log: the acceleration criterion was skipped")
+    units = {"accel_max": "m/s²", "rate_max": "rad/s"}
+    for key, (label, value, limit) in motion_signals(flight, t, c, notes).items():
+        tests[key] = (f"{label} < {limit:g} {units[key]}", value < limit)
     if math.isfinite(c.speed_max):
         if flight.v_W is None:
             raise InputError(f"{flight.name}: a speed limit needs velocity (topic vehicle_local_position missing)")
         speed = np.linalg.norm(on_grid(t, flight.v_W.t, flight.v_W.x), axis=1)
         tests["speed_max"] = (f"|v_W| < {c.speed_max:g} m/s", speed < c.speed_max)
-    if flight.omega_B is not None:
-        w = _lowpass(flight.omega_B, fc, "angular rate", notes)
-        tests["rate_max"] = (
-            f"|omega_B| < {c.rate_max:g} rad/s",
-            np.linalg.norm(on_grid(t, flight.omega_B.t, w), axis=1) < c.rate_max,
-        )
-    else:
-        notes.append("no angular rate in the log: the rate criterion was skipped")
     spin = np.mean(np.abs(omega), axis=1)
     floor = c.spin_fraction * np.percentile(spin, 95) if spin.size else 0.0
     demand = f"mean |omega| > {c.spin_fraction:g} x its 95th percentile ({floor:.0f} Hz)"
@@ -265,8 +277,12 @@ def hover_points(flight: Flight, criteria: WindowCriteria | None = None) -> Hove
     return HoverPoints(tuple(kept), R_arr, np.array(us).reshape(-1, n), tuple(dict.fromkeys(notes)), tuple(rejections))
 
 
-def plot_windows(flight: Flight, points: HoverPoints, path: str | Path) -> None:
-    """Figure of the flight over time: rotor speeds, attitude, acceleration and rate, windows shaded."""
+def plot_windows(flight: Flight, points: HoverPoints, path: str | Path, criteria: WindowCriteria | None = None) -> None:
+    """Figure of the flight over time: rotor speeds, attitude, the motion criteria against their limits, windows.
+
+    The raw acceleration is drawn faint behind the criteria: what a real IMU reads in a hover.
+    """
+    criteria = criteria or WindowCriteria()
     import matplotlib
 
     matplotlib.use("Agg")
@@ -287,12 +303,15 @@ def plot_windows(flight: Flight, points: HoverPoints, path: str | Path) -> None:
     ax.set_ylabel("attitude ZYX [deg]")
     ax.legend(fontsize=7, loc="upper left")
     ax = axes[2]
-    if flight.a_W is not None:
-        ax.plot(flight.a_W.t, np.linalg.norm(flight.a_W.x, axis=1), lw=0.8, label="|a_W| [m/s²]")
-    if flight.v_W is not None:
-        ax.plot(flight.v_W.t, np.linalg.norm(flight.v_W.x, axis=1), lw=0.8, label="|v_W| [m/s]")
-    if flight.omega_B is not None:
-        ax.plot(flight.omega_B.t, np.linalg.norm(flight.omega_B.x, axis=1), lw=0.6, label="|omega_B| [rad/s]")
+    if flight.a_W is not None:  # what the accelerometer reads: vibration, not motion
+        ax.plot(flight.a_W.t, np.linalg.norm(flight.a_W.x, axis=1), lw=0.5, color="0.75", label="|a_W| raw [m/s²]")
+    grid = np.arange(flight.R_WB.t[0], flight.R_WB.t[-1], 1.0 / criteria.grid_hz)
+    for (label, value, limit), color, unit in zip(
+        motion_signals(flight, grid, criteria).values(), ("tab:blue", "tab:green"), ("m/s²", "rad/s"), strict=False
+    ):
+        ax.plot(grid, value, lw=1.0, color=color, label=f"{label} [{unit}], {criteria.motion_cutoff_hz:g} Hz low-pass")
+        ax.axhline(limit, color=color, lw=0.8, ls="--", label=f"limit {limit:g} {unit}")
+    ax.set_ylim(0, 3.0 * max(criteria.accel_max, criteria.rate_max))
     ax.set_ylabel("motion")
     ax.set_xlabel("time since log start [s]")
     if ax.get_legend_handles_labels()[0]:
@@ -331,27 +350,32 @@ def say_windows(flight: Flight, pts: HoverPoints, vehicle) -> None:
         print(f"omnirotor: {flight.name}: {line}", file=sys.stderr)
 
 
-def load_ulog(path: str | Path, vehicle, criteria: WindowCriteria | None = None):
-    """Hover data of a ULog for identification: its automatic hover windows, one point each.
+def read_flight_log(path: str | Path, n_rotors: int | None = None, omega_max_hz: float | None = None) -> Flight:
+    """A flight from a PX4 ULog or a ROS 2 bag folder (:mod:`omnirotor.px4.rosbag_io`)."""
+    from omnirotor.px4.rosbag_io import is_rosbag, read_bag_flight
 
-    Says on stderr how many windows were found and what was assumed (:func:`say_windows`).
+    if is_rosbag(path):
+        return read_bag_flight(path, n_rotors, omega_max_hz)
+    return read_flight(path, n_rotors, omega_max_hz)
+
+
+def flight_hover_points(path: str | Path, vehicle, criteria: WindowCriteria | None = None) -> HoverPoints:
+    """The hover points of a ULog or ROS 2 bag for identification: its automatic hover windows, one point each.
+
+    Says on stderr how many windows were found and what was assumed (:func:`say_windows`);
+    :func:`omnirotor.identification.load_hover_data` turns them into hover data.
 
     Raises:
         InputError: not a ULog, no attitude, no rotor speeds, or no hover window at all.
     """
     import sys
 
-    from omnirotor.identification import HoverData
-
     p = Path(path)
-    flight = read_flight(p, vehicle.n_rotors, vehicle.omega_max_hz)
+    flight = read_flight_log(p, vehicle.n_rotors, vehicle.omega_max_hz)
     pts = hover_points(flight, criteria)
     say_windows(flight, pts, vehicle)
     if not pts.windows:
         raise InputError(f"{p}: no steady hover window found (stderr above says what each criterion rejected)")
     spans = ", ".join(f"{w.t0_s:.1f}-{w.t1_s:.1f}" for w in pts.windows[:8]) + (" ..." if len(pts.windows) > 8 else "")
     print(f"omnirotor: {p.name}: {len(pts.windows)} hover window(s) at t = {spans} s", file=sys.stderr)
-    N = len(pts.windows)
-    up = np.array([0.0, 0.0, vehicle.weight])
-    w_B = np.array([np.concatenate([R.T @ up, np.zeros(3)]) for R in pts.R_WB])
-    return HoverData(pts.u_hz2, w_B, ("",) * N, (p.name,) * N)
+    return pts

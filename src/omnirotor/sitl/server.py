@@ -41,7 +41,7 @@ from collections.abc import Callable
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import FRAME_T, RotorCommand
+from omnirotor.messages import RotorCommand
 from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -187,13 +187,13 @@ class SimLink:
         """Payloads on the command and log keys that did not decode or were malformed."""
         return self._sub_cmd.n_bad + self._sub_rows.n_bad
 
-    def send_frame(self, packed: np.ndarray, seq: int) -> None:
-        """Publish a packed frame as ``SensorFrame`` number ``seq`` (and its ROS views)."""
-        self._pub_frame.put(self.msgs.fill_frame(packed, seq))
+    def send_frame(self, record: np.ndarray, seq: int) -> None:
+        """Publish a frame record as ``SensorFrame`` number ``seq`` (and its ROS views)."""
+        self._pub_frame.put(self.msgs.fill_frame(record, seq))
         if self._views is not None:
             imu, pose, speeds = self._views
             m = self.msgs
-            m.fill_views(packed)
+            m.fill_views(record)
             imu.put(m.imu)
             if m.frame.mocap_new:
                 pose.put(m.pose)
@@ -303,7 +303,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     """Step the plant ``n_steps`` periods over the link (module docstring), filling the truth log."""
     opts = link.options
     dt = sim.dt
-    packed = sim.packed_frame
+    record = sim.frame_record
     every = max(1, n_steps // 100)
     rtt = np.zeros(n_steps)
     cmd = RotorCommand(0.0, link.cmd_hz)
@@ -324,8 +324,8 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                     f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)"
                 )
             if now >= next_send:
-                link.send_frame(packed, 0)
-                link.send_status(float(packed[FRAME_T]), 0, 0, False, "", force=True)
+                link.send_frame(record, 0)
+                link.send_status(float(record["t"][0]), 0, 0, False, "", force=True)
                 next_send = now + 0.05
             link.poll_commands()
             time.sleep(0.0005)
@@ -374,7 +374,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                 sim.truth_row(row)
                 row[-2] = 0.0
                 row[-1] = rtt[k] if math.isfinite(rtt[k]) else 0.0
-            link.send_frame(packed, k + 1)
+            link.send_frame(record, k + 1)
             sent_at = time.monotonic()
             link.drain_rows(store_row)
             link.send_status(sim.t, k + 1, held, failsafe, "offboard loss" if failsafe else "")

@@ -155,7 +155,9 @@ def plot_points_per_region(result: dict, path: str | Path) -> None:
     for name, res in result["results"].items():
         s = [res[str(k)] for k in ks]
         mean = np.array([v["mean"] for v in s])
-        (line,) = ax.plot(ks, mean, "o-", label=f"noise {name}: {result['noise'][name]}")
+        noise = result["noise"][name]
+        label = f"{name} noise: speeds ±{noise['speed_std_hz']:g} Hz, attitude ±{noise['attitude_std_deg']:g}° (1σ)"
+        (line,) = ax.plot(ks, mean, "o-", label=label)
         ax.fill_between(ks, [v["ci95"][0] for v in s], [v["ci95"][1] for v in s], color=line.get_color(), alpha=0.35)
         ax.fill_between(ks, [v["p10"] for v in s], [v["p90"] for v in s], color=line.get_color(), alpha=0.1)
     ax.axvline(5, color="k", lw=0.8, ls=":")

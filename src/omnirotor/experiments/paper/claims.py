@@ -14,6 +14,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from omnirotor.experiments.metrics import PEG_DEPTH_GOAL_CM, PEG_TILT_GOAL_DEG
+
 __all__ = ["Goal", "GOALS", "evaluate_goals"]
 
 
@@ -104,9 +106,10 @@ GOALS: tuple[Goal, ...] = (
          "0.7–1.3 N (paper ~1 N), ≥ 8 of 10", "N", _underestimate, 0.7, 1.3, 0.8),
     Goal("observer_error_point", "straight point contact: observer RMS error against the true force ≤ 0.5 N, "
          "≥ 8 of 10", "N", _observer_error, hi=0.5, need_fraction=0.8),
-    Goal("peg_depth", "peg inserted ≥ 16.5 of 17 cm, ≥ 8 of 10", "cm", _peg_depth, lo=16.5, need_fraction=0.8),
-    Goal("peg_tilt", "peg's roll settles from the 10° approach to 3–7° inserted (paper ~5°), ≥ 8 of 10", "deg",
-         _peg_tilt, 3.0, 7.0, 0.8),
+    Goal("peg_depth", f"peg inserted ≥ {PEG_DEPTH_GOAL_CM:g} of 17 cm, ≥ 8 of 10", "cm", _peg_depth,
+         lo=PEG_DEPTH_GOAL_CM, need_fraction=0.8),
+    Goal("peg_tilt", f"peg's roll settles from the 10° approach to {PEG_TILT_GOAL_DEG[0]:g}–{PEG_TILT_GOAL_DEG[1]:g}° "
+         "inserted (paper ~5°), ≥ 8 of 10", "deg", _peg_tilt, *PEG_TILT_GOAL_DEG, 0.8),
 )  # fmt: skip
 """The issue's goals for the claims (module docstring)."""
 

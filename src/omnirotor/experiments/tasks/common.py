@@ -20,11 +20,13 @@ import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from omnirotor.config import apply_values
 from omnirotor.control.admittance import AdmittanceParams
-from omnirotor.control.controller import InteractionController
+from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
@@ -38,7 +40,16 @@ from omnirotor.experiments.loop import (
     task_sim_params,
     video_sink,
 )
-from omnirotor.experiments.metrics import RunLog, contact_stats, force_stats, held_contact, table1_errors
+from omnirotor.experiments.metrics import (
+    PEG_DEPTH_GOAL_CM,
+    PEG_TILT_GOAL_DEG,
+    RunLog,
+    contact_stats,
+    force_stats,
+    held_contact,
+    peg_depth_tilt,
+    table1_errors,
+)
 from omnirotor.experiments.tasks.scenarios import (
     Scenario,
     ScenarioParams,
@@ -124,6 +135,8 @@ class ExperimentOptions(TaskOptions):
         plant: how the simulated plant differs from what the controller and the reference believe (mass,
             inertia, scene pose, plant-only simulator overrides, faults; see :mod:`omnirotor.experiments.faults`);
             None: the plant is the model.
+        controller_values: ``(dotted key, value)`` pairs set on the controller parameters after ``overrides``,
+            typed (a campaign's drawn values: :func:`omnirotor.config.apply_values`).
     """
 
     map_mode: str = "nominal"
@@ -136,6 +149,7 @@ class ExperimentOptions(TaskOptions):
     scenario: ScenarioParams | None = None
     protocol: HoverProtocol | None = None
     plant: PlantPerturbation | None = None
+    controller_values: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -147,6 +161,10 @@ class ExperimentOptions(TaskOptions):
                 f"--map {self.map_mode} needs --maps FILE (from `omnirotor identify DATA --out FILE`, e.g. on the "
                 "hover_points.csv of `omnirotor run identify-flights`)"
             )
+
+    def controller_params(self, admittance: AdmittanceParams | None = None) -> ControllerParams:
+        """:meth:`TaskOptions.controller_params`, then ``controller_values``."""
+        return apply_values(super().controller_params(admittance), self.controller_values)
 
     def sim_params(self) -> SimParams:
         """Simulator parameters: the chosen truth aerodynamics, then ``sim_overrides``."""
@@ -337,12 +355,7 @@ def _task_verdict(task, log: RunLog, phase, scenario: Scenario, sp: ScenarioPara
         out["success"] = bool(not c["lost"] and c["fraction"] > 0.9)
     elif task == "peg-in-hole":
         scene = opts.plant_sim_params().scene  # the true hole, wherever the plan thought it was
-        entrance = np.asarray(scene.hole_entrance, dtype=float)
-        axis_in = np.array([0.0, -1.0, 0.0])
-        depth = (log.p_E_W - entrance) @ axis_in
-        # angle between the peg (body +y through the tip) and the hole's inward axis
-        peg_dir = log.R_WE[:, :, 1]
-        tilt = np.degrees(np.arccos(np.clip(peg_dir @ axis_in, -1.0, 1.0)))
+        depth, tilt = peg_depth_tilt(log, scene.hole_entrance)
         inserted = log.window(scenario.waypoints[5].t, scenario.waypoints[6].t)
         approach = log.window(scenario.waypoints[2].t, scenario.waypoints[3].t)
         out["insertion"] = {
@@ -369,12 +382,26 @@ def _figures(result: ExperimentResult) -> None:
     opts = result.options
     if not isinstance(opts, ExperimentOptions) or opts.out_dir is None or result.log is None:
         return
-    from omnirotor.experiments.figures import plot_run
+    from omnirotor.experiments.figures import PegPanel, plot_run
 
     marks = result.scenario.marks if result.scenario is not None else ()
     title = f"{result.task} — {opts.map_mode} map"
     path = Path(opts.out_dir) / f"{result.task}-{opts.map_mode}.png"
-    plot_run(result.log, title, path, marks=marks, region_names=result.region_names)
+    normal = result.metrics.get("normal_force")
+    peg = None
+    if result.task == "peg-in-hole":
+        depth, tilt = peg_depth_tilt(result.log, opts.plant_sim_params().scene.hole_entrance)
+        target = result.metrics["insertion"]["target_depth_m"]
+        peg = PegPanel(depth, tilt, target, PEG_DEPTH_GOAL_CM / 100.0, PEG_TILT_GOAL_DEG)
+    plot_run(
+        result.log,
+        title,
+        path,
+        marks=marks,
+        region_names=result.region_names,
+        force_target_N=normal["expected_N"] if normal else None,
+        peg=peg,
+    )
     result.metrics["figure"] = str(path)
 
 

@@ -1,0 +1,44 @@
+"""Output of the command line (issue 25 item 5): --version, complete --help texts."""
+
+import re
+
+import pytest
+
+from omnirotor.cli import main
+
+
+def test_version_prints_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"omnirotor {version('omnirotor')}"
+
+
+def test_run_help_names_every_task(capsys):
+    from omnirotor.experiments.tasks import TASKS
+
+    assert main(["run", "--help"]) == 0
+    text = re.sub(r"-\s+", "-", " ".join(capsys.readouterr().out.split()))  # the help wraps lines, also at hyphens
+    missing = [t for t in TASKS if t not in text]
+    assert not missing, missing
+
+
+@pytest.mark.parametrize(
+    "command", ["info", "identify", "hover-windows", "run", "render", "regions", "calibrate-truth", "study"]
+)
+def test_vehicle_help_names_every_format(command, capsys):
+    args = [command, "points-per-region", "--help"] if command == "study" else [command, "--help"]
+    assert main(args) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for fmt in ("preset", "TOML", "PX4 airframe", ".params", "ULog"):
+        assert fmt in text, (command, fmt)
+
+
+def test_calibrate_disturbances_help_is_complete_and_true(capsys):
+    assert main(["calibrate-disturbances", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    # the files it writes (cli/cmd_calibrate.py writes REPORT/disturbances.md and .json), not others
+    assert "disturbances.md" in text and "disturbances.json" in text
+    assert "result.json" not in text and "report.md" not in text
+    # the grid's rules (experiments/disturbance_calibration.calibrate_disturbances refuses the others)
+    assert "at least 4 points" in text and ">= 0" in text and "above 0 in some point" in text
