@@ -15,6 +15,7 @@ import time
 import numpy as np
 import pytest
 
+from omnirotor.messages import new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import COMMAND, CONTROLLER_LOG, FRAME, SIM_STATUS, WRENCH, WireMessages
 from sitl.procs import Pair, wait_until
@@ -41,7 +42,7 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
     store = typestore()
     T = store.types
     w = WireMessages(8)
-    w.fill_frame(np.zeros(46), 1)
+    w.fill_frame(new_frame(8), 1)
     w.command.session_id, w.command.seq, w.command.hz[:] = 12345, 10, 400.0
     foreign_wrench = bytes(store.serialize_cdr(w.wrench, WRENCH))
     valid = {
