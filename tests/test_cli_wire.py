@@ -20,7 +20,7 @@ def _taken_port():
     ("argv", "says"),
     [
         (["sim"], "needs --serve"),
-        (["sim", "--serve"], "needs --task"),
+        (["sim", "--serve", "--scene", "moon"], "unknown scene"),
         (["sim", "--serve", "--task", "levitate"], "unknown task"),
         (["sim", "--serve", "--task", "hover", "--listen", "127.0.0.1:7447"], "not a Zenoh locator"),
         (["sim", "--serve", "--task", "hover", "--domain-id", "300"], "domain id"),
