@@ -15,6 +15,7 @@ import time
 import numpy as np
 import pytest
 
+from omnirotor.messages import new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import COMMAND, CONTROLLER_LOG, FRAME, SIM_STATUS, WRENCH, WireMessages
 from sitl.procs import Pair, wait_until
@@ -41,7 +42,7 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
     store = typestore()
     T = store.types
     w = WireMessages(8)
-    w.fill_frame(np.zeros(46), 1)
+    w.fill_frame(new_frame(8), 1)
     w.command.session_id, w.command.seq, w.command.hz[:] = 12345, 10, 400.0
     foreign_wrench = bytes(store.serialize_cdr(w.wrench, WRENCH))
     valid = {
@@ -57,8 +58,8 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
                 ("controller_log", CONTROLLER_LOG, CONTROLLER_LOG))  # fmt: skip
         pubs = {k: (t.publisher(f"/omnirotor/{k}", typ), valid[template]) for k, typ, template in keys}
         pools = {k: (pub, payloads(rng, good, foreign_wrench)) for k, (pub, good) in pubs.items()}
-        paired = status.take_latest()
-        assert paired is not None and paired.paired_session_id != 0
+        paired = wait_until(lambda: (m := status.take_latest()) is not None and m.paired_session_id != 0 and m, 30)
+        assert paired, pair.text("sim")[-2000:]
         sent = dict.fromkeys(pools, 0)
         t0 = time.monotonic()
         while time.monotonic() < t0 + 2.0:  # a flood: as fast as this process publishes (1-4 per key and ms here)

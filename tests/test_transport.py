@@ -67,7 +67,7 @@ def test_key_expression_follows_rmw_zenoh():
 def test_publish_subscribe_round_trip_and_bad_payloads(pair):
     a, b = pair
     sub = b.subscriber("/omnirotor/rotor_speeds", SPEEDS, depth=16)
-    pub = a.publisher("/omnirotor/rotor_speeds", SPEEDS)
+    pub = a.publisher("/omnirotor/rotor_speeds", SPEEDS, block=True)  # what is counted must arrive
     connected(pub, sub)
     pub.put(speeds(1.25))
     pub.put_raw(b"\x00\x01junk")  # not CDR of the type
@@ -83,7 +83,7 @@ def test_publish_subscribe_round_trip_and_bad_payloads(pair):
 def test_take_latest_skips_older(pair):
     a, b = pair
     sub = b.subscriber("/x", SPEEDS, depth=8)
-    pub = a.publisher("/x", SPEEDS)
+    pub = a.publisher("/x", SPEEDS, block=True)
     connected(pub, sub)
     for k in range(5):
         pub.put(speeds(float(k)))
@@ -96,7 +96,7 @@ def test_take_latest_skips_older(pair):
 def test_ring_keeps_the_newest_depth(pair):
     a, b = pair
     sub = b.subscriber("/x", SPEEDS, depth=3)
-    pub = a.publisher("/x", SPEEDS)
+    pub = a.publisher("/x", SPEEDS, block=True)
     connected(pub, sub)
     for k in range(50):
         pub.put(speeds(float(k)))
@@ -110,7 +110,7 @@ def test_ring_keeps_the_newest_depth(pair):
 def test_check_refuses_semantically_bad_messages(pair):
     a, b = pair
     sub = b.subscriber("/x", SPEEDS, check=lambda m: m.hz.shape == (8,) and bool(np.all(np.isfinite(m.hz))))
-    pub = a.publisher("/x", SPEEDS)
+    pub = a.publisher("/x", SPEEDS, block=True)
     connected(pub, sub)
     pub.put(speeds(1.0, n=3))
     bad = speeds(2.0)
@@ -129,7 +129,7 @@ def test_namespaces_and_domains_do_not_cross():
     d = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/r1")
     try:
         subs = [t.subscriber("/x", SPEEDS) for t in (b, c, d)]
-        pub = a.publisher("/x", SPEEDS)
+        pub = a.publisher("/x", SPEEDS, block=True)
         assert wait_for(lambda: (pub.put(speeds(1.0)), subs[2].take())[1]) is not None
         time.sleep(0.2)
         assert subs[0].take() is None and subs[1].take() is None
@@ -219,7 +219,7 @@ def test_a_zenoh_configuration_file_is_the_base(tmp_path):
     b = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
     try:
         sub = b.subscriber("/x", SPEEDS)
-        pub = a.publisher("/x", SPEEDS)
+        pub = a.publisher("/x", SPEEDS, block=True)
         assert wait_for(lambda: (pub.put(speeds(1.0)), sub.take())[1]) is not None
     finally:
         a.close()

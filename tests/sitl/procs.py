@@ -6,7 +6,6 @@ Every test gets free ports and its own namespace, every wait is bounded, and chi
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import json
 import os
 import secrets
@@ -33,10 +32,6 @@ def env() -> dict:
     return e
 
 
-def have_director() -> bool:
-    return importlib.util.find_spec("omnirotor.fly.director") is not None
-
-
 class Pair:
     """A simulator (``omnirotor sim --serve``) and a node on a fresh port and namespace."""
 
@@ -55,13 +50,9 @@ class Pair:
             [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True
         )
         self.node_endpoint = f"tcp/127.0.0.1:{free_port()}"
-        if have_director():
-            node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
-                        "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
-                        "--fifo-priority", "20" if not lockstep else "0"]  # fmt: skip
-        else:
-            node_cmd = [sys.executable, "-m", "tests.sitl.node_main", self.endpoint, self.namespace, self.node_endpoint]
-            node_cmd += [] if lockstep else ["fifo"]
+        node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
+                    "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
+                    "--fifo-priority", "20" if not lockstep else "0"]  # fmt: skip
         self.node = subprocess.Popen(
             node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True, cwd=str(ROOT)
         )

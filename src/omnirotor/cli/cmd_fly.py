@@ -100,6 +100,7 @@ def fly(
             realtime()
             say(f"flight node up (session {node.session_id:016x}); `omnirotor ctl` on {', '.join(listening)}")
             summary = node.run()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     if as_json:
         print(json.dumps(summary))
         return

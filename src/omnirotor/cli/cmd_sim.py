@@ -7,6 +7,7 @@ prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Annotated
 
@@ -25,7 +26,10 @@ def sim(
     serve: Annotated[
         bool, typer.Option("--serve", help="Serve the simulator on the flight topics (required).")
     ] = False,
-    task: Annotated[str | None, typer.Option(help="Task of `omnirotor run` to fly: hover, sliding, ...")] = None,
+    task: Annotated[
+        str | None, typer.Option(help="Task of `omnirotor run` to fly (hover, sliding, ...); none: interactive.")
+    ] = None,
+    scene: Annotated[str, typer.Option(help="Scene of an interactive flight: free, wall, pipe, ...")] = "free",
     lockstep: Annotated[
         bool, typer.Option(help="Step k+1 only when command k arrived (deterministic); default: the wall clock.")
     ] = False,
@@ -67,7 +71,9 @@ def sim(
     if not serve:
         raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
     if task is None:
-        raise InputError("omnirotor sim --serve needs --task TASK (a task of `omnirotor run`, e.g. hover)")
+        _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
+                    ros_views, offboard_loss, fifo_priority)  # fmt: skip
+        return
     from omnirotor.experiments.tasks import TASKS
     from omnirotor.experiments.tasks.common import ExperimentOptions
     from omnirotor.sitl.server import ServeOptions
@@ -143,3 +149,43 @@ def _serve(transport, task, options, serve_opts):
     ) as bar:  # fmt: skip
         bar_id = bar.add_task(task, total=1.0)
         return serve_task(transport, task, options, serve_opts, progress=lambda f: bar.update(bar_id, completed=f))
+
+
+def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
+                ros_views, offboard_loss, fifo_priority) -> None:  # fmt: skip
+    """Interactive flight: the plant on its stand until the node takes off (omnirotor.sitl.server.serve_free)."""
+    from omnirotor.experiments.loop import task_sim_params
+    from omnirotor.sim import SCENES, Simulator
+    from omnirotor.sitl.server import ServeOptions, serve_free
+    from omnirotor.transport import open_transport
+    from omnirotor.vehicle import load_vehicle
+
+    if scene not in SCENES:
+        raise InputError(f"unknown scene {scene!r}; scenes: {', '.join(SCENES)}")
+    if not 0 <= fifo_priority <= 99:
+        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
+    if zenoh_config is not None:
+        check_input_file(Path(zenoh_config), "--zenoh-config")
+    sim = Simulator(load_vehicle(vehicle), scene=scene, params=task_sim_params(truth, disturbances), seed=seed)
+    endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
+    serve_opts = ServeOptions(offboard_loss_s=offboard_loss, ros_views=ros_views)
+    with open_transport(
+        domain_id=domain_id,
+        namespace=namespace,
+        listen=endpoints,
+        connect=list(connect or ()),
+        config_file=zenoh_config,
+    ) as t:
+        if fifo_priority:
+            from omnirotor.fly.node import set_realtime
+
+            set_realtime(None, fifo_priority, lambda line: note(line))
+        note(f"serving the {scene} scene on {', '.join(endpoints)}, the vehicle on its stand until `omnirotor fly` "
+             "takes off (`omnirotor ctl arm`, `takeoff`); Ctrl-C ends")  # fmt: skip
+        report = serve_free(t, sim, serve_opts)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
+    print(
+        f"{report.steps} steps flown, real-time factor {report.real_time_factor:.2f}, commands obeyed "
+        f"{report.commands_obeyed}, held {report.commands_held}, refused {report.commands_refused}"
+        + (f"; offboard-loss failsafe after {report.failsafe_after_s:.3f} s" if report.failsafe else "")
+    )

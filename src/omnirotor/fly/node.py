@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
+from omnirotor.fly.failsafe import LinkAges
 from omnirotor.messages import SensorFrame, new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -69,19 +70,6 @@ from omnirotor.rosmsg.convert import (
 )
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
-
-try:  # the flight logic's own (helper "node"); the same three fields
-    from omnirotor.fly.failsafe import LinkAges
-except ImportError:  # pragma: no cover  (until omnirotor.fly.failsafe is in the tree)
-
-    @dataclasses.dataclass(frozen=True, slots=True)
-    class LinkAges:  # type: ignore[no-redef]
-        """How old the node's latest inputs are (see omnirotor.fly.failsafe)."""
-
-        imu_age_s: float = 0.0
-        mocap_age_s: float = 0.0
-        frames_stopped: bool = False
-
 
 __all__ = [
     "NodeOptions",

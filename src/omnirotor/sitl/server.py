@@ -35,6 +35,7 @@ import gc
 import json
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -60,7 +61,7 @@ from omnirotor.rosmsg.convert import (
 from omnirotor.sitl.gate import CommandGate
 from omnirotor.transport import Transport
 
-__all__ = ["ServeOptions", "SimLink", "SitlReport", "serve_task", "TOPICS", "MISSION_OPTION_FIELDS"]
+__all__ = ["ServeOptions", "SimLink", "SitlReport", "serve_task", "serve_free", "TOPICS", "MISSION_OPTION_FIELDS"]
 
 TOPICS = {
     "frame": "/omnirotor/frame",
@@ -462,3 +463,73 @@ def serve_task(
     with loop_override(remote_loop(link, report)):
         result = run_task(task, options, progress=progress)
     return result, report
+
+
+def serve_free(
+    transport: Transport,
+    sim,
+    serve: ServeOptions,
+    stop: threading.Event | None = None,
+    say: Callable[[str], None] = lambda line: print(f"omnirotor sim: {line}", file=sys.stderr),
+) -> SitlReport:
+    """Interactive flight (no task): the plant on its stand until the paired node commands rotor speeds.
+
+    The plant starts at the scene's start pose, *held*: not stepped, its start frame published every period
+    (fresh numbers, the same time), so that the node can ``arm`` on it. The first nonzero command of the paired
+    session (the take-off's hover command) releases it; from then on it steps on the wall clock, a missing command
+    held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records no logs.
+    """
+    stop = stop if stop is not None else threading.Event()
+    p0, R0 = sim.default_start()
+    sim.reset(p_W=p0, R_WB=R0)  # compile (or load) the plant's kernels now, not at the take-off
+    sim.step(RotorCommand(0.0, sim.hover_speeds_hz(R0)))
+    sim.reset(p_W=p0, R_WB=R0)
+    link = SimLink(transport, sim.vehicle.n_rotors, dataclasses.replace(serve, lockstep=False))
+    report = SitlReport()
+    record = sim.frame_record
+    zeros = np.zeros(link.n)
+    dt = sim.dt
+    seq = 0
+    held = 0
+    released = failsafe = False
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    wall0 = time.monotonic()
+    k = 0
+    try:
+        while not stop.is_set():
+            _sleep_until(wall0 + k * dt, link)
+            k += 1
+            now = time.monotonic()
+            if not released:
+                if link.gate.paired and bool(np.any(link.cmd_hz != 0.0)) and now - link.cmd_wall_s < 0.1:
+                    released = True
+                    say("released from its stand: the node commands the rotors")
+                else:
+                    link.send_frame(record, seq)
+                    seq += 1
+                    link.send_status(sim.t, report.steps, held, False, "")
+                    continue
+            if not failsafe and now - link.cmd_wall_s > serve.offboard_loss_s:
+                failsafe = _engage(link, report, now)
+            if link.cmd_frame_seq != seq - 1:
+                held += 1
+            sim.step(RotorCommand(sim.t, zeros if failsafe else link.cmd_hz))
+            report.steps += 1
+            link.send_frame(record, seq)
+            seq += 1
+            link.send_status(sim.t, report.steps, held, failsafe, "offboard loss" if failsafe else "")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        gc.enable()
+        gc.unfreeze()
+    report.commands_obeyed = link.gate.obeyed
+    report.commands_held = held
+    report.commands_refused = link.gate.refused
+    report.foreign_sessions = link.gate.foreign_sessions
+    report.bad_payloads = link.bad_payloads
+    report.wall_s = time.monotonic() - wall0
+    report.real_time_factor = report.steps * dt / report.wall_s if report.wall_s > 0 else 0.0
+    return report
