@@ -1,11 +1,12 @@
-"""Every fuzzed PX4 airframe file and vehicle overlay fails cleanly (issue 26 item 2).
+"""Every fuzzed PX4 airframe, QGroundControl .params file and vehicle overlay fails cleanly (issue 26 item 2).
 
-The corpus: the omnicopter airframe of ../shared/data/px4 (skipped when absent) and the quadrotor airframe
-written here, with values replaced (NaN, inf, 1e400, a 400-digit integer, -0, huge and tiny numbers, words),
-lines dropped or repeated, bytes flipped (hypothesis), and overlays with the same values and wrong types, run
-through the vehicle loader (hypothesis: only :class:`~omnirotor.errors.InputError` may escape; the CLI turns it
-into one line and exit 2) and through ``info`` for every value (one line on stderr and exit 2, or exit 0 with
-notes only). A ULog's own parameters are fuzzed through ``info`` and ``hover-windows`` in tests/test_ulog_fuzz.py.
+The corpus: the omnicopter airframe of ../shared/data/px4 (skipped when absent) and the quadrotor written
+here as an airframe and as a QGroundControl ``.params`` file, with values replaced (NaN, inf, 1e400, a
+400-digit integer, -0, huge and tiny numbers, words), lines dropped or repeated, bytes flipped
+(hypothesis), and overlays with the same values and wrong types, run through the vehicle loader
+(hypothesis: only :class:`~omnirotor.errors.InputError` may escape; the CLI turns it into one line and exit
+2) and through ``info`` for every value (one line on stderr and exit 2, or exit 0 with notes only). A ULog's
+own parameters are fuzzed through ``info`` and ``hover-windows`` in tests/test_ulog_fuzz.py.
 """
 
 import os
@@ -38,8 +39,14 @@ QUAD = "\n".join(
 VALUES = ["nan", "-nan", "inf", "-inf", "1e400", "9" * 400, "-0", "1e300", "-1e300", "1e-320", "x", "0x10", "1_0", ""]
 
 
+QGC = "".join(
+    f"1\t1\t{line.split()[2]}\t{line.split()[3]}\t{6 if 'COUNT' in line else 9}\n" for line in QUAD.splitlines()
+)
+"""The quadrotor as a QGroundControl ``.params`` file (vehicle id, component id, name, value, MAVLink type)."""
+
+
 def airframes() -> list[str]:
-    out = [QUAD + "\n"]
+    out = [QUAD + "\n", QGC]
     if OMNICOPTER.is_file():
         out.append(OMNICOPTER.read_text())
     return out
@@ -78,11 +85,15 @@ def write(tmp_path, text: str | bytes, suffix: str = "") -> str:
 def test_airframe_values_replaced(tmp_path, capsys, data):
     text = data.draw(st.sampled_from(airframes()), label="airframe")
     lines = text.splitlines()
-    params = [i for i, line in enumerate(lines) if line.startswith("param set")]
+    params = [i for i, line in enumerate(lines) if line.startswith(("param set", "1\t1\t"))]
     for _ in range(data.draw(st.integers(1, 3))):
         i = data.draw(st.sampled_from(params), label="line")
-        words = lines[i].split()[:3]
-        lines[i] = " ".join([*words, data.draw(st.sampled_from(VALUES), label="value")])
+        value = data.draw(st.sampled_from(VALUES), label="value")
+        words = lines[i].split()
+        if words[0] == "param":
+            lines[i] = " ".join([*words[:3], value])
+        else:  # a .params line: the value is the fourth of five columns
+            lines[i] = "\t".join([*words[:3], value, words[4]])
     loads_or_refuses(write(tmp_path, "\n".join(lines)))
 
 
@@ -137,6 +148,9 @@ def test_each_value_through_info(tmp_path, capsys, value):
         edited = lines.copy()
         edited[i] = " ".join([*lines[i].split()[:3], value])
         outcome(capsys, ["info", "--vehicle", write(tmp_path, "\n".join(edited))])
+    qgc = QGC.splitlines()
+    qgc[1] = "\t".join([*qgc[1].split()[:3], value, "9"])
+    outcome(capsys, ["info", "--vehicle", write(tmp_path, "\n".join(qgc) + "\n", ".params")])
     if value:
         overlay = write(tmp_path, f"mass = {value}\n", ".toml")
         outcome(capsys, ["info", "--vehicle", write(tmp_path, QUAD), "--vehicle-overlay", overlay])

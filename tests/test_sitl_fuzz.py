@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 import pytest
-from tests.sitl.procs import Pair, wait_until
 
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import COMMAND, CONTROLLER_LOG, FRAME, SIM_STATUS, WRENCH, WireMessages
+from sitl.procs import Pair, wait_until
 
 
 def payloads(rng, valid: bytes, foreign: bytes) -> list[bytes]:

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from tests.sitl.procs import Pair, wait_until
 
 from omnirotor.experiments.tasks import run_task
 from omnirotor.experiments.tasks.common import ExperimentOptions
 from omnirotor.rosmsg.convert import COMMAND, LOOP_STATUS, SIM_STATUS
+from sitl.procs import Pair, wait_until
 
 MSG_ROOT = Path(__file__).resolve().parents[1] / "src" / "omnirotor" / "rosmsg"
 

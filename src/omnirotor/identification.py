@@ -245,7 +245,7 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
     """Read hover points from files and folders (their ``.mat``, ``.csv`` and ``.ulg`` files).
 
     A PX4 flight log (``.ulg``) or a ROS 2 bag folder gives one point per automatically found steady hover window
-    (:func:`omnirotor.px4.windows.load_flight_log`, with ``window_criteria``: a
+    (:func:`omnirotor.px4.windows.flight_hover_points`, with ``window_criteria``: a
     :class:`~omnirotor.px4.criteria.WindowCriteria`, default its defaults).
     """
     from omnirotor.px4.rosbag_io import is_rosbag
@@ -270,18 +270,12 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
         raise InputError("no hover data given")
     parts = []
     for f in files:
-        if is_rosbag(f):
-            from omnirotor.px4.windows import load_flight_log  # rosbags only when a bag is read
-
-            parts.append(load_flight_log(f, vehicle, window_criteria))
+        if is_rosbag(f) or f.suffix.lower() == ".ulg":
+            parts.append(_load_flight_log(f, vehicle, window_criteria))
         elif f.suffix.lower() == ".mat":
             parts.append(load_mat(f, vehicle.n_rotors))
         elif f.suffix.lower() == ".csv":
             parts.append(load_csv(f, vehicle))
-        elif f.suffix.lower() == ".ulg":
-            from omnirotor.px4.windows import load_flight_log  # pyulog only when a ULog is read
-
-            parts.append(load_flight_log(f, vehicle, window_criteria))
         else:
             raise InputError(f"{f}: unknown data format (expected .mat, .csv or .ulg)")
         _check_speeds(parts[-1], vehicle, f)
@@ -291,6 +285,17 @@ def load_hover_data(paths: Sequence[str | Path], vehicle: VehicleParams, window_
 def _check_data_file(p: Path) -> Path:
     """A hover-data file to read: a regular file within its format's size limit (a ULog's is larger)."""
     return check_input_file(p, max_bytes=MAX_ULOG_BYTES if p.suffix.lower() == ".ulg" else MAX_INPUT_BYTES)
+
+
+def _load_flight_log(path: Path, vehicle: VehicleParams, window_criteria) -> HoverData:
+    """One hover point per automatic hover window of a ULog or ROS 2 bag, with the hover wrench (SPEC §3.1)."""
+    from omnirotor.px4.windows import flight_hover_points  # pyulog and rosbags only when a log is read
+
+    pts = flight_hover_points(path, vehicle, window_criteria)
+    N = len(pts.windows)
+    up = np.array([0.0, 0.0, vehicle.weight])
+    w_B = np.array([np.concatenate([R.T @ up, np.zeros(3)]) for R in pts.R_WB])
+    return HoverData(pts.u_hz2, w_B, ("",) * N, (path.name,) * N)
 
 
 def _check_speeds(data: HoverData, vehicle: VehicleParams, path: Path) -> None:

@@ -33,6 +33,9 @@ def sim(
         list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_SIM_ENDPOINT}.")
     ] = None,
     connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable).")] = None,
+    zenoh_config: Annotated[
+        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+    ] = None,
     domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
     ros_views: Annotated[
@@ -87,8 +90,16 @@ def sim(
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views
     )
-    endpoints = list(listen) if listen else [DEFAULT_SIM_ENDPOINT]
-    with open_transport(domain_id=domain_id, namespace=namespace, listen=endpoints, connect=list(connect or ())) as t:
+    endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
+    if zenoh_config is not None:
+        check_input_file(Path(zenoh_config), "--zenoh-config")
+    with open_transport(
+        domain_id=domain_id,
+        namespace=namespace,
+        listen=endpoints,
+        connect=list(connect or ()),
+        config_file=zenoh_config,
+    ) as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
         if fifo_priority and not lockstep:

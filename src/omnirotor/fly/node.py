@@ -26,7 +26,7 @@ one, or when its frame was missed; an *overrun* is a period whose work took long
 the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in the summary on exit.
 
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
-it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 1 s.
+it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
 
 A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
 counted bad and dropped (a repeated start frame, a replay, a forged or corrupted number that would otherwise
@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import SensorFrame, frame_size
+from omnirotor.messages import SensorFrame, new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -124,7 +124,7 @@ class NodeOptions:
     period_s: float = 0.001
     lockstep: bool = False
     link_loss_s: float = 0.05
-    lockstep_link_loss_s: float = 1.0
+    lockstep_link_loss_s: float = 5.0
     late_threshold_s: float = 0.0005
     status_hz: float = 50.0
     wrench_every: int = 10
@@ -250,7 +250,7 @@ class NodeLoop:
         self.session_id = secrets.randbits(63) | 1
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
-        self._packed = np.zeros(frame_size(n))
+        self._record = new_frame(n)
         shape_ok = frame_check(n)
 
         def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
@@ -259,10 +259,12 @@ class NodeLoop:
 
         self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
         self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
-        self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND)
+        self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND, block=o.lockstep)
         self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
         self._pub_wrench = transport.publisher(TOPICS["wrench_est"], WRENCH)
-        self._pub_rows = transport.publisher(TOPICS["controller_log"], CONTROLLER_LOG) if o.log_rows else None
+        self._pub_rows = (
+            transport.publisher(TOPICS["controller_log"], CONTROLLER_LOG, block=True) if o.log_rows else None
+        )
         self._pub_status = None
         self._flight_status_type = None
         T = typestore().types
@@ -393,6 +395,7 @@ class NodeLoop:
         next_status = 0.0
         next_gap_call = math.inf
         steps = 0
+        cpu0 = time.process_time()
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -425,7 +428,7 @@ class NodeLoop:
                     arrival_late = max(0.0, arrival - last_arrival - period)
                 last_seq = self._last_seq = int(msg.seq)
                 stats.frames += 1
-                frame = SensorFrame.from_packed(unpack_frame(msg, self._packed))
+                frame = SensorFrame.from_record(unpack_frame(msg, self._record))
                 self.last_t = frame.t
                 if frame.mocap_new:
                     last_mocap_t = frame.mocap_t
@@ -469,6 +472,7 @@ class NodeLoop:
             gc.unfreeze()
         self._publish_status()
         out = stats.summary()
+        out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
         out["frames_bad"] = self._frames.n_bad
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None

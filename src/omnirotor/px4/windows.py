@@ -59,7 +59,7 @@ __all__ = [
     "hover_points",
     "plot_windows",
     "motion_signals",
-    "load_flight_log",
+    "flight_hover_points",
     "read_flight_log",
     "say_windows",
     "on_grid",
@@ -359,17 +359,16 @@ def read_flight_log(path: str | Path, n_rotors: int | None = None, omega_max_hz:
     return read_flight(path, n_rotors, omega_max_hz)
 
 
-def load_flight_log(path: str | Path, vehicle, criteria: WindowCriteria | None = None):
-    """Hover data of a ULog or ROS 2 bag for identification: its automatic hover windows, one point each.
+def flight_hover_points(path: str | Path, vehicle, criteria: WindowCriteria | None = None) -> HoverPoints:
+    """The hover points of a ULog or ROS 2 bag for identification: its automatic hover windows, one point each.
 
-    Says on stderr how many windows were found and what was assumed (:func:`say_windows`).
+    Says on stderr how many windows were found and what was assumed (:func:`say_windows`);
+    :func:`omnirotor.identification.load_hover_data` turns them into hover data.
 
     Raises:
         InputError: not a ULog, no attitude, no rotor speeds, or no hover window at all.
     """
     import sys
-
-    from omnirotor.hover_data import HoverData
 
     p = Path(path)
     flight = read_flight_log(p, vehicle.n_rotors, vehicle.omega_max_hz)
@@ -379,7 +378,4 @@ def load_flight_log(path: str | Path, vehicle, criteria: WindowCriteria | None =
         raise InputError(f"{p}: no steady hover window found (stderr above says what each criterion rejected)")
     spans = ", ".join(f"{w.t0_s:.1f}-{w.t1_s:.1f}" for w in pts.windows[:8]) + (" ..." if len(pts.windows) > 8 else "")
     print(f"omnirotor: {p.name}: {len(pts.windows)} hover window(s) at t = {spans} s", file=sys.stderr)
-    N = len(pts.windows)
-    up = np.array([0.0, 0.0, vehicle.weight])
-    w_B = np.array([np.concatenate([R.T @ up, np.zeros(3)]) for R in pts.R_WB])
-    return HoverData(pts.u_hz2, w_B, ("",) * N, (p.name,) * N)
+    return pts
