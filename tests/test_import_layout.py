@@ -124,12 +124,6 @@ def test_no_import_cycles_outside_px4():
     assert cycles == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="vehicle <-> px4.airframe: load_vehicle reads PX4 files through px4.airframe, which builds "
-    "VehicleParams; breaking it moves VehicleParams below both, a change to every importer of omnirotor.vehicle "
-    "(identification <-> px4.windows is gone: identification builds the hover data of a log's windows)",
-)
 def test_no_import_cycles_at_all():
     assert _cycles(_import_graph()) == []
 

@@ -315,12 +315,29 @@ def _stamp(path: str | Path | None) -> int:
         return 0
 
 
+def vehicle_from_px4_params(params, name: str, where: str, overlay=None) -> tuple[VehicleParams, list[str]]:
+    """A vehicle from PX4 ``CA_*`` parameters plus an overlay of what PX4 does not store (SPEC §1.2).
+
+    The values are :func:`omnirotor.px4.airframe.px4_vehicle_data`'s; ``actuated_dof`` is the rank of the
+    geometry's wrench map. Returns the vehicle and what was assumed (``"key = value"`` strings).
+    """
+    from omnirotor.px4.airframe import px4_vehicle_data
+
+    data, km, assumed = px4_vehicle_data(params, name, where, overlay)
+    rotors = tuple(from_mapping(RotorParams, r, f"{where} rotor {i}") for i, r in enumerate(data["rotors"]))
+    pos = np.array([r.position for r in rotors], dtype=float)
+    axes = np.array([r.axis for r in rotors], dtype=float)
+    A = wrench_map(pos, axes / np.linalg.norm(axes, axis=1, keepdims=True), np.array([r.spin for r in rotors]), 1.0, km)
+    rank = int(np.linalg.matrix_rank(A, tol=1e-9 * np.abs(A).max()))
+    return from_mapping(VehicleParams, {**data, "rotors": rotors, "actuated_dof": min(6, max(4, rank))}, where), assumed
+
+
 @functools.lru_cache(maxsize=16)
 def _load_px4_vehicle(path: str, overlay: str | None, _mtime: int, _overlay_mtime: int) -> VehicleParams:
     """A vehicle from a PX4 airframe file or ULog; says the assumed values on stderr (once per file version)."""
     import sys
 
-    from omnirotor.px4.airframe import load_overlay, read_airframe_params, vehicle_from_px4_params
+    from omnirotor.px4.airframe import load_overlay, read_airframe_params
 
     p = Path(path)
     if p.suffix.lower() == ".ulg":

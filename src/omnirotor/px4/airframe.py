@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from omnirotor.config import from_mapping, load_toml
+from omnirotor.config import load_toml
 from omnirotor.errors import InputError
 from omnirotor.limits import MAX_ROTORS
 from omnirotor.px4.frames import vec_from_px4
@@ -39,7 +39,7 @@ __all__ = [
     "PX4_ROTOR_DEFAULTS",
     "read_airframe_params",
     "is_airframe_file",
-    "vehicle_from_px4_params",
+    "px4_vehicle_data",
 ]
 
 PX4_ROTOR_DEFAULTS = {"PX": 0.0, "PY": 0.0, "PZ": 0.0, "AX": 0.0, "AY": 0.0, "AZ": -1.0, "KM": 0.05}
@@ -153,10 +153,13 @@ def _ranges(idx: list[int]) -> str:
     return ", ".join(out)
 
 
-def vehicle_from_px4_params(
+def px4_vehicle_data(
     params: Mapping[str, float], name: str, where: str, overlay: Mapping[str, Any] | None = None
-):
-    """Build a vehicle from PX4 ``CA_*`` parameters plus an overlay of what PX4 does not store.
+) -> tuple[dict[str, Any], float, list[str]]:
+    """The vehicle file's values of PX4 ``CA_*`` parameters plus an overlay of what PX4 does not store.
+
+    :func:`omnirotor.vehicle.vehicle_from_px4_params` builds the vehicle of them (this module imports nothing of
+    :mod:`omnirotor.vehicle`, which reads PX4 files through it).
 
     Args:
         params: PX4 parameters by name.
@@ -166,15 +169,14 @@ def vehicle_from_px4_params(
             ``omega_min_hz``, ``propeller_diameter``, ``p_E_B``, ``frame_size``, ``gravity``, ``name``).
 
     Returns:
-        ``(vehicle, assumed)``: the :class:`~omnirotor.vehicle.VehicleParams` and a list of ``"key = value"``
-        strings for every value taken from a default.
+        ``(data, km, assumed)``: the vehicle file's keys (``rotors`` as mappings of ``position``, ``spin``,
+        ``axis``; no ``actuated_dof``), the rotors' mean ``|KM|`` and a list of ``"key = value"`` strings for
+        every value taken from a default.
 
     Raises:
         InputError: missing geometry, an unknown overlay key, mixed reversible and one-way rotors, or a
         non-physical result.
     """
-    from omnirotor.vehicle import RotorParams, VehicleParams
-
     overlay = {**_omr_values(params), **dict(overlay or {})}
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
     if unknown:
@@ -219,10 +221,8 @@ def vehicle_from_px4_params(
         inertia = [round(float(x), 9) for x in np.diag(J)]
         assumed.append(f"inertia_diag = {inertia} (mass at the rotors)")
     spins = [(-1 if k > 0 else 1) for k in km]
-    A_rank = _rank(pos, axis, np.array(spins, dtype=float), float(np.mean(np.abs(km))))
     rotors = tuple(
-        RotorParams(position=tuple(map(float, pos[i])), spin=spins[i], axis=tuple(map(float, axis[i])))
-        for i in range(n)
+        {"position": tuple(map(float, pos[i])), "spin": spins[i], "axis": tuple(map(float, axis[i]))} for i in range(n)
     )
     span = float(np.abs(pos).max()) if n else 0.1
     data = {
@@ -234,14 +234,13 @@ def vehicle_from_px4_params(
         "omega_max_hz": omega_max,
         "omega_min_hz": omega_min,
         "propeller_diameter": pick("propeller_diameter", PX4_DEFAULTS["propeller_diameter"]),
-        "actuated_dof": min(6, max(4, A_rank)),
         "frame_size": overlay.get("frame_size", round(max(2.0 * span, 0.05), 4)),
         "rotors": rotors,
     }
     for key in ("gravity", "p_E_B"):
         if key in overlay:
             data[key] = overlay[key]
-    return from_mapping(VehicleParams, data, where), assumed
+    return data, float(np.mean(np.abs(km))), assumed
 
 
 _OMR = {
@@ -263,14 +262,6 @@ def _omr_values(params: Mapping[str, float]) -> dict[str, Any]:
     if all(f"OMR_EE_{a}" in params for a in "XYZ"):
         out["p_E_B"] = [float(params[f"OMR_EE_{a}"]) for a in "XYZ"]
     return out
-
-
-def _rank(pos: np.ndarray, axis: np.ndarray, spins: np.ndarray, km: float) -> int:
-    from omnirotor.vehicle import wrench_map
-
-    a = axis / np.linalg.norm(axis, axis=1, keepdims=True)
-    A = wrench_map(pos, a, spins, 1.0, km)
-    return int(np.linalg.matrix_rank(A, tol=1e-9 * np.abs(A).max()))
 
 
 def load_overlay(path: str | Path | None) -> dict[str, Any]:
