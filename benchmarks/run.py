@@ -1342,7 +1342,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-json", type=Path, help="render this saved result instead of measuring")
     ap.add_argument("--no-rotorpy", action="store_true", help="skip the RotorPy side even if it is installed")
     ap.add_argument("--data", type=Path, default=DATA_DIR, help="hover flight data folder for the identification QP")
+    ap.add_argument("--transport", action="store_true", help="only the flight transport's figures (bench_transport)")
     args = ap.parse_args(argv)
+    if args.transport:
+        import bench_transport
+
+        return bench_transport.main(["--quick"] if args.quick else [])
     wide = None if sys.stderr.isatty() else 150  # files and pipes: do not squeeze the tables to 80 columns
     err = Console(stderr=True, width=wide)
     if args.from_json:

@@ -82,9 +82,9 @@ def test_simulator_never_imports_the_controller():
 
 # -- compiled state as named records (issue 11, STYLE rule 13) ----------------------------------------------------
 
-_PACKED_LAYOUTS = {"omnirotor.messages": "FRAME_", "omnirotor.sim.step": "TRUTH_ROW_"}
-"""Flat layouts that stay flat, each owned by one module: the packed sensor frame (the controller's message in,
-a wire format) and the simulator's truth log row. Their constants may index arrays; no other constant may."""
+_PACKED_LAYOUTS = {"omnirotor.sim.step": "TRUTH_ROW_"}
+"""Flat layouts that stay flat, each owned by one module: the simulator's truth log row. Its constants may index
+arrays; no other constant may (the sensor frame and the estimate are records: :mod:`omnirotor.messages`)."""
 
 
 def _int_constants(tree: ast.Module) -> set[str]:
@@ -168,3 +168,56 @@ def test_estimator_and_scheduler_state_are_named_records():
     for module, fields in ((ek, ("u.x_out", "u.P", "w.sigma_R_WB", "u.k_fused")), (mk, ("st.region", "r.n_az"))):
         text = Path(module.__file__).read_text(encoding="utf-8")
         assert all(f in text for f in fields)
+
+
+# -- no literal slices of a record's arrays in compiled code (issue 23 item 2) ---------------------------------------
+
+_JIT_DECORATORS = {"jit", "jit_inline", "jit_entry", "njit"}
+
+
+def _compiled_functions(tree: ast.Module):
+    """The functions of a module compiled by numba (decorated ``@jit``, ``@jit_inline``, ``@jit_entry``, ``@njit``)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef):
+            for deco in node.decorator_list:
+                d = deco.func if isinstance(deco, ast.Call) else deco
+                name = d.attr if isinstance(d, ast.Attribute) else getattr(d, "id", "")
+                if name in _JIT_DECORATORS:
+                    yield node
+                    break
+
+
+def _record_slices(path: Path, root: Path = SRC.parent) -> list[str]:
+    """Literal slices (``x.f[0:3]``, ``r["f"][3:6]``) of a record's field inside the compiled functions of ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    hits = []
+    for fn in _compiled_functions(tree):
+        for node in ast.walk(fn):
+            if not (isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Slice)):
+                continue
+            sl = node.slice
+            literal = any(isinstance(b, ast.Constant) and type(b.value) is int for b in (sl.lower, sl.upper))
+            v = node.value
+            field = isinstance(v, ast.Attribute) or (
+                isinstance(v, ast.Subscript) and isinstance(v.slice, ast.Constant) and isinstance(v.slice.value, str)
+            )
+            if literal and field:
+                hits.append(f"{path.relative_to(root)}:{node.lineno}: {ast.unparse(node)}")
+    return hits
+
+
+def test_no_literal_slice_of_a_record_field_in_compiled_code():
+    """Mixed vectors between blocks travel as named fields (``f_ext_W``, ``m_ext_B``), never ``output[0:3]``."""
+    bad = [hit for sub in ("control", "sim") for path in _modules(sub) for hit in _record_slices(path)]
+    assert not bad, "\n".join(bad)
+
+
+def test_record_slice_check_finds_a_slice(tmp_path):
+    """The check above is not vacuous: it finds an attribute's and a string key's literal slice in a kernel."""
+    f = tmp_path / "m.py"
+    f.write_text(
+        "@jit\ndef k(r, x):\n    a = r.output[0:3]\n    b = r['w'][3:6]\n    c = x[0:3]\n    return a, b, c\n\n"
+        "def py(r):\n    return r.output[0:3]\n"
+    )
+    hits = [h.split(": ", 1)[1] for h in _record_slices(f, tmp_path)]
+    assert hits == ["r.output[0:3]", "r['w'][3:6]"]

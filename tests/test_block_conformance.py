@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import abc
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +33,14 @@ from omnirotor.control.maps import MapParams
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseControlParams
 from omnirotor.control.trajectory import ReferenceSample
-from omnirotor.messages import SensorFrame, StateEstimate
+from omnirotor.messages import SensorFrame, StateEstimate, new_frame
 from omnirotor.regions import load_partition
 from omnirotor.so3 import exp_so3
 from omnirotor.vehicle import load_vehicle
 from omnirotor.wrench_maps import MapEntry, WrenchMapSet
+
+sys.path.insert(0, str(Path(__file__).parent / "reference"))
+from record_controller import frame_of_flat  # noqa: E402 (the stored frames' layout)
 
 V = load_vehicle("omnirotor")
 DT = 1e-3
@@ -201,32 +205,34 @@ class _Estimator(_Driver):
         if _Estimator.frames is None:
             _Estimator.frames = np.load(REFERENCE)["ukf_piecewise_hard/frames"]
         block = cls(V, EstimatorParams(kind=cls.name))
-        block.reset(SensorFrame.from_packed(self.frames[0]))
+        block.reset(frame_of_flat(self.frames[0]))
         return block
 
     def inputs(self, rng, k):
-        frame = self.frames[1 + k].copy()
-        frame[1:7] += rng.normal(0.0, 1e-3, 6)  # IMU noise of this seed
-        frame[17:20] += rng.normal(0.0, 1e-4, 3)  # and of the state the bypass passes through
-        return (SensorFrame.from_packed(frame),)
+        frame = frame_of_flat(self.frames[1 + k])
+        imu_noise, state_noise = rng.normal(0.0, 1e-3, 6), rng.normal(0.0, 1e-4, 3)
+        frame.imu_acc_B[:] += imu_noise[:3]  # IMU noise of this seed
+        frame.imu_gyro_B[:] += imu_noise[3:]
+        if frame.state is not None:
+            frame.state.p_W[:] += state_noise  # and of the state the bypass passes through
+        return (frame,)
 
     def step(self, block, inputs):
         est = block.step(*inputs)
         return est.p_W, est.v_W, est.a_W, est.R_WB, est.omega_B
 
     def poisoned(self, inputs):
-        frame = inputs[0]
-        packed = np.zeros(frame.rotor_hz.shape[0] + 38)
-        frame.pack_into(packed)
-        packed[4] = math.nan  # gyro x
-        packed[17] = math.nan  # the state's p_W x
-        return (SensorFrame.from_packed(packed),)
+        record = new_frame(inputs[0].rotor_hz.shape[0])
+        inputs[0].write_record(record)
+        record["imu"]["gyro_B"][0, 0] = math.nan  # gyro x
+        record["state"]["p_W"][0, 0] = math.nan  # the state's p_W x
+        return (SensorFrame.from_record(record),)
 
     def snapshot(self, block):  # the UKF's sample history and scratch are unreachable after a reset: not compared
         return block.state.tobytes()
 
     def reset(self, block):
-        block.reset(SensorFrame.from_packed(self.frames[0]))
+        block.reset(frame_of_flat(self.frames[0]))
 
 
 DRIVERS = {

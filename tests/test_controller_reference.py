@@ -16,9 +16,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "reference"))
 
-from record_controller import CASES, EVERY, controller, digest, slide  # noqa: E402
+from record_controller import CASES, EVERY, controller, digest, frame_of_flat, slide  # noqa: E402
 
-from omnirotor.messages import ControlStatus, SensorFrame  # noqa: E402
+from omnirotor.messages import ControlStatus  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "controller_reference.npz"
 
@@ -32,10 +32,10 @@ def replay(name: str, params=None):
     ctl = controller(estimator, mode, blend, failed, params)
     traj = slide(pipe[:3], float(pipe[3]))
     ctl.log.ensure_capacity(frames.shape[0] - 1)
-    ctl.reset(SensorFrame.from_packed(frames[0]), traj)
+    ctl.reset(frame_of_flat(frames[0]), traj)
     statuses, regions = [], []
     for k in range(1, frames.shape[0]):
-        cmd = ctl.step(SensorFrame.from_packed(frames[k]))
+        cmd = ctl.step(frame_of_flat(frames[k]))
         statuses.append(int(cmd.status))
         regions.append(ctl.scheduler.region_index)
     return ctl, statuses, regions, ref

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from omnirotor.messages import FRAME_ACC_B, FRAME_GYRO_B, frame_size
+from omnirotor.messages import new_frame
 from omnirotor.sim import AirflowParams, SimParams, Simulator, prng
 from omnirotor.sim.airflow import AirflowForce, scene_surfaces, surface_scale, wake_radius
 from omnirotor.sim.params import SceneParams
@@ -211,14 +211,15 @@ def test_imu_vibration_variance():
     s = _sensors(imu_vib_acc_amp=amp_a, imu_vib_gyro_amp=amp_g, imu_vib_ref_hz=ref)
     omega = np.linspace(80.0, 150.0, N) * np.where(np.arange(N) % 2, 1.0, -1.0)  # distinct speeds, both senses
     pose = np.r_[0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]
-    frame = np.zeros(frame_size(N))
+    record = new_frame(N)
+    frame = record[0]
     steps = 20_000
     acc, gyro = np.empty((steps, 3)), np.empty((steps, 3))
     for k in range(steps):
         s.refill()
         sense(s.state[0], pose, np.zeros(6), np.zeros(6), np.eye(3).ravel(), omega, k, k * DT, frame)
-        acc[k] = frame[FRAME_ACC_B : FRAME_ACC_B + 3]
-        gyro[k] = frame[FRAME_GYRO_B : FRAME_GYRO_B + 3]
+        acc[k] = frame["imu"]["acc_B"]
+        gyro[k] = frame["imu"]["gyro_B"]
     # Sinusoids of different frequencies: the variances add, amp² (omega/ref)⁴ / 2 per rotor over the three axes.
     expected = np.sum((omega / ref) ** 4) / 2.0
     assert np.sum(acc.var(axis=0)) == pytest.approx(amp_a**2 * expected, rel=0.03)
@@ -240,13 +241,14 @@ def test_accelerometer_vibration_noise_adds_in_quadrature():
     s = Sensors(p, V.gravity, DT, N, STATE_NONE, seed=3)
     s.reset(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
     pose = np.r_[0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]
-    frame = np.zeros(frame_size(N))
+    record = new_frame(N)
+    frame = record[0]
     steps = 20_000
     acc = np.empty((steps, 3))
     for k in range(steps):
         s.refill()
         sense(s.state[0], pose, np.zeros(6), np.zeros(6), np.eye(3).ravel(), np.full(N, 100.0), k, k * DT, frame)
-        acc[k] = frame[FRAME_ACC_B : FRAME_ACC_B + 3]
+        acc[k] = frame["imu"]["acc_B"]
     expected = 0.1**2 + 2.0**2
     assert np.all(np.abs(acc.var(axis=0) / expected - 1.0) < 0.05)  # 20 000 samples: ~1 % standard error
     c = np.corrcoef(acc[1:, 0], acc[:-1, 0])[0, 1]
@@ -326,11 +328,11 @@ def _run(seed: int, steps: int = 300) -> np.ndarray:
     from omnirotor.messages import RotorCommand
 
     rows = []
-    row = np.zeros(sim.packed_frame.size + 64)
+    row = np.zeros(64)
     for _ in range(steps):
         sim.step(RotorCommand(0.0, hover))
         sim.truth_row(row)
-        rows.append(np.r_[sim.packed_frame, row])
+        rows.append(np.r_[sim.frame_record.view(np.float64), row])
     return np.array(rows)
 
 

@@ -203,14 +203,17 @@ def test_every_transition_is_accepted_or_refused_with_a_reason(vehicle):
     assert "depth 0.5 m: must be in [0, 0.15] m" in _req(d, "push", depth_m=0.5).message
     assert "not in contact" in _req(d, "push", depth_m=0.0).message
     assert "unknown preset 'X'; presets: PC, SD, PiH, free" in _req(d, "preset", name="X").message
-    assert "cannot switch the map mode in flight" in _req(d, "map", name="piecewise").message
+    r = _req(d, "map", name="piecewise")  # no maps given to this controller (or, before its in-flight API: none)
+    assert not r.accepted and ("wrench-map file" in r.message or "cannot switch the map mode" in r.message), r
     assert _req(d, "map", name="nominal").accepted  # the mode flown
     r = d.request({"kind": 0})  # status, as a message with an integer kind
     assert r.accepted and r.message.startswith("mode hold, preset free, map nominal")
     r = d.request({"kind": 42})
     assert not r.accepted and "malformed flight request" in r.message
+    r = d.request(object())  # not a request at all: refused, never raised
+    assert not r.accepted and "malformed flight request" in r.message
     status = d.status()
-    assert status.requests_refused == 16 and status.requests_accepted == 3  # status requests are not counted
+    assert status.requests_refused == 17 and status.requests_accepted == 3  # status requests are not counted
     r = _req(d, "disarm", force=True)
     assert r.accepted and r.message == "rotors stopped in flight (forced)" and d.mode == M.DISARMED
     assert not _run(d, ctl, s, 0.002) and not d.output(None).any()
@@ -250,6 +253,8 @@ def test_requests_replies_and_status_go_through_cdr_with_the_shipped_definitions
         frames=10, steps=9, requests_accepted=3, requests_refused=1, failsafe_events=0, bad_commands=0, message="m",
     )  # fmt: skip
     back = cdr(status.to_msg(), "FlightStatus")
+    built = store.types["omnirotor_msgs/msg/FlightStatus"](**status.to_fields())  # as the node publishes it
+    assert FlightStatus.from_msg(cdr(built, "FlightStatus")) == status
     assert FlightStatus.from_msg(back) == status
     assert (back.header.stamp.sec, back.header.stamp.nanosec) == (12, 500_000_000)
     assert back.mode == back.MODE_CONTACT and back.cause == back.CAUSE_MOCAP_STALE  # the constants agree

@@ -71,8 +71,25 @@ def _frames(n, seed=0):
     return traj, first, frames
 
 
-def test_fused_controller_step_equals_the_blocks_composed_by_hand():
+def _jittered(first, frames, jitter: float, seed: int = 7):
+    """The frames re-timed: periods drawn uniformly in ``DT (1 ± jitter)``; the periods too."""
+    if jitter == 0.0:
+        return frames, [DT] * len(frames)
+    periods = DT * (1.0 + jitter * np.random.default_rng(seed).uniform(-1.0, 1.0, len(frames)))
+    times = first.t + np.cumsum(periods)
+    out = [dataclasses.replace(f, t=float(t)) for f, t in zip(frames, times, strict=True)]
+    return out, list(np.diff(np.r_[first.t, times]))
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.4], ids=["even", "jittered"])
+def test_fused_controller_step_equals_the_blocks_composed_by_hand(jitter):
+    """The compiled step is the blocks composed; with jittered frames, each block integrates the real interval.
+
+    ``jittered``: periods of 0.6 to 1.4 ms (a real loop's jitter); the blocks stepped by hand take those exact
+    periods (issue 24 item 2).
+    """
     traj, first, frames = _frames(300)
+    frames, periods = _jittered(first, frames, jitter)
     ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=400))
     ctl.reset(first, traj)
     # The same blocks, stepped one by one through their public methods.
@@ -83,21 +100,22 @@ def test_fused_controller_step_equals_the_blocks_composed_by_hand():
     des, comp, body = ReferenceSample(), ReferenceSample(), ReferenceSample()
     f_E, m_E = np.zeros(3), np.zeros(3)
     p_E_B = V.p_E_B_array
-    for frame in frames:
+    for frame, dt in zip(frames, periods, strict=True):
         cmd = ctl.step(frame)
         st = frame.state
         u_obs = np.abs(frame.rotor_hz) * frame.rotor_hz
-        f_hat, m_hat = obs.step(st, u_obs, V.A_nom, DT)
+        f_hat, m_hat = obs.step(st, u_obs, V.A_nom, dt)
         ee_wrench_W(f_hat, m_hat, st.R_WB, p_E_B, f_E, m_E)
-        adm.step(f_E, m_E, DT)
+        adm.step(f_E, m_E, dt)
         traj.sample(frame.t - first.t, des)
         adm.compliant_reference(des, comp)
         body_reference_from_ee(comp, p_E_B, body)
-        w_ref = pose.step(body, st, obs.filtered[:3], obs.filtered[3:], DT)
+        w_ref = pose.step(body, st, obs.f_filt_W, obs.m_filt_B, dt)
         u = alloc.solve(w_ref, st.R_WB, V.A_nom)
         omega = np.clip(np.sign(u) * np.sqrt(np.abs(u)), V.omega_min_hz, V.omega_max_hz)
         np.testing.assert_allclose(cmd.omega_hz, omega, rtol=1e-12, atol=1e-9)
         assert bool(cmd.status & ControlStatus.SATURATED) == alloc.saturated
+        assert not cmd.status & ControlStatus.FRAME_REJECTED
     np.testing.assert_allclose(ctl.observer.output, obs.output, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(ctl.admittance.xi_p_W, adm.xi_p_W, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(ctl.body_ref.data, body.data, rtol=1e-12, atol=1e-15)
@@ -219,7 +237,7 @@ def test_blocks_keep_their_state_in_a_given_buffer():
     outer = np.zeros(1, dtype=[("before", np.float64), ("observer", STATE_DTYPE), ("after", np.float64)])
     outer["before"], outer["after"] = 3.0, 3.0
     obs = WrenchObserver(V, state=outer["observer"])
-    assert np.shares_memory(obs.output, outer) and np.all(obs.output == 0.0)
+    assert np.shares_memory(obs.f_ext_W, outer) and np.all(obs.output == 0.0)
     assert outer["before"][0] == 3.0 and outer["after"][0] == 3.0  # only its field is used
     sample = ReferenceSample(np.ones(24))
     np.testing.assert_array_equal(sample.R_WB, np.eye(3))
@@ -258,6 +276,33 @@ def test_recorder_next_row_fills_in_place_and_counts_drops():
     rec.next_row()[:] = (4.0, 5.0, 6.0)
     assert rec.next_row() is None and rec.dropped == 1 and rec.n == 2
     np.testing.assert_array_equal(rec.group("b"), [[2.0, 3.0], [5.0, 6.0]])
+
+
+def test_a_growing_recorder_never_drops_and_keeps_every_row_in_order():
+    rec = Recorder(2, [("a", 1), ("b", ("x", "y"))], grow_rows=3)
+    for k in range(8):  # three chunks: 2 + 3 + 3 rows, by every way of writing a row
+        if k % 3 == 0:
+            rec.next_row()[:] = (k, 10 * k, 100 * k)
+        elif k % 3 == 1:
+            assert rec.record(float(k), np.array([10.0 * k, 100.0 * k]))
+        else:
+            rec.bind(np.array([float(k), 10.0 * k, 100.0 * k]))
+            assert rec.record_bound()
+    assert rec.n == 8 and rec.dropped == 0 and rec.capacity == 8
+    np.testing.assert_array_equal(rec.column("a"), np.arange(8.0))
+    np.testing.assert_array_equal(rec.group("b"), np.c_[10.0 * np.arange(8), 100.0 * np.arange(8)])
+    rec.next_row()[:] = 8.0  # after the chunks were joined (read), it grows again
+    assert rec.n == 9 and rec.column("a")[-1] == 8.0 and rec.capacity == 11
+
+
+def test_the_controller_log_has_no_cap():
+    traj, first, frames = _frames(25)
+    ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=10))
+    ctl.reset(first, traj)
+    for frame in frames:
+        ctl.step(frame)
+    assert ctl.log.n == 25 and ctl.log.dropped == 0
+    np.testing.assert_allclose(ctl.log.group("t"), [f.t - first.t for f in frames], rtol=0, atol=1e-12)
 
 
 def test_trajectory_kernel_holds_outside_and_interpolates_inside():

@@ -140,7 +140,7 @@ def test_outputs_are_preallocated_views(vehicle):
     f1, m1 = obs.step(plant.state(u, 0.0), u, plant.A, DT)
     f2, m2 = obs.step(plant.state(u, DT), u, plant.A, DT)
     assert f1 is f2 and m1 is m2
-    assert np.shares_memory(f1, obs.output) and np.shares_memory(m1, obs.output)
+    assert np.shares_memory(f1, obs.state) and np.shares_memory(m1, obs.state)
 
 
 def test_validation():

@@ -23,8 +23,10 @@ from omnirotor.vehicle import load_vehicle
 F8 = np.float64
 FORCE_ONLY_DTYPE = np.dtype(
     [
-        ("output", F8, 6),  # the contract's two outputs: the interaction estimate ...
-        ("filtered", F8, 6),  # ... and what the pose controller compensates
+        ("f_ext_W", F8, 3),  # the contract's outputs: the interaction estimate ...
+        ("m_ext_B", F8, 3),
+        ("f_filt_W", F8, 3),  # ... and what the pose controller compensates
+        ("m_filt_B", F8, 3),
         ("n_nonfinite", F8),
         ("n_steps", F8),
         ("gain_force", F8, 3),
@@ -49,15 +51,15 @@ def force_only_step(r, A, u, a_W, R, omega_B, dt):
     g = np.array([0.0, 0.0, r.gravity])
     residual = r.mass_kg * (a_W + g) - R @ f
     for i in range(3):
-        r.output[i] += r.gain_force[i] * dt * (residual[i] - r.output[i])
-        r.filtered[i] = r.output[i]
+        r.f_ext_W[i] += r.gain_force[i] * dt * (residual[i] - r.f_ext_W[i])
+        r.f_filt_W[i] = r.f_ext_W[i]
     r.n_steps += 1.0
 
 
 @register("observer", "test-force-only")
 class ForceOnlyObserver:
     state_dtype = FORCE_ONLY_DTYPE
-    log_fields = ("output",)
+    log_fields = ("f_ext_W", "m_ext_B")
     kernel = force_only_step
 
     def __init__(self, vehicle, params, *, state=None):
@@ -65,11 +67,11 @@ class ForceOnlyObserver:
         self.state["gain_force"] = params.gain_force
         self.state["mass_kg"] = vehicle.mass
         self.state["gravity"] = vehicle.gravity
-        self.output = self.state[0]["output"]
+        self.f_ext_W = self.state[0]["f_ext_W"]
 
     def reset(self):
-        self.state["output"] = 0.0
-        self.state["filtered"] = 0.0
+        for name in ("f_ext_W", "m_ext_B", "f_filt_W", "m_filt_B"):
+            self.state[name] = 0.0
         self.state["n_steps"] = 0.0
 
 

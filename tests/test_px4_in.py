@@ -9,10 +9,10 @@ import pytest
 from conftest import SHARED
 from omnirotor.cli import main
 from omnirotor.errors import InputError
-from omnirotor.px4.airframe import read_airframe_params
+from omnirotor.px4.airframe import read_airframe_params, vehicle_from_px4_params
 from omnirotor.px4.frames import R_WB_from_px4_quat, px4_quat_from_R_WB, vec_from_px4
 from omnirotor.so3 import R_from_rpy, rot_x, rot_z
-from omnirotor.vehicle import load_vehicle, vehicle_from_px4_params
+from omnirotor.vehicle import load_vehicle
 
 PX4 = SHARED / "data" / "px4"
 EVENTS = PX4 / "sample_px4_events.ulg"

@@ -52,8 +52,8 @@ def test_ulog_writer_refuses_a_topic_without_timestamp():
 
 
 def test_vehicle_round_trips_through_px4_parameters():
+    from omnirotor.px4.airframe import vehicle_from_px4_params
     from omnirotor.px4.run_export import px4_params_of
-    from omnirotor.vehicle import vehicle_from_px4_params
 
     for name in ("omnirotor", "quadrotor", "hexarotor-tilted"):
         v = load_vehicle(name)

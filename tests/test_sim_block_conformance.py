@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from omnirotor.blocks import Block, block_class
-from omnirotor.messages import frame_size
+from omnirotor.messages import new_frame
 from omnirotor.sim import AirflowParams, SimParams, Simulator
 from omnirotor.sim.airflow import AirflowForce
 from omnirotor.sim.contact import SENSOR_SIZE, EeContact
@@ -78,7 +78,7 @@ def _sensors_inputs(rng, k):
         "R9": np.eye(3).ravel().copy(),
         "omega_hz": rng.uniform(100.0, 150.0, N),
         "k": k,
-        "frame": np.zeros(frame_size(N)),
+        "frame": new_frame(N)[0],
     }
 
 
@@ -93,10 +93,8 @@ def _sensors_nonfinite(b):
     x = _sensors_inputs(np.random.default_rng(0), 1)
     x["acc"][:] = np.nan
     frame = _sensors_step(b, x)
-    from omnirotor.messages import FRAME_ACC_B, FRAME_ROTOR_HZ
-
-    assert np.all(np.isnan(frame[FRAME_ACC_B : FRAME_ACC_B + 3]))  # passed on visibly, for the controller to flag
-    assert np.all(np.isfinite(frame[FRAME_ROTOR_HZ:]))  # and nowhere else
+    assert np.all(np.isnan(frame["imu"]["acc_B"]))  # passed on visibly, for the controller to flag
+    assert np.all(np.isfinite(frame["rotor_hz"]))  # and nowhere else
 
 
 def _contact_model():
@@ -248,5 +246,5 @@ def test_the_simulator_composes_the_blocks_in_its_record():
     for block in (sim.rotors, sim.sensors, sim.faults, sim.airflow):
         assert np.shares_memory(block.state, rec)
     assert np.shares_memory(sim.contact.par, rec)
-    assert not np.shares_memory(sim.packed_frame, rec)
+    assert not np.shares_memory(sim.frame_record, rec)
     assert mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "vehicle") >= 0

@@ -5,7 +5,7 @@
 * the truth row's contact wrench, from MuJoCo's contact sensors, equals the sum over the contacts by
   ``mj_contactForce`` (an oracle written here) with several EE contacts on both EE geoms at once, and the
   :class:`GroundTruth` record gives the same;
-* the packed frame round-trips through :class:`SensorFrame`;
+* the frame record round-trips through :class:`SensorFrame`;
 * the compiled clock agrees with ``time.perf_counter_ns``;
 * the step's cost cuts change no number: the constraint solver without islands steps bit for bit as with them,
   the step puts MuJoCo's profiler clock back as it found it, and allocates nothing per physics step.
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from omnirotor._jit import monotonic_ns, mujoco_timer_address
-from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate, frame_size
+from omnirotor.messages import RotorCommand, SensorFrame, StateEstimate, new_frame
 from omnirotor.sim import SimParams, Simulator
 from omnirotor.sim.model import EE_ROD_GEOM, EE_TIP_GEOM, ROD_RADIUS, TOOL_BODY
 from omnirotor.so3 import exp_so3
@@ -66,10 +66,10 @@ def test_compiled_step_equals_the_step_run_from_python():
         frames = [fused.step(cmd), plain.step(cmd)]
         fused.truth_row(rows[0])
         plain.truth_row(rows[1])
-        packed = [np.zeros(frame_size(8)), np.zeros(frame_size(8))]
-        frames[0].pack_into(packed[0])
-        frames[1].pack_into(packed[1])
-        np.testing.assert_array_equal(packed[0], packed[1])
+        records = [new_frame(8), new_frame(8)]
+        frames[0].write_record(records[0])
+        frames[1].write_record(records[1])
+        assert records[0].tobytes() == records[1].tobytes()
         np.testing.assert_array_equal(rows[0], rows[1])
         contact_steps += rows[0, 28] > 0.5
     np.testing.assert_array_equal(fused.data.qpos, plain.data.qpos)
@@ -137,27 +137,28 @@ def test_contact_sensors_give_the_summed_contact_wrench_with_several_contacts():
     assert np.linalg.norm(tr.contact_force_W) > 1.0
 
 
-def test_packed_frame_round_trips_through_the_message():
+def test_frame_record_round_trips_through_the_message():
     sim = Simulator(V, "free", seed=1)
     frame = sim.reset()
     assert frame.mocap_new and frame.state is not None
-    buf = np.zeros(frame_size(V.n_rotors))
-    frame.pack_into(buf)
-    np.testing.assert_array_equal(buf, sim.packed_frame)
-    back = SensorFrame.from_packed(buf)
+    buf = new_frame(V.n_rotors)
+    frame.write_record(buf)
+    assert buf.tobytes() == sim.frame_record.tobytes()
+    back = SensorFrame.from_record(buf)
     for name in ("imu_acc_B", "imu_gyro_B", "rotor_hz", "mocap_p_W", "mocap_q_WB"):
         np.testing.assert_array_equal(getattr(back, name), getattr(frame, name))
     np.testing.assert_array_equal(back.state.R_WB, frame.state.R_WB)
     assert back.t == frame.t and back.mocap_t == frame.mocap_t
-    buf[3] = 99.0
+    buf["imu"]["acc_B"][0, 2] = 99.0
     assert back.imu_acc_B[2] != 99.0  # the message owns a copy
     bare = SensorFrame(0.5, np.ones(3), np.zeros(3), np.full(8, 140.0))
-    bare.pack_into(buf)
-    again = SensorFrame.from_packed(buf)
+    bare.write_record(buf)
+    again = SensorFrame.from_record(buf)
     assert not again.mocap_new and again.mocap_p_W is None and again.state is None and again.t == 0.5
     s = StateEstimate(0.5, np.ones(3), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3))
-    SensorFrame(0.5, np.ones(3), np.zeros(3), np.full(8, 140.0), state=s).pack_into(buf)
-    np.testing.assert_array_equal(SensorFrame.from_packed(buf).state.p_W, np.ones(3))
+    SensorFrame(0.5, np.ones(3), np.zeros(3), np.full(8, 140.0), state=s).write_record(buf)
+    np.testing.assert_array_equal(SensorFrame.from_record(buf).state.p_W, np.ones(3))
+    assert buf["state"]["valid"][0] == 1.0 and buf["mocap"]["new"][0] == 0.0 and not np.any(buf["mocap"]["p_W"])
 
 
 def test_compiled_clock_is_the_monotonic_clock():

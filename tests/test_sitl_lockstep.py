@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 
 import pytest
-from tests.sitl.procs import Pair
 
 from omnirotor.experiments.tasks import run_task
 from omnirotor.experiments.tasks.common import ExperimentOptions
+from sitl.procs import Pair
 
 TIMING = {"controller_step_us_median", "sitl", "figure"}
 

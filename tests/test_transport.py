@@ -50,6 +50,7 @@ def pair():
 def connected(pub, sub) -> None:
     """Publish until the subscriber hears (the peers' declarations take a moment to propagate)."""
     assert wait_for(lambda: (pub.put(speeds(0.0)), sub.take())[1]) is not None
+    time.sleep(0.2)  # the probes still on their way
     while sub.take() is not None:
         pass
 
@@ -110,7 +111,7 @@ def test_check_refuses_semantically_bad_messages(pair):
     a, b = pair
     sub = b.subscriber("/x", SPEEDS, check=lambda m: m.hz.shape == (8,) and bool(np.all(np.isfinite(m.hz))))
     pub = a.publisher("/x", SPEEDS)
-    assert wait_for(lambda: (pub.put(speeds(0.0)), sub.take())[1]) is not None
+    connected(pub, sub)
     pub.put(speeds(1.0, n=3))
     bad = speeds(2.0)
     bad.hz[0] = np.nan
@@ -186,7 +187,7 @@ def test_registry_takes_another_transport():
         def __init__(self, **kw):
             super().__init__(domain_id=kw["domain_id"], namespace=kw["namespace"])
 
-        def _publisher(self, name, msgtype):
+        def _publisher(self, name, msgtype, block):
             return (lambda payload, seq: None), name
 
         def _subscriber(self, name, msgtype, depth):
@@ -208,3 +209,22 @@ def test_registry_takes_another_transport():
         t.publisher("/x", SPEEDS).put(speeds(1.0))
     finally:
         del TRANSPORTS["null-test"]
+
+
+def test_a_zenoh_configuration_file_is_the_base(tmp_path):
+    port = free_port()
+    conf = tmp_path / "zenoh.json5"
+    conf.write_text(f'{{ listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }} }}')
+    a = open_transport(config_file=str(conf))  # its listen endpoint stands
+    b = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        sub = b.subscriber("/x", SPEEDS)
+        pub = a.publisher("/x", SPEEDS)
+        assert wait_for(lambda: (pub.put(speeds(1.0)), sub.take())[1]) is not None
+    finally:
+        a.close()
+        b.close()
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ listen: ")
+    with pytest.raises(InputError, match="Zenoh configuration"):
+        open_transport(config_file=str(bad))

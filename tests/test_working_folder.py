@@ -59,7 +59,7 @@ def trap(tmp_path_factory):
     return folder, markers, launcher
 
 
-def _omnirotor(trap, *args: str, cwd_on_path: bool = False, timeout: float = 900) -> subprocess.CompletedProcess:
+def _omnirotor(trap, *args: str, cwd_on_path: bool = False, timeout: float = 3600) -> subprocess.CompletedProcess:
     folder, markers, launcher = trap
     path = [str(SRC)] + ([str(folder)] if cwd_on_path else [])
     env = {k: v for k, v in os.environ.items() if k != "PYTHONSAFEPATH"}
@@ -85,6 +85,13 @@ def _command_paths() -> list[tuple[str, ...]]:
 
     walk(typer.main.get_command(app), ())
     return out
+
+
+def test_every_command_module_is_listed():
+    from omnirotor.cli import COMMAND_MODULES
+
+    files = sorted(p.stem for p in (SRC / "omnirotor" / "cli").glob("cmd_*.py"))
+    assert sorted(COMMAND_MODULES) == files
 
 
 def test_the_traps_fire_when_the_working_folder_is_on_the_path(trap):

@@ -15,13 +15,21 @@ import re
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
 from omnirotor.errors import InputError
 
-__all__ = ["load_toml", "from_mapping", "apply_overrides", "check_finite", "check_positive", "parse_float"]
+__all__ = [
+    "load_toml",
+    "from_mapping",
+    "apply_overrides",
+    "apply_values",
+    "check_finite",
+    "check_positive",
+    "parse_float",
+]
 
 T = TypeVar("T")
 
@@ -148,20 +156,31 @@ def _parse_scalar(text: str) -> Any:
 def apply_overrides(obj: T, overrides: list[str]) -> T:
     """Return a copy of a (nested) frozen dataclass with dotted ``key=value`` overrides applied.
 
-    Values are parsed as TOML (``0.3``, ``[1, 2, 3]``, ``true``); anything else is taken as a string. Each key and
-    value is checked in order (unknown key, not a parameter group, wrong type: the first bad one is the error);
-    then each dataclass is replaced once with all its new values, a later override of the same key winning, so
-    that ``__post_init__`` validates the result, not every step to it (a campaign run's plant has about twenty
-    overrides, and each replace of the simulator parameters validated all of them).
+    Values are parsed as TOML (``0.3``, ``[1, 2, 3]``, ``true``); anything else is taken as a string. Then as
+    :func:`apply_values`.
     """
-    items = []
+    values = []
     for item in overrides:
         if "=" not in item:
             raise InputError(f"override {item!r}: expected key=value")
         key, text = item.split("=", 1)
-        key = key.strip()
+        values.append((key.strip(), _parse_scalar(text.strip())))
+    return apply_values(obj, values)
+
+
+def apply_values(obj: T, values: Iterable[tuple[str, Any]]) -> T:
+    """Return a copy of a (nested) frozen dataclass with the fields at dotted keys set to typed values.
+
+    What code that holds the values already uses (a campaign's drawn parameters): nothing is written as text and
+    parsed back. Each key and value is checked in order (unknown key, not a parameter group, wrong type: the
+    first bad one is the error); then each dataclass is replaced once with all its new values, a later value of
+    the same key winning, so that ``__post_init__`` validates the result, not every step to it (a campaign run's
+    plant has about twenty of them, and each replace of the simulator parameters validated all of them).
+    """
+    items = []
+    for key, value in values:
         path = key.split(".")
-        items.append((path, _checked_value(obj, path, _parse_scalar(text.strip()), key)))
+        items.append((path, _checked_value(obj, path, value, key)))
     return _set_paths(obj, items) if items else obj
 
 

@@ -4,19 +4,33 @@ A plant produces a :class:`SensorFrame` every control period and consumes a :cla
 Neither side imports the other: the controller can fly a real robot whose driver fills the same frame.
 Arrays in a message belong to that message (the producer hands over fresh arrays or copies).
 
-Packed frames. The same frame also has a flat float64 layout (the ``FRAME_*`` offsets below, ``frame_size(n)``
-entries for ``n`` rotors): time, accelerometer, gyroscope, the motion-capture flag, time, position and
-quaternion, the state flag and the 21 entries of a :class:`StateEstimate` (p, v, a, R row-major, omega), then
-the rotor speeds. Compiled code on both sides reads and writes it directly (the closed loop of
-:mod:`omnirotor.experiments.loop` runs the plant and the controller on one such buffer, without building
-objects), and :meth:`SensorFrame.pack_into` / :meth:`SensorFrame.from_packed` convert. A robot driver may fill
-either form. On the command side the packed form is simply the ``(n,)`` speed array.
+Frame records. The same frame is also one NumPy structured record, :func:`frame_dtype` ``(n_rotors)``, whose
+fields compiled code on both sides reads and writes by name (``f.imu.acc_B``, ``f.mocap.p_W``,
+``f.state.R_WB``, ``f.rotor_hz``); it is also what a transport carries. Its fields:
+
+* ``t`` [s]: the time of the frame;
+* ``imu`` (:data:`IMU_DTYPE`): ``acc_B`` (3,) specific force [m/s²], ``gyro_B`` (3,) [rad/s], body axes;
+* ``mocap`` (:data:`MOCAP_DTYPE`): ``new`` (1.0 when a motion-capture sample arrived in this period, else
+  0.0: then the other entries are 0), ``t`` [s] when it was taken, ``p_W`` (3,) [m], ``q_WB`` (4,) wxyz;
+* ``state`` (:data:`ESTIMATE_DTYPE`): the plant's (bypass) state, ``valid`` 1.0 when the plant gives one;
+* ``rotor_hz`` (n,): measured rotor speeds [Hz], signed.
+
+:data:`ESTIMATE_DTYPE` (``p_W``, ``v_W``, ``a_W``, ``R_WB`` (3, 3), ``omega_B``, ``valid``) is also the
+controller's state estimate, everywhere it travels between blocks. :data:`FRAME_HEAD_DTYPE` is a frame without
+its rotor speeds (the frame supervision's checked copy, whose size does not depend on the vehicle). The
+flags are float64 (1.0/0.0), so that every field of the record is a float64.
+
+The simulator's compiled step writes a ``(1,)`` array of this dtype, the controller's reads it (the closed
+loop of :mod:`omnirotor.experiments.loop` runs both on one such array, without building objects);
+:meth:`SensorFrame.write_record` and :meth:`SensorFrame.from_record` convert. A robot driver may fill either
+form. On the command side the record is simply the ``(n,)`` speed array.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 
 import numpy as np
 
@@ -25,46 +39,54 @@ __all__ = [
     "SensorFrame",
     "RotorCommand",
     "ControlStatus",
-    "frame_size",
-    "FRAME_T",
-    "FRAME_ACC_B",
-    "FRAME_GYRO_B",
-    "FRAME_MOCAP_NEW",
-    "FRAME_MOCAP_T",
-    "FRAME_MOCAP_P_W",
-    "FRAME_MOCAP_Q_WB",
-    "FRAME_HAS_STATE",
-    "FRAME_STATE",
-    "FRAME_ROTOR_HZ",
+    "IMU_DTYPE",
+    "MOCAP_DTYPE",
+    "ESTIMATE_DTYPE",
+    "FRAME_HEAD_DTYPE",
+    "frame_dtype",
+    "new_frame",
+    "n_rotors_of",
 ]
 
-# -- the packed frame (module docstring) ----------------------------------------------------------------------
-FRAME_T = 0
-"""Time of the frame [s]."""
-FRAME_ACC_B = 1
-"""(3,) accelerometer [m/s²]."""
-FRAME_GYRO_B = 4
-"""(3,) gyroscope [rad/s]."""
-FRAME_MOCAP_NEW = 7
-"""1.0 when a motion-capture sample arrived in this period, else 0.0."""
-FRAME_MOCAP_T = 8
-"""Time the sample was taken [s]."""
-FRAME_MOCAP_P_W = 9
-"""(3,) measured position [m]."""
-FRAME_MOCAP_Q_WB = 12
-"""(4,) measured attitude, wxyz."""
-FRAME_HAS_STATE = 16
-"""1.0 when the plant gives a (bypass) state, else 0.0."""
-FRAME_STATE = 17
-"""(21,) the state: p_W (3) [m], v_W (3) [m/s], a_W (3) [m/s²], R_WB (9, row-major), omega_B (3) [rad/s]."""
-FRAME_STATE_SIZE = 21
-FRAME_ROTOR_HZ = 38
-"""(n,) measured rotor speeds [Hz]; the last entries of the frame."""
+_F8 = np.float64
+IMU_DTYPE = np.dtype([("acc_B", _F8, 3), ("gyro_B", _F8, 3)])
+"""An IMU sample: specific force [m/s²] and angular rate [rad/s], body axes."""
+MOCAP_DTYPE = np.dtype([("new", _F8), ("t", _F8), ("p_W", _F8, 3), ("q_WB", _F8, 4)])
+"""A motion-capture sample: ``new`` (1.0 when one arrived), its time [s], position [m], attitude (wxyz)."""
+ESTIMATE_DTYPE = np.dtype(
+    [
+        ("valid", _F8),  # 1.0: a state (a frame: the plant gives one; an estimate: not degraded)
+        ("p_W", _F8, 3),  # position of the CoM [m]
+        ("v_W", _F8, 3),  # velocity [m/s]
+        ("a_W", _F8, 3),  # acceleration (gravity not included: p'') [m/s²]
+        ("R_WB", _F8, (3, 3)),  # attitude, body to world
+        ("omega_B", _F8, 3),  # angular velocity [rad/s]
+    ]
+)
+"""The rigid-body state of the CoM: a frame's (bypass) state and the controller's estimate."""
+FRAME_HEAD_DTYPE = np.dtype([("t", _F8), ("imu", IMU_DTYPE), ("mocap", MOCAP_DTYPE), ("state", ESTIMATE_DTYPE)])
+"""A frame without its rotor speeds (module docstring)."""
 
 
-def frame_size(n_rotors: int) -> int:
-    """Entries of the packed frame of a vehicle with ``n_rotors`` rotors."""
-    return FRAME_ROTOR_HZ + n_rotors
+@functools.cache
+def frame_dtype(n_rotors: int) -> np.dtype:
+    """The frame record of a vehicle with ``n_rotors`` rotors (module docstring)."""
+    fields = [(name, FRAME_HEAD_DTYPE.fields[name][0]) for name in FRAME_HEAD_DTYPE.names]
+    return np.dtype([*fields, ("rotor_hz", _F8, (int(n_rotors),))])
+
+
+def new_frame(n_rotors: int) -> np.ndarray:
+    """A zeroed ``(1,)`` frame record array for ``n_rotors`` rotors."""
+    return np.zeros(1, dtype=frame_dtype(n_rotors))
+
+
+def n_rotors_of(frame: np.ndarray) -> int:
+    """The rotor count of a frame record array; -1 when it is not one (another dtype)."""
+    dtype = getattr(frame, "dtype", None)
+    if dtype is None or dtype.names is None or "rotor_hz" not in dtype.names:
+        return -1
+    n = dtype["rotor_hz"].shape
+    return n[0] if len(n) == 1 and dtype == frame_dtype(n[0]) else -1
 
 
 class ControlStatus(enum.IntFlag):
@@ -126,9 +148,9 @@ class SensorFrame:
         mocap_p_W: (3,) measured position of the body frame [m].
         mocap_q_WB: (4,) measured attitude, unit quaternion wxyz.
         state: optional full state (ground truth plus noise) for estimator-bypass studies; None on a robot.
-        packed: the packed form this frame was made from by :meth:`from_packed` (its arrays are views into
-            it), or None. Not an ``__init__`` argument: a frame built or edited (``dataclasses.replace``) has
-            None, so a consumer that uses it never sees a stale copy.
+        record: the ``(1,)`` frame record this frame was made from by :meth:`from_record` (its arrays are views
+            into it), or None. Not an ``__init__`` argument: a frame built or edited (``dataclasses.replace``)
+            has None, so a consumer that uses it never sees a stale copy.
     """
 
     t: float
@@ -140,10 +162,10 @@ class SensorFrame:
     mocap_p_W: np.ndarray | None = None
     mocap_q_WB: np.ndarray | None = None
     state: StateEstimate | None = None
-    packed: np.ndarray | None = dataclasses.field(default=None, init=False, repr=False, compare=False)
+    record: np.ndarray | None = dataclasses.field(default=None, init=False, repr=False, compare=False)
 
-    def pack_into(self, out: np.ndarray) -> None:
-        """Write this frame into the packed layout (module docstring); ``out`` has ``frame_size(n)`` entries.
+    def write_record(self, out: np.ndarray) -> None:
+        """Write this frame into a ``(1,)`` frame record array (:func:`frame_dtype`, module docstring).
 
         No motion-capture sample or state leaves its entries at zero with its flag 0. A sample announced
         (``mocap_new``) without a well-formed pose (missing, or not of shapes (3,) and (4,)) is written as NaN,
@@ -152,59 +174,54 @@ class SensorFrame:
         Raises:
             ValueError: IMU or rotor arrays (or a state) of the wrong size.
         """
-        out[FRAME_T] = self.t
-        out[FRAME_ACC_B : FRAME_ACC_B + 3] = self.imu_acc_B
-        out[FRAME_GYRO_B : FRAME_GYRO_B + 3] = self.imu_gyro_B
-        out[FRAME_ROTOR_HZ:] = self.rotor_hz
-        out[FRAME_MOCAP_NEW] = 1.0 if self.mocap_new else 0.0
-        out[FRAME_MOCAP_T] = self.mocap_t if self.mocap_new else 0.0
+        out["t"] = self.t
+        imu, mocap, state = out["imu"], out["mocap"], out["state"]
+        imu["acc_B"] = self.imu_acc_B
+        imu["gyro_B"] = self.imu_gyro_B
+        out["rotor_hz"] = self.rotor_hz
         p, q = self.mocap_p_W, self.mocap_q_WB
         if not self.mocap_new:
-            out[FRAME_MOCAP_P_W : FRAME_MOCAP_Q_WB + 4] = 0.0
+            mocap[...] = 0.0
         elif p is None or q is None or np.shape(p) != (3,) or np.shape(q) != (4,):
-            out[FRAME_MOCAP_P_W : FRAME_MOCAP_Q_WB + 4] = np.nan
+            mocap[...] = np.nan
+            mocap["new"] = 1.0
+            mocap["t"] = self.mocap_t
         else:
-            out[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3] = p
-            out[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4] = q
+            mocap["new"] = 1.0
+            mocap["t"] = self.mocap_t
+            mocap["p_W"] = p
+            mocap["q_WB"] = q
         s = self.state
         if s is None:
-            out[FRAME_HAS_STATE] = 0.0
-            out[FRAME_STATE : FRAME_STATE + FRAME_STATE_SIZE] = 0.0
+            state[...] = 0.0
             return
-        o = FRAME_STATE
-        out[FRAME_HAS_STATE] = 1.0
-        out[o : o + 3] = s.p_W
-        out[o + 3 : o + 6] = s.v_W
-        out[o + 6 : o + 9] = s.a_W
-        out[o + 9 : o + 18] = np.reshape(s.R_WB, 9)
-        out[o + 18 : o + 21] = s.omega_B
+        state["valid"] = 1.0
+        state["p_W"] = s.p_W
+        state["v_W"] = s.v_W
+        state["a_W"] = s.a_W
+        state["R_WB"] = np.reshape(s.R_WB, (3, 3))
+        state["omega_B"] = s.omega_B
 
     @classmethod
-    def from_packed(cls, packed: np.ndarray) -> SensorFrame:
-        """The frame of a packed buffer (module docstring); its arrays are views into a copy of ``packed``.
+    def from_record(cls, record: np.ndarray) -> SensorFrame:
+        """The frame of a ``(1,)`` frame record array; its arrays are views into a copy of ``record``.
 
-        The copy is the frame's :attr:`packed`.
+        The copy is the frame's :attr:`record`.
         """
-        b = np.array(packed, dtype=np.float64)
-        t = float(b[FRAME_T])
+        b = record.copy()
+        r = b[0]
+        t = float(r["t"])
+        imu = r["imu"]
         state = None
-        if b[FRAME_HAS_STATE] != 0.0:
-            o = FRAME_STATE
-            state = StateEstimate(
-                t, b[o : o + 3], b[o + 3 : o + 6], b[o + 6 : o + 9], b[o + 9 : o + 18].reshape(3, 3), b[o + 18 : o + 21]
-            )
-        if b[FRAME_MOCAP_NEW] != 0.0:
-            frame = cls(
-                t, b[FRAME_ACC_B : FRAME_ACC_B + 3], b[FRAME_GYRO_B : FRAME_GYRO_B + 3], b[FRAME_ROTOR_HZ:], True,
-                float(b[FRAME_MOCAP_T]), b[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3],
-                b[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], state,
-            )  # fmt: skip
+        s = r["state"]
+        if s["valid"] != 0.0:
+            state = StateEstimate(t, s["p_W"], s["v_W"], s["a_W"], s["R_WB"], s["omega_B"])
+        m = r["mocap"]
+        if m["new"] != 0.0:
+            frame = cls(t, imu["acc_B"], imu["gyro_B"], r["rotor_hz"], True, float(m["t"]), m["p_W"], m["q_WB"], state)
         else:
-            frame = cls(
-                t, b[FRAME_ACC_B : FRAME_ACC_B + 3], b[FRAME_GYRO_B : FRAME_GYRO_B + 3], b[FRAME_ROTOR_HZ:], False,
-                0.0, None, None, state,
-            )  # fmt: skip
-        _set_packed(frame, b)
+            frame = cls(t, imu["acc_B"], imu["gyro_B"], r["rotor_hz"], False, 0.0, None, None, state)
+        _set_record(frame, b)
         return frame
 
 
@@ -253,4 +270,4 @@ def _fast_frozen_init(cls: type) -> None:
 for _cls in (StateEstimate, SensorFrame, RotorCommand):
     _fast_frozen_init(_cls)
 del _cls
-_set_packed = SensorFrame.__dict__["packed"].__set__
+_set_record = SensorFrame.__dict__["record"].__set__

@@ -14,7 +14,10 @@ Two ways to write a row:
   fills it in place.
 
 A full recorder drops further rows (it never raises inside a loop) and counts them in
-:attr:`Recorder.dropped`; :meth:`Recorder.ensure_capacity` grows it beforehand.
+:attr:`Recorder.dropped`; :meth:`Recorder.ensure_capacity` grows it beforehand. A recorder made with
+``grow_rows`` > 0 never drops: when full it starts a new chunk of that many rows (the rows written stay where
+they are: no copy inside the loop, only a zeroed allocation once per chunk), and :attr:`Recorder.data` joins the
+chunks once when it is read. A controller logging an open-ended flight (a flight node) has no cap so.
 
 Column names: a group of width 1 has one column named like the group; a wider group ``g`` has columns
 ``g.<label>`` with the labels given, or ``g.0``, ``g.1``, ... by default.
@@ -41,18 +44,24 @@ class Recorder:
     Args:
         capacity: number of rows (steps) preallocated.
         groups: the column groups in row order, each ``(name, width)`` or ``(name, labels)``.
+        grow_rows: rows of each further chunk once full (module docstring); 0: a full recorder drops rows.
 
     Attributes:
-        data: (capacity, n_signals) the storage; rows ``[0, n)`` are valid.
+        data: (capacity, n_signals) the storage; rows ``[0, n)`` are valid (the chunks joined, module docstring).
         n: number of rows written.
         dropped: rows refused because the recorder was full.
         group_names: the group names in order.
         column_names: every column name in order.
     """
 
-    def __init__(self, capacity: int, groups: Sequence[GroupSpec]) -> None:
+    def __init__(self, capacity: int, groups: Sequence[GroupSpec], *, grow_rows: int = 0) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 0:
             raise InputError(f"recorder capacity must be an integer >= 0, got {capacity!r}")
+        if isinstance(grow_rows, bool) or not isinstance(grow_rows, int) or grow_rows < 0:
+            raise InputError(f"recorder grow_rows must be an integer >= 0, got {grow_rows!r}")
+        self.grow_rows = grow_rows
+        self._chunks: list[np.ndarray] = []  # full chunks before the current one (``_data``)
+        self._base = 0  # rows in them
         self._slices: dict[str, slice] = {}
         self.column_names: list[str] = []
         start = 0
@@ -77,27 +86,57 @@ class Recorder:
         self.group_names = list(self._slices)
         self._slice_list = list(self._slices.values())
         self.n_signals = start
-        self.data = np.zeros((capacity, start))
+        self._data = np.zeros((capacity, start))
         self.n = 0
         self.dropped = 0
         self._bound: tuple[np.ndarray, ...] | None = None
 
     @property
+    def data(self) -> np.ndarray:
+        """(capacity, n_signals) the storage; rows ``[0, n)`` are valid. Joins the chunks (once) if it grew."""
+        if self._chunks:
+            self._data = np.concatenate([*self._chunks, self._data])
+            self._chunks = []
+            self._base = 0
+        return self._data
+
+    @data.setter
+    def data(self, value: np.ndarray) -> None:
+        self._chunks = []
+        self._base = 0
+        self._data = value
+
+    @property
     def capacity(self) -> int:
-        """Number of preallocated rows."""
-        return self.data.shape[0]
+        """Number of rows allocated."""
+        return self._base + self._data.shape[0]
 
     def clear(self) -> None:
         """Forget every row (the storage is kept)."""
+        self.data  # noqa: B018 (joins the chunks: their storage is kept as one)
         self.n = 0
         self.dropped = 0
 
     def ensure_capacity(self, rows: int) -> None:
         """Grow the storage to at least ``rows`` rows, keeping the rows written (call outside loops)."""
         if rows > self.capacity:
+            data = self.data
             new = np.zeros((rows, self.n_signals))
-            new[: self.n] = self.data[: self.n]
+            new[: self.n] = data[: self.n]
             self.data = new
+
+    def _free_row(self) -> np.ndarray | None:
+        """The storage row of row ``n`` (a new chunk started when full and growing), or None when full."""
+        i = self.n - self._base
+        if i < self._data.shape[0]:
+            return self._data[i]
+        if self.grow_rows == 0:
+            return None
+        if self._data.shape[0]:
+            self._chunks.append(self._data)
+            self._base += self._data.shape[0]
+        self._data = np.zeros((self.grow_rows, self.n_signals))
+        return self._data[self.n - self._base]
 
     def record(self, *values: float | np.ndarray) -> bool:
         """Write the next row: one value per group, in group order.
@@ -105,16 +144,15 @@ class Recorder:
         Returns:
             False if the recorder was full and the row was dropped.
         """
-        n = self.n
-        if n >= self.data.shape[0]:
-            self.dropped += 1
-            return False
         if len(values) != len(self._slice_list):
             raise InputError(f"recorder.record: expected {len(self._slice_list)} values, got {len(values)}")
-        row = self.data[n]
+        row = self._free_row()
+        if row is None:
+            self.dropped += 1
+            return False
         for sl, v in zip(self._slice_list, values, strict=True):
             row[sl] = v
-        self.n = n + 1
+        self.n += 1
         return True
 
     def bind(self, *sources: np.ndarray) -> None:
@@ -133,26 +171,26 @@ class Recorder:
 
     def record_bound(self) -> bool:
         """Write the next row from the bound arrays (see :meth:`bind`); False if full."""
-        n = self.n
-        if n >= self.data.shape[0]:
+        row = self._free_row()
+        if row is None:
             self.dropped += 1
             return False
-        np.concatenate(self._bound, out=self.data[n])
-        self.n = n + 1
+        np.concatenate(self._bound, out=row)
+        self.n += 1
         return True
 
     def next_row(self) -> np.ndarray | None:
         """The next row, counted as written, for a producer that fills it in place.
 
         Returns:
-            A view of the row, or None (counted as dropped) when the recorder is full.
+            A view of the row, or None (counted as dropped) when the recorder is full (and does not grow).
         """
-        n = self.n
-        if n >= self.data.shape[0]:
+        row = self._free_row()
+        if row is None:
             self.dropped += 1
             return None
-        self.n = n + 1
-        return self.data[n]
+        self.n += 1
+        return row
 
     def column(self, name: str) -> np.ndarray:
         """(n,) view of one column (a column name, or the name of a width-1 group)."""

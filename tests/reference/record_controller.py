@@ -23,7 +23,7 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
-from omnirotor.messages import frame_size
+from omnirotor.messages import SensorFrame, StateEstimate
 from omnirotor.regions import load_partition
 from omnirotor.so3 import rot_x
 from omnirotor.vehicle import load_vehicle
@@ -40,6 +40,46 @@ CASES = {
     "ukf_piecewise_corrupted": ("ukf", "piecewise", "hard", -1, True, 2.5),
 }
 EVERY = 50
+
+# The stored frames' flat layout (the packed frame of the code the reference was recorded with): time,
+# accelerometer (3), gyroscope (3), motion-capture flag, time, position (3), quaternion (4), state flag, state
+# (p_W, v_W, a_W, R_WB row-major, omega_B: 21), rotor speeds (n).
+_T, _ACC, _GYRO, _MOCAP, _STATE_FLAG, _STATE, _ROTOR = 0, 1, 4, 7, 16, 17, 38
+
+
+def flat_size(n_rotors: int) -> int:
+    """Entries of a stored frame."""
+    return _ROTOR + n_rotors
+
+
+def frame_of_flat(b: np.ndarray) -> SensorFrame:
+    """The :class:`SensorFrame` of a stored flat frame."""
+    b = np.array(b, dtype=float)
+    t = float(b[_T])
+    state = None
+    if b[_STATE_FLAG] != 0.0:
+        x = b[_STATE : _STATE + 21]
+        state = StateEstimate(t, x[0:3], x[3:6], x[6:9], x[9:18].reshape(3, 3), x[18:21])
+    acc, gyro, rotor = b[_ACC : _ACC + 3], b[_GYRO : _GYRO + 3], b[_ROTOR:]
+    m = _MOCAP
+    if b[m] == 0.0:
+        return SensorFrame(t, acc, gyro, rotor, False, 0.0, None, None, state)
+    return SensorFrame(t, acc, gyro, rotor, True, float(b[m + 1]), b[m + 2 : m + 5], b[m + 5 : m + 9], state)
+
+
+def flat_of_frame(frame: SensorFrame, out: np.ndarray) -> None:
+    """Write ``frame`` into a stored flat frame ``out`` (the inverse of :func:`frame_of_flat`)."""
+    out[:] = 0.0
+    out[_T] = frame.t
+    out[_ACC : _ACC + 3], out[_GYRO : _GYRO + 3], out[_ROTOR:] = frame.imu_acc_B, frame.imu_gyro_B, frame.rotor_hz
+    if frame.mocap_new:
+        m = _MOCAP
+        out[m], out[m + 1] = 1.0, frame.mocap_t
+        out[m + 2 : m + 5], out[m + 5 : m + 9] = frame.mocap_p_W, frame.mocap_q_WB
+    s = frame.state
+    if s is not None:
+        out[_STATE_FLAG] = 1.0
+        out[_STATE : _STATE + 21] = np.r_[s.p_W, s.v_W, s.a_W, np.ravel(s.R_WB), s.omega_B]
 
 
 def maps(seed: int = 3) -> WrenchMapSet:
@@ -124,15 +164,15 @@ def record(out: str) -> None:
         steps = int(round(duration / ctl.params.dt))
         p0 = traj.waypoints[0].p_W - traj.waypoints[0].R_WB @ V.p_E_B_array
         frame = plant.reset(p_W=p0, R_WB=traj.waypoints[0].R_WB)
-        frames = np.zeros((steps + 1, frame_size(V.n_rotors)))
-        frame.pack_into(frames[0])
+        frames = np.zeros((steps + 1, flat_size(V.n_rotors)))
+        flat_of_frame(frame, frames[0])
         ctl.log.ensure_capacity(steps)
         ctl.reset(frame, traj)
         cmd = ctl.hold_command()
         statuses, regions = [], []
         for k in range(steps):
             frame = plant.step(cmd)
-            frame.pack_into(frames[k + 1])
+            flat_of_frame(frame, frames[k + 1])
             cmd = ctl.step(frame)
             statuses.append(int(cmd.status))
             regions.append(ctl.scheduler.region_index)

@@ -1,10 +1,11 @@
 """The ``omnirotor`` command line: a thin layer over library functions.
 
-Each command lives in a module of this package and registers itself on :data:`app`. :func:`main` turns
-every :class:`~omnirotor.errors.InputError` and usage error into one line on stderr and exit status 2, and
-Ctrl-C into one line and exit status 130. Python warnings (numpy's overflow or invalid-value warnings, say)
-never reach the terminal one by one: a command that fails says only its error; one that succeeds says in one
-line how many numerical (``RuntimeWarning``) ones there were and the first; others are dropped.
+Each command lives in a module of this package, listed in :data:`COMMAND_MODULES`, and adds itself to
+:data:`app`. :func:`main` turns every :class:`~omnirotor.errors.InputError` and usage error into one line on
+stderr and exit status 2, and Ctrl-C into one line and exit status 130. Python warnings (numpy's overflow or
+invalid-value warnings, say) never reach the terminal one by one: a command that fails says only its error;
+one that succeeds says in one line how many numerical (``RuntimeWarning``) ones there were and the first;
+others are dropped.
 
 No code from the working folder (issue 26, item 4): before anything else is imported, :func:`drop_working_folder`
 takes the folder the command runs in off ``sys.path`` (a ``numpy.py`` or ``queue.py`` there must not run as
@@ -115,13 +116,31 @@ def number_option(text: str) -> float:
         raise typer.BadParameter(str(exc).removeprefix(": ")) from None
 
 
-def _register() -> None:
-    import importlib
-    import pkgutil
+COMMAND_MODULES = (
+    "cmd_calibrate",
+    "cmd_campaign",
+    "cmd_ctl",
+    "cmd_fly",
+    "cmd_hover_windows",
+    "cmd_identify",
+    "cmd_info",
+    "cmd_regions",
+    "cmd_render",
+    "cmd_reproduce",
+    "cmd_run",
+    "cmd_sim",
+    "cmd_study",
+)
+"""The modules of this package whose commands :data:`app` offers: a new command's module gets a line here
+(``tests/test_working_folder.py`` checks that every ``cmd_*.py`` has one)."""
 
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("cmd_"):
-            importlib.import_module(f"{__name__}.{info.name}")
+
+def _register() -> None:
+    """Import the command modules of :data:`COMMAND_MODULES` (each adds its commands to :data:`app`)."""
+    import importlib
+
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"{__name__}.{name}")
 
 
 def main(argv: list[str] | None = None) -> int:

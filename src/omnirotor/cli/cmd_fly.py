@@ -44,6 +44,9 @@ def fly(
     listen: Annotated[
         list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_NODE_ENDPOINT}.")
     ] = None,
+    zenoh_config: Annotated[
+        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+    ] = None,
     domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
@@ -75,9 +78,12 @@ def fly(
         set_realtime(cpu if cpu is not None else n_cpus - 1, fifo_priority or None, say)
 
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-    endpoints = list(connect) if connect else ["tcp/127.0.0.1:7447"]
-    listening = list(listen) if listen else [DEFAULT_NODE_ENDPOINT]
-    with open_transport(domain_id=domain_id, namespace=namespace, listen=listening, connect=endpoints) as t:
+    from_file = zenoh_config is not None  # the file's endpoints stand unless given here
+    endpoints = list(connect) if connect else ([] if from_file else ["tcp/127.0.0.1:7447"])
+    listening = list(listen) if listen else ([] if from_file else [DEFAULT_NODE_ENDPOINT])
+    with open_transport(
+        domain_id=domain_id, namespace=namespace, listen=listening, connect=endpoints, config_file=zenoh_config
+    ) as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")

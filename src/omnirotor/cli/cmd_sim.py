@@ -33,6 +33,9 @@ def sim(
         list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_SIM_ENDPOINT}.")
     ] = None,
     connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable).")] = None,
+    zenoh_config: Annotated[
+        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+    ] = None,
     domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
     ros_views: Annotated[
@@ -40,6 +43,9 @@ def sim(
     ] = True,
     offboard_loss: Annotated[float, typer.Option(help="No command for this long stops the rotors [s].")] = 0.5,
     wait: Annotated[float, typer.Option(help="How long to wait for the controller's first command [s].")] = 60.0,
+    fifo_priority: Annotated[
+        int, typer.Option(help="SCHED_FIFO priority of the real-time plant loop (0: do not ask).")
+    ] = 0,
     map_mode: Annotated[str, typer.Option("--map", help="Wrench map: nominal, global, piecewise.")] = "nominal",
     maps: Annotated[Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify`.")] = None,
     blend: Annotated[str, typer.Option(help="Piecewise region switching: hard or smooth.")] = "hard",
@@ -79,13 +85,27 @@ def sim(
         maps=str(maps) if maps is not None else None, blend=blend, quick=quick, zero_observer=zero,
     )  # fmt: skip
     options.controller_params()  # validate before opening anything
+    if not 0 <= fifo_priority <= 99:
+        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views
     )
-    endpoints = list(listen) if listen else [DEFAULT_SIM_ENDPOINT]
-    with open_transport(domain_id=domain_id, namespace=namespace, listen=endpoints, connect=list(connect or ())) as t:
+    endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
+    if zenoh_config is not None:
+        check_input_file(Path(zenoh_config), "--zenoh-config")
+    with open_transport(
+        domain_id=domain_id,
+        namespace=namespace,
+        listen=endpoints,
+        connect=list(connect or ()),
+        config_file=zenoh_config,
+    ) as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
+        if fifo_priority and not lockstep:
+            from omnirotor.fly.node import set_realtime
+
+            set_realtime(None, fifo_priority, lambda line: note(line))
         result, report = _serve(t, task, options, serve_opts)
     rep = result.summary()
     rep["sitl"] = report.as_dict()

@@ -381,7 +381,7 @@ def finish(u, out) -> int:
     """End of a step: the outputs, and whether the delayed state must be advanced.
 
     Outputs: bias-corrected rate and acceleration, low-passed, and the estimate ``p_W, v_W, a_W, R_WB
-    (row-major), omega_B`` into ``out`` (21,). The delayed fused state is advanced by the caller
+    (row-major), omega_B`` into the estimate record ``out``. The delayed fused state is advanced by the caller
     (``predict(..., k - lag_n)``, as :func:`ukf_step` does) when motion capture has not come for too long;
     that does not change the outputs.
 
@@ -414,18 +414,27 @@ def finish(u, out) -> int:
     return code
 
 
-@jit_entry
+@jit
 def write_estimate(u, out) -> None:
-    """The estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (21,) of the output state into ``out``."""
+    """The estimate of the output state into the estimate record ``out`` (:data:`~omnirotor.messages.ESTIMATE_DTYPE`).
+
+    Its ``valid`` flag is the caller's (the step's code says whether the filter is degraded).
+    """
     s = u.x_out
     for i in range(3):
-        out[i] = s.p_W[i]
-        out[3 + i] = s.v_W[i]
-        out[6 + i] = u.a_W[i]
-        out[18 + i] = u.omega_B[i]
+        out.p_W[i] = s.p_W[i]
+        out.v_W[i] = s.v_W[i]
+        out.a_W[i] = u.a_W[i]
+        out.omega_B[i] = u.omega_B[i]
     for i in range(3):
         for j in range(3):
-            out[9 + 3 * i + j] = u.R_WB_out[i, j]
+            out.R_WB[i, j] = u.R_WB_out[i, j]
+
+
+@jit_entry
+def write_estimate_into(state, out) -> None:
+    """:func:`write_estimate` of the ``(1,)`` UKF state into the ``(1,)`` estimate array ``out`` (from Python)."""
+    write_estimate(state[0], out[0])
 
 
 # -- linear algebra and SO(3) on small arrays -------------------------------------------------------------------
@@ -951,7 +960,7 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
         p_m: (3,) measured position [m], world frame (float64; ignored without ``mocap_new``). A frame that
             announces a sample without a well-formed pose passes NaN here: it is rejected and counted.
         q_m: (4,) measured attitude, wxyz (float64; as ``p_m``).
-        out: (21,) the estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` (as :func:`write_estimate`).
+        out: the estimate record (:data:`~omnirotor.messages.ESTIMATE_DTYPE`, as :func:`write_estimate`).
 
     Returns:
         ``(code, t)``: ``STEP_REJECTED`` when something in the frame was not well-formed (the period, the IMU
@@ -1006,9 +1015,13 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
 
 @jit_entry
 def ukf_step_by_table(table, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
-    """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``)."""
+    """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``).
+
+    ``out`` is a ``(1,)`` estimate array.
+    """
     a = arrays_at(table, 0)
-    return ukf_step(a.ukf[0], a.imu_buf, a.state_buf, a.work[0], gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, out)
+    o = out[0]
+    return ukf_step(a.ukf[0], a.imu_buf, a.state_buf, a.work[0], gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, o)
 
 
 @jit
@@ -1024,7 +1037,7 @@ def ukf_reinit(u, p_m, q_m, out) -> None:
         u: the UKF record; ``n_reinit`` counts it.
         p_m: (3,) measured position [m] (finite).
         q_m: (4,) measured attitude, wxyz (finite, non-zero; normalised here).
-        out: (21,) the estimate, rewritten.
+        out: the estimate record, rewritten.
     """
     s = u.x_out
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])

@@ -370,15 +370,8 @@ class AdmittanceFilter:
     kernel = admittance_step
 
     def __init__(self, params: AdmittanceParams | None = None, *, state: np.ndarray | None = None) -> None:
-        self.params = params if params is not None else AdmittanceParams()
-        p = self.params
         self.state = st = state_array(STATE_DTYPE, state, "admittance")
-        st["inv_mass_pos"] = [1.0 / m for m in p.mass_pos]
-        st["damping_pos"] = p.damping_pos
-        st["stiffness_pos"] = p.stiffness_pos
-        st["inv_mass_rot"] = [1.0 / m for m in p.mass_rot]
-        st["damping_rot"] = p.damping_rot
-        st["stiffness_rot"] = p.stiffness_rot
+        self.set_params(params if params is not None else AdmittanceParams())
         rec = st[0]
         self.xi_p_W = rec["xi_p_W"]
         self.xi_p_dot_W = rec["xi_p_dot_W"]
@@ -388,6 +381,17 @@ class AdmittanceFilter:
         self.R_xi = rec["R_xi"]
         self._q = rec["q_xi"]  # R_xi as a unit quaternion, wxyz
         self.reset()
+
+    def set_params(self, params: AdmittanceParams) -> None:
+        """Take new virtual mass, damping and stiffness; the offsets and their rates (the state) carry on."""
+        self.params = p = params
+        st = self.state
+        st["inv_mass_pos"] = [1.0 / m for m in p.mass_pos]
+        st["damping_pos"] = p.damping_pos
+        st["stiffness_pos"] = p.stiffness_pos
+        st["inv_mass_rot"] = [1.0 / m for m in p.mass_rot]
+        st["damping_rot"] = p.damping_rot
+        st["stiffness_rot"] = p.stiffness_rot
 
     def reset(self) -> None:
         """Zero the offsets (compliant reference = desired reference)."""

@@ -212,7 +212,7 @@ def alloc_set_map(r, ar, A) -> None:
 
 
 @jit_inline
-def _prepare(r, ar, w_ref, R, A) -> int:
+def _prepare(r, ar, f_ref_W, m_ref_B, R, A) -> int:
     """Body-frame reference and ``f = G w_B``.
 
     Returns:
@@ -226,9 +226,9 @@ def _prepare(r, ar, w_ref, R, A) -> int:
                 return 1
     W = r.w_B
     for j in range(3):
-        W[j] = w_ref[0] * R[0, j] + w_ref[1] * R[1, j] + w_ref[2] * R[2, j]  # R^T f_ref
-    for j in range(3, 6):
-        W[j] = w_ref[j]
+        W[j] = f_ref_W[0] * R[0, j] + f_ref_W[1] * R[1, j] + f_ref_W[2] * R[2, j]  # R^T f_ref
+    for j in range(3):
+        W[3 + j] = m_ref_B[j]
     G, f = ar.G, ar.f
     ff = 0.0
     for i in range(n):
@@ -243,14 +243,14 @@ def _prepare(r, ar, w_ref, R, A) -> int:
 
 
 @jit_inline
-def alloc_begin(r, ar, w_ref, R, A) -> int:
+def alloc_begin(r, ar, f_ref_W, m_ref_B, R, A) -> int:
     """Everything of an allocation before the QP (module docstring).
 
     Returns:
         ``BEGIN_SOLVE``, ``BEGIN_SOLVE_NEW_MAP`` (the map changed and the QP was rebuilt) or ``BEGIN_HELD``
         (a NaN/inf in ``w_ref``, ``R`` or ``A``: the last safe input is held, the status is NONFINITE).
     """
-    code = _prepare(r, ar, w_ref, R, A)
+    code = _prepare(r, ar, f_ref_W, m_ref_B, R, A)
     new_map = False
     if code == 1:
         finite = True
@@ -261,7 +261,7 @@ def alloc_begin(r, ar, w_ref, R, A) -> int:
         if finite:
             alloc_set_map(r, ar, A)
             new_map = True
-            code = _prepare(r, ar, w_ref, R, A)
+            code = _prepare(r, ar, f_ref_W, m_ref_B, R, A)
     if code != 0:
         r.status = _NONFINITE
         r.n_nonfinite += 1.0
@@ -319,13 +319,13 @@ def alloc_end(r, ar, solved: bool) -> None:
 
 
 @jit
-def alloc_solve(r, ar, w_ref, R, A) -> int:
+def alloc_solve(r, ar, f_ref_W, m_ref_B, R, A) -> int:
     """One allocation with the compiled QP (:func:`omnirotor.control._qp.boxqp_solve`).
 
     Returns:
         The code of :func:`alloc_begin`; the inputs are in ``ar.u_hz2``.
     """
-    code = alloc_begin(r, ar, w_ref, R, A)
+    code = alloc_begin(r, ar, f_ref_W, m_ref_B, R, A)
     if code != BEGIN_HELD:
         alloc_end(r, ar, boxqp_solve_arrays(ar, int(r.max_iter)) >= 1)
     return code
@@ -654,9 +654,10 @@ class Allocator:
             overwritten by the next call: copy it to keep it.
         """
         f64 = np.float64
-        code = alloc_begin(
-            self._rec, self.arrays, np.asarray(w_ref, dtype=f64), np.asarray(R_WB, dtype=f64), np.asarray(A, dtype=f64)
-        )
+        w = np.asarray(w_ref, dtype=f64)
+        if w.shape != (6,):
+            raise InputError(f"w_ref must have shape (6,), got {w.shape}")
+        code = alloc_begin(self._rec, self.arrays, w[:3], w[3:], np.asarray(R_WB, dtype=f64), np.asarray(A, dtype=f64))
         if code != BEGIN_HELD:
             alloc_end(self._rec, self.arrays, self.solve_qp(code))
         return self._u

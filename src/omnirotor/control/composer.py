@@ -1,21 +1,21 @@
 """The controller's compiled 1 kHz step: the blocks of :mod:`omnirotor.control.controller` wired by name.
 
-One period, the packed sensor frame (:mod:`omnirotor.messages`) in, the rotor command out (the blocks and
+One period, the sensor frame record (:mod:`omnirotor.messages`) in, the rotor command out (the blocks and
 their SPEC sections are in the controller's module docstring)::
 
     frame ──> supervisor ──> checked frame ──> estimator ──> (p_W, v_W, a_W, R_WB, omega_B) ──┬──> map scheduler ──> A
                                                             │
-    u_obs_hz2 (measured) or u_cmd_hz2 (last command), A ──> observer ──> output (f_ext_W, m_ext_B), filtered
-    output ──> EE wrench (f_E_W, m_E_W) ──> admittance ──> xi
-    trajectory(t) ──> desired_ee ──(xi)──> compliant_ee ──(p_E_B)──> body_ref
-    body_ref, estimate, filtered ──> pose ──> w_ref ──> allocation (A, R_WB) ──> u_hz2 ──> omega_cmd_hz
+    u_obs_hz2 (measured) or u_cmd_hz2 (last command), A ──> observer ──> f_ext_W, m_ext_B; f_filt_W, m_filt_B
+    f_ext_W, m_ext_B ──> EE wrench (f_E_W, m_E_W) ──> admittance ──> xi
+    trajectory(t) or set-point segment(t) ──> desired_ee ──(xi)──> compliant_ee ──(p_E_B)──> body_ref
+    body_ref, estimate, f_filt_W, m_filt_B ──> pose ──> f_ref_W, m_ref_B ──> allocation (A, R_WB) ──> u_hz2 ──> omega_hz
 
 The supervisor (:mod:`omnirotor.control.supervisor`) checks the frame first: the estimator reads its checked
 copy (rejected parts replaced by the prediction), the observer the last command in place of rejected rotor
 speeds, and after a clock reset or a long dropout the UKF re-initialises from motion capture.
 
 Every block's state is a field of the controller's structured state (:func:`controller_dtype`): the
-composer reads and writes the signals by name (``st.observer.output``, ``st.pose.w_ref``, ``rot.u_cmd_hz2``)
+composer reads and writes the signals by name (``st.observer.f_ext_W``, ``st.pose.f_ref_W``, ``rot.u_cmd_hz2``)
 and calls each block's own kernel (the observer through :func:`omnirotor.blocks.compiled_step`, so that any
 registered observer fits). The step is split around the allocation QP: :func:`step_begin` (estimate to
 :func:`~omnirotor.control.allocation.alloc_begin`) and :func:`step_end` (the QP's answer to the command and
@@ -58,16 +58,8 @@ from omnirotor.control import observer as _obs
 from omnirotor.control import pose as _pose
 from omnirotor.control import supervisor as _sup
 from omnirotor.control import trajectory as _traj
-from omnirotor.messages import (
-    FRAME_ACC_B,
-    FRAME_GYRO_B,
-    FRAME_MOCAP_NEW,
-    FRAME_MOCAP_P_W,
-    FRAME_MOCAP_Q_WB,
-    FRAME_MOCAP_T,
-    FRAME_ROTOR_HZ,
-    FRAME_T,
-)
+from omnirotor.frame_kernels import state_finite
+from omnirotor.messages import ESTIMATE_DTYPE
 
 __all__ = [
     "CONTROLLER_DTYPE_FIELDS",
@@ -95,11 +87,7 @@ OWN_DTYPE = np.dtype(
         ("t", _F8),  # trajectory time [s]
         ("region", _F8),  # map region index (-1: none)
         ("status", _F8),  # ControlStatus bits
-        ("p_W", _F8, 3),  # the estimate ...
-        ("v_W", _F8, 3),
-        ("a_W", _F8, 3),
-        ("R_WB", _F8, (3, 3)),
-        ("omega_B", _F8, 3),
+        ("estimate", ESTIMATE_DTYPE),  # the state estimate of this period (the last one before the step)
         ("p_E_W", _F8, 3),  # estimated EE tip [m]
         # signals
         ("f_E_W", _F8, 3),  # force at the EE [N]
@@ -145,7 +133,6 @@ class RotorArrays(NamedTuple):
     u_cmd_hz2: np.ndarray  # (n,) the last allocated inputs [Hz²]
     omega_cmd_hz: np.ndarray  # (n,) the command [Hz]
     omega_safe_hz: np.ndarray  # (n,) the last finite command [Hz]
-    estimate: np.ndarray  # (21,) the estimate of this period: p_W, v_W, a_W, R_WB (row-major), omega_B
 
 
 class EstimatorArrays(NamedTuple):
@@ -185,6 +172,7 @@ def controller_dtype(observer_dtype: np.dtype) -> np.dtype:
             ("desired_ee", ref),
             ("compliant_ee", ref),
             ("body_ref", ref),
+            ("segment", _traj.SEGMENT_DTYPE),  # an in-flight set-point replacing the trajectory (when active)
             ("allocation", _al.STATE_DTYPE),
             ("bypass", _est.BYPASS_DTYPE),  # the estimators, by their registered names
             ("ukf", _ek.UKF_DTYPE),
@@ -212,16 +200,16 @@ def store_addresses(args: tuple) -> None:
 def _args_of(state):
     """``kernel_args`` rebuilt from the state's ``arrays`` (the order of :func:`_arrays`)."""
     t = state[0].arrays
-    rot = RotorArrays(f64_view(t, 0), f64_view(t, 1), f64_view(t, 2), f64_view(t, 3), f64_view(t, 4))
+    rot = RotorArrays(f64_view(t, 0), f64_view(t, 1), f64_view(t, 2), f64_view(t, 3))
     ar = _al.AllocArrays(
-        f64_view(t, 5), f64_view2(t, 6), f64_view2(t, 7), f64_view(t, 8), f64_view(t, 9), f64_view(t, 10),
-        f64_view(t, 11), f64_view(t, 12), f64_view(t, 13), f64_view(t, 14), f64_view2(t, 15), f64_view2(t, 16),
-        f64_view(t, 17), i64_view(t, 18), f64_view(t, 19),
+        f64_view(t, 4), f64_view2(t, 5), f64_view2(t, 6), f64_view(t, 7), f64_view(t, 8), f64_view(t, 9),
+        f64_view(t, 10), f64_view(t, 11), f64_view(t, 12), f64_view(t, 13), f64_view2(t, 14), f64_view2(t, 15),
+        f64_view(t, 16), i64_view(t, 17), f64_view(t, 18),
     )  # fmt: skip
     est = EstimatorArrays(
-        records_at(t, 20, _ek.IMU_SAMPLE_DTYPE), records_at(t, 21, _ek.NOMINAL_DTYPE), records_at(t, 22, _ek.WORK_DTYPE)
+        records_at(t, 19, _ek.IMU_SAMPLE_DTYPE), records_at(t, 20, _ek.NOMINAL_DTYPE), records_at(t, 21, _ek.WORK_DTYPE)
     )
-    return state, rot, ar, est, _mk.arrays_at(t, 23), f64_view(t, 31)
+    return state, rot, ar, est, _mk.arrays_at(t, 22), f64_view(t, 30)
 
 
 @jit
@@ -230,23 +218,6 @@ def _all_finite(x) -> bool:
         if not math.isfinite(x[i]):
             return False
     return True
-
-
-@jit
-def _take_estimate(c, e) -> bool:
-    """Copy the estimate ``e`` (21,) into the logged head; True if it is finite."""
-    finite = True
-    for i in range(3):
-        c.p_W[i] = e[i]
-        c.v_W[i] = e[3 + i]
-        c.a_W[i] = e[6 + i]
-        c.omega_B[i] = e[18 + i]
-    for i in range(3):
-        for j in range(3):
-            c.R_WB[i, j] = e[9 + 3 * i + j]
-    for i in range(21):
-        finite = finite and math.isfinite(e[i])
-    return finite
 
 
 @jit_inline
@@ -271,12 +242,13 @@ def write_log_row(row, st, rot) -> None:
     """One log row (:data:`omnirotor.control.controller.LOG_GROUPS`) from the named signals."""
     c = st.own
     row[0], row[1], row[2] = c.t, c.region, c.status
-    k = _put_pose(row, 3, c.p_W, c.v_W, c.a_W, c.R_WB, c.omega_B, c.p_E_W)
+    e = c.estimate
+    k = _put_pose(row, 3, e.p_W, e.v_W, e.a_W, e.R_WB, e.omega_B, c.p_E_W)
     for ref in (st.compliant_ee, st.desired_ee):
         k = _put_pose(row, k, ref.p_W, ref.v_W, ref.a_W, ref.R_WB, ref.omega_W, ref.alpha_W)
     k = _put(row, k, st.admittance.xi_p_W)
-    k = _put(row, k, st.observer.output)
-    k = _put(row, k, st.pose.w_ref)
+    k = _put(row, _put(row, k, st.observer.f_ext_W), st.observer.m_ext_B)
+    k = _put(row, _put(row, k, st.pose.f_ref_W), st.pose.m_ref_B)
     k = _put(row, k, st.pose.errors)
     k = _put(row, _put(row, k, rot.u_cmd_hz2), rot.omega_cmd_hz)
     row[k] = st.supervisor.cause
@@ -307,29 +279,28 @@ def step_begin(args, frame, row) -> int:
     state, rot, ar, est, sch, traj = args
     st = state[0]
     c = st.own
-    n = frame.shape[0] - FRAME_ROTOR_HZ
-    rotor_hz = frame[FRAME_ROTOR_HZ:]
-    e = rot.estimate
+    fr = frame[0]
+    rotor_hz = fr.rotor_hz
+    n = rotor_hz.shape[0]
+    e = c.estimate
     # 0. the frame's supervision: the estimator reads the checked frame f (e still holds the last estimate)
     sv = st.supervisor
-    act = _sup.supervise(sv, frame, e)
+    act = _sup.supervise(sv, fr, e)
     cause = sv.cause
     f = sv.clean
     # 1. the state estimate
     kind = c.estimator
     if kind == EST_UKF:
+        m = f.mocap
         code, _ = _ek.ukf_step(
-            st.ukf, est.imu_buf, est.state_buf, est.work[0], f[FRAME_GYRO_B : FRAME_GYRO_B + 3],
-            f[FRAME_ACC_B : FRAME_ACC_B + 3], f[FRAME_T], f[FRAME_MOCAP_NEW] != 0.0, f[FRAME_MOCAP_T],
-            f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], e,
+            st.ukf, est.imu_buf, est.state_buf, est.work[0], f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t,
+            m.p_W, m.q_WB, e,
         )  # fmt: skip
         if act & _sup.ACT_REINIT:
-            _ek.ukf_reinit(
-                st.ukf, f[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], f[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], e
-            )
+            _ek.ukf_reinit(st.ukf, m.p_W, m.q_WB, e)
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
-        code = _est.bypass_step(f, st.bypass, e)
+        code = _est.bypass_step(f.state, st.bypass, e)
         if code == _est.BYPASS_NO_STATE:
             return STEP_NO_ESTIMATE
     else:
@@ -351,12 +322,12 @@ def step_begin(args, frame, row) -> int:
         bits |= _BIT_MOCAP_REJECTED
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
-    t = f[FRAME_T] - c.t0
-    dt = c.dt
+    e.valid = 0.0 if bits & _BIT_DEGRADED else 1.0
+    t = f.t - c.t0
+    dt = sv.dt_s  # the frame's real interval (the period for evenly spaced frames: supervisor docstring)
     c.t = t
-    p, v, a, w = e[0:3], e[3:6], e[6:9], e[18:21]
-    R = e[9:18].reshape(3, 3)
-    finite = _take_estimate(c, e)
+    p, v, a, w, R = e.p_W, e.v_W, e.a_W, e.omega_B, e.R_WB
+    finite = state_finite(e)
     measured = c.measured != 0 and (cause & _sup.CAUSE_ROTOR) == 0  # rejected speeds: the last command
     if measured:
         for i in range(n):
@@ -379,15 +350,18 @@ def step_begin(args, frame, row) -> int:
     obs = st.observer
     observer_step(obs, A, u, a, R, w, dt)
     # 4. the EE wrench, the admittance filter, the desired, compliant and body references
-    _adm.ee_wrench(obs.output[0:3], obs.output[3:6], R, c.p_E_B, c.f_E_W, c.m_E_W)
+    _adm.ee_wrench(obs.f_ext_W, obs.m_ext_B, R, c.p_E_B, c.f_E_W, c.m_E_W)
     _adm.admittance_step(st.admittance, c.f_E_W, c.m_E_W, dt)
-    _traj.trajectory_sample(traj, t, st.desired_ee)
+    if st.segment.active != 0:
+        _traj.segment_sample(st.segment, t, st.desired_ee)
+    else:
+        _traj.trajectory_sample(traj, t, st.desired_ee)
     _adm.compliant_reference(st.admittance, st.desired_ee, st.compliant_ee)
     _adm.body_reference(st.compliant_ee, c.p_E_B, st.body_ref)
     # 5. the pose controller compensates the whole unexplained wrench (before bias and zeroing)
-    _pose.pose_step(st.pose, st.body_ref, p, v, R, w, obs.filtered[0:3], obs.filtered[3:6], dt)
+    _pose.pose_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
     # 6. the allocation up to its QP
-    alloc = _al.alloc_begin(st.allocation, ar, st.pose.w_ref, R, A)
+    alloc = _al.alloc_begin(st.allocation, ar, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
     if alloc == _al.BEGIN_HELD:
         bits |= _BIT_NONFINITE
     c.status = bits
@@ -441,8 +415,9 @@ def step_end(args, solved: bool, row) -> int:
             rot.omega_cmd_hz[i] = rot.omega_safe_hz[i]
     # Estimated EE tip, for the log.
     ex, ey, ez = c.p_E_B[0], c.p_E_B[1], c.p_E_B[2]
+    e = c.estimate
     for i in range(3):
-        c.p_E_W[i] = c.p_W[i] + c.R_WB[i, 0] * ex + c.R_WB[i, 1] * ey + c.R_WB[i, 2] * ez
+        c.p_E_W[i] = e.p_W[i] + e.R_WB[i, 0] * ex + e.R_WB[i, 1] * ey + e.R_WB[i, 2] * ez
     c.status = bits
     if row.shape[0] > 0:
         write_log_row(row, st, rot)
@@ -451,11 +426,11 @@ def step_end(args, solved: bool, row) -> int:
 
 @jit_inline
 def controller_step(args, frame, row) -> int:
-    """One control period (module docstring): the packed ``frame`` in, the command in ``rot.omega_cmd_hz``.
+    """One control period (module docstring): the ``frame`` record in, the command in ``rot.omega_cmd_hz``.
 
     Args:
         args: ``InteractionController.kernel_args``.
-        frame: the packed sensor frame (:mod:`omnirotor.messages`).
+        frame: (1,) the sensor frame record (:func:`omnirotor.messages.frame_dtype`).
         row: the log row to fill (length 0: none).
 
     Returns:

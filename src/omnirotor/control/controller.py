@@ -32,8 +32,8 @@ offset, estimated wrench, wrench reference, pose errors, u, omega command, regio
 
 Cost. Every block keeps its state in a field of the controller's one structured state (:attr:`state`, see
 :mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled) :meth:`step` is
-**one** compiled call, :func:`~omnirotor.control.composer.controller_step_by_state`, on the frame's packed form
-(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is packed first. A
+**one** compiled call, :func:`~omnirotor.control.composer.controller_step_by_state`, on the frame's record
+(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is written into one first. A
 compiled closed loop calls :func:`~omnirotor.control.composer.controller_step` directly with
 :attr:`InteractionController.kernel_args`. With the "daqp" or "proxsuite" solvers (called from Python) the
 same composer runs in two compiled calls around that solver; with an estimator that is not compiled (e.g. a
@@ -47,20 +47,20 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.blocks import block_class, block_names, new_state
+from omnirotor.blocks import block_class, block_names, new_records, new_state
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
 from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
 from omnirotor.control.allocation import BEGIN_HELD, AllocationParams, Allocator
 from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
-from omnirotor.control.maps import MapParams, MapScheduler
+from omnirotor.control.maps import MAP_MODES, MapParams, MapScheduler
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseController, PoseControlParams
 from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
-from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample
+from omnirotor.control.trajectory import SEGMENT_DTYPE, PoseTrajectory, ReferenceSample, start_segment
 from omnirotor.errors import InputError
-from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_size
+from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_dtype
 from omnirotor.recorder import Recorder
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import WrenchMapSet
@@ -140,7 +140,8 @@ class ControllerParams:
         estimator: state estimator (SPEC §4.5).
         supervisor: the sensor-frame supervision (:mod:`omnirotor.control.supervisor`).
         dt: control period [s] (1 kHz, SPEC §4).
-        log_capacity: rows preallocated for the log [steps].
+        log_capacity: rows preallocated for the log [steps]; a full log grows by as many rows again (no cap;
+            :class:`~omnirotor.recorder.Recorder`). 0: no log.
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
         observer_kind: the registered name of the observer block (:mod:`omnirotor.blocks`; default
             "momentum", :class:`~omnirotor.control.observer.WrenchObserver`); it is built from ``observer``.
@@ -222,6 +223,7 @@ class InteractionController:
         self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype))
         self._own = own = state[0]["own"]
         self.estimator = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind])
+        self._wrench_maps = maps
         self.scheduler = MapScheduler(vehicle, maps, p.maps, state=state["maps"])
         self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
         self.admittance = AdmittanceFilter(p.admittance, state=state["admittance"])
@@ -244,14 +246,16 @@ class InteractionController:
         own["dt"] = self._dt
         own["measured"] = 1 if self._measured_input else 0
         own["piecewise"] = 1 if self._piecewise else 0
-        self._rot = _c.RotorArrays(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(21))
-        self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe, self._estimate = self._rot
+        self._rot = _c.RotorArrays(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n))
+        self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe = self._rot
+        self._estimate = state["own"]["estimate"]  # (1,) view: the estimate of the last period
         self._excluded = False
-        self.log = Recorder(p.log_capacity, LOG_GROUPS(n))
+        self.log = Recorder(p.log_capacity, LOG_GROUPS(n), grow_rows=p.log_capacity)
         self._no_row = np.zeros(0)
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
-        self._frame_buf = np.zeros(frame_size(n))
+        self._frame_buf = new_records(frame_dtype(n))
+        self._frame_dtype = frame_dtype(n)
         self._kernel_args: tuple | None = None
         self._kernel_estimator = None  # the estimator whose arrays the kernel arguments hold
         self._fast_table = None  # _table when step() is one compiled call (set by reset)
@@ -356,9 +360,7 @@ class InteractionController:
         hz = np.asarray(frame.rotor_hz, dtype=float)
         if hz.shape != (self._n,):
             raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
-        packed = frame.packed
-        if packed is None or packed.shape != self._frame_buf.shape:
-            packed = self._pack(frame)
+        record = self._record(frame)
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
@@ -366,7 +368,7 @@ class InteractionController:
         if isinstance(self.estimator, UKFEstimator):
             self.estimator.write_estimate(self._estimate)
         elif isinstance(self.estimator, BypassEstimator):
-            self._estimate[:] = self.estimator.state[0]["last"]
+            self._estimate[0] = self.estimator.state["last"][0]
         self.observer.reset()
         self.admittance.reset()
         self.pose.reset()
@@ -382,10 +384,11 @@ class InteractionController:
         self.compliant_ee.copy_from(self.desired_ee)
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
+        self.state["segment"] = np.zeros(1, SEGMENT_DTYPE)  # the trajectory given here flies
         self._build_kernel_args()
         kind = int(self._own["estimator"])
         reset_supervisor(
-            self.state["supervisor"], self.params.supervisor, packed, dt=self._dt,
+            self.state["supervisor"], self.params.supervisor, record, dt=self._dt,
             acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
             omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
             check_mocap=kind == _c.EST_UKF,
@@ -402,6 +405,77 @@ class InteractionController:
         """
         return RotorCommand(t=self._t0 if t is None else t, omega_hz=self._omega_safe.copy())
 
+    # -- set-points in flight (between steps; the flight node's commands) -----------------------------------
+
+    @property
+    def time(self) -> float:
+        """The controller's (trajectory) time of the last step [s]: the frame's time minus the reset frame's."""
+        return float(self._own["t"])
+
+    def retarget(self, p_E_W: np.ndarray, R_WE: np.ndarray | None = None, duration_s: float = 2.0) -> None:
+        """Replace the trajectory, from the next step on, by a minimum-jerk segment to an EE pose at rest.
+
+        The segment starts at the controller's time (:attr:`time`, which runs on continuously) from the desired
+        EE reference of the last step: its position, velocity and acceleration are continuous there (the
+        attitude moves along the geodesic from the last desired attitude, its angular velocity starting at 0;
+        :func:`~omnirotor.control.trajectory.segment_sample`). After ``duration_s`` the pose is held. A later
+        call starts a new segment from wherever the reference then is; :meth:`reset` returns to a trajectory.
+
+        Args:
+            p_E_W: (3,) target EE position [m], world frame.
+            R_WE: (3, 3) target EE attitude (EE to world); default the last desired attitude.
+            duration_s: duration of the segment [s].
+
+        Raises:
+            InputError: before :meth:`reset`, or a target or duration that is not valid.
+        """
+        if self._trajectory is None:
+            raise InputError("InteractionController.retarget before reset(frame, trajectory)")
+        R = self.desired_ee.R_WB if R_WE is None else R_WE
+        start_segment(self.state["segment"], self.desired_ee, self.time, p_E_W, R, duration_s)
+
+    def set_admittance(self, params: AdmittanceParams | str) -> None:
+        """Change the admittance parameters in flight: an :class:`AdmittanceParams` or a preset's name.
+
+        Only the parameters change; the filter's offsets (``xi``) and their rates are its state and carry on,
+        so the compliant reference does not jump (it moves on under the new mass, damping and stiffness).
+        Presets: :data:`~omnirotor.control.admittance.ADMITTANCE_PRESETS` (the paper's Table 2 sets).
+
+        Raises:
+            InputError: an unknown preset name.
+        """
+        p = AdmittanceParams.preset(params) if isinstance(params, str) else params
+        if not isinstance(p, AdmittanceParams):
+            raise InputError(f"expected AdmittanceParams or a preset name, got {type(params).__name__}")
+        self.admittance.set_params(p)
+        self.params = dataclasses.replace(self.params, admittance=p)
+
+    def set_map_mode(self, mode: str) -> None:
+        """Switch the wrench-map mode in flight ("nominal", "global" or "piecewise"), from the next step on.
+
+        The scheduler is rebuilt for the new mode on its field of the state (the maps given to the controller
+        are needed for "global" and "piecewise"); in piecewise mode the region follows the attitude from the next
+        step. The map itself changes at the switch (that is the point).
+
+        Raises:
+            InputError: an unknown mode, or a mode whose maps the controller was not given.
+        """
+        if mode not in MAP_MODES:
+            raise InputError(f"map mode must be one of {MAP_MODES}, got {mode!r}")
+        maps_params = dataclasses.replace(self.params.maps, mode=mode)
+        saved = self.state["maps"].copy()
+        try:
+            scheduler = MapScheduler(self.vehicle, self._wrench_maps, maps_params, state=self.state["maps"])
+        except InputError:
+            self.state["maps"] = saved  # the running scheduler stays as it was
+            raise
+        self.scheduler = scheduler
+        self.params = dataclasses.replace(self.params, maps=maps_params)
+        self._piecewise = mode == "piecewise"
+        self._own["piecewise"] = 1 if self._piecewise else 0
+        if self._trajectory is not None:
+            self._build_kernel_args()
+
     # -- the 1 kHz step -----------------------------------------------------------------------------------
 
     def step(self, frame: SensorFrame) -> RotorCommand:
@@ -412,41 +486,42 @@ class InteractionController:
         """
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
-        packed = frame.packed
-        if packed is None or packed.shape != self._frame_buf.shape:
-            packed = self._pack(frame)
+        record = self._record(frame)
         row = self.log.next_row()
         if row is None:
             row = self._no_row
         if self.estimator is self._kernel_estimator and self._fast_table is not None:
             # The default blocks, a compiled estimator and QP: one compiled call, the state by its address.
-            bits = _c.controller_step_by_table(self._fast_table, packed, row)
+            bits = _c.controller_step_by_table(self._fast_table, record, row)
         else:
-            bits = self._step_slow(frame, packed, row)
+            bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
 
-    def _pack(self, frame: SensorFrame) -> np.ndarray:
-        """The frame packed into the controller's buffer (module docstring of :mod:`omnirotor.messages`).
+    def _record(self, frame: SensorFrame) -> np.ndarray:
+        """The frame's record (:mod:`omnirotor.messages`): its own, or the frame written into the controller's.
 
-        A frame whose own packed form has the controller's size needs none of this: its rotor speeds are a view
-        of it, so there are as many as the vehicle has rotors.
+        A frame whose own record has the controller's dtype needs no copy: its rotor speeds are a view of it, so
+        there are as many as the vehicle has rotors.
 
         Raises:
             InputError: arrays of the wrong size (rotor speeds: not one per rotor, not even broadcast).
         """
+        record = frame.record
+        if record is not None and (record.dtype is self._frame_dtype or record.dtype == self._frame_dtype):
+            return record
         if np.shape(frame.rotor_hz) != self._rotor_shape:
             raise InputError(f"frame.rotor_hz has shape {np.shape(frame.rotor_hz)}; the vehicle has {self._n} rotors")
         try:
-            frame.pack_into(self._frame_buf)
+            frame.write_record(self._frame_buf)
         except ValueError as exc:
             raise InputError(f"sensor frame of the wrong shape: {exc}") from None
         return self._frame_buf
 
-    def _step_slow(self, frame: SensorFrame, packed: np.ndarray, row: np.ndarray) -> int:
+    def _step_slow(self, frame: SensorFrame, record: np.ndarray, row: np.ndarray) -> int:
         """:meth:`step` through the same composer when it is not one compiled call by address.
 
         That is: another observer (its state passed whole), or an estimator or a QP solver run from Python.
@@ -459,9 +534,9 @@ class InteractionController:
         if kind != int(self._own["estimator"]):
             self._own["estimator"] = kind
         if self.allocator.kernel_backend is not None:
-            return _c.controller_step_by_state(self.state, packed, row)
+            return _c.controller_step_by_state(self.state, record, row)
         # A QP solver called from Python, between the composer's two halves.
-        code = _c.step_begin_by_state(self.state, packed, row)
+        code = _c.step_begin_by_state(self.state, record, row)
         if code >= 0:
             solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
             return _c.step_end_by_state(self.state, solved, row)
@@ -482,6 +557,7 @@ class InteractionController:
         if estimator.last_input_rejected:  # a bad sensor sample, replaced by the estimator
             code |= _ek.STEP_REJECTED
         e = self._estimate
-        e[0:3], e[3:6], e[6:9], e[9:18], e[18:21] = state.p_W, state.v_W, state.a_W, np.ravel(state.R_WB), state.omega_B
+        e["p_W"], e["v_W"], e["a_W"], e["omega_B"] = state.p_W, state.v_W, state.a_W, state.omega_B
+        e["R_WB"] = np.reshape(state.R_WB, (1, 3, 3))
         self._own["given_code"] = code
         return _c.EST_GIVEN

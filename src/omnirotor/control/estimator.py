@@ -71,12 +71,13 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import address_table, jit
-from omnirotor.blocks import block_class, register, state_array
+from omnirotor._jit import address_table, jit, jit_entry
+from omnirotor.blocks import block_class, new_records, register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.errors import InputError
-from omnirotor.messages import FRAME_HAS_STATE, FRAME_STATE, FRAME_STATE_SIZE, SensorFrame, StateEstimate, frame_size
+from omnirotor.frame_kernels import copy_state, state_finite
+from omnirotor.messages import ESTIMATE_DTYPE, SensorFrame, StateEstimate, frame_dtype
 from omnirotor.so3 import quat_wxyz_from_R
 from omnirotor.vehicle import VehicleParams
 
@@ -522,12 +523,12 @@ class UKFEstimator:
         Returns:
             The estimate at ``frame.t`` (fresh arrays). ``valid`` is False while degraded.
         """
-        out = np.empty(21)
+        out = new_records(ESTIMATE_DTYPE)
         if not self.initialised:
             if self._mocap_valid(frame) or (frame.state is not None and _state_finite(frame.state)):
                 self.reset(frame)
             self.write_estimate(out)
-            return self._estimate(frame.t, out)
+            return estimate_of(frame.t, out, self.initialised and not self.degraded)
         # Every array goes to the kernel as float64 (another dtype would compile a variant of the whole step).
         gyro, acc = frame.imu_gyro_B, frame.imu_acc_B
         if gyro.dtype is not _F64 or acc.dtype is not _F64:
@@ -542,17 +543,11 @@ class UKFEstimator:
             self._table, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan, p_m, q_m, out
         )
         valid = not code & _ek.STEP_DEGRADED
-        return StateEstimate(t, out[0:3], out[3:6], out[6:9], out[9:18].reshape(3, 3), out[18:21], valid)
+        return estimate_of(t, out, valid)
 
     def write_estimate(self, out: np.ndarray) -> None:
-        """The current estimate ``p_W, v_W, a_W, R_WB (row-major), omega_B`` into ``out`` (21,)."""
-        _ek.write_estimate(self._rec, out)
-
-    def _estimate(self, t: float, x: np.ndarray) -> StateEstimate:
-        # One fresh array per message; the fields are views into it.
-        return StateEstimate(
-            float(t), x[0:3], x[3:6], x[6:9], x[9:18].reshape(3, 3), x[18:21], self.initialised and not self.degraded
-        )
+        """The current estimate into ``out``, a ``(1,)`` array of :data:`~omnirotor.messages.ESTIMATE_DTYPE`."""
+        _ek.write_estimate_into(self.state, out)
 
     def _process_noise_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Q(T) = T Q1 + T² Q2 + T³ Q3: additive process noise over T seconds, error coordinates.
@@ -588,7 +583,7 @@ def _state_finite(state: StateEstimate) -> bool:
 
 BYPASS_DTYPE = np.dtype(
     [
-        ("last", np.float64, FRAME_STATE_SIZE),  # the last good state: p_W, v_W, a_W, R_WB (row-major), omega_B
+        ("last", ESTIMATE_DTYPE),  # the last good state
         ("initialised", np.float64),  # 1 once a state was received
         ("degraded", np.float64),  # 1 when the last frame's state was missing or not finite
         ("last_rejected", np.float64),
@@ -602,29 +597,22 @@ BYPASS_NO_STATE = -1
 
 
 @jit
-def bypass_step(frame, r, out) -> int:
-    """The bypass estimator on a packed frame: its state (kept as the last good one), or the last good state.
+def bypass_step(s, r, out) -> int:
+    """The bypass estimator on a frame's state: that state (kept as the last good one), or the last good state.
 
     Args:
-        frame: the packed frame (:mod:`omnirotor.messages`).
+        s: the frame's ``state`` record (:data:`~omnirotor.messages.ESTIMATE_DTYPE`; ``valid`` 0: none).
         r: the bypass state record (:data:`BYPASS_DTYPE`).
-        out: (21,) the estimate.
+        out: the estimate record (:data:`~omnirotor.messages.ESTIMATE_DTYPE`).
 
     Returns:
         0, or ``STEP_REJECTED | STEP_DEGRADED`` when the last state is repeated, or ``BYPASS_NO_STATE``
         (nothing written) when there is none.
     """
-    finite = frame[FRAME_HAS_STATE] != 0.0
-    if finite:
-        for i in range(FRAME_STATE_SIZE):
-            if not math.isfinite(frame[FRAME_STATE + i]):
-                finite = False
-                break
     last = r.last
-    if finite:
-        for i in range(FRAME_STATE_SIZE):
-            last[i] = frame[FRAME_STATE + i]
-            out[i] = last[i]
+    if s.valid != 0.0 and state_finite(s):
+        copy_state(s, last)
+        copy_state(last, out)
         r.initialised = 1.0
         r.degraded = 0.0
         r.last_rejected = 0.0
@@ -634,9 +622,20 @@ def bypass_step(frame, r, out) -> int:
     r.n_nonfinite += 1.0
     r.last_rejected = 1.0
     r.degraded = 1.0
-    for i in range(FRAME_STATE_SIZE):
-        out[i] = last[i]
+    copy_state(last, out)
     return _ek.STEP_REJECTED | _ek.STEP_DEGRADED
+
+
+@jit_entry
+def _bypass_step_entry(frame, state, out) -> int:
+    """:func:`bypass_step` on ``(1,)`` arrays (a call from Python)."""
+    return bypass_step(frame[0].state, state[0], out[0])
+
+
+def estimate_of(t: float, record: np.ndarray, valid: bool) -> StateEstimate:
+    """A :class:`~omnirotor.messages.StateEstimate` at time ``t`` (fresh arrays) of a ``(1,)`` estimate record."""
+    o = record[0].copy()
+    return StateEstimate(t, o["p_W"], o["v_W"], o["a_W"], o["R_WB"], o["omega_B"], valid)
 
 
 @register("estimator", "bypass")
@@ -675,7 +674,7 @@ class BypassEstimator:
         self._rec = self.state[0]
         self._rec["degraded"] = 1.0
         self._frame: np.ndarray | None = None
-        self._out = np.zeros(FRAME_STATE_SIZE)
+        self._out = new_records(ESTIMATE_DTYPE)
 
     @property
     def initialised(self) -> bool:
@@ -715,15 +714,13 @@ class BypassEstimator:
             InputError: no state was ever received (the plant does not provide one).
         """
         n = np.asarray(frame.rotor_hz).shape[0]
-        if self._frame is None or self._frame.shape[0] != frame_size(n):
-            self._frame = np.zeros(frame_size(n))
-        frame.pack_into(self._frame)
-        out = self._out
-        code = bypass_step(self._frame, self._rec, out)
+        if self._frame is None or self._frame["rotor_hz"].shape[1] != n:
+            self._frame = new_records(frame_dtype(n))
+        frame.write_record(self._frame)
+        code = _bypass_step_entry(self._frame, self.state, self._out)
         if code == BYPASS_NO_STATE:
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        o = out.copy()
-        return StateEstimate(frame.t, o[0:3], o[3:6], o[6:9], o[9:18].reshape(3, 3), o[18:21], code == 0)
+        return estimate_of(frame.t, self._out, code == 0)
 
 
 def make_estimator(

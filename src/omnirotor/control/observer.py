@@ -25,19 +25,19 @@ output stays zero until the offset is captured, so the capture causes no jump.
 
 Two estimates are therefore available after each step:
 
-* :attr:`WrenchObserver.filtered`: the low-passed estimate of *everything* the model does not explain
-  (interaction plus model error), which the pose controller subtracts (eqs. 4-5): a thrust-model error
-  is then compensated whether or not it was zeroed;
-* :attr:`WrenchObserver.output` = ``filtered - bias - offset``: the *interaction* wrench estimate, which
-  drives the admittance filter (and is what :meth:`WrenchObserver.step` returns).
+* ``f_filt_W``, ``m_filt_B`` (:attr:`WrenchObserver.filtered`): the low-passed estimate of *everything* the
+  model does not explain (interaction plus model error), which the pose controller subtracts (eqs. 4-5): a
+  thrust-model error is then compensated whether or not it was zeroed;
+* ``f_ext_W``, ``m_ext_B`` (:attr:`WrenchObserver.output`) = ``filtered - bias - offset``: the *interaction*
+  wrench estimate, which drives the admittance filter (and is what :meth:`WrenchObserver.step` returns).
 
 Without bias and zeroing the two are equal, as in the paper.
 
 Block contract (:mod:`omnirotor.blocks`): registered as ``("observer", "momentum")``; state
 :data:`STATE_DTYPE`; compiled step :func:`observer_step`, which the controller's compiled step reaches through
-``compiled_step("observer")``. Every observer variant has the fields ``output`` (the interaction estimate
-``[f_ext_W; m_ext_B]``, which drives the admittance) and ``filtered`` (what the pose controller compensates),
-and a step ``kernel(record, A, u_hz2, a_W, R_WB, omega_B, dt)``; with a non-finite input the step changes
+``compiled_step("observer")``. Every observer variant has the fields ``f_ext_W``, ``m_ext_B`` (the
+interaction estimate, which drives the admittance) and ``f_filt_W``, ``m_filt_B`` (what the pose controller
+compensates), and a step ``kernel(record, A, u_hz2, a_W, R_WB, omega_B, dt)``; with a non-finite input the step changes
 nothing but ``n_nonfinite``.
 """
 
@@ -63,8 +63,10 @@ _F8 = np.float64
 STATE_DTYPE = np.dtype(
     [
         # outputs
-        ("output", _F8, 6),  # [f_ext_W [N]; m_ext_B [N·m]] after the low-pass, bias and zeroing
-        ("filtered", _F8, 6),  # the low-passed estimate [f_hat_W; m_hat_B]
+        ("f_ext_W", _F8, 3),  # interaction force [N] after the low-pass, bias and zeroing
+        ("m_ext_B", _F8, 3),  # interaction moment [N·m], likewise
+        ("f_filt_W", _F8, 3),  # the low-passed force estimate f_hat_W [N]
+        ("m_filt_B", _F8, 3),  # the low-passed moment estimate m_hat_B [N·m]
         ("offset", _F8, 6),  # offset captured by the zeroing
         # state
         ("f_hat_W", _F8, 3),  # raw force estimate [N]
@@ -171,19 +173,20 @@ def observer_step(r, A, u, a_W, R, omega_B, dt: float) -> None:
         r.lpf_dt_s = dt
         r.lpf_lambda = lowpass_coefficient(r.cutoff_hz, dt)
     lam = r.lpf_lambda
-    Y = r.filtered
+    Yf, Ym = r.f_filt_W, r.m_filt_B
     for i in range(3):
-        Y[i] += lam * (F[i] - Y[i])
+        Yf[i] += lam * (F[i] - Yf[i])
     for i in range(3):
-        Y[3 + i] += lam * (MH[i] - Y[3 + i])
-    out, sub = r.output, r.subtract
+        Ym[i] += lam * (MH[i] - Ym[i])
+    fo, mo, sub = r.f_ext_W, r.m_ext_B, r.subtract  # sub: [force; moment] (bias plus the captured offset)
     if r.capturing != 0.0:
         # Zeroing phase: output zero, average the filtered estimate over the window, then latch it.
         r.elapsed_s += dt
         if r.elapsed_s > r.settle_s:
             acc = r.acc
-            for i in range(6):
-                acc[i] += Y[i]
+            for i in range(3):
+                acc[i] += Yf[i]
+                acc[3 + i] += Ym[i]
             r.n_acc += 1.0
             if r.elapsed_s >= r.settle_s + r.window_s:
                 for i in range(6):
@@ -191,11 +194,13 @@ def observer_step(r, A, u, a_W, R, omega_B, dt: float) -> None:
                     r.offset[i] = sub[i] - r.bias[i]
                 r.zeroed = 1.0
                 r.capturing = 0.0
-        for i in range(6):
-            out[i] = 0.0
+        for i in range(3):
+            fo[i] = 0.0
+            mo[i] = 0.0
     else:
-        for i in range(6):
-            out[i] = Y[i] - sub[i]
+        for i in range(3):
+            fo[i] = Yf[i] - sub[i]
+            mo[i] = Ym[i] - sub[3 + i]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -253,16 +258,16 @@ class WrenchObserver:
     Attributes:
         state: the ``(1,)`` state record the compiled step reads and writes (:data:`STATE_DTYPE`; the arrays
             below are views into it).
-        output: (6,) ``[f_ext_W [N]; m_ext_B [N·m]]`` after filtering, bias and zeroing.
-        f_ext_W: (3,) view of the force part of :attr:`output`.
-        m_ext_B: (3,) view of the moment part of :attr:`output`.
-        filtered: (6,) the low-passed estimates ``[f_hat_W; m_hat_B]``, before bias and zeroing.
+        f_ext_W: (3,) the interaction force [N], world frame, after filtering, bias and zeroing (a view).
+        m_ext_B: (3,) the interaction moment [N·m], body frame, likewise (a view).
+        f_filt_W: (3,) the low-passed force estimate ``f_hat_W``, before bias and zeroing (a view).
+        m_filt_B: (3,) the low-passed moment estimate ``m_hat_B``, likewise (a view).
         offset: (6,) the offset captured by the zeroing (zeros until captured or when disabled).
         zeroed: True once the offset is captured (always False without ``zero_at_start``).
     """
 
     state_dtype = STATE_DTYPE
-    log_fields = ("output",)
+    log_fields = ("f_ext_W", "m_ext_B")
     kernel = observer_step
 
     def __init__(
@@ -282,10 +287,10 @@ class WrenchObserver:
         st["settle_s"] = prm.zero_settle_s
         st["window_s"] = prm.zero_window_s
         rec = st[0]
-        self.output = rec["output"]
-        self.f_ext_W = self.output[0:3]
-        self.m_ext_B = self.output[3:6]
-        self.filtered = rec["filtered"]
+        self.f_ext_W = rec["f_ext_W"]
+        self.m_ext_B = rec["m_ext_B"]
+        self.f_filt_W = rec["f_filt_W"]
+        self.m_filt_B = rec["m_filt_B"]
         self.offset = rec["offset"]
         self.reset()
 
@@ -311,6 +316,16 @@ class WrenchObserver:
         return int(self.state["n_nonfinite"][0])
 
     @property
+    def output(self) -> np.ndarray:
+        """(6,) ``[f_ext_W [N]; m_ext_B [N·m]]``, the interaction estimate (a new array)."""
+        return np.r_[self.f_ext_W, self.m_ext_B]
+
+    @property
+    def filtered(self) -> np.ndarray:
+        """(6,) ``[f_filt_W [N]; m_filt_B [N·m]]``, the low-passed estimates before bias and zeroing (a new array)."""
+        return np.r_[self.f_filt_W, self.m_filt_B]
+
+    @property
     def raw(self) -> np.ndarray:
         """(6,) the unfiltered estimates ``[f_hat_W [N]; m_hat_B [N·m]]`` (a new array)."""
         return np.r_[self.state["f_hat_W"][0], self.state["m_hat_B"][0]]
@@ -325,7 +340,7 @@ class WrenchObserver:
             dt: period [s].
 
         Returns:
-            ``(f_ext_W, m_ext_B)``: views of :attr:`output` (overwritten by the next step).
+            ``(f_ext_W, m_ext_B)``: views of the state (overwritten by the next step).
         """
         f64 = np.float64
         type(self).kernel(

@@ -41,7 +41,8 @@ Vec3 = tuple[float, float, float]
 _F8 = np.float64
 STATE_DTYPE = np.dtype(
     [
-        ("w_ref", _F8, 6),  # output [f_ref_W [N]; m_ref_B [N·m]]
+        ("f_ref_W", _F8, 3),  # output: the force reference [N], world frame ...
+        ("m_ref_B", _F8, 3),  # ... and the moment reference [N·m], body frame
         ("errors", _F8, 12),  # e_p_W, e_v_W, e_R_B, e_omega_B of the last step
         ("e_i_W", _F8, 3),  # clamped integral of the position error [m·s]
         ("n_nonfinite", _F8),  # steps with a non-finite input (nothing else changed)
@@ -151,11 +152,11 @@ def pose_step(r, rd, p, v, R, w, f_hat, m_hat, dt: float) -> None:
     dwy = kR[1] * eRy + kw[1] * ewy + ff * (r01 * ax + r11 * ay + r21 * az)
     dwz = kR[2] * eRz + kw[2] * ewz + ff * (r02 * ax + r12 * ay + r22 * az)
     hx, hy, hz = jx * wx, jy * wy, jz * wz  # J omega
-    W = r.w_ref
-    W[0], W[1], W[2] = fx, fy, fz
-    W[3] = wy * hz - wz * hy + jx * dwx - c * mhx
-    W[4] = wz * hx - wx * hz + jy * dwy - c * mhy
-    W[5] = wx * hy - wy * hx + jz * dwz - c * mhz
+    F, M = r.f_ref_W, r.m_ref_B
+    F[0], F[1], F[2] = fx, fy, fz
+    M[0] = wy * hz - wz * hy + jx * dwx - c * mhx
+    M[1] = wz * hx - wx * hz + jy * dwy - c * mhy
+    M[2] = wx * hy - wy * hx + jz * dwz - c * mhz
     er = r.errors
     er[0], er[1], er[2] = epx, epy, epz
     er[3], er[4], er[5] = evx, evy, evz
@@ -220,12 +221,13 @@ class PoseController:
 
     Attributes:
         state: the ``(1,)`` state record the compiled step reads and writes (the arrays below are views).
-        w_ref: (6,) output ``[f_ref_W [N]; m_ref_B [N·m]]``, overwritten by every :meth:`step`.
+        f_ref_W: (3,) output force reference [N], world frame, overwritten by every :meth:`step` (a view).
+        m_ref_B: (3,) output moment reference [N·m], body frame, likewise.
         errors: (12,) the errors of the last step ``[e_p_W [m], e_v_W [m/s], e_R_B [-], e_omega_B [rad/s]]``.
     """
 
     state_dtype = STATE_DTYPE
-    log_fields = ("w_ref", "errors")
+    log_fields = ("f_ref_W", "m_ref_B", "errors")
     kernel = pose_step
 
     def __init__(
@@ -243,13 +245,14 @@ class PoseController:
         for name in ("k_p", "k_v", "k_i", "k_R", "k_omega", "max_pos_error", "max_vel_error", "max_integral"):
             st[name] = getattr(p, name)
         rec = st[0]
-        self.w_ref = rec["w_ref"]
+        self.f_ref_W = rec["f_ref_W"]
+        self.m_ref_B = rec["m_ref_B"]
         self.errors = rec["errors"]
         self._ei = rec["e_i_W"]
 
     def reset(self) -> None:
         """Zero the integral, the outputs and the counter of rejected steps (parameters kept)."""
-        for name in ("w_ref", "errors", "e_i_W", "n_nonfinite"):
+        for name in ("f_ref_W", "m_ref_B", "errors", "e_i_W", "n_nonfinite"):
             self.state[name] = 0.0
 
     @property
@@ -280,7 +283,7 @@ class PoseController:
             dt: control period [s] (integral of the position error).
 
         Returns:
-            :attr:`w_ref`, the (6,) wrench reference ``[f_ref_W; m_ref_B]`` (reused buffer; copy to keep).
+            :attr:`w_ref`, the (6,) wrench reference ``[f_ref_W; m_ref_B]`` (a new array).
         """
         f64 = np.float64
         pose_step(
@@ -295,3 +298,8 @@ class PoseController:
             float(dt),
         )
         return self.w_ref
+
+    @property
+    def w_ref(self) -> np.ndarray:
+        """(6,) ``[f_ref_W [N]; m_ref_B [N·m]]`` of the last step (a new array)."""
+        return np.r_[self.f_ref_W, self.m_ref_B]

@@ -1,7 +1,8 @@
 """Sensor-frame supervision: the first stage of the controller's 1 kHz step (issue 14; SPEC §4.5).
 
-Every packed frame (:mod:`omnirotor.messages`) is checked before the estimator reads it, and the checked copy
-(:attr:`STATE_DTYPE` field ``clean``: the frame without its rotor speeds) is what the estimator gets. A part
+Every frame record (:mod:`omnirotor.messages`) is checked before the estimator reads it, and the checked copy
+(:attr:`STATE_DTYPE` field ``clean``, a :data:`~omnirotor.messages.FRAME_HEAD_DTYPE` record: the frame without
+its rotor speeds) is what the estimator gets. A part
 that fails a check is *rejected*: its cause is a bit of ``cause`` (the ``CAUSE_*`` constants, logged per step
 in the controller log's ``frame_reject`` column and counted per cause in ``counts``), the command of that
 period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by what the controller predicts:
@@ -42,6 +43,13 @@ period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by wha
 * **rotor speeds** (``CAUSE_ROTOR``): a non-finite speed or one beyond the vehicle's limits by more than
   ``rotor_margin`` of the larger limit: the wrench observer takes the last command for that period.
 
+**The real interval.** Every frame closes an interval ``dt_s`` (the state's field): the checked time minus the
+previous checked time, so within ``[min_clock_step_s, max_clock_step_s]``, or the configured period for a
+frame whose time was rejected. The controller's blocks (observer, admittance, pose) integrate over it, so a
+real loop's jitter is integrated as it happened (the UKF takes its own interval from the same times). An
+interval within ``DT_SNAP_S`` (1 ns) of the configured period is taken as the period itself: a simulator's
+evenly spaced frames (``k dt``, whose differences wander by rounding) replay bit for bit.
+
 Re-initialisation (UKF): after a clock reset, or when no motion-capture sample was accepted for
 ``dropout_reinit_s``, the estimator's pose is taken from the next two consecutive valid motion-capture samples
 that agree with each other and pass the jump check (``CAUSE_REINIT`` in the period it happens; :func:`ukf_reinit
@@ -65,19 +73,8 @@ from omnirotor._jit import jit
 from omnirotor.config import check_positive
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.errors import InputError
-from omnirotor.messages import (
-    FRAME_ACC_B,
-    FRAME_GYRO_B,
-    FRAME_HAS_STATE,
-    FRAME_MOCAP_NEW,
-    FRAME_MOCAP_P_W,
-    FRAME_MOCAP_Q_WB,
-    FRAME_MOCAP_T,
-    FRAME_ROTOR_HZ,
-    FRAME_STATE,
-    FRAME_STATE_SIZE,
-    FRAME_T,
-)
+from omnirotor.frame_kernels import clear_mocap, copy_head, copy_state, state_finite
+from omnirotor.messages import ESTIMATE_DTYPE, FRAME_HEAD_DTYPE
 
 __all__ = [
     "SupervisorParams",
@@ -228,13 +225,16 @@ class SupervisorParams:
 
 
 _F8, _I8 = np.float64, np.int64
+DT_SNAP_S = 1e-9
+"""An interval within this of the configured period is taken as the period itself [s] (module docstring)."""
 VEL_RING = 256
 """Length of the ring of states the velocity check keeps (a window of at most 255 periods)."""
 STATE_DTYPE = np.dtype(
     [
         # outputs
-        ("clean", _F8, FRAME_ROTOR_HZ),  # the checked frame without its rotor speeds (what the estimator reads)
+        ("clean", FRAME_HEAD_DTYPE),  # the checked frame without its rotor speeds (what the estimator reads)
         ("cause", _I8),  # CAUSE_* bits of this frame
+        ("dt_s", _F8),  # the interval this frame closes, the blocks integrate over it (module docstring) [s]
         ("counts", _I8, N_CAUSES),  # frames with each cause (CAUSES order)
         ("n_rejected", _I8),  # frames with a rejecting cause
         # parameters
@@ -267,10 +267,11 @@ STATE_DTYPE = np.dtype(
         ("prev_ok", _I8),  # 1: prev_p_W holds the last valid sample (re-init candidate)
         ("prev_p_W", _F8, 3),
         ("prev_t", _F8),
-        ("state_last", _F8, FRAME_STATE_SIZE),  # the last accepted bypass state
+        ("state_last", ESTIMATE_DTYPE),  # the last accepted bypass state
         ("t_state_ok", _F8),  # its controller time [s]
         ("resume_ok", _I8),  # 1: resume_state holds a valid state after the hold timeout (resume candidate)
-        ("resume_state", _F8, 6),  # its p_W, v_W
+        ("resume_p_W", _F8, 3),  # its position [m] ...
+        ("resume_v_W", _F8, 3),  # ... and velocity [m/s]
         ("resume_t", _F8),  # its controller time [s]
         ("resume_window_s", _F8),
         ("vel_tol_m", _F8),
@@ -301,12 +302,12 @@ def reset_supervisor(
     check_state: bool,
     check_mocap: bool,
 ) -> None:
-    """Set the parameters and start from the reset frame (packed); counters cleared.
+    """Set the parameters and start from the reset frame (its record); counters cleared.
 
     Args:
         state: the supervisor's ``(1,)`` record array (:data:`STATE_DTYPE`), e.g. ``controller.state["supervisor"]``.
         params: the limits.
-        frame: the packed reset frame (``frame_size(n)``).
+        frame: the reset frame, a ``(1,)`` frame record (:func:`omnirotor.messages.frame_dtype`).
         dt: control period [s].
         acc_range: accelerometer full scale [m/s²].
         gyro_range: gyroscope full scale [rad/s].
@@ -331,14 +332,16 @@ def reset_supervisor(
     rec["vel_tol_m"] = params.velocity_tol_m
     rec["vel_n"] = min(max(1, round(params.velocity_window_s / dt)), VEL_RING - 1)
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
-    t = float(frame[FRAME_T])
+    f = frame[0]
+    t = float(f["t"])
     rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = t
-    rec["clean"] = frame[:FRAME_ROTOR_HZ]
-    imu = np.r_[frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_GYRO_B : FRAME_GYRO_B + 3]]
+    for name in FRAME_HEAD_DTYPE.names:
+        rec["clean"][name] = f[name]
+    imu = np.r_[f["imu"]["acc_B"], f["imu"]["gyro_B"]]
     rec["imu_last"] = imu if np.all(np.isfinite(imu)) else 0.0
-    state = frame[FRAME_STATE : FRAME_STATE + FRAME_STATE_SIZE]
-    if frame[FRAME_HAS_STATE] != 0.0 and np.all(np.isfinite(state)):
-        rec["state_last"] = state
+    st = f["state"]
+    if st["valid"] != 0.0 and all(np.all(np.isfinite(st[name])) for name in ESTIMATE_DTYPE.names):
+        rec["state_last"] = st
 
 
 def causes_of(cause: int) -> list[str]:
@@ -358,7 +361,7 @@ def _count(sv, cause: int) -> None:
 @jit
 def _check_time(sv, frame, clean) -> int:
     """The time check (module docstring); writes the controller's time into ``clean``; the cause bits."""
-    t_raw = frame[FRAME_T]
+    t_raw = frame.t
     tc = t_raw + sv.offset_s
     d = tc - sv.t_last
     cause = 0
@@ -379,75 +382,69 @@ def _check_time(sv, frame, clean) -> int:
             cause |= CAUSE_CLOCK_RESET
     if math.isfinite(t_raw):
         sv.t_raw_last = t_raw
+    d = tc - sv.t_last
+    sv.dt_s = sv.dt_nom if abs(d - sv.dt_nom) < DT_SNAP_S else d
     sv.t_last = tc
-    clean[FRAME_T] = tc
+    clean.t = tc
     return cause
 
 
 @jit
 def _check_imu(sv, clean) -> int:
     ok = True
+    acc, gyro = clean.imu.acc_B, clean.imu.gyro_B
     for i in range(3):
-        a, g = clean[FRAME_ACC_B + i], clean[FRAME_GYRO_B + i]
+        a, g = acc[i], gyro[i]
         if not (abs(a) <= sv.acc_range and abs(g) <= sv.gyro_range):  # False for NaN
             ok = False
     if ok:
         for i in range(3):
-            sv.imu_last[i] = clean[FRAME_ACC_B + i]
-            sv.imu_last[3 + i] = clean[FRAME_GYRO_B + i]
+            sv.imu_last[i] = acc[i]
+            sv.imu_last[3 + i] = gyro[i]
         return 0
     for i in range(3):
-        clean[FRAME_ACC_B + i] = sv.imu_last[i]
-        clean[FRAME_GYRO_B + i] = sv.imu_last[3 + i]
+        acc[i] = sv.imu_last[i]
+        gyro[i] = sv.imu_last[3 + i]
     return CAUSE_IMU
 
 
 @jit
-def _dist3(x, ox: int, y, oy: int) -> float:
-    d0, d1, d2 = x[ox] - y[oy], x[ox + 1] - y[oy + 1], x[ox + 2] - y[oy + 2]
+def _dist3(x, y) -> float:
+    d0, d1, d2 = x[0] - y[0], x[1] - y[1], x[2] - y[2]
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-
-
-@jit
-def _drop_mocap(clean) -> None:
-    """No sample in ``clean`` (its entries zeroed, as a frame without one is packed)."""
-    for i in range(FRAME_MOCAP_NEW, FRAME_MOCAP_Q_WB + 4):
-        clean[i] = 0.0
 
 
 @jit
 def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     """The motion-capture checks; a rejected sample is dropped from ``clean``. Cause bits, plus ``ACT_REINIT``."""
-    if clean[FRAME_MOCAP_NEW] == 0.0:
+    m = clean.mocap
+    if m.new == 0.0:
         return 0
     if time_bad:  # its time stamp is as suspect as the frame's
-        _drop_mocap(clean)
+        clear_mocap(m)
         return 0
-    tc = clean[FRAME_T]
-    mt = clean[FRAME_MOCAP_T] + sv.offset_s
-    clean[FRAME_MOCAP_T] = mt
-    P, Q = FRAME_MOCAP_P_W, FRAME_MOCAP_Q_WB
-    valid = _ek.mocap_sample_valid(clean[P : P + 3], clean[Q : Q + 4], sv.quat_norm_tol)
+    tc = clean.t
+    mt = m.t + sv.offset_s
+    m.t = mt
+    valid = _ek.mocap_sample_valid(m.p_W, m.q_WB, sv.quat_norm_tol)
     if not (valid and mt <= tc + 0.5 * sv.dt_nom):  # False for a NaN time
-        _drop_mocap(clean)
+        clear_mocap(m)
         sv.prev_ok = 0
         return CAUSE_MOCAP
     if sv.check_mocap == 0:
         return 0
     since = tc - sv.t_mocap_ok
-    if _dist3(clean, P, estimate, 0) > sv.pos_jump_m + sv.max_speed_mps * since:
-        _drop_mocap(clean)  # farther than the vehicle can have flown since the last accepted sample
+    if _dist3(m.p_W, estimate.p_W) > sv.pos_jump_m + sv.max_speed_mps * since:
+        clear_mocap(m)  # farther than the vehicle can have flown since the last accepted sample
         return CAUSE_MOCAP_JUMP
     if sv.reinit != 0 or since > sv.dropout_reinit_s:
         # Re-initialise from two consecutive samples that agree; the first one waits (not fused).
-        agree = sv.prev_ok != 0 and _dist3(clean, P, sv.prev_p_W, 0) <= sv.pos_jump_m + sv.max_speed_mps * (
-            mt - sv.prev_t
-        )
+        agree = sv.prev_ok != 0 and _dist3(m.p_W, sv.prev_p_W) <= sv.pos_jump_m + sv.max_speed_mps * (mt - sv.prev_t)
         for i in range(3):
-            sv.prev_p_W[i] = clean[P + i]
+            sv.prev_p_W[i] = m.p_W[i]
         sv.prev_t = mt
         sv.prev_ok = 1
-        clean[FRAME_MOCAP_NEW] = 0.0
+        m.new = 0.0
         if not agree:
             return 0
         sv.reinit = 0
@@ -459,29 +456,29 @@ def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
 
 
 @jit
-def _proper_rotation(s, o: int, tol: float) -> bool:
-    """True if the row-major 3 x 3 ``s[o:o+9]`` has ``|R^T R - I|`` entries and ``|det R - 1|`` within ``tol``."""
+def _proper_rotation(R, tol: float) -> bool:
+    """True if the 3 x 3 ``R`` has ``|R^T R - I|`` entries and ``|det R - 1|`` within ``tol``."""
     for i in range(3):
         for j in range(i, 3):
-            dot = s[o + i] * s[o + j] + s[o + 3 + i] * s[o + 3 + j] + s[o + 6 + i] * s[o + 6 + j]
+            dot = R[0, i] * R[0, j] + R[1, i] * R[1, j] + R[2, i] * R[2, j]
             if not abs(dot - (1.0 if i == j else 0.0)) <= tol:
                 return False
     det = (
-        s[o] * (s[o + 4] * s[o + 8] - s[o + 5] * s[o + 7])
-        - s[o + 1] * (s[o + 3] * s[o + 8] - s[o + 5] * s[o + 6])
-        + s[o + 2] * (s[o + 3] * s[o + 7] - s[o + 4] * s[o + 6])
+        R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1])
+        - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+        + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0])
     )
     return abs(det - 1.0) <= tol
 
 
 @jit
-def _resume_check(sv, clean, tc: float) -> int:
+def _resume_check(sv, s, tc: float) -> int:
     """After the hold timeout: 0 when the position moved as the velocity says over the resume window."""
-    S = FRAME_STATE
-    r = sv.resume_state
+    rp, rv = sv.resume_p_W, sv.resume_v_W
     if sv.resume_ok == 0:
-        for i in range(6):
-            r[i] = clean[S + i]
+        for i in range(3):
+            rp[i] = s.p_W[i]
+            rv[i] = s.v_W[i]
         sv.resume_t = tc
         sv.resume_ok = 1
         return CAUSE_STATE_JUMP
@@ -490,40 +487,40 @@ def _resume_check(sv, clean, tc: float) -> int:
         return CAUSE_STATE_JUMP
     e2 = 0.0
     for i in range(3):
-        e = clean[S + i] - r[i] - 0.5 * (clean[S + 3 + i] + r[3 + i]) * tau
+        e = s.p_W[i] - rp[i] - 0.5 * (s.v_W[i] + rv[i]) * tau
         e2 += e * e
     if math.sqrt(e2) <= sv.pos_jump_m:
         sv.resume_ok = 0
         return 0
-    for i in range(6):
-        r[i] = clean[S + i]
+    for i in range(3):
+        rp[i] = s.p_W[i]
+        rv[i] = s.v_W[i]
     sv.resume_t = tc
     return CAUSE_STATE_JUMP
 
 
 @jit
-def _check_velocity(sv, clean, tc: float) -> int:
-    """The velocity against the positions (module docstring); subtracts the offset found from ``clean``.
+def _check_velocity(sv, s, tc: float) -> int:
+    """The velocity against the positions (module docstring); subtracts the offset found from the state ``s``.
 
     A ring of the last ``vel_n`` states holds their times, positions and the running integral of the received
     velocities, so the window slides by one frame each period and the offset follows within one window.
     """
-    S = FRAME_STATE
     integral, prev = sv.vel_int_W, sv.vel_prev_W
     if sv.vel_k == 0:
         for i in range(3):
-            integral[i], prev[i] = 0.0, clean[S + 3 + i]
+            integral[i], prev[i] = 0.0, s.v_W[i]
     else:
         h = 0.5 * (tc - sv.vel_t_prev)
         for i in range(3):
-            integral[i] += h * (prev[i] + clean[S + 3 + i])
-            prev[i] = clean[S + 3 + i]
+            integral[i] += h * (prev[i] + s.v_W[i])
+            prev[i] = s.v_W[i]
     sv.vel_t_prev = tc
     size = sv.vel_ring_t.shape[0]
     j = sv.vel_k % size
     sv.vel_ring_t[j] = tc
     for i in range(3):
-        sv.vel_ring_p_W[j, i] = clean[S + i]
+        sv.vel_ring_p_W[j, i] = s.p_W[i]
         sv.vel_ring_int_W[j, i] = integral[i]
     sv.vel_k += 1
     offset = sv.vel_offset_W
@@ -533,7 +530,7 @@ def _check_velocity(sv, clean, tc: float) -> int:
         window = tc - sv.vel_ring_t[o]
         e2 = 0.0
         for i in range(3):
-            offset[i] = (integral[i] - sv.vel_ring_int_W[o, i]) - (clean[S + i] - sv.vel_ring_p_W[o, i])
+            offset[i] = (integral[i] - sv.vel_ring_int_W[o, i]) - (s.p_W[i] - sv.vel_ring_p_W[o, i])
             e2 += offset[i] * offset[i]
         if window > 0.0 and math.sqrt(e2) > sv.vel_tol_m:
             biased = 1
@@ -544,45 +541,40 @@ def _check_velocity(sv, clean, tc: float) -> int:
             offset[i] = 0.0
         return 0
     for i in range(3):
-        clean[S + 3 + i] -= offset[i]
+        s.v_W[i] -= offset[i]
     return CAUSE_STATE_VELOCITY
 
 
 @jit
 def _check_state(sv, clean, time_bad: bool) -> int:
     """The bypass state's checks; a rejected state is replaced by the prediction (module docstring)."""
-    if clean[FRAME_HAS_STATE] == 0.0:
+    s = clean.state
+    if s.valid == 0.0:
         return 0  # missing: the bypass estimator holds its last state, flagged degraded
-    S = FRAME_STATE
-    tc = clean[FRAME_T]
+    tc = clean.t
     tau = tc - sv.t_state_ok
     last = sv.state_last
-    finite = True
-    for i in range(FRAME_STATE_SIZE):
-        if not math.isfinite(clean[S + i]):
-            finite = False
     cause = 0
     flag = 0  # informs, the state is used (a velocity offset subtracted)
-    if not (finite and _proper_rotation(clean, S + 9, sv.rotation_tol)):
+    if not (state_finite(s) and _proper_rotation(s.R_WB, sv.rotation_tol)):
         cause = CAUSE_STATE
         sv.resume_ok = 0
     elif not time_bad and tau > sv.hold_timeout_s:
-        cause = _resume_check(sv, clean, tc)
+        cause = _resume_check(sv, s, tc)
         sv.vel_k = 0  # after a loss the velocity check starts afresh
     elif not time_bad:
         dp = 0.0
         for i in range(3):
-            e = clean[S + i] - last[i] - last[3 + i] * tau
+            e = s.p_W[i] - last.p_W[i] - last.v_W[i] * tau
             dp += e * e
         if math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau:
             cause = CAUSE_STATE_JUMP
         else:
-            flag = _check_velocity(sv, clean, tc)
-            if _dist3(clean, S + 3, last, 3) > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
+            flag = _check_velocity(sv, s, tc)
+            if _dist3(s.v_W, last.v_W) > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
                 cause = CAUSE_STATE_JUMP
     if cause == 0 and not time_bad:
-        for i in range(FRAME_STATE_SIZE):
-            last[i] = clean[S + i]
+        copy_state(s, last)
         sv.t_state_ok = tc
         return flag
     if cause == 0:
@@ -591,20 +583,20 @@ def _check_state(sv, clean, time_bad: bool) -> int:
     if tau > sv.hold_timeout_s:
         cause |= CAUSE_HOLD_TIMEOUT
     for i in range(3):
-        clean[S + i] = last[i]
-        clean[S + 3 + i] = 0.0
-        clean[S + 6 + i] = 0.0
-        clean[S + 18 + i] = 0.0
-    for i in range(9):
-        clean[S + 9 + i] = last[9 + i]
+        s.p_W[i] = last.p_W[i]
+        s.v_W[i] = 0.0
+        s.a_W[i] = 0.0
+        s.omega_B[i] = 0.0
+        for j in range(3):
+            s.R_WB[i, j] = last.R_WB[i, j]
     return cause
 
 
 @jit
-def _check_rotors(sv, frame) -> int:
+def _check_rotors(sv, rotor_hz) -> int:
     lo, hi = sv.rotor_lo_hz, sv.rotor_hi_hz
-    for i in range(FRAME_ROTOR_HZ, frame.shape[0]):
-        w = frame[i]
+    for i in range(rotor_hz.shape[0]):
+        w = rotor_hz[i]
         if not (lo <= w <= hi):  # False for NaN
             return CAUSE_ROTOR
     return 0
@@ -612,30 +604,29 @@ def _check_rotors(sv, frame) -> int:
 
 @jit
 def supervise(sv, frame, estimate) -> int:
-    """Check one packed frame (module docstring): ``sv.clean`` gets the checked frame, ``sv.cause`` the causes.
+    """Check one frame record (module docstring): ``sv.clean`` gets the checked frame, ``sv.cause`` the causes.
 
     Args:
         sv: the supervisor's record (:data:`STATE_DTYPE`), updated.
-        frame: the packed frame as received (not modified).
-        estimate: (21,) the estimate of the previous period (p_W first), the prediction motion capture is
-            checked against.
+        frame: the frame record as received (not modified).
+        estimate: the estimate record of the previous period (:data:`~omnirotor.messages.ESTIMATE_DTYPE`),
+            the prediction motion capture is checked against.
 
     Returns:
         The cause bits, plus ``ACT_REINIT`` when the UKF is to re-initialise from ``sv.clean``'s
         motion-capture position and quaternion (which then stays dropped from the normal fusion).
     """
     clean = sv.clean
-    for i in range(FRAME_ROTOR_HZ):
-        clean[i] = frame[i]
+    copy_head(frame, clean)
     cause = _check_time(sv, frame, clean)
     time_bad = (cause & CAUSE_TIME) != 0
     cause |= _check_imu(sv, clean)
     cause |= _check_mocap(sv, clean, estimate, time_bad)
-    if sv.check_mocap != 0 and clean[FRAME_T] - sv.t_mocap_ok > sv.dropout_reinit_s:
+    if sv.check_mocap != 0 and clean.t - sv.t_mocap_ok > sv.dropout_reinit_s:
         sv.reinit = 1
     if sv.check_state != 0:
         cause |= _check_state(sv, clean, time_bad)
-    cause |= _check_rotors(sv, frame)
+    cause |= _check_rotors(sv, frame.rotor_hz)
     code = cause & (ACT_REINIT - 1)
     sv.cause = code
     if code != 0:

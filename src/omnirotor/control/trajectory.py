@@ -43,7 +43,10 @@ __all__ = [
     "ATTITUDE_PROFILES",
     "ROTATION_TOLERANCE",
     "REFERENCE_DTYPE",
+    "SEGMENT_DTYPE",
     "trajectory_sample",
+    "segment_sample",
+    "start_segment",
 ]
 
 ATTITUDE_PROFILES = ("quintic", "cubic")
@@ -369,3 +372,112 @@ class PoseTrajectory:
     def __call__(self, t: float) -> ReferenceSample:
         """A freshly allocated sample at time ``t`` [s] (convenience; use :meth:`sample` in loops)."""
         return self.sample(t, ReferenceSample())
+
+
+# -- a segment from a moving reference (the in-flight set-point) -----------------------------------------------
+
+SEGMENT_DTYPE = np.dtype(
+    [
+        ("active", np.int64),  # 1: the desired reference is this segment's (from t0 on), not the trajectory's
+        ("t0", _F8),  # controller time the segment starts at [s]
+        ("T", _F8),  # its duration [s]
+        ("p0_W", _F8, 3),  # start position [m] ...
+        ("v0_W", _F8, 3),  # ... velocity [m/s] ...
+        ("a0_W", _F8, 3),  # ... and acceleration [m/s²]: those of the reference it replaces
+        ("dp_W", _F8, 3),  # target position minus start position [m]
+        ("R0_WB", _F8, (3, 3)),  # start attitude
+        ("axis_W", _F8, 3),  # unit axis of the rotation to the target attitude, world frame
+        ("theta", _F8),  # its angle [rad]
+    ]
+)
+"""A minimum-jerk segment from a moving reference to a pose at rest (:func:`segment_sample`)."""
+
+
+@jit
+def segment_sample(g, t: float, out) -> None:
+    """The reference of segment ``g`` (:data:`SEGMENT_DTYPE`) at controller time ``t`` [s] into record ``out``.
+
+    Position: the quintic that leaves ``p0`` with the velocity ``v0`` and acceleration ``a0`` of the reference
+    it replaces and reaches ``p0 + dp`` at rest after ``T``: the rest-to-rest minimum-jerk term ``s(tau) dp``
+    plus the quintic Hermite terms ``h1(t) v0 + h2(t) a0``, which carry the initial rates and vanish with their
+    first two derivatives at ``T``. So position, velocity and acceleration are continuous where the segment
+    takes over. Attitude: the geodesic from ``R0`` to the target with the same quintic time scaling (its
+    angular velocity starts at zero). From ``T`` on, the target pose is held at rest.
+    """
+    T = g.T
+    tt = t - g.t0
+    if tt < 0.0:
+        tt = 0.0
+    if tt > T:
+        tt = T
+    tau = tt / T
+    tau2 = tau * tau
+    tau3 = tau2 * tau
+    s = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
+    sd = 30.0 * tau2 * (1.0 - tau) * (1.0 - tau) / T
+    sdd = 60.0 * tau * (1.0 - 3.0 * tau + 2.0 * tau2) / (T * T)
+    # The Hermite terms of the initial velocity (h1) and acceleration (h2), in t' = t - t0.
+    x, x2, T2, T3 = tt, tt * tt, T * T, T * T * T
+    x3, x4 = x2 * x, x2 * x2
+    h1 = x - 6.0 * x3 / T2 + 8.0 * x4 / T3 - 3.0 * x4 * x / (T2 * T2)
+    h1d = 1.0 - 18.0 * x2 / T2 + 32.0 * x3 / T3 - 15.0 * x4 / (T2 * T2)
+    h1dd = -36.0 * x / T2 + 96.0 * x2 / T3 - 60.0 * x3 / (T2 * T2)
+    h2 = 0.5 * x2 - 1.5 * x3 / T + 1.5 * x4 / T2 - 0.5 * x4 * x / T3
+    h2d = x - 4.5 * x2 / T + 6.0 * x3 / T2 - 2.5 * x4 / T3
+    h2dd = 1.0 - 9.0 * x / T + 18.0 * x2 / T2 - 10.0 * x3 / T3
+    for i in range(3):
+        dp, v0, a0 = g.dp_W[i], g.v0_W[i], g.a0_W[i]
+        out.p_W[i] = g.p0_W[i] + s * dp + h1 * v0 + h2 * a0
+        out.v_W[i] = sd * dp + h1d * v0 + h2d * a0
+        out.a_W[i] = sdd * dp + h1dd * v0 + h2dd * a0
+    # R = exp(s theta [k]x) R0 (Rodrigues), omega = k theta s', alpha = k theta s''.
+    k = g.axis_W
+    ang = g.theta * s
+    sn, vs = math.sin(ang), 1.0 - math.cos(ang)
+    k0, k1, k2 = k[0], k[1], k[2]
+    for j in range(3):
+        r0, r1, r2 = g.R0_WB[0, j], g.R0_WB[1, j], g.R0_WB[2, j]
+        c0 = k1 * r2 - k2 * r1  # k x r (the column of K R0)
+        c1 = k2 * r0 - k0 * r2
+        c2 = k0 * r1 - k1 * r0
+        d0 = k1 * c2 - k2 * c1  # k x (k x r) (the column of K² R0)
+        d1 = k2 * c0 - k0 * c2
+        d2 = k0 * c1 - k1 * c0
+        out.R_WB[0, j] = r0 + sn * c0 + vs * d0
+        out.R_WB[1, j] = r1 + sn * c1 + vs * d1
+        out.R_WB[2, j] = r2 + sn * c2 + vs * d2
+    for i in range(3):
+        out.omega_W[i] = k[i] * g.theta * sd
+        out.alpha_W[i] = k[i] * g.theta * sdd
+
+
+def start_segment(
+    segment: np.ndarray, current: ReferenceSample, t0: float, p_W: np.ndarray, R_WB: np.ndarray, duration_s: float
+) -> None:
+    """Start a segment (:data:`SEGMENT_DTYPE`, a ``(1,)`` array) at controller time ``t0`` from ``current``.
+
+    The segment leaves the pose, velocity and acceleration of the reference ``current`` and reaches the pose
+    ``(p_W, R_WB)`` at rest after ``duration_s`` (:func:`segment_sample`).
+
+    Raises:
+        InputError: a target that is not a finite position and a proper rotation, or a duration that is not
+            positive and finite.
+    """
+    p = np.asarray(p_W, dtype=float)
+    R = np.asarray(R_WB, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError("segment target p_W must be a finite 3-vector")
+    _check_rotation(R, "segment target")
+    if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0.0):
+        raise InputError(f"segment duration_s must be positive and finite, got {duration_s!r}")
+    R0 = np.array(current.R_WB, dtype=float)
+    phi_W = R0 @ log_so3(R0.T @ R)  # the rotation to the target, world frame (R = exp([phi_W]x) R0)
+    theta = float(np.linalg.norm(phi_W))
+    g = segment[0]
+    g["t0"], g["T"] = float(t0), float(duration_s)
+    g["p0_W"], g["v0_W"], g["a0_W"] = current.p_W, current.v_W, current.a_W
+    g["dp_W"] = p - current.p_W
+    g["R0_WB"] = R0
+    g["axis_W"] = phi_W / theta if theta > 0.0 else 0.0
+    g["theta"] = theta
+    g["active"] = 1

@@ -48,10 +48,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from omnirotor.config import apply_overrides, check_finite, check_positive
+from omnirotor.config import apply_overrides, apply_values, check_finite, check_positive
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
 from omnirotor.messages import ControlStatus
@@ -213,6 +214,8 @@ class PlantPerturbation:
         inertia_scale: (3,) true principal inertia over the believed one, per axis.
         scene_offset_W: (3,) the true scene's displacement from the planned one [m] (walls, pipe, hole).
         sim_overrides: dotted ``key=value`` overrides of the simulator parameters seen by the plant only.
+        sim_values: ``(dotted key, value)`` pairs set on those parameters after ``sim_overrides``, typed (a
+            campaign's drawn values: :func:`omnirotor.config.apply_values`).
         faults: the fault schedule.
     """
 
@@ -220,6 +223,7 @@ class PlantPerturbation:
     inertia_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     scene_offset_W: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sim_overrides: tuple[str, ...] = ()
+    sim_values: tuple[tuple[str, Any], ...] = ()
     faults: tuple[Fault, ...] = ()
 
     def __post_init__(self) -> None:
@@ -250,7 +254,7 @@ class PlantPerturbation:
         return dataclasses.replace(believed, mass=believed.mass * self.mass_scale, inertia_diag=J)
 
     def sim_params(self, believed: SimParams) -> SimParams:
-        """The true simulator parameters: the scene moved by ``scene_offset_W``, then ``sim_overrides``."""
+        """The true simulator parameters: the scene moved by ``scene_offset_W``, then the overrides and values."""
         params = believed
         if any(self.scene_offset_W):
             d = self.scene_offset_W
@@ -259,7 +263,7 @@ class PlantPerturbation:
                 for name in _SCENE_POINTS
             }
             params = dataclasses.replace(params, scene=dataclasses.replace(params.scene, **moved))
-        return apply_overrides(params, list(self.sim_overrides))
+        return apply_values(apply_overrides(params, list(self.sim_overrides)), self.sim_values)
 
 
 def install_faults(sim: Simulator, faults: Sequence[Fault] = (), controller=None) -> Simulator:

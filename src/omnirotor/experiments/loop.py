@@ -206,7 +206,7 @@ def _run_compiled(
 
     log = controller.log
     cmd = controller.kernel_command  # the command array the compiled step writes and the simulator reads
-    frame = sim.packed_frame
+    frame = sim.frame_record
     ts = np.zeros(2, dtype=np.int64)  # the compiled clock's scratch
     k0_sim = sim.step_index
     k = 0

@@ -58,6 +58,12 @@ from omnirotor.so3 import R_from_quat_wxyz, R_from_rpy, quat_wxyz_from_R, rpy_fr
 __all__ = ["FlightDirector", "LinkAges"]
 
 _M = FlightMode
+# Cause bits as plain ints: an IntFlag operation builds an enum member, some microseconds per period.
+_NO_COMMAND = int(Cause.NO_COMMAND)
+_NONFINITE_COMMAND = int(Cause.NONFINITE_COMMAND)
+_LAND_TIMEOUT = int(Cause.LAND_TIMEOUT)
+_CONTROLLER_ERROR = int(Cause.CONTROLLER_ERROR)
+_sum = np.add.reduce  # the ufunc itself: ndarray.sum's Python wrapper costs more than the sum of 8 speeds
 # What output() sends this period (decided by on_frame).
 _ZERO, _IDLE, _FIRST, _STEP = range(4)
 
@@ -106,8 +112,8 @@ class FlightDirector:
         self._idle = np.full(self._n, min(max(p.idle_hz, self._lo), self._hi))
         self.mode = _M.DISARMED
         self.failsafe = Failsafe.NONE  # the level reached in the current incident
-        self.cause = Cause.NONE  # what is wrong now
-        self._sticky = Cause.NONE  # causes of this period from output() (bad commands), shown until the next
+        self.cause = 0  # Cause bits of what is wrong now
+        self._sticky = 0  # Cause bits of this period from output() (bad commands), shown until the next
         self._plan = _ZERO
         self._t = math.nan  # time of the last frame [s]
         self._mocap_p = np.full(3, math.nan)
@@ -152,8 +158,8 @@ class FlightDirector:
             self._mocap_q[:] = frame.mocap_q_WB
             self._have_mocap = True
         level, cause = self._monitor.level(ages)
-        self.cause = cause | self._sticky
-        self._sticky = Cause.NONE
+        self.cause = int(cause) | self._sticky
+        self._sticky = 0
         if level == Failsafe.STOP:
             if self.mode != _M.DISARMED:
                 self._failsafe_action(Failsafe.STOP, "frames stopped: rotors stopped, disarmed")
@@ -168,13 +174,13 @@ class FlightDirector:
             traj, self._pending = self._pending, None
             try:
                 self.inflight.start(frame, traj)
-            except InputError as exc:  # the controller refused the frame: stay on the ground
-                self.cause |= Cause.CONTROLLER_ERROR
+                self._first[:] = self.controller.hold_command(t_frame).omega_hz
+            except Exception as exc:  # noqa: BLE001  (the controller refused the frame: stay on the ground, say why)
+                self.cause |= _CONTROLLER_ERROR
                 self.message = f"controller refused the take-off frame: {exc}"
                 self._disarm()
                 self._plan = _ZERO
                 return
-            self._first[:] = self.controller.hold_command(t_frame).omega_hz
             self._plan = _FIRST
             return
         if self.mode in FLYING:
@@ -205,18 +211,19 @@ class FlightDirector:
         plan = self._plan
         if plan == _STEP:
             if cmd is None:
-                self._sticky |= Cause.NO_COMMAND
+                self._sticky |= _NO_COMMAND
                 self.counts["bad_commands"] += 1
             else:
                 hz = cmd.omega_hz
-                if np.shape(hz) == out.shape and np.isfinite(hz).all():
+                if type(hz) is np.ndarray and hz.shape == out.shape and math.isfinite(_sum(hz)):  # NaN, inf: sum too
                     np.copyto(out, hz)
                 else:
-                    self._sticky |= Cause.NONFINITE_COMMAND
+                    self._sticky |= _NONFINITE_COMMAND
                     self.counts["bad_commands"] += 1
                 self.counts["steps"] += 1
                 self._control_status = int(cmd.status)
-            np.clip(out, self._lo, self._hi, out=out)
+            np.maximum(out, self._lo, out=out)
+            np.minimum(out, self._hi, out=out)
         elif plan == _FIRST:
             np.clip(self._first, self._lo, self._hi, out=out)
             self._plan = _STEP  # a second output() in the same period sends the same
@@ -239,9 +246,10 @@ class FlightDirector:
         before = self.mode
         try:
             r = request_from(req)
-        except InputError as exc:
+        except Exception as exc:  # noqa: BLE001  (anything that is not a request is refused, never raised)
             self.counts["refused"] += 1
-            return FlightReply(False, "status", before, before, str(exc))
+            why = str(exc) if isinstance(exc, InputError) else f"malformed flight request: {type(exc).__name__}"
+            return FlightReply(False, "status", before, before, why)
         try:
             why = self._check(r)
             if why is None:
@@ -250,6 +258,9 @@ class FlightDirector:
                     why = str(done)
         except InputError as exc:  # a bad value, or the controller refused the change
             why = str(exc)
+        except Exception as exc:  # noqa: BLE001  (never raised to the loop; said in the reply and the status)
+            why = f"internal error: {type(exc).__name__}: {exc}"
+            self.cause |= _CONTROLLER_ERROR
         if why is not None:
             self.counts["refused"] += 1
             return FlightReply(False, r.kind, before, self.mode, why)
@@ -276,7 +287,7 @@ class FlightDirector:
     def _do_arm(self, r: FlightRequest) -> _Refused | str:
         if not self._estimate_valid():
             return _Refused("no valid estimate (motion capture and IMU must be fresh and finite)")
-        if self.cause != Cause.NONE:
+        if self.cause:
             return _Refused(f"links not healthy ({_cause_text(self.cause)})")
         self._ground_p[:] = self._mocap_p
         self._ground_R[:] = R_from_quat_wxyz(self._mocap_q)
@@ -443,8 +454,8 @@ class FlightDirector:
             self._td_since = math.nan
         if t - self._landed_at >= p.land_timeout_s:
             self._disarm()
-            self.cause |= Cause.LAND_TIMEOUT
-            self._sticky |= Cause.LAND_TIMEOUT
+            self.cause |= _LAND_TIMEOUT
+            self._sticky |= _LAND_TIMEOUT
             self.message = f"landed: no touchdown within {p.land_timeout_s:g} s, disarmed"
 
     def _hold(self) -> str:
@@ -532,8 +543,8 @@ class FlightDirector:
             elif level == Failsafe.LAND and self.mode != _M.LAND:
                 self._land()
                 self._failsafe_action(level, f"failsafe land ({why})")
-        except InputError as exc:  # the controller refused the change: stop trying, say so
-            self.cause |= Cause.CONTROLLER_ERROR
+        except Exception as exc:  # noqa: BLE001  (the controller refused the change: stop trying, say so)
+            self.cause |= _CONTROLLER_ERROR
             self.message = f"failsafe {level.name.lower()} failed: {exc}"
 
     def _failsafe_action(self, level: Failsafe, message: str) -> None:
@@ -588,12 +599,12 @@ class FlightDirector:
         s = f"mode {self.mode.label}, preset {self.preset}, map {self.inflight.map_mode}"
         if self.mode == _M.CONTACT:
             s += f", depth {self._depth:.3f} m"
-        if self.failsafe != Failsafe.NONE or self.cause != Cause.NONE:
+        if self.failsafe != Failsafe.NONE or self.cause:
             s += f", failsafe {self.failsafe.name.lower()} ({_cause_text(self.cause)})"
         return s + f"; {self.message}"
 
 
-_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight retarget API); the landing goes on"
+_NO_ABORT = "landing: this controller cannot stop a segment midway (no in-flight move_to); the landing goes on"
 
 
 class _Refused(str):

@@ -26,7 +26,11 @@ one, or when its frame was missed; an *overrun* is a period whose work took long
 the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in the summary on exit.
 
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
-it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 1 s.
+it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
+
+A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
+counted bad and dropped (a repeated start frame, a replay, a forged or corrupted number that would otherwise
+lock the real frames out); after a link loss any number is followed again.
 
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
@@ -49,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import SensorFrame, frame_size
+from omnirotor.messages import SensorFrame, new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -94,6 +98,10 @@ _STATE_ARMED = 1
 _STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
 _SPIN_S = 0.0003
+MAX_FRAME_JUMP = 1000
+"""The largest step of the frame number the loop follows (a second of frames); larger ones count as bad."""
+_LATE_POLL_S = 0.00005
+_FRAME_DEPTH = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,7 +124,7 @@ class NodeOptions:
     period_s: float = 0.001
     lockstep: bool = False
     link_loss_s: float = 0.05
-    lockstep_link_loss_s: float = 1.0
+    lockstep_link_loss_s: float = 5.0
     late_threshold_s: float = 0.0005
     status_hz: float = 50.0
     wrench_every: int = 10
@@ -242,13 +250,21 @@ class NodeLoop:
         self.session_id = secrets.randbits(63) | 1
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
-        self._packed = np.zeros(frame_size(n))
-        self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=8, check=frame_check(n))
+        self._record = new_frame(n)
+        shape_ok = frame_check(n)
+
+        def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
+            last = self._last_seq
+            return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
+
+        self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
         self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
-        self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND)
+        self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND, block=o.lockstep)
         self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
         self._pub_wrench = transport.publisher(TOPICS["wrench_est"], WRENCH)
-        self._pub_rows = transport.publisher(TOPICS["controller_log"], CONTROLLER_LOG) if o.log_rows else None
+        self._pub_rows = (
+            transport.publisher(TOPICS["controller_log"], CONTROLLER_LOG, block=True) if o.log_rows else None
+        )
         self._pub_status = None
         self._flight_status_type = None
         T = typestore().types
@@ -379,6 +395,7 @@ class NodeLoop:
         next_status = 0.0
         next_gap_call = math.inf
         steps = 0
+        cpu0 = time.process_time()
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -386,8 +403,7 @@ class NodeLoop:
             while not stop.is_set() and not self.finished:
                 msg = frames.take_latest()
                 now = mono()
-                if msg is not None and msg.seq <= last_seq:
-                    msg = None  # a repeated start frame, or an older one
+
                 if msg is None:
                     if self._idle(now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call):
                         next_gap_call = now + period
@@ -405,14 +421,14 @@ class NodeLoop:
                 if self.link_lost:
                     self.link_lost = False
                     self._say("frames are back")
-                if last_seq >= 0 and msg.seq > last_seq + 1:
+                elif last_seq >= 0 and msg.seq > last_seq + 1:
                     stats.skipped(int(msg.seq - last_seq - 1))
                 arrival_late = 0.0
                 if not o.lockstep and math.isfinite(last_arrival):
                     arrival_late = max(0.0, arrival - last_arrival - period)
                 last_seq = self._last_seq = int(msg.seq)
                 stats.frames += 1
-                frame = SensorFrame.from_packed(unpack_frame(msg, self._packed))
+                frame = SensorFrame.from_record(unpack_frame(msg, self._record))
                 self.last_t = frame.t
                 if frame.mocap_new:
                     last_mocap_t = frame.mocap_t
@@ -456,6 +472,8 @@ class NodeLoop:
             gc.unfreeze()
         self._publish_status()
         out = stats.summary()
+        out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
+        out["frames_bad"] = self._frames.n_bad
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
@@ -508,8 +526,10 @@ class NodeLoop:
         left = due - now - _SPIN_S
         if left > 0:
             time.sleep(min(left, period))
+        elif now < due + _SPIN_S:
+            time.sleep(0)  # the frame is due: poll
         else:
-            time.sleep(0)
+            time.sleep(_LATE_POLL_S)  # it is late: poll, but leave the CPU to the threads that deliver it
 
 
 def warm_up(controller) -> None:
@@ -607,7 +627,7 @@ def fly_mission(
         controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
         warm_up(controller)
         node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
-        if realtime is not None:
+        if realtime is not None and not node_options.lockstep:  # lockstep polls without pause: no real-time class
             realtime()
         raise _MissionFlown(node.run())
 

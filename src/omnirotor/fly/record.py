@@ -117,16 +117,19 @@ class FlightRecorder:
         self.dtype = record_dtype(n_rotors, len(log_columns))
         self._shm = SharedMemory(create=True, size=self.dtype.itemsize * self.capacity)
         self._ring = np.ndarray((self.capacity,), dtype=self.dtype, buffer=self._shm.buf)
+        self._fields = {name: self._ring[name] for name in self.dtype.names}
         ctx = mp.get_context("spawn")  # never fork a process with the transport's threads
-        self._head = ctx.Value("q", 0)  # rows written by the loop (its lock is the memory barrier)
-        self._tail = ctx.Value("q", 0, lock=False)  # rows taken by the writer
+        self._head = ctx.Value("q", 0, lock=False)  # rows written by the loop, published under _publish
+        self._publish = ctx.Lock()  # taken around the head's update and read: the memory barrier both sides need
+        self._tail = ctx.Value("q", 0, lock=False)  # rows taken by the writer (a stale read only drops early)
+        self._written = 0
         self.dropped = 0
         self._seq = 0
         self._status: Any = ctx.Queue(maxsize=256)
         self._stop = ctx.Event()
         self._result: Any = ctx.Queue()
-        args = (self._shm.name, self.dtype.descr, self.capacity, self._head, self._tail, self._status, self._stop,
-                self._result, str(path), list(log_columns), derived_every)  # fmt: skip
+        args = (self._shm.name, self.dtype.descr, self.capacity, self._head, self._publish, self._tail,
+                self._status, self._stop, self._result, str(path), list(log_columns), derived_every)  # fmt: skip
         self._proc = ctx.Process(target=_writer_main, args=args, name="omnirotor-recorder", daemon=True)
         self._proc.start()
         self._closed = False
@@ -139,35 +142,34 @@ class FlightRecorder:
         Returns:
             True if recorded.
         """
-        head = self._head.value
+        head = self._written
         while head - self._tail.value >= self.capacity:
             if not block or not self._proc.is_alive():
                 self.dropped += 1
                 return False
             time.sleep(0.001)
-        r = self._ring[head % self.capacity]
+        i = head % self.capacity
+        f = self._fields  # one view per field of the ring: an indexed store each, no record object
         self._seq += 1
-        r["seq"] = self._seq
-        r["t"] = frame.t
-        r["acc_B"] = frame.imu_acc_B
-        r["gyro_B"] = frame.imu_gyro_B
-        r["rotor_hz"] = frame.rotor_hz
-        if frame.mocap_new and frame.mocap_p_W is not None and frame.mocap_q_WB is not None:
-            r["mocap_new"] = 1
-            r["mocap_t"] = frame.mocap_t
-            r["mocap_p_W"] = frame.mocap_p_W
-            r["mocap_q_WB"] = frame.mocap_q_WB
-        else:
-            r["mocap_new"] = 0
-        r["cmd_hz"] = cmd_hz
-        r["control_status"] = control_status
-        r["armed"] = 1 if np.any(cmd_hz != 0.0) else 0
+        f["seq"][i] = self._seq
+        f["t"][i] = frame.t
+        f["acc_B"][i] = frame.imu_acc_B
+        f["gyro_B"][i] = frame.imu_gyro_B
+        f["rotor_hz"][i] = frame.rotor_hz
+        mocap = frame.mocap_new and frame.mocap_p_W is not None and frame.mocap_q_WB is not None
+        f["mocap_new"][i] = mocap
+        if mocap:
+            f["mocap_t"][i] = frame.mocap_t
+            f["mocap_p_W"][i] = frame.mocap_p_W
+            f["mocap_q_WB"][i] = frame.mocap_q_WB
+        f["cmd_hz"][i] = cmd_hz
+        f["control_status"][i] = control_status
+        f["armed"][i] = cmd_hz.any()
+        f["has_log"][i] = log_row is not None
         if log_row is not None:
-            r["log"] = log_row
-            r["has_log"] = 1
-        else:
-            r["has_log"] = 0
-        with self._head.get_lock():
+            f["log"][i] = log_row
+        self._written = head + 1
+        with self._publish:
             self._head.value = head + 1
         return True
 
@@ -236,7 +238,9 @@ def _stamp(store, t: float):
     return store.types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
-def _writer_main(shm_name, descr, capacity, head, tail, status_q, stop, result_q, path, columns, every) -> None:
+def _writer_main(
+    shm_name, descr, capacity, head, publish, tail, status_q, stop, result_q, path, columns, every
+) -> None:
     """Drain the ring into the bag until stopped and drained; put a summary (or an error) on ``result_q``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -275,11 +279,16 @@ def _writer_main(shm_name, descr, capacity, head, tail, status_q, stop, result_q
 
         zeros21 = np.zeros(21)
         taken = 0
+
+        def published() -> int:
+            with publish:
+                return head.value
+
         while True:
-            h = head.value
+            h = published()
             if taken == h:
                 _drain_status(status_q, put)
-                if stop.is_set() and head.value == taken:
+                if stop.is_set() and published() == taken:
                     break
                 time.sleep(0.002)
                 continue

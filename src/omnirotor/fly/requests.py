@@ -27,6 +27,16 @@ CTL_TOPIC = "/omnirotor/ctl"
 _NAN = math.nan
 
 
+def _header(t: float, frame_id: str) -> Any:
+    """A ``std_msgs/msg/Header`` stamped ``t`` [s] (>= 0)."""
+    from omnirotor.rosmsg import msg_type
+
+    sec = int(t)
+    nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
+    return msg_type("std_msgs/msg/Header")(stamp=msg_type("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec),
+                                           frame_id=frame_id)  # fmt: skip
+
+
 def _msg(type_name: str, fields: dict[str, Any]) -> Any:
     """A message object of ``omnirotor_msgs/msg/<type_name>`` from the shipped definitions (rosbags)."""
     from omnirotor.rosmsg import msg_type
@@ -260,24 +270,18 @@ class FlightStatus:
     bad_commands: int
     message: str
 
-    def to_fields(self) -> dict[str, Any]:
-        """The fields of the ROS message (without its header)."""
+    def to_fields(self, frame_id: str = "") -> dict[str, Any]:
+        """The keyword arguments of the ROS message class: nested Setpoint and the header as message objects."""
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         d["mode"] = int(self.mode)
-        d["target"] = (self.target or Setpoint((_NAN, _NAN, _NAN))).to_fields()
+        d["target"] = (self.target or Setpoint((_NAN, _NAN, _NAN))).to_msg()
+        t = self.t if math.isfinite(self.t) and self.t >= 0.0 else 0.0
+        d["header"] = _header(t, frame_id)
         return d
 
     def to_msg(self, frame_id: str = "") -> Any:
         """The ``omnirotor_msgs/msg/FlightStatus`` message object (rosbags), stamped with :attr:`t`."""
-        from omnirotor.rosmsg import msg_type
-
-        f = self.to_fields()
-        f["target"] = (self.target or Setpoint((_NAN, _NAN, _NAN))).to_msg()
-        t = self.t if math.isfinite(self.t) and self.t >= 0.0 else 0.0
-        sec = int(t)
-        stamp = msg_type("builtin_interfaces/msg/Time")(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
-        f["header"] = msg_type("std_msgs/msg/Header")(stamp=stamp, frame_id=frame_id)
-        return _msg("FlightStatus", f)
+        return _msg("FlightStatus", self.to_fields(frame_id))
 
     @classmethod
     def from_msg(cls, m: Any) -> FlightStatus:

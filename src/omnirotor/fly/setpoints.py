@@ -7,8 +7,9 @@ takes the shortest ``T`` that keeps speed, acceleration and angular rate within 
 
 In-flight API. :class:`InFlight` is what the director calls to change the controller's reference in flight
 (a minimum-jerk segment to a new pose, the admittance parameters, the map mode). It uses the controller's
-own in-flight methods where the controller has them (``retarget``, ``set_admittance``, ``set_map_mode``:
-segments that start from the current desired reference with its velocity and acceleration). On a
+own in-flight methods where the controller has them (``InteractionController.move_to``, ``set_admittance``,
+``set_map_mode``: a segment that starts from the current desired reference with its velocity and
+acceleration). On a
 controller without them it falls back to what a rest-to-rest trajectory allows: the new pose is appended
 after the segment the reference is flying (so the reference stays smooth; a goto given mid-segment starts
 when that segment ends), the admittance parameters are written into the filter's parameter fields (its
@@ -81,7 +82,7 @@ class InFlight:
     def __init__(self, controller) -> None:
         self.controller = controller
         self.t0 = 0.0
-        self._native_retarget = getattr(controller, "retarget", None)
+        self._native_move = getattr(controller, "move_to", None)
         self._native_admittance = getattr(controller, "set_admittance", None)
         self._native_map = getattr(controller, "set_map_mode", None)
         self._sample = ReferenceSample()
@@ -89,7 +90,7 @@ class InFlight:
     @property
     def native(self) -> bool:
         """True if the controller has its own in-flight segment API (continuous velocity and acceleration)."""
-        return self._native_retarget is not None
+        return self._native_move is not None
 
     def start(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Reset the controller on ``frame`` to fly ``trajectory`` from the frame's time (its time 0)."""
@@ -105,7 +106,7 @@ class InFlight:
 
         With the controller's own in-flight API, the desired reference of its last step.
         """
-        if self._native_retarget is not None:
+        if self._native_move is not None:
             self._sample.copy_from(self.controller.desired_ee)
             return self._sample
         return self.controller.trajectory.sample(t, self._sample)
@@ -116,8 +117,8 @@ class InFlight:
         Returns:
             The trajectory time [s] at which the reference arrives.
         """
-        if self._native_retarget is not None:
-            self._native_retarget(p_W, R_WB, duration_s)
+        if self._native_move is not None:
+            self._native_move(p_W, R_WB, duration_s)
             return t + duration_s
         traj = self.controller.trajectory
         wps = traj.waypoints
@@ -138,7 +139,7 @@ class InFlight:
         """Fly ``trajectory`` on the controller's clock from the next step (the stand-in's one private touch).
 
         The controller of this version keeps its trajectory in the arguments of its compiled step, built by
-        ``_build_kernel_args``; its in-flight API (``retarget``) replaces this.
+        ``_build_kernel_args``; its in-flight API (``move_to``) replaces this.
         """
         c = self.controller
         c._trajectory = trajectory
@@ -158,7 +159,7 @@ class InFlight:
     @property
     def map_mode(self) -> str:
         """The map mode the controller flies with."""
-        return self.controller.scheduler.params.mode
+        return self.controller.params.maps.mode
 
     def set_map_mode(self, mode: str) -> None:
         """Switch the wrench-map mode in flight.

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from omnirotor.config import load_toml
+from omnirotor.config import from_mapping, load_toml
 from omnirotor.errors import InputError
 from omnirotor.limits import MAX_ROTORS
 from omnirotor.px4.frames import vec_from_px4
@@ -39,7 +39,7 @@ __all__ = [
     "PX4_ROTOR_DEFAULTS",
     "read_airframe_params",
     "is_airframe_file",
-    "px4_vehicle_data",
+    "vehicle_from_px4_params",
 ]
 
 PX4_ROTOR_DEFAULTS = {"PX": 0.0, "PY": 0.0, "PZ": 0.0, "AX": 0.0, "AY": 0.0, "AZ": -1.0, "KM": 0.05}
@@ -107,6 +107,11 @@ def read_airframe_params(path: str | Path) -> dict[str, float]:
     return out
 
 
+_RANGES = {"PX": (-100.0, 100.0), "PY": (-100.0, 100.0), "PZ": (-100.0, 100.0), "KM": (-1.0, 1.0)}
+_RANGES.update({k: (-100.0, 100.0) for k in ("AX", "AY", "AZ")})
+"""The range PX4's parameter definitions give each ``CA_ROTORn_*`` value (NaN and inf fall outside)."""
+
+
 def _rotor_geometry(
     params: Mapping[str, float], where: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, list[str]]:
@@ -130,7 +135,11 @@ def _rotor_geometry(
             name = f"CA_ROTOR{i}_{key}"
             if name not in params:
                 defaulted.setdefault(key, []).append(i)
-            vals[key] = float(params.get(name, dflt))
+            value = params.get(name, dflt)
+            lo, hi = _RANGES[key]
+            if not (isinstance(value, (int, float)) and lo <= value <= hi):
+                raise InputError(f"{where}: {name} is {value}; PX4 allows {lo:g} to {hi:g}")
+            vals[key] = float(value)
         pos[i] = (vals["PX"], vals["PY"], vals["PZ"])
         axis[i] = (vals["AX"], vals["AY"], vals["AZ"])
         km[i] = vals["KM"]
@@ -153,13 +162,10 @@ def _ranges(idx: list[int]) -> str:
     return ", ".join(out)
 
 
-def px4_vehicle_data(
+def vehicle_from_px4_params(
     params: Mapping[str, float], name: str, where: str, overlay: Mapping[str, Any] | None = None
-) -> tuple[dict[str, Any], float, list[str]]:
-    """The vehicle file's values of PX4 ``CA_*`` parameters plus an overlay of what PX4 does not store.
-
-    :func:`omnirotor.vehicle.vehicle_from_px4_params` builds the vehicle of them (this module imports nothing of
-    :mod:`omnirotor.vehicle`, which reads PX4 files through it).
+):
+    """Build a vehicle from PX4 ``CA_*`` parameters plus an overlay of what PX4 does not store.
 
     Args:
         params: PX4 parameters by name.
@@ -169,14 +175,15 @@ def px4_vehicle_data(
             ``omega_min_hz``, ``propeller_diameter``, ``p_E_B``, ``frame_size``, ``gravity``, ``name``).
 
     Returns:
-        ``(data, km, assumed)``: the vehicle file's keys (``rotors`` as mappings of ``position``, ``spin``,
-        ``axis``; no ``actuated_dof``), the rotors' mean ``|KM|`` and a list of ``"key = value"`` strings for
-        every value taken from a default.
+        ``(vehicle, assumed)``: the :class:`~omnirotor.vehicle.VehicleParams` and a list of ``"key = value"``
+        strings for every value taken from a default.
 
     Raises:
         InputError: missing geometry, an unknown overlay key, mixed reversible and one-way rotors, or a
         non-physical result.
     """
+    from omnirotor.vehicle_model import RotorParams, VehicleParams
+
     overlay = {**_omr_values(params), **dict(overlay or {})}
     unknown = sorted(set(overlay) - set(_OVERLAY_KEYS))
     if unknown:
@@ -202,8 +209,11 @@ def px4_vehicle_data(
     omega_max = pick("omega_max_hz", PX4_DEFAULTS["omega_max_hz"])
     try:
         mass_f, c_f_f, omega_max_f = float(mass), float(c_f), float(omega_max)
-    except (TypeError, ValueError):
-        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError("vehicle overlay: mass, c_f and omega_max_hz must be numbers within a float's range") from None
+    for key, value in (("mass", mass_f), ("c_f", c_f_f), ("omega_max_hz", omega_max_f)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"vehicle overlay: {key} is {value}; expected a finite number > 0")
     lo = -omega_max_f if all(reversible) else PX4_DEFAULTS["omega_min_hz_unidirectional"]
     omega_min = pick("omega_min_hz", lo)
     if "c_tau" in overlay:
@@ -221,8 +231,10 @@ def px4_vehicle_data(
         inertia = [round(float(x), 9) for x in np.diag(J)]
         assumed.append(f"inertia_diag = {inertia} (mass at the rotors)")
     spins = [(-1 if k > 0 else 1) for k in km]
+    A_rank = _rank(pos, axis, np.array(spins, dtype=float), float(np.mean(np.abs(km))))
     rotors = tuple(
-        {"position": tuple(map(float, pos[i])), "spin": spins[i], "axis": tuple(map(float, axis[i]))} for i in range(n)
+        RotorParams(position=tuple(map(float, pos[i])), spin=spins[i], axis=tuple(map(float, axis[i])))
+        for i in range(n)
     )
     span = float(np.abs(pos).max()) if n else 0.1
     data = {
@@ -234,13 +246,14 @@ def px4_vehicle_data(
         "omega_max_hz": omega_max,
         "omega_min_hz": omega_min,
         "propeller_diameter": pick("propeller_diameter", PX4_DEFAULTS["propeller_diameter"]),
+        "actuated_dof": min(6, max(4, A_rank)),
         "frame_size": overlay.get("frame_size", round(max(2.0 * span, 0.05), 4)),
         "rotors": rotors,
     }
     for key in ("gravity", "p_E_B"):
         if key in overlay:
             data[key] = overlay[key]
-    return data, float(np.mean(np.abs(km))), assumed
+    return from_mapping(VehicleParams, data, where), assumed
 
 
 _OMR = {
@@ -262,6 +275,14 @@ def _omr_values(params: Mapping[str, float]) -> dict[str, Any]:
     if all(f"OMR_EE_{a}" in params for a in "XYZ"):
         out["p_E_B"] = [float(params[f"OMR_EE_{a}"]) for a in "XYZ"]
     return out
+
+
+def _rank(pos: np.ndarray, axis: np.ndarray, spins: np.ndarray, km: float) -> int:
+    from omnirotor.vehicle_model import wrench_map
+
+    a = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    A = wrench_map(pos, a, spins, 1.0, km)
+    return int(np.linalg.matrix_rank(A, tol=1e-9 * np.abs(A).max()))
 
 
 def load_overlay(path: str | Path | None) -> dict[str, Any]:

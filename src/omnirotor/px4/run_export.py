@@ -118,7 +118,7 @@ def px4_params_of(vehicle: VehicleParams) -> dict[str, float | int]:
     """PX4 parameters of a vehicle: ``CA_*`` geometry (FRD) and ``OMR_*`` for what PX4 does not store.
 
     ``OMR_*`` (mass, inertia, c_f, c_tau, speed limits, EE tip) are read back by
-    :func:`omnirotor.vehicle.vehicle_from_px4_params`, so a run's log carries its whole vehicle.
+    :func:`omnirotor.px4.airframe.vehicle_from_px4_params`, so a run's log carries its whole vehicle.
     """
     out: dict[str, float | int] = {"CA_AIRFRAME": 0, "CA_ROTOR_COUNT": vehicle.n_rotors}
     pos, axes = vec_from_px4(vehicle.positions_B), vec_from_px4(vehicle.axes_B)

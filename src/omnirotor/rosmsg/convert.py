@@ -1,7 +1,9 @@
 """The project's messages (:mod:`omnirotor.messages`) in their ROS 2 forms, without loss.
 
 ``omnirotor_msgs`` and standard types: every number of ``omnirotor_msgs/msg/SensorFrame`` and ``RotorCommand`` is
-float64, so a frame packed, sent and unpacked is the same bits (the lockstep SITL depends on it).
+float64, so a frame record (:func:`omnirotor.messages.frame_dtype`) sent and received is the same bits (the lockstep
+SITL depends on it). The message's ``state`` is the record's state as 21 numbers: ``p_W, v_W, a_W, R_WB``
+(row-major), ``omega_B``.
 
 The ROS views (``sensor_msgs/msg/Imu``, ``geometry_msgs/msg/PoseStamped``, ``RotorSpeeds``,
 ``geometry_msgs/msg/WrenchStamped``) are for ROS 2 tools and listeners; the node reads the frame message.
@@ -14,19 +16,6 @@ import math
 
 import numpy as np
 
-from omnirotor.messages import (
-    FRAME_ACC_B,
-    FRAME_GYRO_B,
-    FRAME_HAS_STATE,
-    FRAME_MOCAP_NEW,
-    FRAME_MOCAP_P_W,
-    FRAME_MOCAP_Q_WB,
-    FRAME_MOCAP_T,
-    FRAME_ROTOR_HZ,
-    FRAME_STATE,
-    FRAME_T,
-    frame_size,
-)
 from omnirotor.rosmsg import typestore
 
 __all__ = [
@@ -59,6 +48,8 @@ WRENCH = "geometry_msgs/msg/WrenchStamped"
 STRING = "std_msgs/msg/String"
 
 _STATE_SIZE = 21
+_P, _V, _A, _R, _OMEGA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 21)
+"""The message's ``state`` (21 numbers): the record's state fields in this order (``R_WB`` row-major)."""
 
 
 def set_stamp(header, t: float) -> None:
@@ -114,61 +105,75 @@ class WireMessages:
             header=header(world_id), wrench=W(force=V3(x=0.0, y=0.0, z=0.0), torque=V3(x=0.0, y=0.0, z=0.0))
         )
 
-    def fill_frame(self, packed: np.ndarray, seq: int) -> object:
-        """The frame message of a packed frame (:mod:`omnirotor.messages`), exact; returns :attr:`frame`."""
+    def fill_frame(self, record: np.ndarray, seq: int) -> object:
+        """The frame message of a ``(1,)`` frame record (:mod:`omnirotor.messages`), exact; returns :attr:`frame`."""
         m = self.frame
+        r = record[0]
         m.seq = seq
-        m.t = float(packed[FRAME_T])
+        m.t = float(r["t"])
         set_stamp(m.header, m.t)
-        m.imu_acc_b[:] = packed[FRAME_ACC_B : FRAME_ACC_B + 3]
-        m.imu_gyro_b[:] = packed[FRAME_GYRO_B : FRAME_GYRO_B + 3]
-        m.mocap_new = bool(packed[FRAME_MOCAP_NEW] != 0.0)
-        m.mocap_t = float(packed[FRAME_MOCAP_T])
-        m.mocap_p_w[:] = packed[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3]
-        m.mocap_q_wb[:] = packed[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4]
-        m.has_state = bool(packed[FRAME_HAS_STATE] != 0.0)
-        m.state[:] = packed[FRAME_STATE : FRAME_STATE + _STATE_SIZE]
-        m.rotor_hz[:] = packed[FRAME_ROTOR_HZ:]
+        imu, mocap, state = r["imu"], r["mocap"], r["state"]
+        m.imu_acc_b[:] = imu["acc_B"]
+        m.imu_gyro_b[:] = imu["gyro_B"]
+        m.mocap_new = bool(mocap["new"] != 0.0)
+        m.mocap_t = float(mocap["t"])
+        m.mocap_p_w[:] = mocap["p_W"]
+        m.mocap_q_wb[:] = mocap["q_WB"]
+        m.has_state = bool(state["valid"] != 0.0)
+        x = m.state
+        x[_P], x[_V], x[_A], x[_R], x[_OMEGA] = (
+            state["p_W"],
+            state["v_W"],
+            state["a_W"],
+            state["R_WB"].reshape(9),
+            state["omega_B"],
+        )
+        m.rotor_hz[:] = r["rotor_hz"]
         return m
 
-    def fill_views(self, packed: np.ndarray) -> None:
-        """The ROS views of a packed frame: :attr:`imu`, :attr:`speeds` and (with a sample) :attr:`pose`."""
-        t = float(packed[FRAME_T])
+    def fill_views(self, record: np.ndarray) -> None:
+        """The ROS views of a frame record: :attr:`imu`, :attr:`speeds` and (with a sample) :attr:`pose`."""
+        r = record[0]
+        t = float(r["t"])
         for m in (self.imu, self.speeds):
             set_stamp(m.header, t)
         a, g = self.imu.linear_acceleration, self.imu.angular_velocity
-        a.x, a.y, a.z = (float(v) for v in packed[FRAME_ACC_B : FRAME_ACC_B + 3])
-        g.x, g.y, g.z = (float(v) for v in packed[FRAME_GYRO_B : FRAME_GYRO_B + 3])
+        a.x, a.y, a.z = (float(v) for v in r["imu"]["acc_B"])
+        g.x, g.y, g.z = (float(v) for v in r["imu"]["gyro_B"])
         self.speeds.t = t
-        self.speeds.hz[:] = packed[FRAME_ROTOR_HZ:]
-        if packed[FRAME_MOCAP_NEW] != 0.0:
-            set_stamp(self.pose.header, float(packed[FRAME_MOCAP_T]))
+        self.speeds.hz[:] = r["rotor_hz"]
+        mocap = r["mocap"]
+        if mocap["new"] != 0.0:
+            set_stamp(self.pose.header, float(mocap["t"]))
             p, q = self.pose.pose.position, self.pose.pose.orientation
-            p.x, p.y, p.z = (float(v) for v in packed[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3])
-            q.w, q.x, q.y, q.z = (float(v) for v in packed[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4])
+            p.x, p.y, p.z = (float(v) for v in mocap["p_W"])
+            q.w, q.x, q.y, q.z = (float(v) for v in mocap["q_WB"])
 
 
 def unpack_frame(msg, out: np.ndarray) -> np.ndarray:
-    """Write a frame message into the packed layout ``out`` (``frame_size(n)`` entries), exact; returns ``out``."""
-    out[FRAME_T] = msg.t
-    out[FRAME_ACC_B : FRAME_ACC_B + 3] = msg.imu_acc_b
-    out[FRAME_GYRO_B : FRAME_GYRO_B + 3] = msg.imu_gyro_b
-    out[FRAME_MOCAP_NEW] = 1.0 if msg.mocap_new else 0.0
-    out[FRAME_MOCAP_T] = msg.mocap_t
-    out[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3] = msg.mocap_p_w
-    out[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4] = msg.mocap_q_wb
-    out[FRAME_HAS_STATE] = 1.0 if msg.has_state else 0.0
-    out[FRAME_STATE : FRAME_STATE + _STATE_SIZE] = msg.state
-    out[FRAME_ROTOR_HZ:] = msg.rotor_hz
+    """Write a frame message into the ``(1,)`` frame record ``out``, exact; returns ``out``."""
+    r = out[0]
+    r["t"] = msg.t
+    imu, mocap, state = r["imu"], r["mocap"], r["state"]
+    imu["acc_B"] = msg.imu_acc_b
+    imu["gyro_B"] = msg.imu_gyro_b
+    mocap["new"] = 1.0 if msg.mocap_new else 0.0
+    mocap["t"] = msg.mocap_t
+    mocap["p_W"] = msg.mocap_p_w
+    mocap["q_WB"] = msg.mocap_q_wb
+    state["valid"] = 1.0 if msg.has_state else 0.0
+    x = msg.state
+    state["p_W"], state["v_W"], state["a_W"], state["omega_B"] = x[_P], x[_V], x[_A], x[_OMEGA]
+    state["R_WB"] = x[_R].reshape(3, 3)
+    r["rotor_hz"] = msg.rotor_hz
     return out
 
 
 def frame_check(n_rotors: int):
     """A subscriber check: a frame message with one rotor speed per rotor (values are the controller's to judge)."""
-    size = frame_size(n_rotors) - FRAME_ROTOR_HZ
 
     def check(msg) -> bool:
-        return msg.rotor_hz.shape == (size,)
+        return msg.rotor_hz.shape == (n_rotors,) and msg.state.shape == (_STATE_SIZE,)
 
     return check
 

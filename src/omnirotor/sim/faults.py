@@ -32,19 +32,7 @@ import numpy as np
 from omnirotor._jit import jit
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
-from omnirotor.messages import (
-    FRAME_ACC_B,
-    FRAME_GYRO_B,
-    FRAME_HAS_STATE,
-    FRAME_MOCAP_NEW,
-    FRAME_MOCAP_P_W,
-    FRAME_MOCAP_Q_WB,
-    FRAME_MOCAP_T,
-    FRAME_ROTOR_HZ,
-    FRAME_STATE,
-    FRAME_STATE_SIZE,
-    FRAME_T,
-)
+from omnirotor.frame_kernels import clear_mocap, clear_state
 from omnirotor.sim.rotors import MAX_ROTORS
 
 __all__ = [
@@ -208,6 +196,18 @@ def faults_wrench(st, t: float, ext) -> None:
 
 
 @jit
+def _corrupted(x: float, f) -> float:
+    """The value ``x`` corrupted by fault ``f``."""
+    if f["corruption"] == _NAN:
+        return math.nan
+    if f["corruption"] == _INF:
+        return math.inf
+    if f["corruption"] == _SET:
+        return f["magnitude"]
+    return x + f["magnitude"]
+
+
+@jit
 def _bad(values, f) -> None:
     """Corrupt ``values`` (a signal of the frame) by fault ``f``: one component or all; an absent one: nothing."""
     size = values.shape[0]
@@ -217,24 +217,18 @@ def _bad(values, f) -> None:
             return
         lo, hi = f["component"], f["component"] + 1
     for j in range(lo, hi):
-        if f["corruption"] == _NAN:
-            values[j] = math.nan
-        elif f["corruption"] == _INF:
-            values[j] = math.inf
-        elif f["corruption"] == _SET:
-            values[j] = f["magnitude"]
-        else:
-            values[j] += f["magnitude"]
+        values[j] = _corrupted(values[j], f)
 
 
 @jit
 def faults_frame(st, frame) -> None:
-    """Dropouts and corruptions of the packed frame due at its time (module docstring), in place."""
+    """Dropouts and corruptions of the frame record due at its time (module docstring), in place."""
     if not st["has_frame_faults"]:
         return
-    t = frame[FRAME_T]
-    mocap_new = frame[FRAME_MOCAP_NEW] != 0.0
-    mocap_t = frame[FRAME_MOCAP_T]
+    t = frame.t
+    mocap, state = frame.mocap, frame.state
+    mocap_new = mocap.new != 0.0
+    mocap_t = mocap.t
     for i in range(st["n_faults"]):
         d = st["faults"][i]
         if d["kind"] != MOCAP_DROPOUT:
@@ -244,13 +238,9 @@ def faults_frame(st, frame) -> None:
             d["on"] = active
             _log(st, t, EV_DROP_ON if active else EV_DROP_OFF, i)
         if active or (mocap_new and d["t_start_s"] <= mocap_t < d["t_end_s"]):
-            frame[FRAME_MOCAP_NEW] = 0.0
-            for j in range(FRAME_MOCAP_T, FRAME_MOCAP_Q_WB + 4):
-                frame[j] = 0.0
+            clear_mocap(mocap)
             if d["drop_state"] and active:
-                frame[FRAME_HAS_STATE] = 0.0
-                for j in range(FRAME_STATE, FRAME_STATE + FRAME_STATE_SIZE):
-                    frame[j] = 0.0
+                clear_state(state)
     for i in range(st["n_faults"]):
         c = st["faults"][i]
         if c["kind"] != CORRUPTION:
@@ -263,26 +253,31 @@ def faults_frame(st, frame) -> None:
             continue
         sig = c["signal"]
         if sig == _SIG_ACC:
-            _bad(frame[FRAME_ACC_B : FRAME_ACC_B + 3], c)
+            _bad(frame.imu.acc_B, c)
         elif sig == _SIG_GYRO:
-            _bad(frame[FRAME_GYRO_B : FRAME_GYRO_B + 3], c)
+            _bad(frame.imu.gyro_B, c)
         elif sig == _SIG_ROTOR:
-            _bad(frame[FRAME_ROTOR_HZ : FRAME_ROTOR_HZ + st["n_rotors"]], c)
+            _bad(frame.rotor_hz, c)
         elif sig == _SIG_MOCAP:
-            if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
-                _bad(frame[FRAME_MOCAP_P_W : FRAME_MOCAP_P_W + 3], c)
+            if mocap.new != 0.0 and mocap_new:
+                _bad(mocap.p_W, c)
                 if c["corruption"] == _NAN or c["corruption"] == _INF:
-                    _bad(frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c)
+                    _bad(mocap.q_WB, c)
         elif sig == _SIG_MOCAP_Q:
-            if frame[FRAME_MOCAP_NEW] != 0.0 and mocap_new:
-                _bad(frame[FRAME_MOCAP_Q_WB : FRAME_MOCAP_Q_WB + 4], c)
+            if mocap.new != 0.0 and mocap_new:
+                _bad(mocap.q_WB, c)
         elif sig == _SIG_TIME:  # a clock step (spike) moves the motion-capture stamp of the same clock too
-            _bad(frame[FRAME_T : FRAME_T + 1], c)
-            if c["corruption"] == _SPIKE and frame[FRAME_MOCAP_NEW] != 0.0:
-                frame[FRAME_MOCAP_T] += c["magnitude"]
-        elif frame[FRAME_HAS_STATE] != 0.0:  # the bypass state's position, velocity or attitude
-            o = FRAME_STATE + (3 if sig == _SIG_STATE_V else (9 if sig == _SIG_STATE_R else 0))
-            _bad(frame[o : o + (9 if sig == _SIG_STATE_R else 3)], c)
+            if c["component"] <= 0:
+                frame.t = _corrupted(frame.t, c)
+            if c["corruption"] == _SPIKE and mocap.new != 0.0:
+                mocap.t += c["magnitude"]
+        elif state.valid != 0.0:  # the bypass state's position, velocity or attitude
+            if sig == _SIG_STATE_V:
+                _bad(state.v_W, c)
+            elif sig == _SIG_STATE_R:
+                _bad(state.R_WB.reshape(9), c)
+            else:
+                _bad(state.p_W, c)
 
 
 @register("faults", "schedule")

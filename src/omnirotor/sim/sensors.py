@@ -21,7 +21,7 @@ step costs a slice, not a call into the generator.
 
 The block (:class:`Sensors`, registered as ``("sensors", "imu-mocap")``) owns one record
 (:data:`STATE_DTYPE`: the IMU's parameters and drawn biases, the motion capture's queue, the four noise
-blocks) and the compiled step (:func:`sense`) that writes a packed frame (:mod:`omnirotor.messages`) from
+blocks) and the compiled step (:func:`sense`) that writes the frame record (:mod:`omnirotor.messages`) from
 the vehicle's true state; :class:`Imu`, :class:`Mocap` and :class:`NoiseStream` are its parts' Python set-up
 (views of that record).
 """
@@ -35,19 +35,7 @@ import numpy as np
 from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
-from omnirotor.messages import (
-    FRAME_ACC_B,
-    FRAME_GYRO_B,
-    FRAME_HAS_STATE,
-    FRAME_MOCAP_NEW,
-    FRAME_MOCAP_P_W,
-    FRAME_MOCAP_Q_WB,
-    FRAME_MOCAP_T,
-    FRAME_ROTOR_HZ,
-    FRAME_STATE,
-    FRAME_STATE_SIZE,
-    FRAME_T,
-)
+from omnirotor.frame_kernels import clear_mocap, clear_state
 from omnirotor.sim import prng
 from omnirotor.sim.params import SensorParams
 from omnirotor.sim.rotors import MAX_ROTORS
@@ -348,7 +336,7 @@ def needs_refill(sens) -> bool:
 
 @jit
 def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
-    """The sensors at step ``k`` (time ``t``): the whole packed frame (:mod:`omnirotor.messages`).
+    """The sensors at step ``k`` (time ``t``): the whole frame record (:mod:`omnirotor.messages`).
 
     IMU, measured rotor speeds, the bypass state (none, the truth, or the truth plus noise, the attitude
     perturbed as :func:`quat_perturb_into`) and the motion capture's delivery. Reads one row of each noise
@@ -363,67 +351,62 @@ def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
         omega_hz: (n,) true rotor speeds [Hz].
         k: step index.
         t: its time [s].
-        frame: the packed frame (written whole).
+        frame: the frame record (:func:`omnirotor.messages.frame_dtype`), written whole.
     """
-    frame[FRAME_T] = t
+    frame.t = t
     ni, nr = sens["noise_imu"], sens["noise_rotor"]
     i_imu = ni["pos"]
     ni["pos"] = i_imu + 1
     i_rot = nr["pos"]
     nr["pos"] = i_rot + 1
     mode = sens["state_mode"]
-    imu_measure_into(
-        sens["imu"], R9, acc[0:3], vel[3:6], acc[3:6], ni["buf"][i_imu],
-        frame[FRAME_ACC_B : FRAME_ACC_B + 3], frame[FRAME_GYRO_B : FRAME_GYRO_B + 3],
-    )  # fmt: skip
-    imu_vibration_add(
-        sens["imu"], omega_hz, sens["n_rotors"], frame[FRAME_ACC_B : FRAME_ACC_B + 3],
-        frame[FRAME_GYRO_B : FRAME_GYRO_B + 3],
-    )  # fmt: skip
+    imu = frame.imu
+    imu_measure_into(sens["imu"], R9, acc[0:3], vel[3:6], acc[3:6], ni["buf"][i_imu], imu.acc_B, imu.gyro_B)
+    imu_vibration_add(sens["imu"], omega_hz, sens["n_rotors"], imu.acc_B, imu.gyro_B)
     rot_noise = nr["buf"][i_rot]
     for i in range(sens["n_rotors"]):
-        frame[FRAME_ROTOR_HZ + i] = omega_hz[i] + rot_noise[i]
-    o = FRAME_STATE
+        frame.rotor_hz[i] = omega_hz[i] + rot_noise[i]
+    st = frame.state
+    R = st.R_WB
     if mode == STATE_NONE:
-        frame[FRAME_HAS_STATE] = 0.0
-        for i in range(FRAME_STATE_SIZE):
-            frame[o + i] = 0.0
+        clear_state(st)
     else:
-        frame[FRAME_HAS_STATE] = 1.0
+        st.valid = 1.0
         if mode == STATE_EXACT:
             for i in range(3):
-                frame[o + i] = pose[i]
-                frame[o + 3 + i] = vel[i]
-                frame[o + 6 + i] = acc[i]
-                frame[o + 18 + i] = vel[3 + i]
-            for i in range(9):
-                frame[o + 9 + i] = R9[i]
+                st.p_W[i] = pose[i]
+                st.v_W[i] = vel[i]
+                st.a_W[i] = acc[i]
+                st.omega_B[i] = vel[3 + i]
+            for i in range(3):
+                for j in range(3):
+                    R[i, j] = R9[3 * i + j]
         else:
             ns = sens["noise_state"]
             i_st = ns["pos"]
             ns["pos"] = i_st + 1
             e = ns["buf"][i_st]
             for i in range(3):
-                frame[o + i] = pose[i] + e[i]
-                frame[o + 3 + i] = vel[i] + e[3 + i]
-                frame[o + 6 + i] = acc[i] + e[6 + i]
-                frame[o + 18 + i] = vel[3 + i] + e[12 + i]
-            # The perturbed quaternion goes through the frame's R slots (overwritten by its matrix right after).
-            quat_perturb_into(pose[3:7], e[9:12], frame[o + 9 : o + 13])
-            R9_from_quat_into(frame[o + 9], frame[o + 10], frame[o + 11], frame[o + 12], frame, o + 9)
+                st.p_W[i] = pose[i] + e[i]
+                st.v_W[i] = vel[i] + e[3 + i]
+                st.a_W[i] = acc[i] + e[6 + i]
+                st.omega_B[i] = vel[3 + i] + e[12 + i]
+            # The perturbed quaternion goes through R's first entries (overwritten by its matrix right after).
+            r9 = R.reshape(9)
+            quat_perturb_into(pose[3:7], e[9:12], r9)
+            R9_from_quat_into(r9[0], r9[1], r9[2], r9[3], r9, 0)
     moc = sens["mocap"]
+    m = frame.mocap
     if mocap_step(moc, sens["noise_mocap"], k, t, pose[0:3], pose[3:7]):
-        frame[FRAME_MOCAP_NEW] = 1.0
+        m.new = 1.0
         s = moc["sample"]
-        frame[FRAME_MOCAP_T] = s[0]
+        m.t = s[0]
         for j in range(3):
-            frame[FRAME_MOCAP_P_W + j] = s[1 + j]
+            m.p_W[j] = s[1 + j]
         for j in range(4):
-            frame[FRAME_MOCAP_Q_WB + j] = s[4 + j]
+            m.q_WB[j] = s[4 + j]
     else:
-        frame[FRAME_MOCAP_NEW] = 0.0
-        for j in range(8):
-            frame[FRAME_MOCAP_T + j] = 0.0
+        clear_mocap(m)
 
 
 # -- Python set-up ---------------------------------------------------------------------------------------------

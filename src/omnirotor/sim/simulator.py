@@ -31,8 +31,9 @@ import mujoco
 import numpy as np
 
 from omnirotor._jit import mujoco_timer_address
+from omnirotor.blocks import new_records
 from omnirotor.errors import InputError
-from omnirotor.messages import RotorCommand, SensorFrame, frame_size
+from omnirotor.messages import RotorCommand, SensorFrame, frame_dtype
 from omnirotor.sim import step as _step
 from omnirotor.sim.aero import make_aero
 from omnirotor.sim.airflow import AirflowForce, scene_surfaces, wake_radius
@@ -220,7 +221,7 @@ class Simulator:
         self._R9 = rec["R9"][0]  # apply_wrench's scratch
         self._k = 0
         self._truth: GroundTruth | None = None
-        self._frame_buf = np.zeros(frame_size(n))  # the packed frame (omnirotor.messages) of the last step
+        self._frame_buf = new_records(frame_dtype(n))  # the frame record (omnirotor.messages) of the last step
         self._row = np.zeros(_step.TRUTH_ROW_SIZE + n)  # the truth row of the last step
         self._last_substep = self.substeps - 1
         # The aero model and rotor bank the compiled step was set up for (see step()).
@@ -304,7 +305,7 @@ class Simulator:
             self._friction_step()
         self.sensors.refill()
         _step.observe(self._rec, 0, self.dt, self._frame_buf, self._row)
-        return SensorFrame.from_packed(self._frame_buf)
+        return SensorFrame.from_record(self._frame_buf)
 
     @property
     def kernel_state(self) -> np.ndarray | None:
@@ -329,8 +330,8 @@ class Simulator:
         return self.sensors.noise_streams
 
     @property
-    def packed_frame(self) -> np.ndarray:
-        """The packed frame (:mod:`omnirotor.messages`) of the last step, owned by the simulator."""
+    def frame_record(self) -> np.ndarray:
+        """The (1,) frame record (:mod:`omnirotor.messages`) of the last step, owned by the simulator."""
         return self._frame_buf
 
     @property
@@ -399,7 +400,7 @@ class Simulator:
             _step.observe(self._rec, self._k + 1, self.dt, self._frame_buf, self._row)
         self._k += 1
         self._truth = None
-        return SensorFrame.from_packed(self._frame_buf)
+        return SensorFrame.from_record(self._frame_buf)
 
     def _friction_step(self) -> None:
         """The tool's friction after ``mj_forward`` (:func:`omnirotor.sim.contact.friction_step`), in ``qacc``."""

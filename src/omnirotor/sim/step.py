@@ -9,7 +9,7 @@ reversals, thrust fluctuation) and the truth aerodynamics (:func:`aero_wrench` o
 external wrench into ``xfrc_applied``; ``mj_forward`` (its sensor stage skipped except on the period's last
 physics step, or on every one while the tool's friction reads its contacts); the tool's friction
 (:func:`omnirotor.sim.contact.friction_step`), then :func:`observe` at the new time: the sensors
-(:func:`omnirotor.sim.sensors.sense`) write the packed frame, the fault schedule edits it (dropouts,
+(:func:`omnirotor.sim.sensors.sense`) write the frame record, the fault schedule edits it (dropouts,
 corruptions), the truth row is filled and the contact block (:func:`omnirotor.sim.contact.contact_wrench`)
 adds the EE contact wrench to it.
 
@@ -189,7 +189,7 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
         sim: (1,) the :data:`SIM_DTYPE` record.
         k: step index.
         dt: control period [s].
-        frame: the packed frame (written whole).
+        frame: (1,) the frame record (:func:`omnirotor.messages.frame_dtype`), written whole.
         row: the truth row, at least ``TRUTH_ROW_SIZE + n`` entries.
     """
     s = sim[0]
@@ -198,8 +198,9 @@ def observe(sim, k: int, dt: float, frame, row) -> None:
     R9, p_E_W = f64_at(mj["R_WB"], 9), f64_at(mj["p_E_W"], 3)
     omega_hz = s["rotors"]["omega_hz"]
     t = k * dt
-    sensors.sense(s["sensors"], pose, vel, acc, R9, omega_hz, k, t, frame)
-    faults.faults_frame(s["faults"], frame)
+    fr = frame[0]
+    sensors.sense(s["sensors"], pose, vel, acc, R9, omega_hz, k, t, fr)
+    faults.faults_frame(s["faults"], fr)
     row[_ROW_T] = t
     for i in range(3):
         row[_ROW_P + i] = pose[i]
@@ -277,7 +278,7 @@ def sim_step(sim, cmd_hz, k: int, dt: float, frame, row) -> None:
         cmd_hz: (n,) commanded rotor speeds [Hz] (clipped by the rotor model; NaN holds a rotor's speed).
         k: the step index before the period.
         dt: control period [s].
-        frame: the packed frame (output).
+        frame: (1,) the frame record (output).
         row: the truth row (output).
     """
     s = sim[0]

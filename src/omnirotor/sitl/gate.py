@@ -4,7 +4,9 @@ The first well-formed command pairs the plant with its session (``RotorCommand.s
 process). From then on a command of another session is refused, counted and flagged (said once per session on
 stderr), never obeyed; so is a command of the paired session whose sequence number is not above the last obeyed
 one (a replay, or an older command overtaken). The pairing is released only when the plant stopped its rotors
-(the offboard-loss failsafe): a new node may then take over.
+(the offboard-loss failsafe): a new node may then take over. A sequence number more than
+:data:`MAX_SEQ_JUMP` above the last obeyed one is refused too, so that one forged or corrupted number cannot
+lock the paired node out.
 
 The session identity is a number on the wire, so this guards against a second node or a stale process, not
 against a hostile one that copies it: on a shared network use Zenoh's access control or TLS (docs/fly.md).
@@ -14,9 +16,11 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["CommandGate"]
+__all__ = ["CommandGate", "MAX_SEQ_JUMP"]
 
 _MAX_TRACKED_SESSIONS = 1024
+MAX_SEQ_JUMP = 1000
+"""The largest step of the sequence number between two obeyed commands (a second of commands at 1 kHz)."""
 
 
 class CommandGate:
@@ -58,7 +62,7 @@ class CommandGate:
                     file=sys.stderr,
                 )
             return False
-        if seq <= self.last_seq:
+        if not 0 < seq - self.last_seq <= MAX_SEQ_JUMP:
             self.refused += 1
             return False
         self.last_seq = seq

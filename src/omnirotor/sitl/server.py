@@ -23,8 +23,9 @@ Clocks: ``lockstep`` steps the plant when the command answering the last frame h
 run is the in-process run's to the last bit); otherwise the plant steps on the wall clock at its period, and a
 period without a new command holds the last one, as an ESC does. Either way the plant starts with the first
 command obeyed (it publishes its start frame until then), and when no command has been obeyed for
-``offboard_loss_s`` (0.5 s) the offboard-loss failsafe stops the rotors, says so on stderr and in its status;
-a lockstep run then goes on in real time.
+``offboard_loss_s`` (0.5 s; in lockstep 5 s of wall time, so that a descheduled process does not end a
+deterministic run) the offboard-loss failsafe stops the rotors, says so on stderr and in its status; a lockstep
+run then goes on in real time.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from collections.abc import Callable
 import numpy as np
 
 from omnirotor.errors import InputError
-from omnirotor.messages import FRAME_T, RotorCommand
+from omnirotor.messages import RotorCommand
 from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -83,7 +84,7 @@ MISSION_OPTION_FIELDS = (
 )  # fmt: skip
 """The options of a task that travel to the node with the mission (both sides build the same task)."""
 
-_COMMAND_DEPTH = 16
+_COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
 _SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
 
@@ -94,7 +95,9 @@ class ServeOptions:
 
     Attributes:
         lockstep: step k+1 only when command k arrived (deterministic); False: on the wall clock.
-        offboard_loss_s: no command obeyed for this long stops the rotors [s].
+        offboard_loss_s: no command obeyed for this long stops the rotors [s] (real time).
+        lockstep_offboard_loss_s: the same in lockstep, where the plant waits for each command [s]: a test
+            harness on a loaded machine must not fail a deterministic run because a process was descheduled.
         start_timeout_s: how long to wait for the node's first command before giving up [s].
         status_hz: SimStatus rate [Hz].
         ros_views: also publish the standard ROS views (Imu, PoseStamped, RotorSpeeds) every period.
@@ -103,13 +106,14 @@ class ServeOptions:
 
     lockstep: bool = False
     offboard_loss_s: float = 0.5
+    lockstep_offboard_loss_s: float = 5.0
     start_timeout_s: float = 60.0
     status_hz: float = 50.0
     ros_views: bool = True
     row_wait_s: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
+        for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a finite number > 0, got {v!r}")
@@ -152,7 +156,7 @@ class SimLink:
         self.options = options
         self.n = n_rotors
         self.msgs = WireMessages(n_rotors)
-        self._pub_frame = transport.publisher(TOPICS["frame"], FRAME)
+        self._pub_frame = transport.publisher(TOPICS["frame"], FRAME, block=options.lockstep)
         self._views = (
             (transport.publisher(TOPICS["imu"], IMU), transport.publisher(TOPICS["mocap"], POSE),
              transport.publisher(TOPICS["rotor_speeds"], SPEEDS))
@@ -183,13 +187,13 @@ class SimLink:
         """Payloads on the command and log keys that did not decode or were malformed."""
         return self._sub_cmd.n_bad + self._sub_rows.n_bad
 
-    def send_frame(self, packed: np.ndarray, seq: int) -> None:
-        """Publish a packed frame as ``SensorFrame`` number ``seq`` (and its ROS views)."""
-        self._pub_frame.put(self.msgs.fill_frame(packed, seq))
+    def send_frame(self, record: np.ndarray, seq: int) -> None:
+        """Publish a frame record as ``SensorFrame`` number ``seq`` (and its ROS views)."""
+        self._pub_frame.put(self.msgs.fill_frame(record, seq))
         if self._views is not None:
             imu, pose, speeds = self._views
             m = self.msgs
-            m.fill_views(packed)
+            m.fill_views(record)
             imu.put(m.imu)
             if m.frame.mocap_new:
                 pose.put(m.pose)
@@ -284,8 +288,11 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
         link.drain_rows(store_row)
         missing = np.flatnonzero(~have_row)
         report.log_rows_missing = int(missing.size)
-        for j in missing:  # the previous row stands in (said by the caller)
-            log.data[j] = log.data[j - 1] if j > 0 else np.nan
+        if missing.size == n_steps:
+            raise InputError("the flight node sent no controller log rows: the run has no metrics")
+        first = int(np.argmax(have_row))
+        for j in missing:  # the previous row stands in, the first received one before it (said by the caller)
+            log.data[j] = log.data[j - 1] if j > first else log.data[first]
         log.n = n_steps
         return log, truth_log
 
@@ -296,30 +303,32 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     """Step the plant ``n_steps`` periods over the link (module docstring), filling the truth log."""
     opts = link.options
     dt = sim.dt
-    packed = sim.packed_frame
+    record = sim.frame_record
     every = max(1, n_steps // 100)
     rtt = np.zeros(n_steps)
     cmd = RotorCommand(0.0, link.cmd_hz)
     zeros = np.zeros(link.n)
     lockstep = opts.lockstep
     held = 0
+    gc.collect()  # now, not between the first command and the first step
+    gc.freeze()
+    gc.disable()
     # wait for the node: the start frame goes out every 50 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
-    while link.cmd_frame_seq != 0:
-        now = time.monotonic()
-        if now > deadline:
-            raise InputError(f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)")
-        if now >= next_send:
-            link.send_frame(packed, 0)
-            link.send_status(float(packed[FRAME_T]), 0, 0, False, "", force=True)
-            next_send = now + 0.05
-        link.poll_commands()
-        time.sleep(0.0005)
-    gc.collect()
-    gc.freeze()
-    gc.disable()
     try:
+        while link.cmd_frame_seq != 0:
+            now = time.monotonic()
+            if now > deadline:
+                raise InputError(
+                    f"no controller answered within {opts.start_timeout_s:g} s (is `omnirotor fly` running?)"
+                )
+            if now >= next_send:
+                link.send_frame(record, 0)
+                link.send_status(float(record["t"][0]), 0, 0, False, "", force=True)
+                next_send = now + 0.05
+            link.poll_commands()
+            time.sleep(0.0005)
         wall0 = time.monotonic()
         sent_at = wall0
         failsafe = False
@@ -332,7 +341,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                         if link.cmd_frame_seq >= k:
                             break
                         now = time.monotonic()
-                        if now - link.cmd_wall_s > opts.offboard_loss_s:
+                        if now - link.cmd_wall_s > opts.lockstep_offboard_loss_s:
                             failsafe = _engage(link, report, now)
                             break
                         if now - sent_at > _SPIN_S:
@@ -365,7 +374,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                 sim.truth_row(row)
                 row[-2] = 0.0
                 row[-1] = rtt[k] if math.isfinite(rtt[k]) else 0.0
-            link.send_frame(packed, k + 1)
+            link.send_frame(record, k + 1)
             sent_at = time.monotonic()
             link.drain_rows(store_row)
             link.send_status(sim.t, k + 1, held, failsafe, "offboard loss" if failsafe else "")

@@ -172,11 +172,18 @@ class Transport(abc.ABC):
         self.namespace = namespace
 
     # -- the public interface ---------------------------------------------------------------------------
-    def publisher(self, topic: str, msgtype: str) -> Publisher:
-        """A publisher of ``msgtype`` (``pkg/msg/Name``) on ``topic`` (in this transport's namespace)."""
+    def publisher(self, topic: str, msgtype: str, block: bool = False) -> Publisher:
+        """A publisher of ``msgtype`` (``pkg/msg/Name``) on ``topic`` (in this transport's namespace).
+
+        Args:
+            topic: ROS 2 topic name.
+            msgtype: message type.
+            block: when the link is congested, wait rather than drop the message (for data that must all
+                arrive: lockstep frames and commands, log rows); default drop (a stale sample is worthless).
+        """
         name = ros_topic(self.namespace, topic)
         _known(msgtype)
-        send, key = self._publisher(name, msgtype)
+        send, key = self._publisher(name, msgtype, block)
         return Publisher(send, msgtype, key)
 
     def subscriber(
@@ -244,8 +251,8 @@ class Transport(abc.ABC):
 
     # -- what a concrete transport implements -------------------------------------------------------------
     @abc.abstractmethod
-    def _publisher(self, name: str, msgtype: str) -> tuple[Callable[[bytes, int], None], str]:
-        """``(send(payload, seq), key)`` for the fully qualified topic ``name``."""
+    def _publisher(self, name: str, msgtype: str, block: bool) -> tuple[Callable[[bytes, int], None], str]:
+        """``(send(payload, seq), key)`` for the fully qualified topic ``name`` (``block``: see :meth:`publisher`)."""
 
     @abc.abstractmethod
     def _subscriber(

@@ -15,8 +15,9 @@ The session is a Zenoh peer with multicast scouting off: it listens on the given
 and connects to the given ones, and hears nothing else. Receiving polls a bounded ring
 (``zenoh.handlers.RingChannel``, filled by Zenoh's own threads): the newest ``depth`` samples are kept, older ones
 dropped, so a flood on a key costs its subscriber nothing but the ring. Publishers are ``express`` (no batching:
-lower latency) at real-time priority, and drop rather than block when the network is congested, so the 1 kHz
-loop never waits on a slow receiver.
+lower latency) at real-time priority, and by default drop rather than block when the network is congested, so
+the 1 kHz loop never waits on a slow receiver (``block=True`` for what must all arrive: lockstep frames and
+commands, log rows).
 """
 
 from __future__ import annotations
@@ -100,6 +101,8 @@ class ZenohTransport(Transport):
         attachment: attach rmw_zenoh's sequence number, time stamp and publisher id to every sample
             (about 7 µs per sample); False for bare payloads.
         config: further Zenoh configuration as ``{json5 path: value}`` (e.g. access control, TLS).
+        config_file: a Zenoh configuration file (JSON5) to start from; its endpoints stand unless ``listen`` or
+            ``connect`` are given.
     """
 
     def __init__(
@@ -111,15 +114,24 @@ class ZenohTransport(Transport):
         connect: Sequence[str] = (),
         attachment: bool = True,
         config: dict | None = None,
+        config_file: str | None = None,
     ) -> None:
         super().__init__(domain_id=domain_id, namespace=namespace)
         import zenoh
 
         self._z = zenoh
-        conf = zenoh.Config()
+        if config_file is not None:  # access control, TLS, credentials: docs/transport.md
+            try:
+                conf = zenoh.Config.from_file(str(config_file))
+            except Exception as exc:  # noqa: BLE001  (zenoh's own error for a file it cannot read or parse)
+                raise InputError(f"Zenoh configuration {config_file}: {str(exc).splitlines()[0]}") from None
+        else:
+            conf = zenoh.Config()
         conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("listen/endpoints", json.dumps(_check_endpoints("listen", listen)))
-        conf.insert_json5("connect/endpoints", json.dumps(_check_endpoints("connect", connect)))
+        if listen or config_file is None:
+            conf.insert_json5("listen/endpoints", json.dumps(_check_endpoints("listen", listen)))
+        if connect or config_file is None:
+            conf.insert_json5("connect/endpoints", json.dumps(_check_endpoints("connect", connect)))
         conf.insert_json5("scouting/multicast/enabled", "false")
         for path, value in (config or {}).items():
             conf.insert_json5(path, json.dumps(value))
@@ -135,11 +147,12 @@ class ZenohTransport(Transport):
     def _gid(self, key: str) -> bytes:
         return hashlib.blake2b(self._zid + key.encode(), digest_size=16).digest()
 
-    def _publisher(self, name: str, msgtype: str) -> tuple[Callable[[bytes, int], None], str]:
+    def _publisher(self, name: str, msgtype: str, block: bool) -> tuple[Callable[[bytes, int], None], str]:
         z = self._z
         key = key_expression(self.domain_id, name, msgtype)
+        congestion = z.CongestionControl.BLOCK if block else z.CongestionControl.DROP
         pub = self._session.declare_publisher(
-            key, congestion_control=z.CongestionControl.DROP, priority=z.Priority.REAL_TIME, express=True
+            key, congestion_control=congestion, priority=z.Priority.REAL_TIME, express=True
         )
         self._entities.append(pub)
         gid = self._gid(key)

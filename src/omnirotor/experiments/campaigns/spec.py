@@ -2,9 +2,11 @@
 
 The file format, the parameters and the seeding are documented in :mod:`omnirotor.experiments.campaigns.runner`;
 this module reads a campaign file into a :class:`CampaignSpec` (every mistake an
-:class:`~omnirotor.errors.InputError`) and turns run ``i`` into its options (:func:`run_options`): the
-drawn values go to a :class:`~omnirotor.experiments.faults.PlantPerturbation` (the plant), to the
-controller overrides, or to the scenario knobs of SPEC §5.2.
+:class:`~omnirotor.errors.InputError`) and turns run ``i`` into its options (:func:`run_options`). The
+parameters are a table (:data:`PARAMETERS`): each carries its target (the plant, the controller, the scenario
+knobs of SPEC §5.2, or a timed fault) and a typed ``apply`` that puts a drawn value into the run being built
+(:class:`RunDraft`); the values reach a :class:`~omnirotor.experiments.faults.PlantPerturbation` and the
+options as typed ``(key, value)`` pairs (:func:`omnirotor.config.apply_values`), never as text parsed back.
 """
 
 from __future__ import annotations
@@ -14,14 +16,14 @@ import hashlib
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from omnirotor.config import apply_overrides, from_mapping, load_toml
+from omnirotor.config import apply_values, from_mapping, load_toml
 from omnirotor.errors import InputError
 from omnirotor.experiments.faults import MocapDropout, PlantPerturbation, RotorFailure, WindGust
 from omnirotor.experiments.loop import HOVER_DURATION_S
@@ -91,6 +93,10 @@ class Parameter:
         tasks: the tasks it applies to (None: every campaign task).
         kind: "float", "int" or "bool".
         needs_ukf: only meaningful with the UKF estimator (it acts on motion capture).
+        target: what it changes: "plant" (the true vehicle, scene or simulator), "controller", "scenario" (the
+            task's protocol) or "fault" (a timed fault of the run, scheduled by :func:`run_options`).
+        apply: how a drawn value goes into the run being built (``apply(draft, value)``, :class:`RunDraft`);
+            None for the faults.
     """
 
     name: str
@@ -101,34 +107,120 @@ class Parameter:
     tasks: tuple[str, ...] | None = None
     kind: str = "float"
     needs_ukf: bool = False
+    target: str = "plant"
+    apply: Callable[[RunDraft, Any], None] | None = None
+
+
+@dataclasses.dataclass
+class RunDraft:
+    """A run's options while :func:`run_options` builds them from the drawn values (typed values, no text).
+
+    Attributes:
+        derived: the run's derived seeds (``rotor_error_seed``, ...).
+        mass_scale: true mass over the believed one.
+        inertia_scale: true inertia over the believed one (every axis).
+        scene_offset_W: the true scene's displacement [m].
+        noise_scale: every sensor noise level multiplied by this.
+        sim: ``(dotted key, value)`` of the plant's simulator parameters, in order.
+        controller: ``(dotted key, value)`` of the controller parameters, in order.
+        scenario: the task's protocol knobs (``ScenarioParams`` fields).
+    """
+
+    derived: dict[str, Any]
+    mass_scale: float = 1.0
+    inertia_scale: float = 1.0
+    scene_offset_W: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    noise_scale: float = 1.0
+    sim: list[tuple[str, Any]] = dataclasses.field(default_factory=list)
+    controller: list[tuple[str, Any]] = dataclasses.field(default_factory=list)
+    scenario: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+def _scale(field: str) -> Callable[[RunDraft, Any], None]:
+    """A relative error ``e`` of the plant: ``field = 1 + e``."""
+
+    def apply(d: RunDraft, v: Any) -> None:
+        setattr(d, field, 1.0 + v)
+
+    return apply
+
+
+def _noise(d: RunDraft, v: Any) -> None:
+    d.noise_scale = float(v)
+
+
+def _sim(key: str, model: str | None = None, seeded: bool = False) -> Callable[[RunDraft, Any], None]:
+    """Set the plant's simulator parameter ``key``.
+
+    ``model``: and the truth model it belongs to; ``seeded``: and the run's rotor-error seed.
+    """
+
+    def apply(d: RunDraft, v: Any) -> None:
+        d.sim.append((key, float(v)))
+        if model is not None:
+            d.sim.append(("aero.model", model))
+        if seeded:
+            d.sim.append(("aero.error_seed", d.derived["rotor_error_seed"]))
+
+    return apply
+
+
+def _offset(axis: int) -> Callable[[RunDraft, Any], None]:
+    def apply(d: RunDraft, v: Any) -> None:
+        d.scene_offset_W[axis] = float(v)
+
+    return apply
+
+
+def _scenario(field: str) -> Callable[[RunDraft, Any], None]:
+    def apply(d: RunDraft, v: Any) -> None:
+        d.scenario[field] = float(v)
+
+    return apply
 
 
 _P = Parameter
 PARAMETERS: dict[str, Parameter] = {
     p.name: p
     for p in (
-        _P("mass_error", "relative error of the true mass: m_true = m (1 + e)", "", -0.9, 10.0),
-        _P("inertia_error", "relative error of the true inertia (every axis): J_true = J (1 + e)", "", -0.9, 10.0),
-        _P("gamma", "inflow sensitivity of SPEC §7's truth model (4; makes SPEC §7 the truth)", "", 0.0),
-        _P("kappa0", "isolated-rotor thrust gain of SPEC §7's truth model (1.18; makes SPEC §7 the truth)", "", 1e-3),
-        _P("rotor_gain_error_std", "per-rotor relative thrust-gain error, standard deviation", "", 0.0, 0.5),
-        _P("rotor_tilt_error_std_deg", "per-rotor axis tilt error, standard deviation", "deg", 0.0, 30.0),
-        _P("scene_offset_x", "true scene displaced along world x from the planned one", "m", tasks=CONTACT_TASKS),
-        _P("scene_offset_y", "true scene displaced along world y from the planned one", "m", tasks=CONTACT_TASKS),
-        _P("scene_offset_z", "true scene displaced along world z from the planned one", "m", tasks=CONTACT_TASKS),
-        _P("friction", "sliding friction coefficient of every contact", "", 0.0, tasks=CONTACT_TASKS),
-        _P("sensor_noise_scale", "every sensor noise level multiplied by this", "", 0.0),
-        _P("mocap_latency_s", "motion-capture latency", "s", 0.0, 0.2, needs_ukf=True),
-        _P("mocap_dropout_s", "length of one motion-capture dropout (0 = none)", "s", 0.0, needs_ukf=True),
-        _P("gust_force_N", "peak force of one horizontal 1-cos gust at the CoM (0 = none)", "N", 0.0),
-        _P("gust_duration_s", "length of the gust", "s", 1e-3),
-        _P("failed_rotor", "rotor that stops (numbered from 1; 0 = none)", "", 0, kind="int"),
-        _P("rotor_failure_told", "whether the controller is told of the failed rotor", "", kind="bool"),
-        _P("peg_misalignment_deg", "approach roll misalignment of the peg", "deg", -60.0, 60.0, ("peg-in-hole",)),
-        _P("slide_roll_deg", "roll at the apex of the pipe", "deg", 0.0, 80.0, ("sliding",)),
+        _P("mass_error", "relative error of the true mass: m_true = m (1 + e)", "", -0.9, 10.0,
+           apply=_scale("mass_scale")),
+        _P("inertia_error", "relative error of the true inertia (every axis): J_true = J (1 + e)", "", -0.9, 10.0,
+           apply=_scale("inertia_scale")),
+        _P("gamma", "inflow sensitivity of SPEC §7's truth model (4; makes SPEC §7 the truth)", "", 0.0,
+           apply=_sim("aero.gamma", model="spec7")),
+        _P("kappa0", "isolated-rotor thrust gain of SPEC §7's truth model (1.18; makes SPEC §7 the truth)", "", 1e-3,
+           apply=_sim("aero.kappa0", model="spec7")),
+        _P("rotor_gain_error_std", "per-rotor relative thrust-gain error, standard deviation", "", 0.0, 0.5,
+           apply=_sim("aero.gain_error_std", seeded=True)),
+        _P("rotor_tilt_error_std_deg", "per-rotor axis tilt error, standard deviation", "deg", 0.0, 30.0,
+           apply=_sim("aero.tilt_error_std_deg", seeded=True)),
+        _P("scene_offset_x", "true scene displaced along world x from the planned one", "m", tasks=CONTACT_TASKS,
+           apply=_offset(0)),
+        _P("scene_offset_y", "true scene displaced along world y from the planned one", "m", tasks=CONTACT_TASKS,
+           apply=_offset(1)),
+        _P("scene_offset_z", "true scene displaced along world z from the planned one", "m", tasks=CONTACT_TASKS,
+           apply=_offset(2)),
+        _P("friction", "sliding friction coefficient of every contact", "", 0.0, tasks=CONTACT_TASKS,
+           apply=_sim("scene.friction")),
+        _P("sensor_noise_scale", "every sensor noise level multiplied by this", "", 0.0, apply=_noise),
+        _P("mocap_latency_s", "motion-capture latency", "s", 0.0, 0.2, needs_ukf=True,
+           apply=_sim("sensors.mocap_latency_s")),
+        _P("mocap_dropout_s", "length of one motion-capture dropout (0 = none)", "s", 0.0, needs_ukf=True,
+           target="fault"),
+        _P("gust_force_N", "peak force of one horizontal 1-cos gust at the CoM (0 = none)", "N", 0.0, target="fault"),
+        _P("gust_duration_s", "length of the gust", "s", 1e-3, target="fault"),
+        _P("failed_rotor", "rotor that stops (numbered from 1; 0 = none)", "", 0, kind="int", target="fault"),
+        _P("rotor_failure_told", "whether the controller is told of the failed rotor", "", kind="bool",
+           target="fault"),
+        _P("peg_misalignment_deg", "approach roll misalignment of the peg", "deg", -60.0, 60.0, ("peg-in-hole",),
+           target="scenario", apply=_scenario("peg_misalignment_deg")),
+        _P("slide_roll_deg", "roll at the apex of the pipe", "deg", 0.0, 80.0, ("sliding",),
+           target="scenario", apply=_scenario("slide_roll_deg")),
     )
-}
-"""The named parameters; ``sim.<key>``, ``controller.<key>`` and ``scenario.<field>`` are accepted too."""
+}  # fmt: skip
+"""The named parameters, each with its target and how it applies; ``sim.<key>``, ``controller.<key>`` and
+``scenario.<field>`` are accepted too (:func:`_parameter`)."""
 _GENERIC_PREFIXES = ("sim.", "controller.", "scenario.")
 _NOISE_FIELDS = tuple(
     f.name for f in dataclasses.fields(SensorParams) if f.name.endswith("_std") or f.name.endswith("_std_hz")
@@ -139,11 +231,27 @@ def _parameter(name: str) -> Parameter:
     if name in PARAMETERS:
         return PARAMETERS[name]
     if name.startswith(_GENERIC_PREFIXES) and len(name.split(".", 1)[1]) > 0:
-        return Parameter(name, "generic override", kind="any")
+        group, key = name.split(".", 1)
+        target = {"sim": "plant", "controller": "controller", "scenario": "scenario"}[group]
+        return Parameter(name, "generic value", kind="any", target=target, apply=_generic(group, key))
     raise InputError(
         f"unknown parameter {name!r}; parameters: {', '.join(PARAMETERS)}, or sim.<key>, controller.<key>, "
         "scenario.<field>"
     )
+
+
+def _generic(group: str, key: str) -> Callable[[RunDraft, Any], None]:
+    """The apply of ``sim.<key>``, ``controller.<key>`` or ``scenario.<field>``: the drawn value as it is."""
+
+    def apply(d: RunDraft, v: Any) -> None:
+        if group == "sim":
+            d.sim.append((key, v))
+        elif group == "controller":
+            d.controller.append((key, v))
+        else:
+            d.scenario[key] = v
+
+    return apply
 
 
 # -- distributions -----------------------------------------------------------------------------------------------
@@ -532,26 +640,17 @@ def _check_parameter(par: Parameter, dist: Distribution, task: str, options: Cam
             raise InputError(f"{where}: {par.name} = {v} is outside [{lo}, {hi}]")
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    return repr(float(v)) if isinstance(v, float) else repr(v)
-
-
 def _check_generic(name: str, value: Any, where: str) -> None:
     group, key = name.split(".", 1)
-    override = [f"{key}={_toml_value(value)}"]
     try:
         if group == "sim":
-            apply_overrides(SimParams(), override)
+            apply_values(SimParams(), [(key, value)])
         elif group == "controller":
             from omnirotor.control.controller import ControllerParams
 
-            apply_overrides(ControllerParams(), override)
+            apply_values(ControllerParams(), [(key, value)])
         else:
-            apply_overrides(ScenarioParams(), override)
+            apply_values(ScenarioParams(), [(key, value)])
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 
@@ -642,49 +741,16 @@ def run_options(spec: CampaignSpec, index: int) -> RunJob:
     }
     o = spec.options
     base_sp = ScenarioParams(segment_s=2.0, settle_s=1.0) if o.quick else ScenarioParams()
-    scen = dict(spec.scenario)
-    plant_over: list[str] = []
-    ctl_over = list(o.controller_overrides)
-    mass, inertia = 1.0, 1.0
-    offset = [0.0, 0.0, 0.0]
-    noise = 1.0
+    draft = RunDraft(derived, scenario=dict(spec.scenario))
     for name, v in params.items():
-        if name == "mass_error":
-            mass = 1.0 + v
-        elif name == "inertia_error":
-            inertia = 1.0 + v
-        elif name in ("gamma", "kappa0"):  # parameters of SPEC §7's model: that model is the run's truth
-            plant_over += [f"aero.{name}={_toml_value(float(v))}", 'aero.model="spec7"']
-        elif name == "rotor_gain_error_std":
-            plant_over += [
-                f"aero.gain_error_std={_toml_value(float(v))}",
-                f"aero.error_seed={derived['rotor_error_seed']}",
-            ]
-        elif name == "rotor_tilt_error_std_deg":
-            plant_over += [
-                f"aero.tilt_error_std_deg={_toml_value(float(v))}",
-                f"aero.error_seed={derived['rotor_error_seed']}",
-            ]
-        elif name.startswith("scene_offset_"):
-            offset["xyz".index(name[-1])] = float(v)
-        elif name == "friction":
-            plant_over.append(f"scene.friction={_toml_value(float(v))}")
-        elif name == "sensor_noise_scale":
-            noise = float(v)
-        elif name == "mocap_latency_s":
-            plant_over.append(f"sensors.mocap_latency_s={_toml_value(float(v))}")
-        elif name in ("peg_misalignment_deg", "slide_roll_deg"):
-            scen[name] = float(v)
-        elif name.startswith("sim."):
-            plant_over.append(f"{name[4:]}={_toml_value(v)}")
-        elif name.startswith("controller."):
-            ctl_over.append(f"{name[11:]}={_toml_value(v)}")
-        elif name.startswith("scenario."):
-            scen[name[9:]] = v
-    if noise != 1.0:
+        apply = _parameter(name).apply
+        if apply is not None:  # the faults are scheduled below
+            apply(draft, v)
+    plant_values = list(draft.sim)
+    if draft.noise_scale != 1.0:
         sensors = SensorParams()
-        plant_over += [f"sensors.{f}={_toml_value(getattr(sensors, f) * noise)}" for f in _NOISE_FIELDS]
-    sp = apply_overrides(base_sp, [f"{k}={_toml_value(v)}" for k, v in scen.items()]) if scen else base_sp
+        plant_values += [(f"sensors.{f}", getattr(sensors, f) * draft.noise_scale) for f in _NOISE_FIELDS]
+    sp = apply_values(base_sp, draft.scenario.items()) if draft.scenario else base_sp
     faults = []
     window = _event_window(spec, sp)
     if params.get("mocap_dropout_s", 0.0) > 0.0:
@@ -704,11 +770,12 @@ def run_options(spec: CampaignSpec, index: int) -> RunJob:
         derived["rotor_failure_t_s"] = t
         told = bool(params.get("rotor_failure_told", True))
         faults.append(RotorFailure(int(params["failed_rotor"]), t, told, ROTOR_DETECT_DELAY_S))
+    inertia = draft.inertia_scale
     plant = PlantPerturbation(
-        mass_scale=mass,
+        mass_scale=draft.mass_scale,
         inertia_scale=(inertia, inertia, inertia),
-        scene_offset_W=tuple(offset),
-        sim_overrides=tuple(plant_over),
+        scene_offset_W=tuple(draft.scene_offset_W),
+        sim_values=tuple(plant_values),
         faults=tuple(faults),
     )
     identify = spec.maps == "identify-truth" and o.map != "nominal"
@@ -722,7 +789,8 @@ def run_options(spec: CampaignSpec, index: int) -> RunJob:
         truth=o.truth,
         vehicle=o.vehicle,
         controller_config=o.controller_config,
-        overrides=tuple(ctl_over),
+        overrides=tuple(o.controller_overrides),
+        controller_values=tuple(draft.controller),
         map_mode=o.map,
         maps=maps,
         blend=o.blend,

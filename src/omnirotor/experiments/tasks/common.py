@@ -20,11 +20,13 @@ import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from omnirotor.config import apply_values
 from omnirotor.control.admittance import AdmittanceParams
-from omnirotor.control.controller import InteractionController
+from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.maps import MapParams
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.errors import InputError
@@ -133,6 +135,8 @@ class ExperimentOptions(TaskOptions):
         plant: how the simulated plant differs from what the controller and the reference believe (mass,
             inertia, scene pose, plant-only simulator overrides, faults; see :mod:`omnirotor.experiments.faults`);
             None: the plant is the model.
+        controller_values: ``(dotted key, value)`` pairs set on the controller parameters after ``overrides``,
+            typed (a campaign's drawn values: :func:`omnirotor.config.apply_values`).
     """
 
     map_mode: str = "nominal"
@@ -145,6 +149,7 @@ class ExperimentOptions(TaskOptions):
     scenario: ScenarioParams | None = None
     protocol: HoverProtocol | None = None
     plant: PlantPerturbation | None = None
+    controller_values: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -156,6 +161,10 @@ class ExperimentOptions(TaskOptions):
                 f"--map {self.map_mode} needs --maps FILE (from `omnirotor identify DATA --out FILE`, e.g. on the "
                 "hover_points.csv of `omnirotor run identify-flights`)"
             )
+
+    def controller_params(self, admittance: AdmittanceParams | None = None) -> ControllerParams:
+        """:meth:`TaskOptions.controller_params`, then ``controller_values``."""
+        return apply_values(super().controller_params(admittance), self.controller_values)
 
     def sim_params(self) -> SimParams:
         """Simulator parameters: the chosen truth aerodynamics, then ``sim_overrides``."""

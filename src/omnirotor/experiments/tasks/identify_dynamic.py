@@ -40,7 +40,7 @@ from omnirotor.experiments.faults import plant_simulator
 from omnirotor.experiments.loop import TaskOptions, run_closed_loop, run_log
 from omnirotor.experiments.tasks.common import ExperimentOptions, ExperimentResult, base_metrics
 from omnirotor.experiments.tasks.scenarios import body_to_ee_waypoint
-from omnirotor.messages import FRAME_GYRO_B, FRAME_ROTOR_HZ, FRAME_T, RotorCommand, SensorFrame
+from omnirotor.messages import RotorCommand, SensorFrame
 from omnirotor.regions import load_partition
 from omnirotor.sim import default_start_pose, scene_anchors
 from omnirotor.so3 import exp_so3
@@ -242,12 +242,12 @@ class _FrameTap:
         if self.k == 0:  # the reset frame was consumed by the controller; the first step's frame follows
             self.k = 1
             return
-        b = sim.packed_frame
+        b = sim.frame_record
         i = self.k - 1
         if i < self.t.size:
-            self.t[i] = b[FRAME_T]
-            self.gyro[i] = b[FRAME_GYRO_B : FRAME_GYRO_B + 3]
-            self.rotor[i] = b[FRAME_ROTOR_HZ : FRAME_ROTOR_HZ + self.n]
+            self.t[i] = b["t"][0]
+            self.gyro[i] = b["imu"]["gyro_B"][0]
+            self.rotor[i] = b["rotor_hz"][0]
         self.k += 1
 
 

@@ -1,0 +1,151 @@
+"""The flight transport's figures: two real processes over Zenoh on loopback (issue 24, item 5).
+
+``python benchmarks/bench_transport.py [--quick] [--json]`` (also ``python benchmarks/run.py --transport``):
+
+* lockstep SITL (``omnirotor sim --serve --task hover --lockstep`` + ``omnirotor fly --mission-from-sim``): the
+  frame-to-command round trip seen by the simulator (frame published -> the node's command received, the node's
+  controller step and publishing included; p50, p99, max) and the real-time factor, with and without the ROS
+  views (Imu, PoseStamped, RotorSpeeds published beside the frame every period);
+* real-time SITL (the same hover on the wall clock): the node's periods late by more than 0.5 ms per 10^5, its
+  frame-to-command latency inside the node, and its CPU time per frame; quiet, and with a CPU hog (a busy
+  Python process) pinned on the other core.
+
+Goals of the issue (quiet machine): round trip p99 <= 250 µs; <= 0.1 % of periods late (100 per 10^5);
+lockstep >= 5x real time. Never part of the test suite.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CLI = "import sys; from omnirotor.cli import main; sys.argv[0] = 'omnirotor'; main()"
+GOALS = {"round_trip_p99_us": 250.0, "late_per_1e5": 100.0, "lockstep_rtf": 5.0}
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src")] + ([env["PYTHONPATH"]] if "PYTHONPATH" in env else []))
+    return env
+
+
+def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool) -> dict:
+    """One SITL hover: the simulator's ``sitl`` report and the node's summary."""
+    port, node_port = _port(), _port()
+    ns = f"/bench{port}"
+    sim_cmd = [sys.executable, "-c", CLI, "sim", "--serve", "--task", "hover", "--duration", str(duration_s),
+               "--listen", f"tcp/127.0.0.1:{port}", "--namespace", ns, "--json", "--wait", "900"]  # fmt: skip
+    sim_cmd += ["--lockstep"] if lockstep else (["--fifo-priority", "20"] if fifo else [])
+    sim_cmd += [] if ros_views else ["--no-ros-views"]
+    node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
+                "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
+                "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
+    sim = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
+    node = subprocess.Popen(node_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
+    try:
+        sim_out, _ = sim.communicate(timeout=1800)
+        node_out, _ = node.communicate(timeout=120)
+    finally:
+        for p in (sim, node):
+            if p.poll() is None:
+                p.kill()
+    return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
+
+
+@contextlib.contextmanager
+def cpu_hog(cpu: int):
+    """A busy process pinned on ``cpu`` while the block runs."""
+    hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"])
+    try:
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
+    """Every figure of the module docstring."""
+    lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
+    out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS}
+    note("warm-up (numba cache)")
+    run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
+    for views in (False, True):
+        note(f"lockstep hover {lock_s:g} s, ROS views {'on' if views else 'off'}")
+        r = run_pair(lock_s, lockstep=True, ros_views=views, fifo=False)
+        out[f"lockstep_views_{'on' if views else 'off'}"] = {
+            "round_trip_us": r["sim"]["round_trip_us"],
+            "rtf": r["sim"]["real_time_factor"],
+            "node_cpu_per_frame_us": r["node"]["cpu_per_frame_us"],
+            "node_work_us": r["node"]["work_us"],
+        }
+    n_cpus = os.cpu_count() or 1
+    for hog in (False, True):
+        note(f"real-time hover {rt_s:g} s{' with a CPU hog on CPU 0' if hog else ''}")
+        with cpu_hog(0) if hog and n_cpus > 1 else contextlib.nullcontext():
+            r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True)
+        node = r["node"]
+        out[f"real_time{'_hog' if hog else ''}"] = {
+            "periods": node["periods"],
+            "late": node["periods_late"],
+            "late_per_1e5": node["late_per_1e5"],
+            "missed": node["missed"],
+            "worst_late_ms": node["worst_late_ms"],
+            "frame_to_command_us": node["frame_to_command_us"],
+            "node_cpu_per_frame_us": node["cpu_per_frame_us"],
+            "sim_late_steps": r["sim"]["late_steps"],
+            "sim_round_trip_us": r["sim"]["round_trip_us"],
+        }
+    return out
+
+
+def render(r: dict) -> str:
+    """The figures as Markdown lines."""
+    lines = [f"Transport (two processes over Zenoh on loopback; {'quick' if r['quick'] else 'full'} sizes):", ""]
+    lines += ["| measurement | p50 | p99 | max | other |", "|---|---|---|---|---|"]
+    for key, label in (("lockstep_views_off", "lockstep round trip, frame only"),
+                       ("lockstep_views_on", "lockstep round trip, frame + ROS views")):  # fmt: skip
+        d = r[key]
+        rt = d["round_trip_us"]
+        lines.append(
+            f"| {label} [µs] | {rt['p50']:.0f} | {rt['p99']:.0f} | {rt['max']:.0f} | {d['rtf']:.2f}x real time; "
+            f"node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame |"
+        )
+    for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0")):
+        if key not in r:
+            continue
+        d = r[key]
+        f = d["frame_to_command_us"]
+        lines.append(
+            f"| {label}: node frame to command [µs] | {f['p50']:.0f} | {f['p99']:.0f} | {f['max']:.0f} | "
+            f"late > 0.5 ms: {d['late']} of {d['periods']} ({d['late_per_1e5']:.0f} per 1e5), worst "
+            f"{d['worst_late_ms']:.1f} ms; node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line (module docstring)."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="shorter runs (2 s lockstep, 10 s real time)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    args = ap.parse_args(argv)
+    result = collect(args.quick)
+    print(json.dumps(result, indent=1) if args.json else render(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
