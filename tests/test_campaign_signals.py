@@ -165,13 +165,13 @@ def test_workers_die_with_a_killed_main_process_and_the_campaign_resumes(tmp_pat
 
 def fake_task(monkeypatch, summary):
     """Replace the closed-loop task by one that returns ``summary`` at once."""
-    from omnirotor.experiments import loop as closed_loop
+    from omnirotor.experiments import tasks
 
     class Result:
         def summary(self):
             return dict(summary)
 
-    monkeypatch.setattr(closed_loop, "run_task", lambda task, options, progress=None: Result())
+    monkeypatch.setattr(tasks, "run_task", lambda task, options, progress=None: Result())
 
 
 def test_a_run_with_non_finite_steps_is_a_failure_with_its_cause(tmp_path, monkeypatch):

@@ -2,7 +2,7 @@ import dataclasses
 
 import pytest
 
-from omnirotor.config import apply_overrides, from_mapping
+from omnirotor.config import apply_overrides, apply_values, from_mapping
 from omnirotor.errors import InputError
 
 
@@ -78,9 +78,12 @@ def test_campaign_plant_overrides_batched_equal_one_at_a_time():
 
     spec = load_campaign(None, "hover", quick=True)
     for i in range(12):
-        overrides = list(run_options(spec, i).options.plant.sim_overrides)
-        assert len(overrides) > 15
-        assert apply_overrides(SimParams(), overrides) == one_by_one(SimParams(), overrides)
+        values = list(run_options(spec, i).options.plant.sim_values)  # a campaign's drawn values, typed
+        assert len(values) > 15
+        one_at_a_time = SimParams()
+        for item in values:
+            one_at_a_time = apply_values(one_at_a_time, [item])
+        assert apply_values(SimParams(), values) == one_at_a_time
 
 
 @pytest.mark.parametrize(
