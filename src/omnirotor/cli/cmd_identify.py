@@ -148,8 +148,7 @@ def identify_cmd(
     params = IdentificationParams(delta=delta_value, weights=_weights(weights))
     hover = load_hover_data(data, veh, criteria)
     maps = identify(hover, veh, params, part, region)
-    for line in identification_warnings(hover, veh, maps, region):
-        print(f"omnirotor: warning: {line}", file=sys.stderr)
+    warnings_ = identification_warnings(hover, veh, maps, region)  # said once the command has succeeded
     torque_fits = {}
     if torque is not None:
         from omnirotor.torque_identification import flight_torque_rows
@@ -159,6 +158,8 @@ def identify_cmd(
         maps.save(out)
         if replacing:
             note(f"--out {out}: replaced the existing file")
+    for line in warnings_:
+        print(f"omnirotor: warning: {line}", file=sys.stderr)
     rep = summary(maps)
     if torque_fits:
         rep["torque"] = {k: dataclasses.asdict(f) | {"A2": f.A2.tolist()} for k, f in torque_fits.items()}

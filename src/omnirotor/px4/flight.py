@@ -27,6 +27,7 @@ Both ignore idle speed, the ESCs' calibration and motor dynamics.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -237,7 +238,15 @@ PX4_PWM_DEFAULTS = {"PWM_MIN": 1000.0, "PWM_MAX": 2000.0, "THR_MDL_FAC": 0.0}
 def _speeds_from_pwm(outputs, params: dict, n_rotors: int | None, omega_max_hz: float, t0: int, p: Path):
     """Rotor speeds [Hz] from ``actuator_outputs`` PWM (module docstring) and the note saying how."""
     n_out = sum(1 for k in outputs.data if k.startswith("output["))
-    funcs = {int(params[f"PWM_MAIN_FUNC{k}"]): k - 1 for k in range(1, 17) if f"PWM_MAIN_FUNC{k}" in params}
+
+    def number(name: str) -> float | None:  # a finite parameter value, else None (absent or corrupt)
+        try:
+            v = float(params[name])
+        except (KeyError, TypeError, ValueError):
+            return None
+        return v if math.isfinite(v) else None
+
+    funcs = {int(v): k - 1 for k in range(1, 17) if (v := number(f"PWM_MAIN_FUNC{k}")) is not None}
     motors = [funcs[101 + i] for i in range(n_rotors or 0) if 101 + i in funcs]  # 101..: Motor 1..
     n = n_rotors or n_out
     channels = motors if n_rotors and len(motors) == n_rotors else list(range(n))
@@ -245,13 +254,15 @@ def _speeds_from_pwm(outputs, params: dict, n_rotors: int | None, omega_max_hz: 
         raise InputError(f"{p}: actuator_outputs has {n_out} outputs, the vehicle has {n} rotors")
     used, took_default = {}, []
     for key in ("PWM_MIN", "PWM_MAX", "THR_MDL_FAC"):
-        if key in params and float(params[key]) >= 0:
-            used[key] = float(params[key])
+        v = number(key)
+        if v is not None and v >= 0:
+            used[key] = v
         else:
             used[key] = PX4_PWM_DEFAULTS[key]
             took_default.append(key)
-    lo = np.array([float(params.get(f"PWM_MAIN_MIN{k + 1}", -1)) for k in channels])
-    hi = np.array([float(params.get(f"PWM_MAIN_MAX{k + 1}", -1)) for k in channels])
+    unset = -1.0  # PX4's "use PWM_MIN / PWM_MAX" for a per-output value
+    lo = np.array([unset if (v := number(f"PWM_MAIN_MIN{k + 1}")) is None else v for k in channels])
+    hi = np.array([unset if (v := number(f"PWM_MAIN_MAX{k + 1}")) is None else v for k in channels])
     lo = np.where(lo >= 0, lo, used["PWM_MIN"])
     hi = np.where(hi >= 0, hi, used["PWM_MAX"])
     if np.any(hi <= lo):
@@ -267,7 +278,11 @@ def _speeds_from_pwm(outputs, params: dict, n_rotors: int | None, omega_max_hz: 
         f"thrust = THR_MDL_FAC x² + (1 - THR_MDL_FAC) x, x = (pwm - min)/(max - min); PWM range "
         + ", ".join(f"{a:g}-{b:g} µs" for a, b in ranges)
         + f", THR_MDL_FAC = {f:g}"
-        + (f" ({', '.join(took_default)}: PX4's default, not in the log)" if took_default else " (from the log)")
+        + (
+            f" ({', '.join(took_default)}: PX4's default, absent or invalid in the log)"
+            if took_default
+            else " (from the log)"
+        )
         + "; idle speed and ESC calibration ignored"
     )
     return Series(_time(outputs, t0), np.sqrt(thrust) * omega_max_hz), note
