@@ -134,6 +134,7 @@ class LoopStats:
         self.worst_late_s = 0.0
         self.link_losses = 0
         self.controller_errors = 0
+        self.status_errors = 0
         self._latency = np.zeros(_LATENCY_WINDOW)
         self._work = np.zeros(_LATENCY_WINDOW)
         self._i = 0
@@ -182,6 +183,7 @@ class LoopStats:
             "work_us": self.work_percentiles_us(),
             "link_losses": self.link_losses,
             "controller_errors": self.controller_errors,
+            "status_errors": self.status_errors,
         }
 
 
@@ -337,11 +339,9 @@ class NodeLoop:
         self._pub_loop.put(m)
         if self._pub_status is not None:
             try:
-                st = self.director.status()
-                fields = st.to_fields() if hasattr(st, "to_fields") else st
-                self._pub_status.put(self._flight_status_type(**fields))
-            except Exception:  # noqa: BLE001,S110  (a status that cannot be built is skipped, never fatal)
-                pass
+                self._pub_status.put(self._flight_status_type(**self.director.status().to_fields()))
+            except Exception:  # noqa: BLE001  (a status that cannot be built is skipped and counted, never fatal)
+                self.stats.status_errors += 1
 
     def _publish_wrench(self, t: float) -> None:
         log = self.controller.log
