@@ -194,13 +194,13 @@ def test_registry_takes_another_transport():
             return (lambda: None), (lambda: None), name
 
         def _serve(self, name, reqtype, on_request):
-            pass
+            """A transport that carries nothing serves nothing."""
 
         def _request(self, name, reqtype, payload, timeout_s):
             return None
 
         def close(self):
-            pass
+            """Nothing to release."""
 
     register_transport("null-test", Null)
     try:
