@@ -87,7 +87,7 @@ MISSION_OPTION_FIELDS = (
 
 _COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
-_SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
+_LOCKSTEP_WAIT_S = 0.05  # lockstep: the longest sleep on the command queue before the failsafe's clock is read [s]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,6 +169,7 @@ class SimLink:
         )
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
         self.gate = CommandGate()
+        self.rows_malformed = 0
         self.cmd_hz = np.zeros(n_rotors)
         self.cmd_frame_seq = -1
         self.cmd_wall_s = -math.inf  # monotonic time of the last obeyed command
@@ -186,7 +187,7 @@ class SimLink:
     @property
     def bad_payloads(self) -> int:
         """Payloads on the command and log keys that did not decode or were malformed."""
-        return self._sub_cmd.n_bad + self._sub_rows.n_bad
+        return self._sub_cmd.n_bad + self._sub_rows.n_bad + self.rows_malformed
 
     def send_frame(self, record: np.ndarray, seq: int) -> None:
         """Publish a frame record as ``SensorFrame`` number ``seq`` (and its ROS views)."""
@@ -200,22 +201,34 @@ class SimLink:
                 pose.put(m.pose)
             speeds.put(m.speeds)
 
-    def poll_commands(self) -> bool:
-        """Take every queued command through the gate; True if one was obeyed (the newest obeyed is kept)."""
+    def poll_commands(self, timeout_s: float = 0.0) -> bool:
+        """Take every queued command through the gate; True if one was obeyed (the newest obeyed is kept).
+
+        Args:
+            timeout_s: wait (asleep) up to this long [s] for a first command.
+        """
         got = False
-        while (msg := self._sub_cmd.take()) is not None:
+        msg = self._sub_cmd.take(timeout_s)
+        while msg is not None:
             if self.gate.offer(int(msg.session_id), int(msg.seq)):
                 self.cmd_hz[:] = msg.hz
                 self.cmd_frame_seq = int(msg.frame_seq)
                 self.cmd_t = float(msg.t)
                 self.cmd_wall_s = time.monotonic()
                 got = True
+            msg = self._sub_cmd.take()
         return got
 
     def drain_rows(self, store: Callable[[int, np.ndarray], None]) -> None:
-        """Hand every queued controller-log row to ``store(frame_seq, row)``."""
+        """Hand every queued controller-log row (they come in batches) to ``store(frame_seq, row)``."""
         while (msg := self._sub_rows.take()) is not None:
-            store(int(msg.frame_seq), msg.row)
+            n, k = int(msg.n_columns), len(msg.frame_seq)
+            if n <= 0 or msg.rows.size != n * k:
+                self.rows_malformed += 1
+                continue
+            rows = msg.rows.reshape(k, n)
+            for seq, row in zip(msg.frame_seq, rows, strict=True):
+                store(int(seq), row)
 
     def send_status(self, t: float, steps: int, held: int, failsafe: bool, cause: str, finished: bool = False,
                     force: bool = False) -> None:  # fmt: skip
@@ -338,15 +351,13 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if not failsafe:
                 if lockstep:
                     while True:
-                        link.poll_commands()
+                        link.poll_commands(_LOCKSTEP_WAIT_S)
                         if link.cmd_frame_seq >= k:
                             break
                         now = time.monotonic()
                         if now - link.cmd_wall_s > opts.lockstep_offboard_loss_s:
                             failsafe = _engage(link, report, now)
                             break
-                        if now - sent_at > _SPIN_S:
-                            time.sleep(0.00005)
                     rtt[k] = (link.cmd_wall_s - sent_at) * 1e6
                 else:
                     due = wall0 + k * dt
@@ -417,14 +428,17 @@ def _engage(link: SimLink, report: SitlReport, now: float) -> bool:
 
 
 def _sleep_until(when: float, link: SimLink | None) -> None:
-    """Sleep until the monotonic time ``when``, polling ``link``'s commands meanwhile; the last part spinning."""
+    """Sleep until the monotonic time ``when``, taking ``link``'s commands as they arrive meanwhile (no polling)."""
     while True:
         left = when - time.monotonic()
-        if link is not None:
-            link.poll_commands()
         if left <= 0:
+            if link is not None:
+                link.poll_commands()
             return
-        time.sleep(min(left - _SPIN_S, 0.0005) if left > _SPIN_S else 0)
+        if link is None:
+            time.sleep(left)
+        else:
+            link.poll_commands(left)
 
 
 def mission_json(task: str, options, lockstep: bool) -> str:
