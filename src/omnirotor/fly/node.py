@@ -324,7 +324,7 @@ class NodeLoop:
         m.t = t
         set_stamp(m.header, t)
         m.control_status = control_status
-        m.state = _STATE_ARMED if bool(np.any(hz != 0.0)) else _STATE_STOP
+        m.state = _STATE_ARMED if hz.any() else _STATE_STOP  # any nonzero speed (NaN never reaches here)
         m.session_id = self.session_id
         m.seq = self.cmd_seq
         m.frame_seq = frame_seq
@@ -408,7 +408,7 @@ class NodeLoop:
         next_status = 0.0
         next_gap_call = math.inf
         steps = 0
-        cpu0 = time.process_time()
+        cpu0, thread0 = time.process_time(), time.thread_time()
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -491,6 +491,7 @@ class NodeLoop:
         self._publish_status()
         out = stats.summary()
         out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
+        out["loop_cpu_per_frame_us"] = 1e6 * (time.thread_time() - thread0) / max(stats.frames, 1)
         out["frames_bad"] = self._frames.n_bad
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
