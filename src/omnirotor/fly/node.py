@@ -110,6 +110,10 @@ class NodeOptions:
         log_rows: publish the controller's log rows (missions of ``omnirotor sim --serve``).
         exit_on_link_loss: end the loop when the link is lost (missions); else wait for frames again.
         max_frames: end after this many frames (None: until stopped or the simulator says it finished).
+        record: a ROS 2 bag to record the flight into (a new folder; :class:`~omnirotor.fly.record.FlightRecorder`:
+            every period, from a writer process, in bounded memory), or None.
+        foxglove_port: serve the live view (:class:`~omnirotor.fly.live.LiveView`) on this loopback port (0: any
+            free one), or None.
     """
 
     period_s: float = 0.001
@@ -122,6 +126,8 @@ class NodeOptions:
     log_rows: bool = False
     exit_on_link_loss: bool = False
     max_frames: int | None = None
+    record: str | None = None
+    foxglove_port: int | None = None
 
 
 class LoopStats:
@@ -138,6 +144,7 @@ class LoopStats:
         self.link_losses = 0
         self.controller_errors = 0
         self.status_errors = 0
+        self.output_errors = 0
         self._latency = np.zeros(_LATENCY_WINDOW)
         self._work = np.zeros(_LATENCY_WINDOW)
         self._i = 0
@@ -187,6 +194,7 @@ class LoopStats:
             "link_losses": self.link_losses,
             "controller_errors": self.controller_errors,
             "status_errors": self.status_errors,
+            "output_errors": self.output_errors,
         }
 
 
@@ -285,6 +293,21 @@ class NodeLoop:
         self._finish_seq = math.inf
         self._last_seq = -1
         self.last_t = math.nan
+        self.recorder = self.live = None
+        columns = list(getattr(getattr(controller, "log", None), "column_names", ()))
+        if o.record is not None:
+            from omnirotor.fly.record import FlightRecorder
+
+            self.recorder = FlightRecorder(o.record, n, columns)
+        if o.foxglove_port is not None:
+            from omnirotor.fly.live import start_live_view
+
+            try:
+                self.live = start_live_view(o.foxglove_port, log_columns=columns)
+            except InputError:
+                self.close_outputs()
+                raise
+            self._say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
         self._f_idx = self._m_idx = self._R_idx = None
         log = getattr(controller, "log", None)
         if log is not None:
@@ -345,7 +368,12 @@ class NodeLoop:
         self._pub_loop.put(m)
         if self._pub_status is not None:
             try:
-                self._pub_status.put(self._flight_status_type(**self.director.status().to_fields()))
+                status = self.director.status()
+                self._pub_status.put(self._flight_status_type(**status.to_fields()))
+                if self.recorder is not None:
+                    self.recorder.status(status)
+                if self.live is not None:
+                    self.live.status(status)
             except Exception:  # noqa: BLE001  (a status that cannot be built is skipped and counted, never fatal)
                 self.stats.status_errors += 1
 
@@ -388,6 +416,35 @@ class NodeLoop:
         m.rows = self._rows[:k].reshape(-1)
         self._pub_rows.put(m)
         self._n_rows = 0
+
+    def _record_period(self, frame: SensorFrame, hz: np.ndarray, cmd) -> None:
+        """The period to the recording and the live view (after the command left: off its latency)."""
+        log = self.controller.log
+        row = log.data[log.n - 1] if cmd is not None and log.n else None
+        try:
+            if self.recorder is not None:
+                self.recorder.period(frame, hz, int(cmd.status) if cmd is not None else 0, row)
+            if self.live is not None:
+                self.live.node_period(frame, hz, row)
+        except Exception:  # noqa: BLE001  (a recording or view that fails never ends the flight: counted)
+            self.stats.output_errors += 1
+
+    def close_outputs(self) -> dict:
+        """Finish the recording and stop the live view (idempotent); what the recording wrote."""
+        out: dict = {}
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            try:
+                summary = rec.close()
+                out["recording"] = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
+                                    "messages": summary.get("messages", {})}  # fmt: skip
+            except InputError as exc:
+                self._say(str(exc))
+                out["recording"] = {"path": str(rec.path), "error": str(exc)}
+        return out
 
     # -- the loop ---------------------------------------------------------------------------------------------
     def run(self, stop: threading.Event | None = None) -> dict:
@@ -464,6 +521,8 @@ class NodeLoop:
                 hz = director.output(cmd)
                 self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0)
                 sent = mono()
+                if self.recorder is not None or self.live is not None:
+                    self._record_period(frame, hz, cmd)
                 if cmd is not None:
                     if self._pub_rows is not None:
                         self._keep_row(last_seq)
@@ -490,6 +549,7 @@ class NodeLoop:
         self._flush_rows()
         self._publish_status()
         out = stats.summary()
+        out.update(self.close_outputs())
         out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
         out["loop_cpu_per_frame_us"] = 1e6 * (time.thread_time() - thread0) / max(stats.frames, 1)
         out["frames_bad"] = self._frames.n_bad

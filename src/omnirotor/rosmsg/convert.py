@@ -210,14 +210,19 @@ _SET = {name: SensorFrame.__dict__[name].__set__ for name in ("t", "mocap_new", 
 class FrameCodec:
     """One vehicle's frame record and :class:`SensorFrame`, refilled from each frame message in place.
 
+    Args:
+        n_rotors: the vehicle's rotors.
+        record: a ``(1,)`` frame record to view (e.g. the simulator's own, which its step rewrites; then
+            :meth:`refresh` gives its frame); None: a new one.
+
     :meth:`decode` writes the message into :attr:`record` (slices of its flat float64 view, computed once) and
     returns :attr:`frame`: a frame whose arrays are views of that record and whose scalar slots are set in place,
     so a period builds no frame object and copies no record. It is valid until the next :meth:`decode`: a
     consumer keeps copies (as the flight director and the controller do), never the frame.
     """
 
-    def __init__(self, n_rotors: int) -> None:
-        self.record = new_frame(n_rotors)
+    def __init__(self, n_rotors: int, record: np.ndarray | None = None) -> None:
+        self.record = new_frame(n_rotors) if record is None else record
         self._x = x = flat_view(self.record)
         self._p, self._q = x[_M_P], x[_M_Q]
         self.frame = SensorFrame(0.0, x[_ACC], x[_GYRO], x[_HZ_START:])
@@ -225,17 +230,22 @@ class FrameCodec:
 
     def decode(self, msg) -> SensorFrame:
         """The frame of a (checked) ``SensorFrame`` message, exact."""
+        _unpack(msg, self._x)
+        return self.refresh()
+
+    def refresh(self) -> SensorFrame:
+        """The frame of :attr:`record` as it is now (after :meth:`decode`, or after its producer wrote it)."""
         x, f, s = self._x, self.frame, _SET
-        _unpack(msg, x)
-        s["t"](f, msg.t)
-        new = bool(msg.mocap_new)
-        s["mocap_new"](f, new)
-        s["mocap_t"](f, msg.mocap_t if new else 0.0)
+        t = float(x[_T])
+        s["t"](f, t)
+        new = x[_M_NEW] != 0.0
+        s["mocap_new"](f, bool(new))
+        s["mocap_t"](f, float(x[_M_T]) if new else 0.0)
         s["mocap_p_W"](f, self._p if new else None)
         s["mocap_q_WB"](f, self._q if new else None)
-        if msg.has_state:  # bypass studies only: a state object per frame
+        if x[_S_VALID] != 0.0:  # bypass studies only: a state object per frame
             st = self.record[0]["state"]
-            s["state"](f, StateEstimate(msg.t, st["p_W"], st["v_W"], st["a_W"], st["R_WB"], st["omega_B"]))
+            s["state"](f, StateEstimate(t, st["p_W"], st["v_W"], st["a_W"], st["R_WB"], st["omega_B"]))
         else:
             s["state"](f, None)
         return f

@@ -54,6 +54,7 @@ from omnirotor.rosmsg.convert import (
     SIM_STATUS,
     SPEEDS,
     STRING,
+    FrameCodec,
     WireMessages,
     command_check,
     set_stamp,
@@ -103,6 +104,10 @@ class ServeOptions:
         status_hz: SimStatus rate [Hz].
         ros_views: also publish the standard ROS views (Imu, PoseStamped, RotorSpeeds) every period.
         row_wait_s: at the end of a run, how long to wait for the node's last log rows [s].
+        record: a ROS 2 bag to record the plant into (a new folder): every period's frame, the speeds it flew
+            and its ground truth (``/omnirotor/pose`` is the true pose), streamed from a writer process; or None.
+        foxglove_port: serve the simulator's live view (true pose, contact, rotors) on this loopback port (0: any
+            free one), or None.
     """
 
     lockstep: bool = False
@@ -112,6 +117,8 @@ class ServeOptions:
     status_hz: float = 50.0
     ros_views: bool = True
     row_wait_s: float = 2.0
+    record: str | None = None
+    foxglove_port: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -134,6 +141,7 @@ class SitlReport:
     failsafe: bool = False
     failsafe_after_s: float | None = None
     log_rows_missing: int = 0
+    recording: dict = dataclasses.field(default_factory=dict)
     late_steps: int = 0
     wall_s: float = 0.0
     real_time_factor: float = 0.0
@@ -254,6 +262,67 @@ class SimLink:
         self._pub_status.put(s)
 
 
+class SimOutputs:
+    """The plant's recording and live view (:attr:`ServeOptions.record`, :attr:`ServeOptions.foxglove_port`).
+
+    :meth:`period` is called after each plant step, with the speeds the plant flew; nothing when neither is on.
+    """
+
+    def __init__(self, sim, options: ServeOptions, say: Callable[[str], None]) -> None:
+        from omnirotor.experiments.loop import TRUTH_GROUPS
+
+        n = sim.vehicle.n_rotors
+        self._sim = sim
+        self._codec = FrameCodec(n, sim.frame_record)
+        columns = Recorder(1, TRUTH_GROUPS(n)).column_names
+        self._row = np.zeros(len(columns))
+        self.recorder = self.live = None
+        self.errors = 0
+        if options.record is not None:
+            from omnirotor.fly.record import FlightRecorder
+
+            self.recorder = FlightRecorder(options.record, n, columns)
+        if options.foxglove_port is not None:
+            from omnirotor.fly.live import start_live_view
+
+            try:
+                self.live = start_live_view(options.foxglove_port, log_columns=columns)
+            except InputError:
+                self.close()
+                raise
+            say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
+        self.active = self.recorder is not None or self.live is not None
+
+    def period(self, cmd_hz: np.ndarray) -> None:
+        """The period just stepped: its frame, the speeds flown and the ground truth."""
+        sim = self._sim
+        try:
+            if self.recorder is not None:
+                sim.truth_row(self._row)
+                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row)
+            if self.live is not None:
+                self.live.sim_period(sim.t, sim.truth)
+        except Exception:  # noqa: BLE001  (a recording or a view that fails never stops the plant: counted)
+            self.errors += 1
+
+    def close(self) -> dict:
+        """Finish the recording, stop the live view (idempotent); what the recording wrote."""
+        out: dict = {}
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            try:
+                summary = rec.close()
+                out = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
+                       "messages": summary.get("messages", {})}  # fmt: skip
+            except InputError as exc:
+                out = {"path": str(rec.path), "error": str(exc)}
+        self.active = False
+        return out
+
+
 def _percentiles_us(samples: np.ndarray) -> dict:
     if samples.size == 0:
         return {}
@@ -293,7 +362,11 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
                 log.data[j] = row
                 have_row[j] = True
 
-        _run(link, report, sim, n_steps, truth_log, store_row, progress, on_step)
+        outputs = SimOutputs(sim, link.options, _say)
+        try:
+            _run(link, report, sim, n_steps, truth_log, store_row, progress, on_step, outputs)
+        finally:
+            report.recording = outputs.close()
         # the last rows may still be on their way
         end = time.monotonic() + link.options.row_wait_s
         while not have_row.all() and time.monotonic() < end and not report.failsafe:
@@ -313,7 +386,8 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
     return loop
 
 
-def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step) -> None:
+def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step,
+         outputs: SimOutputs) -> None:  # fmt: skip
     """Step the plant ``n_steps`` periods over the link (module docstring), filling the truth log."""
     opts = link.options
     dt = sim.dt
@@ -381,6 +455,8 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if on_step is not None:
                 on_step(sim, sim.t)
             sim.step(cmd)
+            if outputs.active:
+                outputs.period(cmd.omega_hz)
             row = truth_log.next_row()
             if row is not None:
                 sim.truth_row(row)
@@ -411,6 +487,10 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
         time.sleep(0.01)
     if progress is not None:
         progress(1.0)
+
+
+def _say(line: str) -> None:
+    print(f"omnirotor sim: {line}", file=sys.stderr)
 
 
 def _engage(link: SimLink, report: SitlReport, now: float) -> bool:
@@ -491,7 +571,8 @@ def serve_free(
     The plant starts at the scene's start pose, *held*: not stepped, its start frame published every period
     (fresh numbers, the same time), so that the node can ``arm`` on it. The first nonzero command of the paired
     session (the take-off's hover command) releases it; from then on it steps on the wall clock, a missing command
-    held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records no logs.
+    held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records (``serve.record``) and
+    serves the live view (``serve.foxglove_port``) when asked.
     """
     stop = stop if stop is not None else threading.Event()
     p0, R0 = sim.default_start()
@@ -500,6 +581,7 @@ def serve_free(
     sim.reset(p_W=p0, R_WB=R0)
     link = SimLink(transport, sim.vehicle.n_rotors, dataclasses.replace(serve, lockstep=False))
     report = SitlReport()
+    outputs = SimOutputs(sim, serve, say)
     record = sim.frame_record
     zeros = np.zeros(link.n)
     dt = sim.dt
@@ -529,7 +611,10 @@ def serve_free(
                 failsafe = _engage(link, report, now)
             if link.cmd_frame_seq != seq - 1:
                 held += 1
-            sim.step(RotorCommand(sim.t, zeros if failsafe else link.cmd_hz))
+            flown = zeros if failsafe else link.cmd_hz
+            sim.step(RotorCommand(sim.t, flown))
+            if outputs.active:
+                outputs.period(flown)
             report.steps += 1
             link.send_frame(record, seq)
             seq += 1
@@ -539,6 +624,7 @@ def serve_free(
     finally:
         gc.enable()
         gc.unfreeze()
+        report.recording = outputs.close()
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held
     report.commands_refused = link.gate.refused
