@@ -104,7 +104,12 @@ def fly(
     endpoints = list(connect) if connect else ([] if from_file else ["tcp/127.0.0.1:7447"])
     listening = list(listen) if listen else ([] if from_file else [DEFAULT_NODE_ENDPOINT])
     with open_transport(
-        domain_id=domain_id, namespace=namespace, listen=listening, connect=endpoints, config_file=zenoh_config
+        domain_id=domain_id,
+        namespace=namespace,
+        listen=listening,
+        connect=endpoints,
+        config_file=zenoh_config,
+        node="omnirotor_fly",
     ) as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)

@@ -118,6 +118,7 @@ def sim(
         listen=endpoints,
         connect=list(connect or ()),
         config_file=zenoh_config,
+        node="omnirotor_sim",
     ) as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
@@ -189,6 +190,7 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         listen=endpoints,
         connect=list(connect or ()),
         config_file=zenoh_config,
+        node="omnirotor_sim",
     ) as t:
         if fifo_priority:
             from omnirotor.fly.node import set_realtime

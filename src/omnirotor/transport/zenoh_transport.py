@@ -6,9 +6,11 @@ Zenoh network hears these topics with their types:
 * a topic's key expression is ``<domain_id>/<fully qualified topic without its leading slash>/<type>/<hash>``,
   e.g. ``0/omnirotor/rotor_cmd/omnirotor_msgs::msg::dds_::RotorCommand_/RIHS01_afdd...``: the type mangled as
   ``pkg::msg::dds_::Name_`` and its RIHS01 type hash (rosbags computes it from the definitions);
-* every sample carries rmw_zenoh's attachment, written with Zenoh's own serialiser (``zenoh.ext``): the key
-  ``sequence_number`` and an int64, ``source_timestamp`` and an int64 [ns, system clock], ``source_gid`` and 16
-  bytes identifying the publisher;
+* every sample carries rmw_zenoh's attachment, written with Zenoh's own serialiser (``zenoh.ext``, the format of
+  zenoh-cpp's serializer that rmw_zenoh uses): the sequence number (int64), the source time stamp (int64, ns of
+  the system clock) and the publisher's 16-byte id (a sequence: its length, then the bytes);
+* every publisher and subscriber (and the node itself) declares rmw_zenoh's liveliness token
+  (:func:`liveliness_key`), so the ROS 2 graph (``ros2 topic list``, ``ros2 node list``) sees them;
 * a request/reply is a Zenoh queryable on the same kind of key (``ctl``'s ``FlightRequest``).
 
 The session is a Zenoh peer with multicast scouting off: it listens on the given endpoints (loopback by default) and
@@ -37,7 +39,15 @@ from omnirotor.errors import InputError
 from omnirotor.rosmsg import typestore
 from omnirotor.transport.base import Transport, register_transport
 
-__all__ = ["ZenohTransport", "key_expression", "dds_type_name", "ros_attachment", "AttachmentWriter"]
+__all__ = [
+    "ZenohTransport",
+    "key_expression",
+    "dds_type_name",
+    "ros_attachment",
+    "AttachmentWriter",
+    "liveliness_key",
+    "qos_key",
+]
 
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(.+)$")
 _LOOPBACK_NAMES = ("localhost",)
@@ -65,7 +75,7 @@ def ros_attachment(seq: int, gid: bytes, stamp_ns: int | None = None) -> bytes:
     from zenoh.ext import Int64, z_serialize
 
     stamp = Int64(time.time_ns() if stamp_ns is None else stamp_ns)
-    return z_serialize(("sequence_number", Int64(seq), "source_timestamp", stamp, "source_gid", gid)).to_bytes()
+    return z_serialize((Int64(seq), stamp, gid)).to_bytes()
 
 
 class AttachmentWriter:
@@ -96,6 +106,38 @@ class AttachmentWriter:
         self._PACK.pack_into(self._buf, self._seq_at, seq)
         self._PACK.pack_into(self._buf, self._stamp_at, time.time_ns())
         return bytes(self._buf)
+
+
+def qos_key(best_effort: bool = False, depth: int = 10) -> str:
+    """rmw_zenoh's QoS part of a liveliness token (only the reliability and the depth ever differ here).
+
+    ``<reliability>:<durability>:<history>,<depth>:<deadline s>,<ns>:<lifespan s>,<ns>:<liveliness>,<s>,<ns>``;
+    an empty entry is rmw_zenoh's default (reliable, volatile, keep last 10, none, none, automatic).
+    """
+    rel = "2" if best_effort else ""  # RMW_QOS_POLICY_RELIABILITY_BEST_EFFORT
+    return f"{rel}::,{'' if depth == 10 else depth}:,:,:,,"
+
+
+def liveliness_key(
+    domain_id: int, zid: str, nid: int, eid: int, kind: str, namespace: str, node: str,
+    topic: str | None = None, msgtype: str | None = None, qos: str = "",
+) -> str:  # fmt: skip
+    """rmw_zenoh's liveliness token of a node (``kind`` ``NN``) or of its publisher (``MP``) or subscriber (``MS``).
+
+    ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<kind>/<enclave>/<namespace>/<node>`` and, for a topic's
+    entity, ``/<topic>/<DDS type name>/<RIHS01 hash>/<QoS>``; each name with its slashes replaced by ``%``
+    (the empty namespace and the enclave, ``/``, are ``%``); ``topic`` is the fully qualified topic name.
+    """
+
+    def mangle(name: str) -> str:
+        return (name or "/").replace("/", "%")
+
+    parts = ["@ros2_lv", str(domain_id), zid, str(nid), str(eid), kind, "%", mangle(namespace), mangle(node)]
+    if kind != "NN":
+        if topic is None or msgtype is None:
+            raise ValueError(f"a {kind} token needs its topic and type")
+        parts += [mangle(topic), dds_type_name(msgtype), typestore().hash_rihs01(msgtype), qos]
+    return "/".join(parts)
 
 
 def _check_endpoints(what: str, endpoints: Sequence[str]) -> list[str]:
@@ -142,6 +184,8 @@ class ZenohTransport(Transport):
         config: further Zenoh configuration as ``{json5 path: value}`` (e.g. access control, TLS).
         config_file: a Zenoh configuration file (JSON5) to start from; its endpoints stand unless ``listen`` or
             ``connect`` are given.
+        node: the ROS 2 node name this session is (``omnirotor_fly``): it and every publisher and subscriber
+            then declare rmw_zenoh's liveliness tokens (:func:`liveliness_key`); None: no tokens (clients).
     """
 
     def __init__(
@@ -154,6 +198,7 @@ class ZenohTransport(Transport):
         attachment: bool = True,
         config: dict | None = None,
         config_file: str | None = None,
+        node: str | None = None,
     ) -> None:
         super().__init__(domain_id=domain_id, namespace=namespace)
         import zenoh
@@ -182,6 +227,13 @@ class ZenohTransport(Transport):
         self._zid = str(self._session.zid()).encode()
         self._entities: list = []
         self._closed = False
+        self._node = node
+        self._next_id = 0
+        if node is not None:
+            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", node):
+                self._session.close()
+                raise InputError(f"node name {node!r} is not a ROS 2 node name (letters, digits, _)")
+            self._token("NN")
 
     def _gid(self, key: str) -> bytes:
         return hashlib.blake2b(self._zid + key.encode(), digest_size=16).digest()
@@ -194,6 +246,7 @@ class ZenohTransport(Transport):
             key, congestion_control=congestion, priority=z.Priority.REAL_TIME, express=True
         )
         self._entities.append(pub)
+        self._token("MP", name, msgtype, qos_key(best_effort=not block))
         put = pub.put
         if not self._attachment:
             return (lambda payload, seq: put(payload)), key
@@ -220,6 +273,7 @@ class ZenohTransport(Transport):
 
         sub = self._session.declare_subscriber(key, on_sample)
         self._entities.append(sub)
+        self._token("MS", name, msgtype, qos_key(best_effort=True, depth=depth))
 
         def poll(timeout_s: float) -> bytes | None:
             try:
@@ -228,6 +282,16 @@ class ZenohTransport(Transport):
                 return None
 
         return poll, sub.undeclare, key
+
+    def _token(self, kind: str, topic: str | None = None, msgtype: str | None = None, qos: str = "") -> None:
+        """Declare rmw_zenoh's liveliness token of this node (``NN``) or of one of its entities."""
+        if self._node is None:
+            return
+        eid = 0 if kind == "NN" else self._next_id + 1
+        self._next_id = max(self._next_id, eid)
+        key = liveliness_key(self.domain_id, self._zid.decode(), 0, eid, kind, self.namespace, self._node,
+                             topic, msgtype, qos)  # fmt: skip
+        self._entities.append(self._session.liveliness().declare_token(key))
 
     def _serve(self, name: str, reqtype: str, on_request: Callable[[bytes], bytes | None]) -> None:
         key = key_expression(self.domain_id, name, reqtype)
