@@ -75,6 +75,8 @@ def sim(
     """Serve the MuJoCo plant on the flight topics for `omnirotor fly` (software in the loop)."""
     if not serve:
         raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
+    # SIGTERM ends it as Ctrl-C does: the summary (and a recording) finished, not cut off
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     if record is not None:
         check_output_dir(record, "--record")
         if record.exists():

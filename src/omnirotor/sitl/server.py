@@ -489,6 +489,30 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
         progress(1.0)
 
 
+def _resting_pose(sim, p0: np.ndarray, R0: np.ndarray, say: Callable[[str], None],
+                  settle_s: float = 4.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Where the vehicle comes to rest on the floor when dropped (rotors stopped) from ``(p0, R0)``.
+
+    An interactive flight starts (and lands) on the ground, as a robot does, not held in the air at the task's
+    start height: a landing there would disarm in the air. A scene without a floor under the start (the vehicle
+    still falling, or 3 m down, after ``settle_s`` of simulated time) keeps ``(p0, R0)``, said.
+    """
+    zeros = np.zeros(sim.vehicle.n_rotors)
+    sim.reset(p_W=p0, R_WB=R0, omega_hz=zeros)
+    stop = RotorCommand(0.0, zeros)
+    still = 0
+    for _ in range(int(round(settle_s / sim.dt))):
+        sim.step(stop)
+        truth = sim.truth
+        if float(p0[2] - truth.p_W[2]) > 3.0:
+            break
+        still = still + 1 if float(np.linalg.norm(truth.v_W)) < 1e-3 else 0
+        if still * sim.dt >= 0.2:
+            return truth.p_W.copy(), np.asarray(truth.R_WB).copy()
+    say("no floor under the scene's start pose: the vehicle waits held in the air there")
+    return p0, R0
+
+
 def _say(line: str) -> None:
     print(f"omnirotor sim: {line}", file=sys.stderr)
 
@@ -568,17 +592,19 @@ def serve_free(
 ) -> SitlReport:
     """Interactive flight (no task): the plant on its stand until the paired node commands rotor speeds.
 
-    The plant starts at the scene's start pose, *held*: not stepped, its start frame published every period
-    (fresh numbers, the same time), so that the node can ``arm`` on it. The first nonzero command of the paired
-    session (the take-off's hover command) releases it; from then on it steps on the wall clock, a missing command
-    held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records (``serve.record``) and
-    serves the live view (``serve.foxglove_port``) when asked.
+    The plant starts where the vehicle comes to rest when dropped, rotors stopped, from the scene's start pose (on
+    the scene's floor: :func:`_resting_pose`), *held* there: not stepped, its start frame published every period
+    (fresh numbers, the same time), so that the node can ``arm`` on it and lands back on a floor. The first nonzero
+    command of the paired session (the take-off's hover command) releases it; from then on it steps on the wall
+    clock, a missing command held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records
+    (``serve.record``) and serves the live view (``serve.foxglove_port``) when asked.
     """
     stop = stop if stop is not None else threading.Event()
     p0, R0 = sim.default_start()
     sim.reset(p_W=p0, R_WB=R0)  # compile (or load) the plant's kernels now, not at the take-off
     sim.step(RotorCommand(0.0, sim.hover_speeds_hz(R0)))
-    sim.reset(p_W=p0, R_WB=R0)
+    p0, R0 = _resting_pose(sim, p0, R0, say)
+    sim.reset(p_W=p0, R_WB=R0, omega_hz=np.zeros(sim.vehicle.n_rotors))
     link = SimLink(transport, sim.vehicle.n_rotors, dataclasses.replace(serve, lockstep=False))
     report = SitlReport()
     outputs = SimOutputs(sim, serve, say)
