@@ -6,6 +6,7 @@ bounded, children killed on failure.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -130,3 +131,21 @@ def test_an_independent_ros2_listener_decodes_every_topic(tmp_path):
             session.close()
         pair.kill()
     assert want <= set(seen), sorted(seen)
+
+
+@pytest.mark.slow
+def test_a_task_cut_by_the_failsafe_says_why_it_has_no_metrics_without_a_traceback(tmp_path):
+    """Point contact with the node killed early: the metrics of the unflown contact cannot exist (once a traceback)."""
+    with Pair(tmp_path, "point-contact", ["--seed", "1", "--quick"], lockstep=False) as pair, pair.transport() as t:
+        flying(pair, t, 1000)
+        os.kill(pair.node.pid, signal.SIGKILL)
+        try:
+            sim_out, _ = pair.sim.communicate(timeout=300)
+        finally:
+            pair.kill()
+    err = pair.text("sim")
+    assert pair.sim.returncode == 1, err[-3000:]
+    assert "Traceback" not in err
+    assert "offboard-loss failsafe stopped the rotors after" in err and "metrics cannot be computed" in err
+    out = json.loads(sim_out)
+    assert out["metrics"] is None and out["sitl"]["failsafe"] and out["task"] == "point-contact"

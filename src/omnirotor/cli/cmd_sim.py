@@ -2,7 +2,9 @@
 
 See :mod:`omnirotor.sitl.server` for the topics, the clocks and the failsafe. With ``--task`` the server flies
 that task of ``omnirotor run`` (same options) with the controller of ``omnirotor fly --mission-from-sim`` and
-prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``).
+prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``). When the
+offboard-loss failsafe cut a task so that its metrics cannot be computed, it says why on one line and exits 1
+(with ``--json``: the wire's counts and ``"metrics": null``).
 """
 
 from __future__ import annotations
@@ -129,6 +131,15 @@ def sim(
 
             set_realtime(None, fifo_priority, lambda line: note(line))
         result, report = _serve(t, task, options, serve_opts)
+    if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
+        _say_recording(report.recording)
+        note(
+            f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a "
+            f"command; the task's metrics cannot be computed from the part flown ({report.metrics_error})"
+        )
+        if as_json:
+            print(dumps_json({"task": task, "metrics": None, "sitl": report.as_dict()}))
+        raise typer.Exit(1)
     rep = result.summary()
     rep["sitl"] = report.as_dict()
     if report.log_rows_missing:

@@ -142,6 +142,7 @@ class SitlReport:
     failsafe_after_s: float | None = None
     log_rows_missing: int = 0
     recording: dict = dataclasses.field(default_factory=dict)
+    metrics_error: str = ""
     late_steps: int = 0
     wall_s: float = 0.0
     real_time_factor: float = 0.0
@@ -561,7 +562,9 @@ def serve_task(
     """Fly ``task`` (an ``omnirotor run`` task with its ``ExperimentOptions``) with the controller on the wire.
 
     Returns:
-        ``(the task's result, the server's report)``; the result's summary is the run's JSON as ``omnirotor run``
+        ``(the task's result, the server's report)``; the result is None when the offboard-loss failsafe cut
+        the run and the task's metrics cannot be computed from what was flown (why: ``report.metrics_error``);
+        otherwise its summary is the run's JSON as ``omnirotor run``
         gives it (its timing entries are the wire's: the truth log's ``controller_step_us`` is the frame-to-command
         round trip).
 
@@ -579,7 +582,15 @@ def serve_task(
     transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
     report = SitlReport(lockstep=serve.lockstep)
     with loop_override(remote_loop(link, report)):
-        result = run_task(task, options, progress=progress)
+        try:
+            result = run_task(task, options, progress=progress)
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001  (only after the failsafe cut the run: its metrics are undefined)
+            if not report.failsafe:
+                raise
+            report.metrics_error = f"{type(exc).__name__}: {exc}"
+            return None, report
     return result, report
 
 
