@@ -317,16 +317,3 @@ def test_a_session_without_a_node_name_declares_no_token_and_a_bad_name_is_refus
         sub.undeclare()
     with pytest.raises(InputError, match="node name"):
         open_transport(listen=[], node="bad name")
-
-
-def test_the_status_p99_is_of_the_recent_periods_across_the_window_wrap():
-    """The status's percentile looks at the last 1000 frames only (the whole window took milliseconds)."""
-    from omnirotor.fly.node import _LATENCY_WINDOW, LoopStats
-
-    s = LoopStats(0.0005)
-    assert s.recent_p99_s() == 0.0
-    for k in range(_LATENCY_WINDOW + 500):  # wraps the window: the last 1000 straddle its end
-        s.period(1e-3 if k < _LATENCY_WINDOW - 500 else 1e-4, 0.0, 0.0, 1e-3)
-    assert s.recent_p99_s() == pytest.approx(1e-4)
-    s.period(5e-3, 0.0, 0.0, 1e-3)
-    assert s.recent_p99_s() == pytest.approx(np.percentile([1e-4] * 999 + [5e-3], 99))

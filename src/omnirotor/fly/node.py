@@ -31,8 +31,11 @@ Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
 
 A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
-counted bad and dropped (a repeated start frame, a replay, a forged or corrupted number that would otherwise
-lock the real frames out); after a link loss any number is followed again.
+counted bad and dropped (a replay, a forged or corrupted number that would otherwise lock the real frames out);
+after a link loss any number is followed again. The one exception is the plant's start frame (number 0), which
+the simulator repeats every 10 ms until it has obeyed a command answering it: repeated, it is answered again
+with the same command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a
+busy machine is not a link loss.
 
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
@@ -269,6 +272,8 @@ class NodeLoop:
 
         def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
             last = self._last_seq
+            if last == 0 and msg.seq == 0 and shape_ok(msg):  # the plant repeats its start frame: answer again
+                return True
             return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
 
         self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
@@ -300,6 +305,8 @@ class NodeLoop:
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
         self.cmd_seq = 0
+        self.start_answers = 0
+        """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
         self.link_lost = False
         self.link_lost_age_s = math.nan
         self.finished = False
@@ -387,6 +394,16 @@ class NodeLoop:
                     self.live.status(status)
             except Exception:  # noqa: BLE001  (a status that cannot be built is skipped and counted, never fatal)
                 self.stats.status_errors += 1
+
+    def _republish_command(self, t: float) -> None:
+        """The last command again (a new sequence number, the same frame it answers)."""
+        m = self.msgs.command
+        if self.cmd_seq == 0 or m.t != t:
+            return
+        self.cmd_seq += 1
+        m.seq = self.cmd_seq
+        self._pub_cmd.put(m)
+        self.start_answers += 1
 
     def _publish_wrench(self, t: float) -> None:
         log = self.controller.log
@@ -502,6 +519,12 @@ class NodeLoop:
                     if self.link_lost and o.exit_on_link_loss:
                         break
                     continue
+                if msg.seq == 0 and last_seq == 0:
+                    # the plant's start frame again: our answer has not reached it yet (it repeats the frame
+                    # every 10 ms until it obeys one); the same answer again, nothing stepped, the link alive
+                    self._republish_command(msg.t)
+                    last_seen = mono()
+                    continue
                 # a new frame
                 arrival = now
                 if self.link_lost:
@@ -567,6 +590,7 @@ class NodeLoop:
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
+        out["start_frame_answered_again"] = self.start_answers
         out["session_id"] = f"{self.session_id:016x}"
         return out
 
