@@ -170,7 +170,7 @@ class _Allocation(_Driver):
         return _poison(inputs[0]), inputs[1], inputs[2]
 
     def snapshot(self, block):
-        return block.state.tobytes() + b"".join(a.tobytes() for a in block.arrays)
+        return block.state.tobytes() + block.arrays.tobytes()
 
 
 class _Maps(_Driver):
@@ -193,7 +193,7 @@ class _Maps(_Driver):
         return (_poison(inputs[0]),)
 
     def snapshot(self, block):
-        return block.state.tobytes() + b"".join(a.tobytes() for a in block.kernel_arrays)
+        return block.state.tobytes() + block.arrays.tobytes()
 
 
 class _Estimator(_Driver):

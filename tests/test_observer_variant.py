@@ -92,7 +92,7 @@ def test_a_new_observer_flies_the_hover_through_the_public_api():
 
     ctl_log, truth_log = run_closed_loop(sim, ctl, PoseTrajectory([Waypoint(0.0, p_E, R)]), 3.0, on_step=push)
     # The compiled step ran the variant's kernel every period (its own counter, in the controller's state).
-    assert ctl.kernel_args is not None and ctl.observer.state["n_steps"][0] == 3000
+    assert ctl.kernel_state is not None and ctl.observer.state["n_steps"][0] == 3000
     assert np.shares_memory(ctl.observer.state, ctl.state)
     f_hat, m_hat = ctl_log.group("f_ext_W"), ctl_log.group("m_ext_B")
     np.testing.assert_allclose(f_hat[-1], f_W, atol=0.05)  # the force is recovered ...

@@ -49,6 +49,7 @@ __all__ = [
     "state_array",
     "new_state",
     "new_records",
+    "record_view",
 ]
 
 BLOCK_KINDS = (
@@ -187,6 +188,15 @@ def state_array(dtype: np.dtype, state: np.ndarray | None, owner: str) -> np.nda
         raise InputError(f"{owner} state must be a writeable (1,) array of its state_dtype")
     state[...] = np.zeros(1, dtype=dtype)
     return state
+
+
+def record_view(records: np.ndarray) -> np.record:
+    """The first record of ``records`` (a ``(1,)`` structured array) with its fields as attributes, a view.
+
+    ``record_view(a).x`` is the field ``x`` of ``a[0]`` (an array view for a subarray field), so Python set-up
+    reads a block's sized arrays by the names compiled code uses; compiled kernels take the record itself.
+    """
+    return records.view(np.recarray)[0]
 
 
 _STEPS: dict[str, Callable[..., Any]] = {}

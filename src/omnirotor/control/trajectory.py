@@ -47,6 +47,8 @@ __all__ = [
     "trajectory_sample",
     "segment_sample",
     "start_segment",
+    "packed_size",
+    "packed_capacity",
 ]
 
 ATTITUDE_PROFILES = ("quintic", "cubic")
@@ -159,6 +161,27 @@ class ReferenceSample:
 # Packed trajectory (PoseTrajectory.kernel_data): n_waypoints, cubic flag, times (n_wp), thetas (n_wp - 1),
 # then (24 x 8) bases, row-major: hold first, hold last, one per segment.
 _BASIS_SIZE = _N_FLAT * _N_BASIS
+
+
+def packed_size(n_waypoints: int) -> int:
+    """Floats of the packed trajectory of ``n_waypoints`` waypoints (:attr:`PoseTrajectory.kernel_data`)."""
+    return 2 + n_waypoints + (n_waypoints - 1) + _BASIS_SIZE * (n_waypoints + 1)
+
+
+MIN_CAPACITY_WAYPOINTS = 8
+"""The controller's trajectory field holds at least this many waypoints."""
+
+
+def packed_capacity(n_waypoints: int) -> int:
+    """The trajectory field's capacity [floats] for ``n_waypoints`` (:func:`packed_size`).
+
+    For the next power of two of waypoints (at least :data:`MIN_CAPACITY_WAYPOINTS`), so that few distinct
+    controller records (and compiled steps) exist.
+    """
+    w = MIN_CAPACITY_WAYPOINTS
+    while w < n_waypoints:
+        w *= 2
+    return packed_size(w)
 
 
 @jit
