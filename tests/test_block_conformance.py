@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import omnirotor.control.controller  # noqa: F401 (imports, hence registers, every controller block)
-from omnirotor.blocks import Block, block_class, block_names
+from omnirotor.blocks import Block, block_class, block_names, log_groups
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.allocation import AllocationParams
 from omnirotor.control.estimator import EstimatorParams
@@ -279,7 +279,10 @@ def test_block_follows_the_protocol(block_case):
     assert block_class(cls.kind, cls.name) is cls
     assert cls.state_dtype.names is not None and "n_nonfinite" in cls.state_dtype.names
     assert block.state.dtype == cls.state_dtype and block.state.shape == (1,)
-    assert set(cls.log_fields) <= set(cls.state_dtype.names)
+    # Its logged fields exist, are numbers, and make log groups (each under its own name or the one declared).
+    groups = log_groups(cls.state_dtype, [("", cls.log_fields, getattr(cls, "log_labels", {}))])
+    assert len(groups) == len(cls.log_fields)
+    assert all(set(g.paths) <= set(cls.state_dtype.names) for g in groups)
 
 
 def test_equal_seeds_give_equal_runs(block_case):

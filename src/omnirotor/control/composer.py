@@ -34,10 +34,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numba
 import numpy as np
+from numba.np.numpy_support import as_dtype
 
 from omnirotor._jit import jit, jit_entry, jit_inline
-from omnirotor.blocks import compiled_step
+from omnirotor.blocks import LogGroup, class_of_record, compiled_step, log_dtype, log_groups, log_writer
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
 from omnirotor.control import admittance as _adm
@@ -47,7 +49,7 @@ from omnirotor.control import pose as _pose
 from omnirotor.control import supervisor as _sup
 from omnirotor.control import trajectory as _traj
 from omnirotor.frame_kernels import state_finite
-from omnirotor.messages import ESTIMATE_DTYPE
+from omnirotor.messages import ESTIMATE_DTYPE, ESTIMATE_LOG_FIELDS
 
 __all__ = [
     "CONTROLLER_DTYPE_FIELDS",
@@ -57,6 +59,9 @@ __all__ = [
     "step_begin",
     "step_end",
     "controller_step",
+    "controller_log_groups",
+    "log_sources",
+    "write_log",
 ]
 
 observer_step = compiled_step("observer")
@@ -64,7 +69,7 @@ observer_step = compiled_step("observer")
 _F8, _I8 = np.float64, np.int64
 OWN_DTYPE = np.dtype(
     [
-        # the logged head (LOG_GROUPS order)
+        # the logged head
         ("t", _F8),  # trajectory time [s]
         ("region", _F8),  # map region index (-1: none)
         ("status", _F8),  # ControlStatus bits
@@ -177,38 +182,50 @@ def _all_finite(x) -> bool:
     return True
 
 
-@jit_inline
-def _put(row, k: int, v) -> int:
-    """Copy the 1-D array ``v`` into ``row[k:]``; the next free index."""
-    for i in range(v.shape[0]):
-        row[k + i] = v[i]
-    return k + v.shape[0]
+# -- the log: one record of the blocks' logged fields ---------------------------------------------------------
 
 
-@jit_inline
-def _put_pose(row, k: int, p, v, a, R, w, b) -> int:
-    """Copy three 3-vectors, a 3 x 3 matrix (row-major) and two 3-vectors into ``row[k:]``; the next index."""
-    k = _put(row, _put(row, _put(row, k, p), v), a)
-    for i in range(3):
-        k = _put(row, k, R[i])
-    return _put(row, _put(row, k, w), b)
+def log_sources(observer_cls: type) -> tuple:
+    """Where the controller's log groups come from, in log order (:func:`omnirotor.blocks.log_groups`).
+
+    Each block's own declaration (``log_fields``, ``log_labels``), and the controller's head: the time, region
+    and status, the estimate (``ESTIMATE_LOG_FIELDS``), the EE tip, the compliant and the desired EE
+    references, the allocated inputs and the command, the frame supervision's causes.
+    """
+    pose = _pose.PoseController
+    return (
+        ("own", ("t", "region", "status"), {}),
+        ("own.estimate", ESTIMATE_LOG_FIELDS, {}),
+        ("own", ("p_E_W",), {}),
+        ("compliant_ee", _traj.reference_log_fields("E_ref"), {}),
+        ("desired_ee", _traj.reference_log_fields("E_des"), {}),
+        ("admittance", _adm.AdmittanceFilter.log_fields, getattr(_adm.AdmittanceFilter, "log_labels", {})),
+        ("observer", observer_cls.log_fields, getattr(observer_cls, "log_labels", {})),
+        ("pose", pose.log_fields, getattr(pose, "log_labels", {})),
+        ("rotors", (("u_hz2", ("u_cmd_hz2",)), "omega_cmd_hz"), {}),
+        ("supervisor", _sup.LOG_FIELDS, {}),
+    )
 
 
-@jit
-def write_log_row(row, st) -> None:
-    """One log row (:data:`omnirotor.control.controller.LOG_GROUPS`) from the named signals."""
-    c = st.own
-    row[0], row[1], row[2] = c.t, c.region, c.status
-    e = c.estimate
-    k = _put_pose(row, 3, e.p_W, e.v_W, e.a_W, e.R_WB, e.omega_B, c.p_E_W)
-    for ref in (st.compliant_ee, st.desired_ee):
-        k = _put_pose(row, k, ref.p_W, ref.v_W, ref.a_W, ref.R_WB, ref.omega_W, ref.alpha_W)
-    k = _put(row, k, st.admittance.xi_p_W)
-    k = _put(row, _put(row, k, st.observer.f_ext_W), st.observer.m_ext_B)
-    k = _put(row, _put(row, k, st.pose.f_ref_W), st.pose.m_ref_B)
-    k = _put(row, k, st.pose.errors)
-    k = _put(row, _put(row, k, st.rotors.u_cmd_hz2), st.rotors.omega_cmd_hz)
-    row[k] = st.supervisor.cause
+def controller_log_groups(state_dtype: np.dtype, observer_cls: type) -> tuple[LogGroup, ...]:
+    """The groups of the log of a controller whose record is ``state_dtype`` (its observer ``observer_cls``)."""
+    return log_groups(state_dtype, log_sources(observer_cls))
+
+
+def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
+    """The log groups for numba's record types of a log row ``dst`` and a controller ``src`` (else None)."""
+    names = getattr(src, "fields", {})
+    if "observer" not in names or "rotors" not in names:
+        return None
+    observer_cls = class_of_record("observer", src.typeof("observer"))
+    if observer_cls is None:
+        return None
+    groups = controller_log_groups(as_dtype(src), observer_cls)
+    return groups if numba.from_dtype(log_dtype(groups)) == dst else None
+
+
+write_log = log_writer("write_log", _log_groups_of_types)
+"""``write_log(row, st)``: the controller's log record ``row`` from its record ``st`` (generated, by name)."""
 
 
 @jit
@@ -220,7 +237,7 @@ def _finish_held(st, bits: int, row) -> None:
         rot.omega_cmd_hz[i] = rot.omega_safe_hz[i]
     c.status = bits
     if row.shape[0] > 0:
-        write_log_row(row, st)
+        write_log(row[0], st)
 
 
 @jit_inline
@@ -380,7 +397,7 @@ def step_end(state, solved: bool, row) -> int:
         c.p_E_W[i] = e.p_W[i] + e.R_WB[i, 0] * ex + e.R_WB[i, 1] * ey + e.R_WB[i, 2] * ez
     c.status = bits
     if row.shape[0] > 0:
-        write_log_row(row, st)
+        write_log(row[0], st)
     return bits
 
 
@@ -391,7 +408,7 @@ def controller_step(state, frame, row) -> int:
     Args:
         state: (1,) the controller's record (:func:`controller_dtype`; ``InteractionController.state``).
         frame: (1,) the sensor frame record (:func:`omnirotor.messages.frame_dtype`).
-        row: the log row to fill (length 0: none).
+        row: (1,) the log record to fill (:attr:`InteractionController.log_dtype`); (0,): none.
 
     Returns:
         The ``ControlStatus`` bits of the command, or ``STEP_NO_ESTIMATE``.

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.blocks import block_class, block_names, new_records, new_state, record_view
+from omnirotor.blocks import block_class, block_names, log_dtype, new_records, new_state, record_view
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
@@ -83,56 +83,25 @@ __all__ = [
 
 OBSERVER_INPUTS = ("measured", "commanded")
 
-_XYZ = ("x", "y", "z")
-_RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")  # row-major entries of a rotation matrix
 
+def LOG_GROUPS(n_rotors: int, observer_kind: str = "momentum") -> list[tuple[str, tuple[str, ...]]]:  # noqa: N802
+    """Column groups of the controller log for ``n_rotors`` rotors: ``(name, column labels)`` in row order.
 
-def _reference_groups(prefix: str) -> list[tuple[str, tuple[str, ...]]]:
-    """The six groups of a logged ReferenceSample buffer (its layout: p, v, a, R, omega, alpha)."""
-    return [
-        (f"p_{prefix}_W", _XYZ),
-        (f"v_{prefix}_W", _XYZ),
-        (f"a_{prefix}_W", _XYZ),
-        (f"R_{prefix}", _RMAT),
-        (f"omega_{prefix}_W", _XYZ),
-        (f"alpha_{prefix}_W", _XYZ),
-    ]
-
-
-def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noqa: N802 (a table, by name)
-    """Column groups of the controller log for a vehicle with ``n_rotors`` rotors.
-
-    ``t`` [s] trajectory time; ``region`` map region index (-1 in nominal/global mode); ``status`` the
-    :class:`ControlStatus` bits; ``p_W, v_W, a_W, R_WB, omega_B`` the state estimate (``R_WB`` row-major);
-    ``p_E_W`` the estimated EE tip; ``*_E_ref*`` the compliant EE reference and ``*_E_des*`` the desired
-    EE reference (pose, velocity, acceleration, world-frame angular velocity and acceleration);
-    ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the observer's interaction estimate;
-    ``w_ref`` the pose controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the
-    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's
-    cause bits (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
+    Derived from the log record (:func:`omnirotor.control.composer.log_sources`: every block's own
+    ``log_fields``), the flat row being that record's floats in order. ``t`` [s] trajectory time; ``region``
+    map region index (-1 in nominal/global mode); ``status`` the :class:`ControlStatus` bits; ``p_W, v_W, a_W,
+    R_WB, omega_B`` the state estimate (``R_WB`` row-major); ``p_E_W`` the estimated EE tip; ``*_E_ref*`` the
+    compliant EE reference and ``*_E_des*`` the desired EE reference (pose, velocity, acceleration, world-frame
+    angular velocity and acceleration); ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the
+    observer's interaction estimate (with another observer: its ``log_fields``); ``w_ref`` the pose
+    controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the body; ``u_hz2`` the
+    allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's cause bits
+    (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
-    rotors = tuple(str(i + 1) for i in range(n_rotors))
-    return [
-        ("t", 1),
-        ("region", 1),
-        ("status", 1),
-        ("p_W", _XYZ),
-        ("v_W", _XYZ),
-        ("a_W", _XYZ),
-        ("R_WB", _RMAT),
-        ("omega_B", _XYZ),
-        ("p_E_W", _XYZ),
-        *_reference_groups("E_ref"),
-        *_reference_groups("E_des"),
-        ("xi_p_W", _XYZ),
-        ("f_ext_W", _XYZ),
-        ("m_ext_B", _XYZ),
-        ("w_ref", ("fx", "fy", "fz", "mx", "my", "mz")),
-        ("pose_err", tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in _XYZ)),
-        ("u_hz2", rotors),
-        ("omega_cmd_hz", rotors),
-        ("frame_reject", 1),
-    ]
+    observer_cls = block_class("observer", observer_kind)
+    sizes = _c.ControllerSizes(n_rotors, 1, 0, 0, 1)
+    groups = _c.controller_log_groups(_c.controller_dtype(observer_cls.state_dtype, sizes), observer_cls)
+    return [(g.name, g.labels) for g in groups]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,7 +183,8 @@ class InteractionController:
 
     Attributes:
         estimator, scheduler, observer, admittance, pose, allocator: the blocks.
-        log: the step log (:data:`LOG_GROUPS`); cleared by :meth:`reset`.
+        log: the step log (:data:`LOG_GROUPS`); cleared by :meth:`reset`. Each row's floats are one record
+            of :attr:`log_dtype`, whose fields are :attr:`log_groups` (every block's ``log_fields``).
         desired_ee, compliant_ee, body_ref: the references of the last step.
     """
 
@@ -235,8 +205,6 @@ class InteractionController:
         self._rotor_shape = (n,)
         self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
         self._failed_mask: np.ndarray | None = None
-        self.log = Recorder(p.log_capacity, LOG_GROUPS(n), grow_rows=p.log_capacity)
-        self._no_row = np.zeros(0)
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
         self._frame_buf = new_records(frame_dtype(n))
@@ -245,6 +213,11 @@ class InteractionController:
         self._fast = False  # step() is one compiled call (set by reset)
         self.estimator = None
         self._assemble(packed_capacity(MIN_CAPACITY_WAYPOINTS))
+        observer_cls = block_class("observer", p.observer_kind)
+        self.log_groups = _c.controller_log_groups(self.state.dtype, observer_cls)
+        self.log_dtype = log_dtype(self.log_groups)
+        self.log = Recorder(p.log_capacity, [(g.name, g.labels) for g in self.log_groups], grow_rows=p.log_capacity)
+        self._no_row = np.zeros(0, self.log_dtype)
 
     def _assemble(self, trajectory_capacity: int) -> None:
         """Build the controller's record and every block on its field (a trajectory of that many floats).
@@ -517,9 +490,8 @@ class InteractionController:
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
         record = self._record(frame)
-        row = self.log.next_row()
-        if row is None:
-            row = self._no_row
+        data = self.log.next_row()
+        row = self._no_row if data is None else data.view(self.log_dtype)  # the row's floats as the log record
         if self.estimator is self._kernel_estimator and self._fast:
             # A compiled estimator and QP: one compiled call.
             bits = _c.controller_step(self.state, record, row)

@@ -48,6 +48,7 @@ __all__ = [
     "segment_sample",
     "start_segment",
     "packed_size",
+    "reference_log_fields",
     "packed_capacity",
 ]
 
@@ -161,6 +162,18 @@ class ReferenceSample:
 # Packed trajectory (PoseTrajectory.kernel_data): n_waypoints, cubic flag, times (n_wp), thetas (n_wp - 1),
 # then (24 x 8) bases, row-major: hold first, hold last, one per segment.
 _BASIS_SIZE = _N_FLAT * _N_BASIS
+
+
+def reference_log_fields(role: str) -> tuple[tuple[str, tuple[str]], ...]:
+    """The fields of a reference record a log records, named for its ``role`` (``"E_ref"``: ``p_E_ref_W``, ...)."""
+    return (
+        (f"p_{role}_W", ("p_W",)),
+        (f"v_{role}_W", ("v_W",)),
+        (f"a_{role}_W", ("a_W",)),
+        (f"R_{role}", ("R_WB",)),
+        (f"omega_{role}_W", ("omega_W",)),
+        (f"alpha_{role}_W", ("alpha_W",)),
+    )
 
 
 def packed_size(n_waypoints: int) -> int:

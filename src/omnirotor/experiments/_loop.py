@@ -41,7 +41,7 @@ def run_steps(sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt:
         dt: control period [s].
         truth: (rows, TRUTH_ROW_SIZE + n + 2) truth log data; the last two columns get the simulator's and the
             controller's step times [µs].
-        log: the controller log's data (one row per step).
+        log: the controller log's rows as records (``InteractionController.log_dtype``, one per step).
         ts: (2,) int64 scratch of the clock.
 
     Returns:
@@ -56,7 +56,7 @@ def run_steps(sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt:
         tic0 = monotonic_ns(ts)
         sim_step(sim, cmd_hz, k_sim0 + k, dt, frame, row)
         tic = monotonic_ns(ts)
-        controller_step(ctl_state, frame, log[k])
+        controller_step(ctl_state, frame, log[k : k + 1])
         toc = monotonic_ns(ts)
         row[timing - 1] = (tic - tic0) / _NS_PER_US
         row[timing] = (toc - tic) / _NS_PER_US

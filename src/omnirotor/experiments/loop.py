@@ -205,6 +205,7 @@ def _run_compiled(
     from omnirotor.experiments._loop import run_steps  # compiles on first use
 
     log = controller.log
+    records = log.data.view(controller.log_dtype).reshape(-1)  # the log's rows as its records (the same memory)
     cmd = controller.kernel_command  # the command array the compiled step writes and the simulator reads
     frame = sim.frame_record
     ts = np.zeros(2, dtype=np.int64)  # the compiled clock's scratch
@@ -219,7 +220,7 @@ def _run_compiled(
             sim.faults.tell_due(k0_sim + k, sim.dt)
             stop = n_steps if progress is None else min(n_steps, (k // every + 1) * every)
             stop = min([stop] + [j for j in notices if j > k])
-            k = run_steps(sim_args, ctl_state, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, log.data, ts)
+            k = run_steps(sim_args, ctl_state, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, records, ts)
             if progress is not None and k % every == 0:
                 progress(k / n_steps)
     finally:  # what was run is logged and the Python side of both reflects it
