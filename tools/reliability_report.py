@@ -1010,6 +1010,7 @@ def run_sustained(progress: Callable[[str], None] | None = None) -> list[tuple[s
         ax.set_title(family, fontsize=9, loc="left")
         ax.legend(fontsize=6, loc="upper right", ncol=2)
         ax.set_xlim(-1.0, 12.0)
+        ax.set_ylim(0.5, 500.0)
     axes[-1].set_xlabel("time from the fault's start [s] (dotted: 5 cm; a landing ends 1.3 m below its hover)")
     fig.tight_layout()
     fig.savefig(ROOT / SUSTAINED_FIGURE, dpi=110)
