@@ -35,6 +35,7 @@ import functools
 import numpy as np
 
 __all__ = [
+    "ESTIMATE_LOG_FIELDS",
     "StateEstimate",
     "SensorFrame",
     "RotorCommand",
@@ -64,6 +65,8 @@ ESTIMATE_DTYPE = np.dtype(
     ]
 )
 """The rigid-body state of the CoM: a frame's (bypass) state and the controller's estimate."""
+ESTIMATE_LOG_FIELDS = ("p_W", "v_W", "a_W", "R_WB", "omega_B")
+"""The fields of an estimate a log records (:mod:`omnirotor.blocks`' ``log_fields`` form)."""
 FRAME_HEAD_DTYPE = np.dtype([("t", _F8), ("imu", IMU_DTYPE), ("mocap", MOCAP_DTYPE), ("state", ESTIMATE_DTYPE)])
 """A frame without its rotor speeds (module docstring)."""
 

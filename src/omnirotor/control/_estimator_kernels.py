@@ -1,17 +1,19 @@
 """Compiled kernels of the UKF state estimator (:class:`omnirotor.control.estimator.UKFEstimator`, SPEC §4.5).
 
-The estimator's memory is four NumPy structured arrays whose fields the kernels read by name
-(:class:`UKFArrays`), so that a step allocates nothing:
+The estimator's memory is two NumPy structured records whose fields the kernels read by name, its state
+(:data:`UKF_DTYPE`) and its sized memory (:func:`memory_dtype`: the ring buffers and the scratch), so that a
+step allocates nothing:
 
 * ``ukf`` (1,) of :data:`UKF_DTYPE`: the output (current) and the delayed fused nominal states
   (:data:`NOMINAL_DTYPE`: ``p_W, v_W, q_WB, b_acc_B, b_gyro_B``) with their ``R_WB``, the IMU samples, the
   outputs, times and counters, the covariance ``P``, the unscented weights, the constant matrices (process
   noise terms ``Q1, Q2, Q3``, initial covariance ``P0``, measurement noise ``Rn``) and the parameters. A
   controller nests it as a field of its own state;
-* ``imu_buf`` (cap,) of :data:`IMU_SAMPLE_DTYPE` and ``state_buf`` (cap,) of :data:`NOMINAL_DTYPE`: ring
-  buffers of the IMU samples (lever-arm corrected) and of the output state after each;
-* ``work`` (1,) of :data:`WORK_DTYPE`: the scratch arrays of :func:`predict` and :func:`fuse`. Its content
-  means nothing between kernel calls: every kernel writes an entry before it reads it.
+* the memory's ``imu_buf`` (cap,) of :data:`IMU_SAMPLE_DTYPE` and ``state_buf`` (cap,) of
+  :data:`NOMINAL_DTYPE`: ring buffers of the IMU samples (lever-arm corrected) and of the output state after
+  each (a controller nests the memory as its field ``ukf_memory``);
+* the memory's ``work``, one :data:`WORK_DTYPE` record: the scratch arrays of :func:`predict` and
+  :func:`fuse`. Its content means nothing between kernel calls: every kernel writes an entry before it reads it.
 
 The model and the filter are described in the estimator's module docstring; these kernels implement them:
 
@@ -22,8 +24,8 @@ The model and the filter are described in the estimator's module docstring; thes
   (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now);
 * :func:`ukf_step`: the estimator's whole 1 kHz step after initialisation in one call (the above in order,
   the motion-capture sample checks, the latency choice and the counters), for :meth:`UKFEstimator.step`
-  and for the controller's compiled step; :func:`ukf_step_by_table` the same from Python, with the arrays
-  given by their addresses (typing four structured arrays would cost numba more than the step).
+  and for the controller's compiled step; :func:`ukf_step_entry` the same from Python, on the two ``(1,)``
+  arrays.
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -32,12 +34,10 @@ product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry, records_at
-from omnirotor.blocks import new_records
+from omnirotor._jit import jit, jit_entry
 from omnirotor.so3 import (
     R_from_quat_into,
     exp_so3_into,
@@ -204,13 +204,9 @@ WORK_DTYPE = np.dtype(
 """Scratch of the kernels (named fields)."""
 
 
-class UKFArrays(NamedTuple):
-    """The UKF's memory (module docstring); ``cap`` is the ring buffers' length."""
-
-    ukf: np.ndarray  # (1,) UKF_DTYPE
-    imu_buf: np.ndarray  # (cap,) IMU_SAMPLE_DTYPE
-    state_buf: np.ndarray  # (cap,) NOMINAL_DTYPE
-    work: np.ndarray  # (1,) WORK_DTYPE
+def memory_dtype(cap: int) -> np.dtype:
+    """The UKF's sized memory: ring buffers of ``cap`` samples and the scratch (module docstring)."""
+    return np.dtype([("imu_buf", IMU_SAMPLE_DTYPE, (cap,)), ("state_buf", NOMINAL_DTYPE, (cap,)), ("work", WORK_DTYPE)])
 
 
 # Bits of the code imu_step and finish return.
@@ -235,25 +231,6 @@ _RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] abov
 
 _H_ROWS = (0, 1, 2, 6, 7, 8)
 """The error coordinates the motion-capture pose measures (dp, dtheta): rows of H, in measurement order."""
-
-
-def new_arrays(cap: int) -> UKFArrays:
-    """Zeroed memory with ring buffers of ``cap`` samples (:func:`omnirotor.blocks.new_records`)."""
-    return UKFArrays(
-        new_records(UKF_DTYPE), new_records(IMU_SAMPLE_DTYPE, cap), new_records(NOMINAL_DTYPE, cap),
-        new_records(WORK_DTYPE),
-    )  # fmt: skip
-
-
-@jit
-def arrays_at(table, i: int) -> UKFArrays:
-    """The :class:`UKFArrays` of entries ``i`` to ``i + 3`` of an :func:`omnirotor._jit.address_table`."""
-    return UKFArrays(
-        records_at(table, i, UKF_DTYPE),
-        records_at(table, i + 1, IMU_SAMPLE_DTYPE),
-        records_at(table, i + 2, NOMINAL_DTYPE),
-        records_at(table, i + 3, WORK_DTYPE),
-    )
 
 
 @jit
@@ -1080,14 +1057,10 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
 
 
 @jit_entry
-def ukf_step_by_table(table, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
-    """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``).
-
-    ``out`` is a ``(1,)`` estimate array.
-    """
-    a = arrays_at(table, 0)
-    o = out[0]
-    return ukf_step(a.ukf[0], a.imu_buf, a.state_buf, a.work[0], gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, o)
+def ukf_step_entry(state, memory, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
+    """:func:`ukf_step` on the ``(1,)`` arrays of the state, the memory (:func:`memory_dtype`) and the estimate."""
+    m = memory[0]
+    return ukf_step(state[0], m.imu_buf, m.state_buf, m.work, gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, out[0])
 
 
 @jit

@@ -82,7 +82,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import address_table, jit, jit_entry
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import block_class, new_records, register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
@@ -97,6 +97,7 @@ __all__ = [
     "UKFEstimator",
     "BypassEstimator",
     "make_estimator",
+    "ukf_capacity",
     "ESTIMATOR_KINDS",
     "BYPASS_DTYPE",
     "bypass_step",
@@ -287,18 +288,30 @@ class EstimatorParams:
 # -- the UKF ------------------------------------------------------------------------------------------------
 
 
+def _lag_and_chunk(p: EstimatorParams) -> tuple[int, int]:
+    """IMU samples of the largest motion-capture latency, and of one advance of the fused state."""
+    return int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz)), max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
+
+
+def ukf_capacity(params: EstimatorParams) -> int:
+    """Length of the UKF's ring buffers of IMU samples and output states for ``params``."""
+    lag_n, chunk_n = _lag_and_chunk(params)
+    return lag_n + chunk_n + 8
+
+
 @register("estimator", "ukf")
 class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
 
     The filter's state, counters and parameters are one structured record (:attr:`state`, dtype
     :data:`~omnirotor.control._estimator_kernels.UKF_DTYPE`), its ring buffers and scratch three more
-    structured arrays (:attr:`kernel_arrays`); once initialised, a step is one compiled call,
+    structured record (:attr:`memory`, :func:`~omnirotor.control._estimator_kernels.memory_dtype`); once
+    initialised, a step is one compiled call,
     :func:`~omnirotor.control._estimator_kernels.ukf_step`, which reads and writes their fields by name.
 
     A compiled loop may step the filter itself, after :meth:`reset` (or a first :meth:`step` that
-    initialised it; ``initialised`` must be True), with ``ukf_step(state[0], imu_buf, state_buf, work[0],
-    gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, out)`` (the arrays of :attr:`kernel_arrays`):
+    initialised it; ``initialised`` must be True), with ``ukf_step(state[0], m.imu_buf, m.state_buf, m.work,
+    gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, out)`` (``m = memory[0]``, the record of :attr:`memory`):
     ``gyro_B``, ``acc_B`` (3,), ``p_m`` (3,), ``q_m`` (4,) and ``out`` (21,) float64 arrays (``p_m``, ``q_m``
     any such arrays without a sample, NaN for a sample announced without a well-formed pose), floats ``t``
     and ``mocap_t`` [s], the bool ``mocap_new``. It returns ``(code, t)``; the estimate is ``out`` (layout of
@@ -318,14 +331,20 @@ class UKFEstimator:
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
         P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
-        kernel_arrays: the :class:`~omnirotor.control._estimator_kernels.UKFArrays` (``state`` first).
+        memory: the ``(1,)`` ring buffers and scratch (:func:`~omnirotor.control._estimator_kernels.memory_dtype`
+            of :func:`ukf_capacity` samples).
     """
 
     state_dtype = _ek.UKF_DTYPE
     log_fields = ()
 
     def __init__(
-        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+        self,
+        vehicle: VehicleParams,
+        params: EstimatorParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
     ):
         """Allocate the filter; it initialises on the first frame with a pose (see :meth:`reset`).
 
@@ -334,19 +353,16 @@ class UKFEstimator:
             params: estimator parameters; defaults to :class:`EstimatorParams()`.
             state: optional ``(1,)`` array of ``UKF_DTYPE`` to keep the state in (e.g. a field of the
                 controller's state).
+            memory: optional ``(1,)`` array of ``memory_dtype(ukf_capacity(params))`` for the ring buffers
+                and the scratch (the controller's field ``ukf_memory``).
         """
         self.params = p = params if params is not None else EstimatorParams()
         self.vehicle = vehicle
         self._g = vehicle.gravity
         self._dt_nom = 1.0 / p.imu_rate_hz
-        lag_n = int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz))
-        chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
-        cap = lag_n + chunk_n + 8  # ring buffers of IMU samples and output states
+        lag_n, chunk_n = _lag_and_chunk(p)
         self.state = state_array(_ek.UKF_DTYPE, state, "UKF")
-        blank = _ek.new_arrays(cap)
-        self.kernel_arrays = _ek.UKFArrays(self.state, *blank[1:])
-        # Their addresses, for one compiled call from Python (typing record arrays costs more than the step).
-        self._table = address_table(list(self.kernel_arrays))
+        self.memory = state_array(_ek.memory_dtype(ukf_capacity(p)), memory, "UKF memory")
         # The pose ukf_step gets for a sample announced without a well-formed one (rejected as non-finite).
         self._no_p = np.full(3, math.nan)
         self._no_q = np.full(4, math.nan)
@@ -574,9 +590,10 @@ class UKFEstimator:
             p, q = np.asarray(frame.mocap_p_W, dtype=_F64), np.asarray(frame.mocap_q_WB, dtype=_F64)
             if p.shape == (3,) and q.shape == (4,):
                 p_m, q_m = p, q
-        code, t = _ek.ukf_step_by_table(
-            self._table, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan, p_m, q_m, out
-        )
+        code, t = _ek.ukf_step_entry(
+            self.state, self.memory, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan,
+            p_m, q_m, out,
+        )  # fmt: skip
         valid = not code & _ek.STEP_DEGRADED
         return estimate_of(t, out, valid)
 
@@ -694,7 +711,12 @@ class BypassEstimator:
     kernel = bypass_step
 
     def __init__(
-        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+        self,
+        vehicle: VehicleParams,
+        params: EstimatorParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
     ):
         """Set up.
 
@@ -702,6 +724,7 @@ class BypassEstimator:
             vehicle: the vehicle (unused, for a uniform interface).
             params: estimator parameters.
             state: optional ``(1,)`` array of :data:`BYPASS_DTYPE` (e.g. a field of the controller's state).
+            memory: unused (the bypass has no sized memory), for the estimators' uniform interface.
         """
         self.params = params if params is not None else EstimatorParams(kind="bypass")
         self.vehicle = vehicle
@@ -759,7 +782,11 @@ class BypassEstimator:
 
 
 def make_estimator(
-    vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+    vehicle: VehicleParams,
+    params: EstimatorParams | None = None,
+    *,
+    state: np.ndarray | None = None,
+    memory: np.ndarray | None = None,
 ) -> UKFEstimator | BypassEstimator:
     """The estimator ``params.kind`` names (its registered name: "ukf" or "bypass").
 
@@ -767,7 +794,8 @@ def make_estimator(
         vehicle: the vehicle.
         params: estimator parameters.
         state: the ``(1,)`` array of the estimator's ``state_dtype`` to keep its state in (optional).
+        memory: the ``(1,)`` array of its sized memory (the UKF's ring buffers; optional).
     """
     params = params if params is not None else EstimatorParams()
     cls = block_class("estimator", params.kind)
-    return cls(vehicle, params, state=state)
+    return cls(vehicle, params, state=state, memory=memory)

@@ -333,6 +333,9 @@ DT_SNAP_S = 1e-9
 """An interval within this of the configured period is taken as the period itself [s] (module docstring)."""
 VEL_RING = 256
 """Length of the ring of states the velocity check keeps (a window of at most 255 periods)."""
+LOG_FIELDS = (("frame_reject", ("cause",)),)
+"""What the controller's log records of the supervision: this frame's cause bits (0: a clean frame)."""
+
 STATE_DTYPE = np.dtype(
     [
         # outputs
