@@ -11,7 +11,7 @@ tests/test_observer_variant.py).
 import numba
 import numpy as np
 
-from omnirotor.blocks import KIND_STEPS, block_class, register, state_array
+from omnirotor.blocks import KIND_STEPS, block_class, block_names, register, state_array
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.pose import STATE_DTYPE as POSE_DTYPE
@@ -58,7 +58,7 @@ class RigidAdmittance:
         self.state[...] = np.zeros(1, RIGID_DTYPE)
 
 
-COUNTING_DTYPE = np.dtype([*((name, POSE_DTYPE.fields[name][0]) for name in POSE_DTYPE.names), ("n_steps", F8)])
+COUNTING_DTYPE = np.dtype([("n_steps", F8), *((name, POSE_DTYPE.fields[name][0]) for name in POSE_DTYPE.names)])
 
 
 @numba.njit(cache=False)
@@ -106,12 +106,18 @@ def _hover(**kinds):
     return ctl, ctl_log, truth_log.group("p_E_W") - p_E
 
 
-def test_the_kinds_reached_through_the_registry_have_a_typed_step():
-    assert set(KIND_STEPS) == {"observer", "admittance", "pose"}
-    for kind in KIND_STEPS:
-        assert block_class(
-            kind, {"observer": "momentum", "admittance": "mass-spring-damper", "pose": "geometric-pid"}[kind]
-        )
+def test_every_block_of_a_kind_reached_through_the_registry_has_its_typed_step():
+    """Each registered block (the package's and this file's) has a kernel with its kind's parameters, in order."""
+    import inspect
+
+    assert set(KIND_STEPS) == {"observer", "admittance", "pose", "estimator"}
+    for kind, signature in KIND_STEPS.items():
+        wanted = [a.strip() for a in signature[signature.index("(") + 1 : signature.index(")")].split(",")]
+        for name in block_names(kind):
+            kernel = block_class(kind, name).kernel
+            params = list(inspect.signature(getattr(kernel, "py_func", kernel)).parameters)
+            assert len(params) == len(wanted), (kind, name, params, wanted)
+    assert {"ukf", "bypass"} <= set(block_names("estimator"))
 
 
 def test_a_new_admittance_block_flies_the_hover():

@@ -90,13 +90,17 @@ KIND_STEPS = {
     "desired one under the EE wrench [N, N·m, world]; r.xi_p_W is the position offset",
     "pose": "kernel(r, body_ref, p_W, v_W, R_WB, omega_B, f_filt_W, m_filt_B, dt): r.f_ref_W [N, world], "
     "r.m_ref_B [N·m, body] from the body reference record and the estimate, compensating the filtered wrench",
+    "estimator": "kernel(r, memory, frame, estimate) -> code: the estimate record from the checked frame head "
+    "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
+    "when there is no estimate yet",
 }
 """The typed step of each controller kind that the composer reaches through the registry (:func:`compiled_step`).
 
 A block of that kind registers a ``kernel`` of this signature. Its constructor takes ``(vehicle, params, *,
 state=None)``, an admittance block's ``(params, *, state=None)``, with the parameters of its kind
 (``ObserverParams``, ``AdmittanceParams``, ``PoseControlParams``); the controller chooses it by name
-(``ControllerParams.observer_kind``, ``admittance_kind``, ``pose_kind``). The other kinds (estimator, maps,
+(``ControllerParams.observer_kind``, ``admittance_kind``, ``pose_kind``; the estimator by
+``EstimatorParams.kind``, the UKF or the bypass, whose two fields the record holds). The other kinds (maps,
 allocation, trajectory) are still called directly by the composer.
 """
 

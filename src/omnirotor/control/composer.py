@@ -68,6 +68,7 @@ __all__ = [
 observer_step = compiled_step("observer")
 admittance_block_step = compiled_step("admittance")
 pose_block_step = compiled_step("pose")
+estimator_step = compiled_step("estimator")
 
 _F8, _I8 = np.float64, np.int64
 OWN_DTYPE = np.dtype(
@@ -280,18 +281,13 @@ def step_begin(state, frame, row) -> int:
     f = sv.clean
     # 1. the state estimate
     kind = c.estimator
-    if kind == EST_UKF:
-        m = f.mocap
-        mem = st.ukf_memory
-        code, _ = _ek.ukf_step(
-            st.ukf, mem.imu_buf, mem.state_buf, mem.work, f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t,
-            m.p_W, m.q_WB, e,
-        )  # fmt: skip
+    if kind == EST_UKF:  # the registered estimators, each on its field, by the kind's one signature
+        code = estimator_step(st.ukf, st.ukf_memory, f, e)
         if act & _sup.ACT_REINIT:
-            _ek.ukf_reinit(st.ukf, m.p_W, m.q_WB, e)
+            _ek.ukf_reinit(st.ukf, f.mocap.p_W, f.mocap.q_WB, e)
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
-        code = _est.bypass_step(f.state, st.bypass, e)
+        code = estimator_step(st.bypass, st.ukf_memory, f, e)
         if code == _est.BYPASS_NO_STATE:
             return STEP_NO_ESTIMATE
     else:
