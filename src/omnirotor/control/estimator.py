@@ -337,6 +337,7 @@ class UKFEstimator:
 
     state_dtype = _ek.UKF_DTYPE
     log_fields = ()
+    kernel = _ek.ukf_block_step
 
     def __init__(
         self,
@@ -678,6 +679,15 @@ def bypass_step(s, r, out) -> int:
     return _ek.STEP_REJECTED | _ek.STEP_DEGRADED
 
 
+@jit
+def bypass_block_step(r, memory, f, out) -> int:
+    """The estimator kind's step (:data:`omnirotor.blocks.KIND_STEPS`): :func:`bypass_step` on a frame head's state.
+
+    ``memory`` (the controller's sized estimator memory) is not used: the signature is the kind's.
+    """
+    return bypass_step(f.state, r, out)
+
+
 @jit_entry
 def _bypass_step_entry(frame, state, out) -> int:
     """:func:`bypass_step` on ``(1,)`` arrays (a call from Python)."""
@@ -708,7 +718,7 @@ class BypassEstimator:
 
     state_dtype = BYPASS_DTYPE
     log_fields = ()
-    kernel = bypass_step
+    kernel = bypass_block_step
 
     def __init__(
         self,
