@@ -151,7 +151,7 @@ def test_estimator_and_scheduler_state_are_named_records():
     """The UKF and the map scheduler keep their state in structured records that their kernels read by name."""
     from omnirotor.control import _estimator_kernels as ek
     from omnirotor.control import _map_kernels as mk
-    from omnirotor.control.composer import controller_dtype
+    from omnirotor.control.composer import ControllerSizes, controller_dtype
     from omnirotor.control.estimator import UKFEstimator
     from omnirotor.control.maps import MapScheduler
     from omnirotor.control.observer import STATE_DTYPE as OBSERVER_DTYPE
@@ -162,8 +162,12 @@ def test_estimator_and_scheduler_state_are_named_records():
     assert not any(hasattr(ek, name) for name in ("UKF_S", "UKF_SIZE", "WP_L", "WF_R", "CNT_SIZE", "memory_layout"))
     assert not any(hasattr(mk, name) for name in ("SCH_HEADER", "REG_EL_LO", "STATE_REGION", "region_stride"))
     # Nested into the controller's state under the registered names.
-    ctl = controller_dtype(OBSERVER_DTYPE)
+    ctl = controller_dtype(OBSERVER_DTYPE, ControllerSizes(8, 40, 10, 3, 600))
     assert ctl["ukf"] == ek.UKF_DTYPE and ctl["maps"] == mk.STATE_DTYPE
+    # Their sized arrays are subarray fields of the same record (no addresses, no arrays beside it).
+    assert ctl["ukf_memory"]["imu_buf"].shape == (40,) and ctl["maps_arrays"]["az_lo_rad"].shape == (10, 3)
+    assert ctl["allocation_arrays"]["H"].shape == (8, 8) and ctl["trajectory"].shape == (600,)
+    assert "arrays" not in ctl.names
     # The kernels' sources read fields as attributes of their records (u.x_out, st.region), never by offset.
     for module, fields in ((ek, ("u.x_out", "u.P", "w.sigma_R_WB", "u.k_fused")), (mk, ("st.region", "r.n_az"))):
         text = Path(module.__file__).read_text(encoding="utf-8")
@@ -221,3 +225,27 @@ def test_record_slice_check_finds_a_slice(tmp_path):
     )
     hits = [h.split(": ", 1)[1] for h in _record_slices(f, tmp_path)]
     assert hits == ["r.output[0:3]", "r['w'][3:6]"]
+
+
+# -- one record, one entry point (issue 23 item 1) ------------------------------------------------------------------
+
+_ADDRESS_MACHINERY = (
+    *("numba.carray", "carray(", "void_pointer", "address_table", "records_at"),
+    *("NamedTuple", "_by_table", "_by_state"),
+)
+
+
+def test_the_controller_passes_one_record_and_no_addresses():
+    """No module of control/ stores or rebuilds arrays by address, nor groups arrays in NamedTuples; the
+    controller's step is one compiled function of (state, frame, row)."""
+    import inspect
+
+    from omnirotor.control import composer
+
+    for path in sorted((SRC / "control").glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        found = [word for word in _ADDRESS_MACHINERY if word in text]
+        assert not found, f"{path.name} uses {found}"
+    assert list(inspect.signature(composer.controller_step.py_func).parameters) == ["state", "frame", "row"]
+    entries = [name for name in composer.__all__ if name.startswith("controller_step")]
+    assert entries == ["controller_step"]

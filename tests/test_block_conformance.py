@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import omnirotor.control.controller  # noqa: F401 (imports, hence registers, every controller block)
-from omnirotor.blocks import Block, block_class, block_names
+from omnirotor.blocks import Block, block_class, block_names, log_groups
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.allocation import AllocationParams
 from omnirotor.control.estimator import EstimatorParams
@@ -170,7 +170,7 @@ class _Allocation(_Driver):
         return _poison(inputs[0]), inputs[1], inputs[2]
 
     def snapshot(self, block):
-        return block.state.tobytes() + b"".join(a.tobytes() for a in block.arrays)
+        return block.state.tobytes() + block.arrays.tobytes()
 
 
 class _Maps(_Driver):
@@ -193,7 +193,7 @@ class _Maps(_Driver):
         return (_poison(inputs[0]),)
 
     def snapshot(self, block):
-        return block.state.tobytes() + b"".join(a.tobytes() for a in block.kernel_arrays)
+        return block.state.tobytes() + block.arrays.tobytes()
 
 
 class _Estimator(_Driver):
@@ -279,7 +279,10 @@ def test_block_follows_the_protocol(block_case):
     assert block_class(cls.kind, cls.name) is cls
     assert cls.state_dtype.names is not None and "n_nonfinite" in cls.state_dtype.names
     assert block.state.dtype == cls.state_dtype and block.state.shape == (1,)
-    assert set(cls.log_fields) <= set(cls.state_dtype.names)
+    # Its logged fields exist, are numbers, and make log groups (each under its own name or the one declared).
+    groups = log_groups(cls.state_dtype, [("", cls.log_fields, getattr(cls, "log_labels", {}))])
+    assert len(groups) == len(cls.log_fields)
+    assert all(set(g.paths) <= set(cls.state_dtype.names) for g in groups)
 
 
 def test_equal_seeds_give_equal_runs(block_case):

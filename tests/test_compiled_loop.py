@@ -143,7 +143,7 @@ def test_an_estimate_given_from_python_gives_the_compiled_numbers(estimator):
         sim, ctl, traj = _setup(estimator, "piecewise")
         install_faults(sim, faults)
         statuses, _, _ = _fly(sim, ctl, traj, 1.5, wrap=wrap)
-        assert ctl.kernel_args is None if wrap else ctl.kernel_args is not None
+        assert ctl.kernel_state is None if wrap else ctl.kernel_state is not None
         runs.append((ctl.log.data[: ctl.log.n].copy(), statuses, ctl.frame_causes))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
@@ -199,18 +199,3 @@ def test_fallback_is_the_clipped_pseudo_inverse():
         assert alloc.n_fallbacks == before + 1 and int(alloc.status) == 1
         if failed is not None:
             assert u[failed] == 0.0
-
-
-def test_address_table_gives_views_of_the_same_memory_and_refuses_strided_arrays():
-    from omnirotor._jit import address_table, f64_view, f64_view2, i64_view
-
-    a, b, c = np.arange(5.0), np.arange(6.0).reshape(2, 3), np.arange(4, dtype=np.int64)
-    table = address_table([a, b, c])
-    f64_view(table, 0)[1] = -1.0  # writes go to the arrays themselves
-    np.testing.assert_array_equal(f64_view2(table, 1), b)
-    np.testing.assert_array_equal(i64_view(table, 2), c)
-    assert a[1] == -1.0
-    with pytest.raises(ValueError):
-        address_table([np.arange(10.0)[::2]])
-    with pytest.raises(ValueError):
-        address_table([np.zeros(3, dtype=np.float32)])

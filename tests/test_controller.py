@@ -361,3 +361,28 @@ def test_params_validation():
         ControllerParams(observer_input="both")
     p = dataclasses.replace(ControllerParams(), admittance=AdmittanceParams.preset("PiH"))
     assert p.admittance.stiffness_rot == (2.29,) * 3
+
+
+def test_the_log_row_is_the_log_record_of_the_blocks_declarations(vehicle):
+    """The log's rows are records of ``log_dtype``, whose fields are the blocks' ``log_fields`` (issue 23 item 2):
+    the flat row (what exports and ControllerLog carry) is that record's floats, in the groups' order."""
+    from omnirotor.blocks import log_dtype
+
+    ctl = InteractionController(vehicle, _bypass_params())
+    assert ctl.log_dtype == log_dtype(ctl.log_groups) and ctl.log_dtype.itemsize == 8 * ctl.log.n_signals
+    names = [g.name for g in ctl.log_groups]
+    assert names == ctl.log.group_names == [name for name, _ in LOG_GROUPS(vehicle.n_rotors)]
+    by_name = {g.name: g for g in ctl.log_groups}
+    assert by_name["w_ref"].paths == ("pose.f_ref_W", "pose.m_ref_B")  # PoseController.log_fields, renamed
+    assert by_name["f_ext_W"].paths == ("observer.f_ext_W",) and by_name["frame_reject"].paths == ("supervisor.cause",)
+    p0 = np.array([0.0, 0.0, 1.0])
+    ctl.reset(_frame(vehicle, 0.0, p0, np.eye(3)), PoseTrajectory([Waypoint(0.0, p0 + vehicle.p_E_B_array, np.eye(3))]))
+    for k in range(1, 6):
+        ctl.step(_frame(vehicle, DT * k, p0 + [0.001 * k, 0.0, 0.0], np.eye(3)))
+    records = ctl.log.data[: ctl.log.n].view(ctl.log_dtype).reshape(-1)
+    w_ref = np.r_[ctl.pose.state["f_ref_W"][0], ctl.pose.state["m_ref_B"][0]]
+    np.testing.assert_array_equal(records["w_ref"][-1], w_ref)
+    np.testing.assert_array_equal(records["R_E_des"][-1], ctl.desired_ee.R_WB)
+    np.testing.assert_array_equal(records["u_hz2"][-1], ctl.log.group("u_hz2")[-1])
+    np.testing.assert_array_equal(records["p_W"][:, 0], p0[0] + 0.001 * np.arange(1, 6))
+    assert records["t"][-1] == ctl.time == ctl.log.group("t")[-1]

@@ -535,7 +535,8 @@ def _reference_step(est, frame, c):
         _ek.write_estimate_into(est.state, out_record)
         valid = est.initialised and not c["degraded"]
         return estimate_of(float(frame.t), out_record, valid)
-    u, buf, sbuf, w = est.state[0], est.kernel_arrays.imu_buf, est.kernel_arrays.state_buf, est.kernel_arrays.work[0]
+    m = est.memory[0]
+    u, buf, sbuf, w = est.state[0], m["imu_buf"], m["state_buf"], m["work"]
     mocap = frame.mocap_new
     code, t = _ek.imu_step(u, buf, sbuf, frame.imu_gyro_B, frame.imu_acc_B, frame.t)
     if not mocap:
@@ -667,7 +668,8 @@ def _memory(est, counters: bool = True) -> bytes:
     if not counters:
         for name in (*_COUNTERS, "degraded"):
             state[name] = 0
-    return b"".join(a.tobytes() for a in (state, est.kernel_arrays.imu_buf, est.kernel_arrays.state_buf))
+    m = est.memory[0]
+    return b"".join(a.tobytes() for a in (state, m["imu_buf"], m["state_buf"]))
 
 
 @pytest.mark.parametrize("params", [EstimatorParams(), _NAIVE_LEVER_ARM], ids=["default", "naive-lever-arm"])
@@ -675,8 +677,8 @@ def test_workspace_holds_no_state(params):
     """NaN in the workspace before every step changes nothing: it overlaps no state and is written before read."""
     frames, _, _ = _faulty_frames()
     est, ref = UKFEstimator(VEHICLE, params), UKFEstimator(VEHICLE, params)
-    work = est.kernel_arrays.work
-    assert not any(np.shares_memory(work, a) for a in est.kernel_arrays[:3])
+    work = est.memory["work"]
+    assert not any(np.shares_memory(work, a) for a in (est.state, est.memory["imu_buf"], est.memory["state_buf"]))
     # Before these frames P loses positive definiteness, so that the next prediction takes the Cholesky
     # fall-backs (P symmetrised with jitter; P reset to P0) and their work arrays.
     broken = {600: -1e-13, 1000: -1.0}

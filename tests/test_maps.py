@@ -518,17 +518,17 @@ def test_select_depends_only_on_the_attitude():
             assert busy.region_index == fresh.region_index
 
 
-def test_kernel_arrays_for_a_compiled_loop():
+def test_scheduler_records_for_a_compiled_loop():
     """schedule_select on the scheduler's own arrays is select: it writes the returned view and the weights,
     sync() takes over the region; NaN and the constant modes write nothing."""
     maps = distinct_maps(8)
     sched = MapScheduler(VEHICLE, maps, MapParams(mode="piecewise", blend="smooth"))
     twin = MapScheduler(VEHICLE, maps, MapParams(mode="piecewise", blend="smooth"))
     A = sched.select(np.eye(3))
-    arrays = sched.kernel_arrays
-    assert arrays.maps.shape == (10, 6 * VEHICLE.n_rotors) and np.shares_memory(A, arrays.out)
-    assert np.shares_memory(sched.weights, arrays.weights)
-    assert sched.state.dtype == _mk.STATE_DTYPE and arrays.regions.dtype == _mk.REGION_DTYPE
+    arrays = sched.arrays[0]
+    assert arrays["maps"].shape == (10, 6 * VEHICLE.n_rotors) and np.shares_memory(A, arrays["out"])
+    assert np.shares_memory(sched.weights, arrays["weights"])
+    assert sched.state.dtype == _mk.STATE_DTYPE and arrays["regions"].dtype == _mk.REGION_DTYPE
     for deg in (45.0, 31.0, 29.0, 100.0, 150.0):  # R3, the R1/R3 band on both sides, R8, R6
         R = roll(deg)
         k = _mk.schedule_select(sched.state[0], arrays, R)
@@ -547,10 +547,10 @@ def test_kernel_arrays_for_a_compiled_loop():
         np.testing.assert_array_equal(got, want)
     for mode in ("nominal", "global"):
         const = MapScheduler(VEHICLE, R3_ONLY, MapParams(mode=mode))
-        out = const.kernel_arrays.out.copy()
-        k = _mk.schedule_select(const.state[0], const.kernel_arrays, roll(45.0))
+        out = const.arrays["out"].copy()
+        k = _mk.schedule_select(const.state[0], const.arrays[0], roll(45.0))
         assert k == -1
-        np.testing.assert_array_equal(const.kernel_arrays.out, out)
+        np.testing.assert_array_equal(const.arrays["out"], out)
         const.sync()
         assert const.region_index == -1 and const.region_name == mode
 

@@ -1,6 +1,9 @@
 """Proof of the block contract (issue 11): a new observer, defined in this file alone and registered with one
 line, flies the hover through the public API, inside the controller's compiled step.
 
+Its ``log_fields`` add a signal of its own to the controller's log (issue 23 item 2: the log record is derived
+from the blocks' declarations).
+
 The variant estimates the force only (the first-order filter of SPEC §4.3 eq. 7, no low-pass, no moment): with
 a push at the EE tip, the logged moment estimate stays exactly zero while the force is recovered, which the
 default momentum observer (it estimates the moment the push makes about the CoM) would not give.
@@ -59,7 +62,7 @@ def force_only_step(r, A, u, a_W, R, omega_B, dt):
 @register("observer", "test-force-only")
 class ForceOnlyObserver:
     state_dtype = FORCE_ONLY_DTYPE
-    log_fields = ("f_ext_W", "m_ext_B")
+    log_fields = ("f_ext_W", "m_ext_B", ("force_steps", ("n_steps",)))  # the last: a signal of its own, renamed
     kernel = force_only_step
 
     def __init__(self, vehicle, params, *, state=None):
@@ -92,8 +95,11 @@ def test_a_new_observer_flies_the_hover_through_the_public_api():
 
     ctl_log, truth_log = run_closed_loop(sim, ctl, PoseTrajectory([Waypoint(0.0, p_E, R)]), 3.0, on_step=push)
     # The compiled step ran the variant's kernel every period (its own counter, in the controller's state).
-    assert ctl.kernel_args is not None and ctl.observer.state["n_steps"][0] == 3000
+    assert ctl.kernel_state is not None and ctl.observer.state["n_steps"][0] == 3000
     assert np.shares_memory(ctl.observer.state, ctl.state)
+    # Its log declaration is the log: its own signal is a group of the controller's log, row by row.
+    np.testing.assert_array_equal(ctl_log.group("force_steps"), np.arange(1.0, 3001.0))
+    assert ctl_log.column_names.index("force_steps") == ctl_log.column_names.index("m_ext_B.z") + 1
     f_hat, m_hat = ctl_log.group("f_ext_W"), ctl_log.group("m_ext_B")
     np.testing.assert_allclose(f_hat[-1], f_W, atol=0.05)  # the force is recovered ...
     assert np.all(m_hat == 0.0)  # ... and the moment is not estimated at all: it is the variant that flew

@@ -289,7 +289,7 @@ def test_alloc_set_map_matches_the_numpy_code():
     for k in range(20):
         A = VEHICLE.A_nom * (1.0 + 0.2 * rng.normal(size=VEHICLE.A_nom.shape)) if k else VEHICLE.A_nom
         before_state = alloc.state.copy()
-        before = {name: getattr(ar, name).copy() for name in ar._fields if name not in written}
+        before = {name: getattr(ar, name).copy() for name in ar.dtype.names if name not in written}
         alloc_set_map(alloc.state[0], ar, A)
         As_ref = A * scale
         np.testing.assert_array_equal(ar.As, As_ref)
@@ -310,7 +310,8 @@ def test_default_backend_shares_the_allocators_arrays():
     be = alloc._backend
     assert be.H is alloc._H
     for arr, name in ((be.lo, "lo"), (be.hi, "hi"), (be.x, "x"), (be.active, "active"), (be.work, "work")):
-        assert arr is getattr(alloc.arrays, name)  # the compiled controller step continues the same warm start
+        field = getattr(alloc.arrays, name)  # the compiled controller step continues the same warm start
+        assert arr.shape == field.shape and arr.ctypes.data == field.ctypes.data
     assert be.active.dtype == np.int64 and be.x.shape == (VEHICLE.n_rotors,)
     assert be.work.size >= _qp.boxqp_work_size(VEHICLE.n_rotors) and be.max_iter == AllocationParams().max_iter
     # Upright hover from the cold start, then a warm step: one iteration, the answer in be.x.

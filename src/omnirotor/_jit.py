@@ -60,14 +60,9 @@ __all__ = [
     "mujoco_function",
     "mujoco_timer_address",
     "monotonic_ns",
-    "address_table",
-    "f64_view",
-    "f64_view2",
     "f64_at",
     "f64_at2",
-    "i64_view",
     "i64_at",
-    "records_at",
 ]
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -140,17 +135,48 @@ def _closure_hash(path: str) -> str:
     return h.hexdigest()
 
 
-class DependencyLocator:
-    """Mixin of a numba cache locator whose source stamp is the hash of the kernel's :func:`source_closure`.
+_KEEP_CACHE_FOLDERS = 4
+"""Cache folders (one per source hash) kept beside each module; older ones are removed when a new one is made."""
 
-    numba keeps one index per function and discards it when the locator's stamp differs from the one it was
-    written with; numba's locators stamp the function's own file only. The hash is taken when the kernel is
-    defined (its module imported), so it describes the sources the process compiles from even if files change
-    while it runs.
+
+@functools.cache
+def _prune_cache_folders(base: str) -> None:
+    """Remove all but the :data:`_KEEP_CACHE_FOLDERS` most recently written ``deps-*`` folders under ``base``.
+
+    Once per folder and process. A process still running older sources that loses its folder compiles again
+    (numba treats a missing file as a cache miss); nothing else is affected.
+    """
+    try:
+        folders = sorted(Path(base).glob("deps-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
+        for old in folders[_KEEP_CACHE_FOLDERS:]:
+            for f in old.iterdir():
+                f.unlink(missing_ok=True)
+            old.rmdir()
+    except OSError:
+        pass  # another process pruned it first, or the folder is read-only: a cache, never an error
+
+
+class DependencyLocator:
+    """Mixin of a numba cache locator keyed on the hash of the kernel's :func:`source_closure`.
+
+    numba's locators stamp the function's own file only. Here the stamp is the closure's hash, and the cache
+    lives in a folder named after that hash (``deps-<hash>`` under numba's usual place), so sources of another
+    version never read an index written by this one: numba unpickles an index before it compares stamps, and
+    an index whose signatures name a class that no longer exists (a NamedTuple type a kernel once took) would
+    raise instead of missing. Switching between checkouts also keeps both versions' machine code. The
+    :data:`_KEEP_CACHE_FOLDERS` newest folders are kept. The hash is taken when the kernel is defined (its
+    module imported), so it describes the sources the process compiles from even if files change while it runs.
     """
 
     def get_source_stamp(self):
         return ("omnirotor-closure", _closure_hash(self._py_file))
+
+    def get_cache_path(self):
+        return os.path.join(super().get_cache_path(), "deps-" + _closure_hash(self._py_file)[:20])
+
+    def ensure_cache_path(self):
+        super().ensure_cache_path()
+        _prune_cache_folders(os.path.dirname(self.get_cache_path()))
 
 
 class _UserDirDependencyLocator(DependencyLocator, UserProvidedCacheLocator):
@@ -286,37 +312,7 @@ def monotonic_ns(ts) -> int:
     return ts[0] * _NS_PER_S + ts[1]
 
 
-# -- arrays by address: one small argument instead of many (numba unboxes every array argument on each call) ----
-#
-# A compiled function called from Python pays ~0.4 µs per array argument (type checks and unboxing). A caller
-# that passes the same arrays every call (a controller's 20-odd state arrays, 1000 times a second) can pass
-# their addresses in one int64 table instead and have the kernel rebuild the views. The caller must keep the
-# arrays alive (and in place) as long as it uses the table: the objects that own them hold the table.
-
-_TABLE_STRIDE = 3  # address, rows, columns (columns = 0 for a 1-D array)
-
-
-def address_table(arrays: list[np.ndarray]) -> np.ndarray:
-    """An int64 table of ``(address, rows, columns)`` of C-contiguous arrays, in order.
-
-    The arrays are 1-D or 2-D float64 or int64 arrays, or 1-D arrays of a structured dtype (records).
-
-    Raises:
-        ValueError: an array that is none of these.
-    """
-    table = np.zeros(_TABLE_STRIDE * len(arrays), dtype=np.int64)
-    for i, a in enumerate(arrays):
-        records = a.dtype.names is not None and a.ndim == 1
-        plain = a.ndim in (1, 2) and a.dtype in (np.float64, np.int64)
-        if not a.flags.c_contiguous or not (records or plain):
-            raise ValueError(
-                f"address_table: array {i} is not a C-contiguous 1-D/2-D float64/int64 array or 1-D record array"
-            )
-        o = _TABLE_STRIDE * i
-        table[o] = a.ctypes.data
-        table[o + 1] = a.shape[0]
-        table[o + 2] = a.shape[1] if a.ndim == 2 else 0
-    return table
+# -- MuJoCo's arrays by address (the simulator's; the controller passes its one record instead) ----------------
 
 
 @intrinsic
@@ -337,43 +333,6 @@ def _i64_pointer(typingctx, address):
         return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.int64)))
 
     return sig, codegen
-
-
-@intrinsic
-def _void_pointer(typingctx, address):
-    sig = types.voidptr(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
-
-    return sig, codegen
-
-
-@jit
-def void_pointer(address: int):
-    """The address as a ``void*`` (for ``numba.carray`` of a structured dtype)."""
-    return _void_pointer(address)
-
-
-@jit_inline
-def records_at(table, i: int, dtype):
-    """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (``dtype`` a global)."""
-    o = _TABLE_STRIDE * i
-    return numba.carray(_void_pointer(table[o]), (table[o + 1],), dtype)
-
-
-@jit_inline
-def f64_view(table, i: int):
-    """The 1-D float64 array of entry ``i`` of an :func:`address_table`."""
-    o = _TABLE_STRIDE * i
-    return numba.carray(_f64_pointer(table[o]), (table[o + 1],))
-
-
-@jit_inline
-def f64_view2(table, i: int):
-    """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
-    o = _TABLE_STRIDE * i
-    return numba.carray(_f64_pointer(table[o]), (table[o + 1], table[o + 2]))
 
 
 @_leaf("float64[::1](int64, int64)")
@@ -416,13 +375,6 @@ def profiler_clock_restore(timer_adr: int, clock: int) -> None:
         i64_at(timer_adr, 1)[0] = clock
 
 
-@jit_inline
-def i64_view(table, i: int):
-    """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
-    o = _TABLE_STRIDE * i
-    return numba.carray(_i64_pointer(table[o]), (table[o + 1],))
-
-
 if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock exist only compiled)
     import ctypes
     import time
@@ -430,21 +382,6 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def monotonic_ns(ts) -> int:  # noqa: F811 (the Python twin of the compiled one)
         """Monotonic clock [ns] (``time.perf_counter_ns``: CLOCK_MONOTONIC on Linux)."""
         return time.perf_counter_ns()
-
-    def _view(table, i: int, ctype, two_d: bool) -> np.ndarray:
-        o = _TABLE_STRIDE * i
-        rows, cols = int(table[o + 1]), int(table[o + 2])
-        count = rows * cols if two_d else rows
-        arr = np.ctypeslib.as_array((ctype * count).from_address(int(table[o])))
-        return arr.reshape(rows, cols) if two_d else arr
-
-    def f64_view(table, i: int):  # noqa: F811
-        """The 1-D float64 array of entry ``i`` of an :func:`address_table`."""
-        return _view(table, i, ctypes.c_double, False)
-
-    def f64_view2(table, i: int):  # noqa: F811
-        """The 2-D float64 array of entry ``i`` of an :func:`address_table`."""
-        return _view(table, i, ctypes.c_double, True)
 
     def f64_at(address: int, n: int):  # noqa: F811
         """The 1-D float64 array of ``n`` entries at ``address``."""
@@ -457,18 +394,3 @@ if _PURE_PYTHON:  # the same functions in Python (the intrinsics and the C clock
     def f64_at2(address: int, rows: int, cols: int):  # noqa: F811
         """The C-ordered ``(rows, cols)`` float64 array at ``address``."""
         return f64_at(address, int(rows) * int(cols)).reshape(int(rows), int(cols))
-
-    def void_pointer(address: int):  # noqa: F811
-        """The address (an integer)."""
-        return int(address)
-
-    def records_at(table, i: int, dtype):  # noqa: F811
-        """The 1-D array of ``dtype`` records of entry ``i`` of an :func:`address_table` (a ``numpy.recarray``)."""
-        o = _TABLE_STRIDE * i
-        rows = int(table[o + 1])
-        raw = (ctypes.c_char * (rows * dtype.itemsize)).from_address(int(table[o]))
-        return np.frombuffer(raw, dtype=dtype, count=rows).view(np.recarray)
-
-    def i64_view(table, i: int):  # noqa: F811
-        """The 1-D int64 array of entry ``i`` of an :func:`address_table`."""
-        return _view(table, i, ctypes.c_int64, False)

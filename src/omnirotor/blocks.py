@@ -11,7 +11,11 @@ faults, airflow). Each block lives in one module, which owns:
   simulator) nests its blocks' dtypes as fields of its own dtype, so there is still one array to pass;
 * its **compiled step**, beside the Python set-up, written once: Python keeps set-up, validation and
   reporting, and calls the same kernel the compiled composers call;
-* the **fields it logs** (names of state fields copied to the run's log each period);
+* the **fields it logs** (``log_fields``: the fields of its state the run's log records each period, each
+  under its own name or ``(group, (field, ...))`` under another name, consecutive fields in one group;
+  ``log_labels`` may name a group's columns). A composer's log is one record whose fields are these groups
+  (:func:`log_groups`), filled by one generic compiled copy (:func:`log_writer`): a signal logged is one
+  declaration in its block;
 * for the controller's blocks (:data:`CONTROLLER_KINDS`, which read measurements that may be corrupt), a count
   of the steps whose inputs were not finite (field ``n_nonfinite``): such a step leaves the rest of the state as
   it was. The simulator's blocks are fed by the simulator's own state; their conformance suite checks instead
@@ -29,6 +33,8 @@ composer: adding a block is one file plus one registration line.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
@@ -49,6 +55,12 @@ __all__ = [
     "state_array",
     "new_state",
     "new_records",
+    "record_view",
+    "LogGroup",
+    "log_groups",
+    "log_dtype",
+    "log_writer",
+    "class_of_record",
 ]
 
 BLOCK_KINDS = (
@@ -71,6 +83,27 @@ BLOCK_KINDS = (
 CONTROLLER_KINDS = BLOCK_KINDS[:7]
 """The controller's kinds (the rest are the simulator's)."""
 
+KIND_STEPS = {
+    "observer": "kernel(r, A, u_hz2, a_W, R_WB, omega_B, dt): r.f_ext_W, r.m_ext_B (interaction), r.f_filt_W, "
+    "r.m_filt_B (compensated) from the (6, n) map A, the rotor inputs u_hz2 [Hz²] and the estimate",
+    "admittance": "kernel(r, f_E_W, m_E_W, desired, compliant, dt): the compliant EE reference record from the "
+    "desired one under the EE wrench [N, N·m, world]; r.xi_p_W is the position offset",
+    "pose": "kernel(r, body_ref, p_W, v_W, R_WB, omega_B, f_filt_W, m_filt_B, dt): r.f_ref_W [N, world], "
+    "r.m_ref_B [N·m, body] from the body reference record and the estimate, compensating the filtered wrench",
+    "estimator": "kernel(r, memory, frame, estimate) -> code: the estimate record from the checked frame head "
+    "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
+    "when there is no estimate yet",
+}
+"""The typed step of each controller kind that the composer reaches through the registry (:func:`compiled_step`).
+
+A block of that kind registers a ``kernel`` of this signature. Its constructor takes ``(vehicle, params, *,
+state=None)``, an admittance block's ``(params, *, state=None)``, with the parameters of its kind
+(``ObserverParams``, ``AdmittanceParams``, ``PoseControlParams``); the controller chooses it by name
+(``ControllerParams.observer_kind``, ``admittance_kind``, ``pose_kind``; the estimator by
+``EstimatorParams.kind``, the UKF or the bypass, whose two fields the record holds). The other kinds (maps,
+allocation, trajectory) are still called directly by the composer.
+"""
+
 
 @runtime_checkable
 class Block(Protocol):
@@ -81,7 +114,10 @@ class Block(Protocol):
         name: the name it is registered under (unique within its kind).
         state_dtype: the structured dtype of its state (named fields, units and frames in the names).
         state: its state, a ``(1,)`` array of ``state_dtype`` (or a view of the composer's nested field).
-        log_fields: names of the fields of ``state`` the run's log records each period.
+        log_fields: the fields of ``state`` the run's log records each period: a field's name (logged under
+            it), or ``(group, (field, ...))`` (consecutive fields logged as one group named ``group``).
+            Optional ``log_labels``: ``{group: column labels}`` (default: x, y, z for 3 values, the row-major
+            entries of a 3 x 3 matrix, else 1, 2, ...).
         kernel: its compiled step, ``kernel(record, *inputs)`` (``record`` is ``state[0]``), for the kinds a
             composer reaches through :func:`compiled_step`.
     """
@@ -89,7 +125,7 @@ class Block(Protocol):
     kind: ClassVar[str]
     name: ClassVar[str]
     state_dtype: ClassVar[np.dtype]
-    log_fields: ClassVar[tuple[str, ...]]
+    log_fields: ClassVar[tuple[str | tuple[str, tuple[str, ...]], ...]]
     state: np.ndarray
 
     def reset(self) -> None:
@@ -189,6 +225,165 @@ def state_array(dtype: np.dtype, state: np.ndarray | None, owner: str) -> np.nda
     return state
 
 
+def record_view(records: np.ndarray) -> np.record:
+    """The first record of ``records`` (a ``(1,)`` structured array) with its fields as attributes, a view.
+
+    ``record_view(a).x`` is the field ``x`` of ``a[0]`` (an array view for a subarray field), so Python set-up
+    reads a block's sized arrays by the names compiled code uses; compiled kernels take the record itself.
+    """
+    return records.view(np.recarray)[0]
+
+
+# -- the log: one record of the blocks' logged fields ------------------------------------------------------------
+
+_XYZ = ("x", "y", "z")
+_RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")  # row-major entries of a rotation matrix
+
+
+@dataclasses.dataclass(frozen=True)
+class LogGroup:
+    """One group of a log record.
+
+    Attributes:
+        name: the group's name (a field of the log record, a column group of the recorder).
+        paths: the dotted paths of the fields of the composer's record whose values it holds, in order
+            (``("pose.f_ref_W", "pose.m_ref_B")``).
+        shape: its shape in the log record (``()`` a scalar; one field keeps its shape, several are joined
+            into a vector).
+        labels: its column labels.
+    """
+
+    name: str
+    paths: tuple[str, ...]
+    shape: tuple[int, ...]
+    labels: tuple[str, ...]
+
+
+_LOGGABLE = (np.dtype(np.float64), np.dtype(np.int64))
+
+
+def _default_labels(shape: tuple[int, ...]) -> tuple[str, ...]:
+    size = int(np.prod(shape, dtype=int))
+    if shape == (3,):
+        return _XYZ
+    if shape == (3, 3):
+        return _RMAT
+    return ("0",) if size == 1 else tuple(str(i + 1) for i in range(size))
+
+
+def _field_dtype(dtype: np.dtype, path: str) -> np.dtype:
+    d = dtype
+    for part in path.split("."):
+        if d.names is None or part not in d.names:
+            raise InputError(f"log: no field {path!r} in the composer's record")
+        d = d.fields[part][0]
+    return d
+
+
+def log_groups(state_dtype: np.dtype, sources) -> tuple[LogGroup, ...]:
+    """The groups of a composer's log record, in order.
+
+    Args:
+        state_dtype: the composer's record type (every path below is a field of it).
+        sources: ``(prefix, log_fields, log_labels)`` in log order: a record of the composer (``"pose"``, or
+            ``""`` for the record itself), the fields it logs (:class:`Block`'s ``log_fields`` form) and their
+            labels (a dict, may be empty).
+
+    Raises:
+        InputError: a field that does not exist, or two groups of the same name.
+    """
+    groups: list[LogGroup] = []
+    for prefix, fields, labels in sources:
+        for entry in fields:
+            name, names = (entry, (entry,)) if isinstance(entry, str) else (entry[0], tuple(entry[1]))
+            paths = tuple(f"{prefix}.{f}" if prefix else f for f in names)
+            dtypes = [_field_dtype(state_dtype, p) for p in paths]
+            if any((d.base if d.subdtype is not None else d) not in _LOGGABLE for d in dtypes):
+                raise InputError(f"log group {name!r}: only float64 and int64 fields are logged (as float64)")
+            shapes = [d.shape for d in dtypes]
+            shape = shapes[0] if len(shapes) == 1 else (sum(int(np.prod(s, dtype=int)) for s in shapes),)
+            lab = tuple(labels.get(name, _default_labels(shape)))
+            if len(lab) != int(np.prod(shape, dtype=int)):
+                raise InputError(f"log group {name!r}: {len(lab)} labels for {int(np.prod(shape, dtype=int))} values")
+            groups.append(LogGroup(name, paths, shape, lab))
+    names = [g.name for g in groups]
+    if len(set(names)) != len(names):
+        raise InputError(f"log: duplicate groups in {names}")
+    return tuple(groups)
+
+
+@functools.cache
+def log_dtype(groups: tuple[LogGroup, ...]) -> np.dtype:
+    """The log record of ``groups``: one float64 field per group, packed.
+
+    A row of floats (the recorder's) viewed as this dtype is the record, field by field in group order.
+    """
+    return np.dtype([(g.name, np.float64, g.shape) if g.shape else (g.name, np.float64) for g in groups])
+
+
+def class_of_record(kind: str, record_type) -> type | None:
+    """The class registered under ``kind`` whose ``state_dtype`` is numba's ``record_type`` (None: none)."""
+    for cls in _REGISTRY[kind].values():
+        dtype = getattr(cls, "state_dtype", None)
+        if dtype is not None and numba.from_dtype(dtype) == record_type:
+            return cls
+    return None
+
+
+def _writer_source(groups: tuple[LogGroup, ...]) -> str:
+    """Straight-line code copying each group's fields from ``src`` into ``dst`` (the log record), by name."""
+    lines = ["def impl(dst, src):"]
+    for g in groups:
+        if len(g.paths) == 1:
+            index = ", ".join(":" for _ in g.shape)
+            target = f"dst.{g.name}[{index}]" if g.shape else f"dst.{g.name}"
+            lines.append(f"    {target} = src.{g.paths[0]}")
+        else:
+            lines.append("    _k = 0")
+            for path in g.paths:
+                lines.append(f"    for _v in src.{path}.ravel():")
+                lines.append(f"        dst.{g.name}[_k] = _v")
+                lines.append("        _k += 1")
+    lines.append("    return None")
+    return "\n".join(lines)
+
+
+def log_writer(name: str, groups_of: Callable[[Any, Any], tuple[LogGroup, ...] | None]) -> Callable[..., Any]:
+    """A compiled ``write(dst, src)``: every group of the log record ``dst`` from its fields of ``src``.
+
+    Compiled per pair of record types, from ``groups_of(dst_type, src_type)`` (numba's types; None: not
+    this writer's pair): straight-line copies by field name, generated from the groups, so that no copy is
+    written by hand beside the declarations. From Python it does the same with NumPy.
+    """
+
+    def write(dst, src):
+        groups = groups_of(numba.from_dtype(dst.dtype), numba.from_dtype(src.dtype))
+        for g in groups:
+            values = [np.ravel(_get_path(src, p)) for p in g.paths]
+            dst[g.name] = np.concatenate(values).reshape(g.shape) if g.shape else values[0][0]
+
+    write.__name__ = write.__qualname__ = name
+
+    @overload(write)
+    def _write_overload(dst, src):
+        if not (isinstance(dst, types.Record) and isinstance(src, types.Record)):
+            return None
+        groups = groups_of(dst, src)
+        if groups is None:
+            return None
+        namespace: dict[str, Any] = {}
+        exec(_writer_source(groups), namespace)  # noqa: S102 (code generated from the declared field names)
+        return namespace["impl"]
+
+    return write
+
+
+def _get_path(record, path: str):
+    for part in path.split("."):
+        record = record[part]
+    return record
+
+
 _STEPS: dict[str, Callable[..., Any]] = {}
 
 
@@ -204,13 +399,6 @@ def compiled_step(kind: str) -> Callable[..., Any]:
     if kind in _STEPS:
         return _STEPS[kind]
 
-    def _class_of_record(record_type) -> type | None:
-        for cls in _REGISTRY[kind].values():
-            dtype = getattr(cls, "state_dtype", None)
-            if dtype is not None and numba.from_dtype(dtype) == record_type:
-                return cls
-        return None
-
     def step(record, *inputs):
         dtype = getattr(record, "dtype", None)
         for cls in _REGISTRY[kind].values():
@@ -224,7 +412,7 @@ def compiled_step(kind: str) -> Callable[..., Any]:
     def _step_overload(record, *inputs):
         if not isinstance(record, types.Record):
             return None
-        cls = _class_of_record(record)
+        cls = class_of_record(kind, record)
         if cls is None:
             return None
         kernel = cls.kernel

@@ -35,6 +35,7 @@ import functools
 import numpy as np
 
 __all__ = [
+    "ESTIMATE_LOG_FIELDS",
     "StateEstimate",
     "SensorFrame",
     "RotorCommand",
@@ -64,6 +65,8 @@ ESTIMATE_DTYPE = np.dtype(
     ]
 )
 """The rigid-body state of the CoM: a frame's (bypass) state and the controller's estimate."""
+ESTIMATE_LOG_FIELDS = ("p_W", "v_W", "a_W", "R_WB", "omega_B")
+"""The fields of an estimate a log records (:mod:`omnirotor.blocks`' ``log_fields`` form)."""
 FRAME_HEAD_DTYPE = np.dtype([("t", _F8), ("imu", IMU_DTYPE), ("mocap", MOCAP_DTYPE), ("state", ESTIMATE_DTYPE)])
 """A frame without its rotor speeds (module docstring)."""
 
@@ -109,6 +112,10 @@ class ControlStatus(enum.IntFlag):
     """The estimator weighs motion capture as noisier than configured: its innovations showed more noise."""
     MOCAP_REJECTED = 128
     """The estimator did not fuse a well-formed motion-capture sample (outside its innovation gate, or too late)."""
+    FAILSAFE = 256
+    """The controller's failsafe holds and then lands the vehicle (blind or without motion capture for too long)."""
+    BIAS_BEYOND_RANGE = 512
+    """An estimated IMU bias is beyond the range the estimator is documented to follow."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

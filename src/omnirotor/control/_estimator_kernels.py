@@ -1,17 +1,19 @@
 """Compiled kernels of the UKF state estimator (:class:`omnirotor.control.estimator.UKFEstimator`, SPEC §4.5).
 
-The estimator's memory is four NumPy structured arrays whose fields the kernels read by name
-(:class:`UKFArrays`), so that a step allocates nothing:
+The estimator's memory is two NumPy structured records whose fields the kernels read by name, its state
+(:data:`UKF_DTYPE`) and its sized memory (:func:`memory_dtype`: the ring buffers and the scratch), so that a
+step allocates nothing:
 
 * ``ukf`` (1,) of :data:`UKF_DTYPE`: the output (current) and the delayed fused nominal states
   (:data:`NOMINAL_DTYPE`: ``p_W, v_W, q_WB, b_acc_B, b_gyro_B``) with their ``R_WB``, the IMU samples, the
   outputs, times and counters, the covariance ``P``, the unscented weights, the constant matrices (process
   noise terms ``Q1, Q2, Q3``, initial covariance ``P0``, measurement noise ``Rn``) and the parameters. A
   controller nests it as a field of its own state;
-* ``imu_buf`` (cap,) of :data:`IMU_SAMPLE_DTYPE` and ``state_buf`` (cap,) of :data:`NOMINAL_DTYPE`: ring
-  buffers of the IMU samples (lever-arm corrected) and of the output state after each;
-* ``work`` (1,) of :data:`WORK_DTYPE`: the scratch arrays of :func:`predict` and :func:`fuse`. Its content
-  means nothing between kernel calls: every kernel writes an entry before it reads it.
+* the memory's ``imu_buf`` (cap,) of :data:`IMU_SAMPLE_DTYPE` and ``state_buf`` (cap,) of
+  :data:`NOMINAL_DTYPE`: ring buffers of the IMU samples (lever-arm corrected) and of the output state after
+  each (a controller nests the memory as its field ``ukf_memory``);
+* the memory's ``work``, one :data:`WORK_DTYPE` record: the scratch arrays of :func:`predict` and
+  :func:`fuse`. Its content means nothing between kernel calls: every kernel writes an entry before it reads it.
 
 The model and the filter are described in the estimator's module docstring; these kernels implement them:
 
@@ -22,8 +24,8 @@ The model and the filter are described in the estimator's module docstring; thes
   (closed-form Kalman update, error injection, reset Jacobian, re-propagation of the mean to now);
 * :func:`ukf_step`: the estimator's whole 1 kHz step after initialisation in one call (the above in order,
   the motion-capture sample checks, the latency choice and the counters), for :meth:`UKFEstimator.step`
-  and for the controller's compiled step; :func:`ukf_step_by_table` the same from Python, with the arrays
-  given by their addresses (typing four structured arrays would cost numba more than the step).
+  and for the controller's compiled step; :func:`ukf_step_entry` the same from Python, on the two ``(1,)``
+  arrays.
 
 The arithmetic is written in the order of the Python float / NumPy code it replaced; where NumPy summed a
 product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results agree within a rounding.
@@ -32,12 +34,10 @@ product with BLAS (sigma-point statistics, Cholesky, the 6 x 6 inverse) results 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry, records_at
-from omnirotor.blocks import new_records
+from omnirotor._jit import jit, jit_entry
 from omnirotor.so3 import (
     R_from_quat_into,
     exp_so3_into,
@@ -155,6 +155,16 @@ UKF_DTYPE = np.dtype(
         ("adapt_prior_n", _F8),  # the estimates start at the assumed variance, worth this many samples
         ("var_pos_assumed", _F8),  # assumed position noise variance per axis [m²]
         ("var_att_assumed", _F8),  # assumed attitude noise variance per axis [rad²]
+        # sustained faults (issue 26): coasting, drifting biases, biases beyond the documented range
+        ("coasting", _I8),  # 1: this step's IMU sample is the frame supervision's prediction (set by the caller)
+        ("q_coast", _F8),  # white acceleration noise added while coasting [m²/s³]
+        ("innov_ema_W", _F8, 3),  # running mean of the position innovations [m]
+        ("drift_m", _F8),  # its threshold ...
+        ("drift_scale2", _F8),  # ... and the factor on the bias random walks' variances above it
+        ("drift_on", _I8),  # 1: the biases drift (random walks scaled)
+        ("n_drift", _I8),  # motion-capture samples fused with the bias walks scaled
+        ("acc_bias_range", _F8),  # [m/s²]
+        ("gyro_bias_range", _F8),  # [rad/s]
     ]
 )
 """State, counters and parameters of the UKF (named fields; the kernels read them so)."""
@@ -194,13 +204,9 @@ WORK_DTYPE = np.dtype(
 """Scratch of the kernels (named fields)."""
 
 
-class UKFArrays(NamedTuple):
-    """The UKF's memory (module docstring); ``cap`` is the ring buffers' length."""
-
-    ukf: np.ndarray  # (1,) UKF_DTYPE
-    imu_buf: np.ndarray  # (cap,) IMU_SAMPLE_DTYPE
-    state_buf: np.ndarray  # (cap,) NOMINAL_DTYPE
-    work: np.ndarray  # (1,) WORK_DTYPE
+def memory_dtype(cap: int) -> np.dtype:
+    """The UKF's sized memory: ring buffers of ``cap`` samples and the scratch (module docstring)."""
+    return np.dtype([("imu_buf", IMU_SAMPLE_DTYPE, (cap,)), ("state_buf", NOMINAL_DTYPE, (cap,)), ("work", WORK_DTYPE)])
 
 
 # Bits of the code imu_step and finish return.
@@ -209,6 +215,7 @@ STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeo
 STEP_NOISE_RAISED = 4  # motion capture is weighed with more noise than assumed (match_noise)
 STEP_MOCAP_REJECTED = 8  # a well-formed motion-capture sample was not fused (outside the gate, too late, singular)
 STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (predict to k - lag_n)
+STEP_BIAS_RANGE = 16  # a bias estimate is beyond the documented range
 
 QUAT_NORM_TOL = 0.1
 """A motion-capture quaternion whose norm is off 1 by more than this is rejected."""
@@ -224,25 +231,6 @@ _RESET_MIN_RAD2 = (0.5e-3) ** 2  # squared half attitude correction [rad²] abov
 
 _H_ROWS = (0, 1, 2, 6, 7, 8)
 """The error coordinates the motion-capture pose measures (dp, dtheta): rows of H, in measurement order."""
-
-
-def new_arrays(cap: int) -> UKFArrays:
-    """Zeroed memory with ring buffers of ``cap`` samples (:func:`omnirotor.blocks.new_records`)."""
-    return UKFArrays(
-        new_records(UKF_DTYPE), new_records(IMU_SAMPLE_DTYPE, cap), new_records(NOMINAL_DTYPE, cap),
-        new_records(WORK_DTYPE),
-    )  # fmt: skip
-
-
-@jit
-def arrays_at(table, i: int) -> UKFArrays:
-    """The :class:`UKFArrays` of entries ``i`` to ``i + 3`` of an :func:`omnirotor._jit.address_table`."""
-    return UKFArrays(
-        records_at(table, i, UKF_DTYPE),
-        records_at(table, i + 1, IMU_SAMPLE_DTYPE),
-        records_at(table, i + 2, NOMINAL_DTYPE),
-        records_at(table, i + 3, WORK_DTYPE),
-    )
 
 
 @jit
@@ -356,6 +344,10 @@ def imu_step(u, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
         for i in range(3):
             u.gyro_B[i] = gyro[i]
             u.acc_B[i] = acc[i]
+        if u.coasting != 0:  # the frame supervision's prediction is bias-free: the biases are added back
+            for i in range(3):
+                u.gyro_B[i] += u.x_out.b_gyro_B[i]
+                u.acc_B[i] += u.x_out.b_acc_B[i]
     else:
         rejected = True
     for i in range(3):
@@ -664,12 +656,60 @@ def predict(u, buf, sbuf, w, k_end: int) -> None:
             q += Q3[i, j] * T3
             P[i, j] += q
             P[j, i] = P[i, j]
+    _extra_process_noise(u, P, T_total)
     # The mean: the output state already propagated to sample k_end - 1.
     last = (k_end - 1) % cap
     copy_nominal(sbuf[last], f)
     R_from_quat_into(f.q_WB, u.R_WB_fused)
     u.t_fused = buf[last].t
     u.k_fused = k_end
+
+
+@jit
+def _extra_process_noise(u, P, T: float) -> None:
+    """Process noise beyond the model's, over ``T`` seconds (none in a run without sustained faults).
+
+    While coasting, white acceleration noise ``q_coast`` (velocity ``q T``, position ``q T³ / 3``, cross ``q T² /
+    2``); while the biases drift, their random walks' variances ``drift_scale2`` times the model's.
+    """
+    if u.coasting != 0:
+        q = u.q_coast
+        for i in range(3):
+            P[i, i] += q * T * T * T / 3.0
+            P[3 + i, 3 + i] += q * T
+            P[i, 3 + i] += q * T * T / 2.0
+            P[3 + i, i] = P[i, 3 + i]
+    if u.drift_on != 0:
+        c = (u.drift_scale2 - 1.0) * T
+        for i in range(9, 15):
+            P[i, i] += c * u.Q1[i, i]
+
+
+@jit
+def _track_drift(u, r) -> None:
+    """The running mean of the position innovations ``r[:3]`` (about 10 samples) against the drift threshold."""
+    e2 = 0.0
+    for i in range(3):
+        u.innov_ema_W[i] += 0.1 * (r[i] - u.innov_ema_W[i])
+        e2 += u.innov_ema_W[i] * u.innov_ema_W[i]
+    threshold = max(u.drift_m, 5.0 * math.sqrt(u.Rn[0, 0]))
+    e = math.sqrt(e2)
+    if e > threshold:
+        u.drift_on = 1
+    elif e < 0.5 * threshold:
+        u.drift_on = 0
+    if u.drift_on != 0:
+        u.n_drift += 1
+
+
+@jit
+def bias_beyond_range(u) -> bool:
+    """Whether a bias estimate of the output state is beyond the documented range (a component)."""
+    ba, bg = u.x_out.b_acc_B, u.x_out.b_gyro_B
+    for i in range(3):
+        if not (abs(ba[i]) <= u.acc_bias_range and abs(bg[i]) <= u.gyro_bias_range):
+            return True
+    return False
 
 
 # -- motion-capture update -------------------------------------------------------------------------------------
@@ -836,6 +876,7 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
     if u.adapt_noise != 0:
         match_noise(u, r)
+    _track_drift(u, r)
     n = N_ERR
     PHt = w.PHt
     for i in range(n):
@@ -1003,6 +1044,8 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     result = code & STEP_DEGRADED
     if noise_raised(u):
         result |= STEP_NOISE_RAISED
+    if u.acc_bias_range > 0.0 and bias_beyond_range(u):
+        result |= STEP_BIAS_RANGE
     if rejected:
         u.n_rejected_inputs += 1
         result |= STEP_REJECTED if invalid else STEP_MOCAP_REJECTED
@@ -1014,18 +1057,35 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
 
 
 @jit_entry
-def ukf_step_by_table(table, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
-    """:func:`ukf_step` on the :class:`UKFArrays` given by their addresses (entries 0 to 3 of ``table``).
-
-    ``out`` is a ``(1,)`` estimate array.
-    """
-    a = arrays_at(table, 0)
-    o = out[0]
-    return ukf_step(a.ukf[0], a.imu_buf, a.state_buf, a.work[0], gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, o)
+def ukf_step_entry(state, memory, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
+    """:func:`ukf_step` on the ``(1,)`` arrays of the state, the memory (:func:`memory_dtype`) and the estimate."""
+    m = memory[0]
+    return ukf_step(state[0], m.imu_buf, m.state_buf, m.work, gyro, acc, t_frame, mocap_new, mocap_t, p_m, q_m, out[0])
 
 
 @jit
-def ukf_reinit(u, p_m, q_m, out) -> None:
+def ukf_block_step(u, memory, f, out) -> int:
+    """The estimator kind's step (:data:`omnirotor.blocks.KIND_STEPS`): :func:`ukf_step` on a checked frame head.
+
+    Args:
+        u: the UKF's record (:data:`UKF_DTYPE`).
+        memory: its memory record (:func:`memory_dtype`).
+        f: the frame without its rotor speeds (:data:`omnirotor.messages.FRAME_HEAD_DTYPE`).
+        out: the estimate record (:data:`omnirotor.messages.ESTIMATE_DTYPE`).
+
+    Returns:
+        The ``STEP_*`` bits of :func:`ukf_step`.
+    """
+    m = f.mocap
+    code, _ = ukf_step(
+        u, memory.imu_buf, memory.state_buf, memory.work, f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t, m.p_W,
+        m.q_WB, out,
+    )  # fmt: skip
+    return code
+
+
+@jit
+def ukf_reinit(u, p_m, q_m, out, v_m=None) -> None:
     """Re-initialise the pose from a motion-capture sample at the current time (after a time glitch or a dropout).
 
     The output and the delayed fused state both become the sample's pose at the time of the last step; the
@@ -1038,6 +1098,7 @@ def ukf_reinit(u, p_m, q_m, out) -> None:
         p_m: (3,) measured position [m] (finite).
         q_m: (4,) measured attitude, wxyz (finite, non-zero; normalised here).
         out: the estimate record, rewritten.
+        v_m: (3,) the velocity to take [m/s] (after the IMU coasted, from two samples), NaN or None: keep it.
     """
     s = u.x_out
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
@@ -1045,6 +1106,10 @@ def ukf_reinit(u, p_m, q_m, out) -> None:
         s.p_W[i] = p_m[i]
     for i in range(4):
         s.q_WB[i] = q_m[i] / qn
+    if v_m is not None:
+        for i in range(3):
+            if math.isfinite(v_m[i]):
+                s.v_W[i] = v_m[i]
     for i in range(3):
         if not math.isfinite(s.v_W[i]):
             s.v_W[i] = 0.0

@@ -9,9 +9,10 @@ weights and the blended map (the formulas are in the docstring of :mod:`omniroto
 The scheduler's state and parameters are one structured record (:data:`STATE_DTYPE`: the current region,
 the blend flag, the count of non-finite attitudes, the blending band); the partition and the maps, whose
 sizes depend on the partition (K regions, at most M azimuth intervals per region) and on the vehicle (n
-rotors), are the arrays of :class:`SchedulerArrays`, built once by :func:`pack_schedule`: one
-:data:`REGION_DTYPE` record per region (its elevation intervals and interval counts) and the (K, M) tables of
-its azimuth intervals (padded with 0).
+rotors), are the subarray fields of one more record (:func:`arrays_dtype`, sized for a partition of at most K
+regions of at most M intervals), written once by :func:`pack_schedule`: one :data:`REGION_DTYPE` record per
+region (its elevation intervals and interval counts) and the (K, M) tables of its azimuth intervals (padded
+with 0). In the controller both records are fields of its state (``maps``, ``maps_arrays``).
 
 Arithmetic is that of the Python float code it replaced, in the same order: the azimuth and elevation use
 :func:`py_hypot`, which is CPython 3.11's ``math.hypot`` (the C library's ``hypot``, which numba calls, differs
@@ -24,21 +25,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 
-from omnirotor._jit import address_table, f64_view, f64_view2, jit, jit_entry, records_at
-from omnirotor.blocks import new_records
+from omnirotor._jit import jit, jit_entry
 from omnirotor.regions import Region
 
 __all__ = [
     "STATE_DTYPE",
     "REGION_DTYPE",
-    "SchedulerArrays",
+    "arrays_dtype",
     "pack_schedule",
     "schedule_select",
-    "schedule_select_by_table",
+    "schedule_select_entry",
     "py_hypot",
     "azimuth_elevation",
 ]
@@ -72,33 +71,43 @@ REGION_DTYPE = np.dtype(
 """One region of the partition, as the kernel reads it."""
 
 
-class SchedulerArrays(NamedTuple):
-    """The partition and the maps (K regions, M interval slots, n rotors)."""
+def arrays_dtype(n_regions: int, n_intervals: int, n_rotors: int) -> np.dtype:
+    """The partition's and the maps' arrays for up to ``n_regions`` regions of ``n_intervals`` azimuth intervals.
 
-    regions: np.ndarray  # (K,) REGION_DTYPE
-    az_lo_rad: np.ndarray  # (K, M) the hard test's azimuth lower bounds [rad]
-    az_hi_rad: np.ndarray  # (K, M) its upper bounds [rad]
-    az_centre_rad: np.ndarray  # (K, M) centres of the merged circular azimuth intervals [rad]
-    az_half_rad: np.ndarray  # (K, M) their half-widths [rad]
-    maps: np.ndarray  # (K, 6n) the region maps, (6, n) row-major each (one map outside piecewise mode)
-    out: np.ndarray  # (6n,) the map in use
-    weights: np.ndarray  # (K,) blending weights (one-hot with hard blending)
+    Sizes of at least 1 (a nominal or global scheduler uses one map and no region). Fields: ``regions`` (K,)
+    :data:`REGION_DTYPE`; ``az_lo_rad``, ``az_hi_rad`` (K, M) the hard test's azimuth bounds [rad];
+    ``az_centre_rad``, ``az_half_rad`` (K, M) the merged circular intervals' centres and half-widths [rad];
+    ``maps`` (K, 6n) the region maps, (6, n) row-major each (one map outside piecewise mode); ``out`` (6n,) the
+    map in use; ``weights`` (K,) the blending weights (one-hot with hard blending).
+    """
+    K, M, m = max(1, n_regions), max(1, n_intervals), 6 * n_rotors
+    return np.dtype(
+        [
+            ("regions", REGION_DTYPE, (K,)),
+            ("az_lo_rad", _F8, (K, M)),
+            ("az_hi_rad", _F8, (K, M)),
+            ("az_centre_rad", _F8, (K, M)),
+            ("az_half_rad", _F8, (K, M)),
+            ("maps", _F8, (K, m)),
+            ("out", _F8, (m,)),
+            ("weights", _F8, (K,)),
+        ]
+    )
 
-    def table(self, state: np.ndarray) -> np.ndarray:
-        """The addresses of the ``(1,)`` state array and of these (:func:`omnirotor._jit.address_table`).
 
-        For :func:`schedule_select_by_table`; the caller keeps the arrays alive.
-        """
-        return address_table([state, *self])
+def n_intervals(regions: Sequence[Region], soft: Sequence) -> int:
+    """The azimuth-interval slots ``regions`` need (the hard intervals or the merged soft ones, the larger)."""
+    return max((max(len(r.azimuth_deg), len(s.az_centres)) for r, s in zip(regions, soft, strict=True)), default=0)
 
 
 def pack_schedule(
-    state, regions: Sequence[Region], soft: Sequence, smooth: bool, band_rad: float, maps: np.ndarray
-) -> SchedulerArrays:
-    """Write the parameters of a partition into the record ``state``; its :class:`SchedulerArrays`.
+    state, arrays, regions: Sequence[Region], soft: Sequence, smooth: bool, band_rad: float, maps
+) -> None:
+    """Write the parameters of a partition into the records ``state`` and ``arrays``.
 
     Args:
         state: the scheduler's record (:data:`STATE_DTYPE`); its state is set to "no region selected yet".
+        arrays: its arrays' record (:func:`arrays_dtype`, fields as attributes), large enough; zeroed here.
         regions: the partition's regions in order (empty outside piecewise mode); their closed intervals
             are converted to radians as :class:`omnirotor.regions.Region` does for ``contains``.
         soft: the same regions as circular intervals, one per region, each with the attributes
@@ -108,19 +117,31 @@ def pack_schedule(
         band_rad: total width of the blending band [rad], > 0.
         maps: (K', 6n) the maps to choose from (K' = K, or 1 outside piecewise mode); the output starts as
             the first.
+
+    Raises:
+        ValueError: ``arrays`` too small for the partition, or ``soft`` not one per region.
     """
     if len(soft) != len(regions):
         raise ValueError(f"pack_schedule: {len(regions)} regions but {len(soft)} soft regions")
-    max_iv = max((max(len(r.azimuth_deg), len(s.az_centres)) for r, s in zip(regions, soft, strict=True)), default=0)
+    max_iv = n_intervals(regions, soft)
     K = len(regions)
+    maps = np.asarray(maps, dtype=np.float64)
+    cap_k, cap_m = arrays.az_lo_rad.shape
+    if K > cap_k or max_iv > cap_m or maps.shape[0] > arrays.maps.shape[0] or maps.shape[1] != arrays.out.shape[0]:
+        raise ValueError(
+            f"pack_schedule: {K} regions of {max_iv} intervals and {maps.shape} maps do not fit arrays for "
+            f"{cap_k} regions of {cap_m} intervals and {arrays.maps.shape} maps"
+        )
+    for name in arrays.dtype.names:
+        arrays[name] = 0
     state["region"] = -1
     state["blended"] = 0
     state["n_regions"] = K
     state["smooth"] = 1 if smooth else 0
     state["half_band_rad"] = 0.5 * band_rad
     state["inv_band_per_rad"] = 1.0 / band_rad
-    table = new_records(REGION_DTYPE, K)
-    az = [np.zeros((K, max_iv)) for _ in range(4)]
+    table = arrays.regions
+    az = (arrays.az_lo_rad, arrays.az_hi_rad, arrays.az_centre_rad, arrays.az_half_rad)
     for j, (region, s) in enumerate(zip(regions, soft, strict=True)):
         r = table[j]
         r["el_lo_rad"] = math.radians(region.elevation_deg[0])
@@ -136,8 +157,8 @@ def pack_schedule(
         for i, (c, h) in enumerate(zip(s.az_centres, s.az_halves, strict=True)):
             az[2][j, i] = c
             az[3][j, i] = h
-    maps = np.ascontiguousarray(maps, dtype=np.float64)
-    return SchedulerArrays(table, *az, maps, maps[0].copy(), np.zeros(K))
+    arrays.maps[: maps.shape[0]] = maps
+    arrays.out[:] = maps[0]
 
 
 # -- CPython's math.hypot (Modules/mathmodule.c, 3.11) -----------------------------------------------------
@@ -311,8 +332,8 @@ def schedule_select(st, arrays, R) -> int:
 
     Args:
         st: the scheduler's record (:data:`STATE_DTYPE`), updated.
-        arrays: its :class:`SchedulerArrays`; ``out`` and ``weights`` are written when the selection changes
-            or a blend is computed.
+        arrays: its arrays' record (:func:`arrays_dtype`); ``out`` and ``weights`` are written when the
+            selection changes or a blend is computed.
         R: (3, 3) attitude ``R_WB``, body to world; its third row is the up direction ``v_B``.
 
     Returns:
@@ -375,20 +396,7 @@ def schedule_select(st, arrays, R) -> int:
     return k
 
 
-@jit
-def arrays_at(table, i: int) -> SchedulerArrays:
-    """The :class:`SchedulerArrays` of entries ``i`` to ``i + 7`` of an address table."""
-    return SchedulerArrays(
-        records_at(table, i, REGION_DTYPE), f64_view2(table, i + 1), f64_view2(table, i + 2),
-        f64_view2(table, i + 3), f64_view2(table, i + 4), f64_view2(table, i + 5), f64_view(table, i + 6),
-        f64_view(table, i + 7),
-    )  # fmt: skip
-
-
 @jit_entry
-def schedule_select_by_table(table, R) -> int:
-    """:func:`schedule_select` with the state and the arrays given by their addresses (:meth:`SchedulerArrays.table`).
-
-    From Python, typing a structured array argument costs numba more than the selection.
-    """
-    return schedule_select(records_at(table, 0, STATE_DTYPE)[0], arrays_at(table, 1), R)
+def schedule_select_entry(state, arrays, R) -> int:
+    """:func:`schedule_select` on the ``(1,)`` arrays of the state and of the arrays' record (from Python)."""
+    return schedule_select(state[0], arrays[0], R)

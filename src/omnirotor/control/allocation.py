@@ -50,12 +50,11 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from typing import NamedTuple
 
 import numpy as np
 
 from omnirotor._jit import jit, jit_entry, jit_inline
-from omnirotor.blocks import register, state_array
+from omnirotor.blocks import record_view, register, state_array
 from omnirotor.config import check_positive
 from omnirotor.control import _qp
 from omnirotor.errors import InputError
@@ -68,7 +67,7 @@ __all__ = [
     "SOLVERS",
     "REG_REFERENCE_C_F",
     "STATE_DTYPE",
-    "AllocArrays",
+    "arrays_dtype",
     "alloc_begin",
     "alloc_end",
     "alloc_solve",
@@ -151,27 +150,33 @@ STATE_DTYPE = np.dtype(
         ("max_iter", _F8),  # iteration cap of the compiled QP
     ]
 )
-"""The allocator's scalar state and parameters (named fields); its per-rotor arrays are :class:`AllocArrays`."""
+"""The allocator's scalar state and parameters (named fields); its per-rotor arrays are :func:`arrays_dtype`."""
 
 
-class AllocArrays(NamedTuple):
-    """The allocator's arrays, by name (compiled code reads them as ``ar.f``, ``ar.lo``, ...); n rotors."""
+def arrays_dtype(n: int) -> np.dtype:
+    """The allocator's per-rotor arrays for ``n`` rotors, one record (compiled code reads ``ar.f``, ``ar.lo``, ...).
 
-    f: np.ndarray  # (n,) the QP's linear term G w_B (scaled)
-    A_key: np.ndarray  # (6, n) the map the QP was built for (NaN: none yet)
-    G: np.ndarray  # (n, 6) -(A u_scale)ᵀ
-    lo: np.ndarray  # (n,) scaled lower bounds (0 for a failed rotor)
-    hi: np.ndarray  # (n,) scaled upper bounds
-    lo_sat: np.ndarray  # (n,) saturation thresholds
-    hi_sat: np.ndarray
-    u_hz2: np.ndarray  # (n,) the allocated inputs [Hz²]
-    u_safe_hz2: np.ndarray  # (n,) the last finite, in-bounds inputs [Hz²]
-    failed: np.ndarray  # (n,) 1.0 for a failed rotor
-    As: np.ndarray  # (6, n) A u_scale
-    H: np.ndarray  # (n, n) Hessian, scaled units
-    x: np.ndarray  # (n,) the QP's solution (scaled)
-    active: np.ndarray  # (n,) int64 working set of the compiled QP (warm start)
-    work: np.ndarray  # scratch of the compiled QP
+    A field of the controller's state (``allocation_arrays``) beside the scalar :data:`STATE_DTYPE`.
+    """
+    return np.dtype(
+        [
+            ("f", _F8, (n,)),  # the QP's linear term G w_B (scaled)
+            ("A_key", _F8, (6, n)),  # the map the QP was built for (NaN: none yet)
+            ("G", _F8, (n, 6)),  # -(A u_scale)ᵀ
+            ("lo", _F8, (n,)),  # scaled lower bounds (0 for a failed rotor)
+            ("hi", _F8, (n,)),  # scaled upper bounds
+            ("lo_sat", _F8, (n,)),  # saturation thresholds
+            ("hi_sat", _F8, (n,)),
+            ("u_hz2", _F8, (n,)),  # the allocated inputs [Hz²]
+            ("u_safe_hz2", _F8, (n,)),  # the last finite, in-bounds inputs [Hz²]
+            ("failed", _F8, (n,)),  # 1.0 for a failed rotor
+            ("As", _F8, (6, n)),  # A u_scale
+            ("H", _F8, (n, n)),  # Hessian, scaled units
+            ("x", _F8, (n,)),  # the QP's solution (scaled)
+            ("active", np.int64, (n,)),  # working set of the compiled QP (warm start)
+            ("work", _F8, (_qp.boxqp_work_size(n),)),  # scratch of the compiled QP
+        ]
+    )
 
 
 _OK, _FALLBACK, _NONFINITE = 0.0, 1.0, 2.0  # AllocationStatus values, as the state stores them
@@ -351,7 +356,7 @@ class _ActiveSetBackend:
         lo: np.ndarray,
         hi: np.ndarray,
         params: AllocationParams,
-        arrays: AllocArrays | None = None,
+        arrays: np.record | None = None,
     ):
         """Wrap the solver; ``arrays``: the allocator's, whose ``x``, ``active`` and ``work`` it then uses.
 
@@ -479,7 +484,8 @@ class Allocator:
 
     Attributes:
         state: the ``(1,)`` record of :data:`STATE_DTYPE` (status, counters, body-frame reference, scale).
-        arrays: the per-rotor arrays (:class:`AllocArrays`) the compiled step reads and writes.
+        arrays: the per-rotor arrays (a record of :func:`arrays_dtype`, fields as attributes) the compiled step
+            reads and writes.
         status: :class:`AllocationStatus` of the last :meth:`solve`.
         n_fallbacks: number of solver failures (pseudo-inverse fallbacks) since construction or :meth:`reset`.
         n_nonfinite: number of calls with a NaN/inf input since construction or :meth:`reset`.
@@ -491,7 +497,12 @@ class Allocator:
     log_fields = ()
 
     def __init__(
-        self, vehicle: VehicleParams, params: AllocationParams | None = None, *, state: np.ndarray | None = None
+        self,
+        vehicle: VehicleParams,
+        params: AllocationParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+        arrays: np.ndarray | None = None,
     ):
         """Set up the QP for ``vehicle`` with the nominal map and upright hover as a first solution.
 
@@ -500,6 +511,8 @@ class Allocator:
             params: allocation parameters; defaults to :class:`AllocationParams()`.
             state: optional ``(1,)`` array of :data:`STATE_DTYPE` to hold :attr:`state` (e.g. a field of the
                 controller's state); a new one by default.
+            arrays: optional ``(1,)`` array of ``arrays_dtype(n)`` to hold :attr:`arrays` (the controller's
+                field ``allocation_arrays``); a new one by default.
         """
         self.params = params if params is not None else AllocationParams()
         self.vehicle = vehicle
@@ -513,23 +526,10 @@ class Allocator:
         st["max_iter"] = float(self.params.max_iter)
         self._rec = st[0]
         self._w_B = self._rec["w_B"]  # body-frame reference [N; N·m]
-        self.arrays = ar = AllocArrays(
-            f=np.zeros(n),
-            A_key=np.full((6, n), math.nan),  # no map yet
-            G=np.zeros((n, 6)),
-            lo=np.full(n, vehicle.u_min / self._u_scale),
-            hi=np.full(n, vehicle.u_max / self._u_scale),
-            lo_sat=np.zeros(n),
-            hi_sat=np.zeros(n),
-            u_hz2=np.zeros(n),
-            u_safe_hz2=np.zeros(n),
-            failed=np.zeros(n),
-            As=np.empty((6, n)),
-            H=np.empty((n, n)),
-            x=np.zeros(n),
-            active=np.zeros(n, dtype=np.int64),
-            work=np.zeros(_qp.boxqp_work_size(n)),
-        )
+        self.arrays = ar = record_view(state_array(arrays_dtype(n), arrays, "allocator arrays"))
+        ar.A_key[...] = math.nan  # no map yet
+        ar.lo[:] = vehicle.u_min / self._u_scale
+        ar.hi[:] = vehicle.u_max / self._u_scale
         self._f, self._lo, self._hi, self._u = ar.f, ar.lo, ar.hi, ar.u_hz2
         self._lo_sat, self._hi_sat = ar.lo_sat, ar.hi_sat
         self._u_safe, self._As, self._H = ar.u_safe_hz2, ar.As, ar.H

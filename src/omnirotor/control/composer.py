@@ -14,76 +14,66 @@ The supervisor (:mod:`omnirotor.control.supervisor`) checks the frame first: the
 copy (rejected parts replaced by the prediction), the observer the last command in place of rejected rotor
 speeds, and after a clock reset or a long dropout the UKF re-initialises from motion capture.
 
-Every block's state is a field of the controller's structured state (:func:`controller_dtype`): the
-composer reads and writes the signals by name (``st.observer.f_ext_W``, ``st.pose.f_ref_W``, ``rot.u_cmd_hz2``)
-and calls each block's own kernel (the observer through :func:`omnirotor.blocks.compiled_step`, so that any
-registered observer fits). The step is split around the allocation QP: :func:`step_begin` (estimate to
-:func:`~omnirotor.control.allocation.alloc_begin`) and :func:`step_end` (the QP's answer to the command and
-the log row); :func:`controller_step` runs both around the compiled QP, and a controller with a QP solver
-called from Python (daqp, ProxSuite) runs the same two around that solver.
+Every block's state is a field of the controller's one structured record (:func:`controller_dtype`, built
+from the blocks' registered dtypes and the controller's sizes, :class:`ControllerSizes`): the per-rotor
+arrays (``rotors``), the allocator's (``allocation_arrays``), the UKF's ring buffers and scratch
+(``ukf_memory``), the map scheduler's partition and maps (``maps_arrays``) and the packed trajectory
+(``trajectory``) are subarray fields of it too. The composer reads and writes the signals by name
+(``st.observer.f_ext_W``, ``st.pose.f_ref_W``, ``st.rotors.u_cmd_hz2``) and calls each block's own kernel (the
+observer through :func:`omnirotor.blocks.compiled_step`, so that any registered observer fits).
 
-``kernel_args`` (:attr:`InteractionController.kernel_args`): ``(state, rot, ar, est, sch, traj)``, the state,
-then the NamedTuples of the arrays of the controller (:class:`RotorArrays`), the allocator
-(:class:`~omnirotor.control.allocation.AllocArrays`), the UKF (:class:`EstimatorArrays`) and the map scheduler
-(:class:`SchedulerArrays`), and the packed trajectory. The state's ``arrays`` field holds their addresses, so
-that :func:`controller_step_by_state` needs the state alone.
+One period is one compiled call, :func:`controller_step` ``(state, frame, row)``, from Python
+(``InteractionController.step``) and from the compiled closed loop alike. It is split around the allocation
+QP: :func:`step_begin` (estimate to :func:`~omnirotor.control.allocation.alloc_begin`) and :func:`step_end`
+(the QP's answer to the command and the log row), inlined into it around the compiled QP; a controller with a
+QP solver called from Python (daqp, ProxSuite) calls the same two itself around that solver.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
-from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.np.numpy_support import as_dtype
 
-from omnirotor._jit import (
-    address_table,
-    f64_view,
-    f64_view2,
-    i64_view,
-    jit,
-    jit_entry,
-    jit_inline,
-    records_at,
-    void_pointer,
-)
-from omnirotor.blocks import compiled_step
+from omnirotor._jit import jit, jit_entry, jit_inline
+from omnirotor.blocks import LogGroup, class_of_record, compiled_step, log_dtype, log_groups, log_writer
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import _map_kernels as _mk
 from omnirotor.control import admittance as _adm
 from omnirotor.control import allocation as _al
 from omnirotor.control import estimator as _est
-from omnirotor.control import observer as _obs
 from omnirotor.control import pose as _pose
 from omnirotor.control import supervisor as _sup
 from omnirotor.control import trajectory as _traj
 from omnirotor.frame_kernels import state_finite
-from omnirotor.messages import ESTIMATE_DTYPE
+from omnirotor.messages import ESTIMATE_DTYPE, ESTIMATE_LOG_FIELDS
 
 __all__ = [
     "CONTROLLER_DTYPE_FIELDS",
-    "RotorArrays",
-    "EstimatorArrays",
-    "SchedulerArrays",
+    "ControllerSizes",
+    "rotors_dtype",
     "controller_dtype",
-    "store_addresses",
     "step_begin",
     "step_end",
     "controller_step",
-    "controller_step_by_state",
-    "controller_step_by_table",
-    "DEFAULT_DTYPE",
-    "step_begin_by_state",
-    "step_end_by_state",
+    "controller_log_groups",
+    "log_sources",
+    "write_log",
 ]
 
 observer_step = compiled_step("observer")
+admittance_block_step = compiled_step("admittance")
+pose_block_step = compiled_step("pose")
+estimator_step = compiled_step("estimator")
 
 _F8, _I8 = np.float64, np.int64
 OWN_DTYPE = np.dtype(
     [
-        # the logged head (LOG_GROUPS order)
+        # the logged head
         ("t", _F8),  # trajectory time [s]
         ("region", _F8),  # map region index (-1: none)
         ("status", _F8),  # ControlStatus bits
@@ -124,92 +114,81 @@ _BIT_EXCLUDED = 16
 _BIT_REJECTED = 32
 _BIT_NOISE_RAISED = 64
 _BIT_MOCAP_REJECTED = 128
+_BIT_FAILSAFE = 256
+_BIT_BIAS_RANGE = 512
 
 
-class RotorArrays(NamedTuple):
-    """The controller's own per-rotor arrays."""
+def rotors_dtype(n: int) -> np.dtype:
+    """The controller's own per-rotor arrays for ``n`` rotors (its field ``rotors``)."""
+    return np.dtype(
+        [
+            ("u_obs_hz2", _F8, (n,)),  # the measured inputs |omega| omega [Hz²]
+            ("u_cmd_hz2", _F8, (n,)),  # the last allocated inputs [Hz²]
+            ("omega_cmd_hz", _F8, (n,)),  # the command [Hz]
+            ("omega_safe_hz", _F8, (n,)),  # the last finite command [Hz]
+        ]
+    )
 
-    u_obs_hz2: np.ndarray  # (n,) the measured inputs |omega| omega [Hz²]
-    u_cmd_hz2: np.ndarray  # (n,) the last allocated inputs [Hz²]
-    omega_cmd_hz: np.ndarray  # (n,) the command [Hz]
-    omega_safe_hz: np.ndarray  # (n,) the last finite command [Hz]
 
+@dataclasses.dataclass(frozen=True)
+class ControllerSizes:
+    """The sizes the controller's record is built for (one compiled step per distinct record).
 
-class EstimatorArrays(NamedTuple):
-    """The UKF's ring buffers and scratch (:class:`~omnirotor.control._estimator_kernels.UKFArrays`).
-
-    Its record is the state's field ``ukf``; placeholders of one entry with another estimator.
+    Attributes:
+        n_rotors: rotors of the vehicle.
+        ukf_capacity: length of the UKF's ring buffers (``estimator.ukf_capacity``).
+        n_regions: regions of the wrench maps' partition (0 without maps).
+        n_intervals: azimuth-interval slots per region (``maps.schedule_sizes``).
+        trajectory_capacity: floats of the packed trajectory field (``trajectory.packed_capacity``).
     """
 
-    imu_buf: np.ndarray  # (cap,) IMU_SAMPLE_DTYPE
-    state_buf: np.ndarray  # (cap,) NOMINAL_DTYPE
-    work: np.ndarray  # (1,) WORK_DTYPE
+    n_rotors: int
+    ukf_capacity: int
+    n_regions: int
+    n_intervals: int
+    trajectory_capacity: int
 
-    @classmethod
-    def placeholder(cls) -> EstimatorArrays:
-        """Arrays of one entry, for a controller whose compiled step does not run the UKF."""
-        return cls(*_ek.new_arrays(1)[1:])
-
-
-SchedulerArrays = _mk.SchedulerArrays
-"""The map scheduler's partition and maps (its record is the state's field ``maps``)."""
-
-N_ARRAYS = sum(len(t._fields) for t in (RotorArrays, _al.AllocArrays, EstimatorArrays, SchedulerArrays)) + 1
-"""Arrays reached through the state's ``arrays`` field."""
 
 CONTROLLER_DTYPE_FIELDS = ("own", "observer", "admittance", "pose", "desired_ee", "compliant_ee", "body_ref")
 
 
-def controller_dtype(observer_dtype: np.dtype) -> np.dtype:
-    """The controller's structured state: its own part, its blocks' states, the addresses of its arrays."""
+@functools.cache
+def controller_dtype(
+    observer_dtype: np.dtype,
+    sizes: ControllerSizes,
+    admittance_dtype: np.dtype = _adm.STATE_DTYPE,
+    pose_dtype: np.dtype = _pose.STATE_DTYPE,
+) -> np.dtype:
+    """The controller's one record: its own part, its blocks' states and their sized arrays (module docstring).
+
+    ``observer_dtype``, ``admittance_dtype``, ``pose_dtype``: the state dtypes of the chosen blocks of those kinds.
+    Equal arguments give the same dtype object: numba's dispatcher types a structured array quickly only for a
+    dtype object it has seen (an equal but new one costs tens of microseconds a call).
+    """
     ref = _traj.REFERENCE_DTYPE
+    n = sizes.n_rotors
     return np.dtype(
         [
             ("own", OWN_DTYPE),
             ("observer", observer_dtype),
-            ("admittance", _adm.STATE_DTYPE),
-            ("pose", _pose.STATE_DTYPE),
+            ("admittance", admittance_dtype),
+            ("pose", pose_dtype),
             ("desired_ee", ref),
             ("compliant_ee", ref),
             ("body_ref", ref),
             ("segment", _traj.SEGMENT_DTYPE),  # an in-flight set-point replacing the trajectory (when active)
             ("allocation", _al.STATE_DTYPE),
+            ("allocation_arrays", _al.arrays_dtype(n)),
             ("bypass", _est.BYPASS_DTYPE),  # the estimators, by their registered names
             ("ukf", _ek.UKF_DTYPE),
+            ("ukf_memory", _ek.memory_dtype(sizes.ukf_capacity)),
             ("supervisor", _sup.STATE_DTYPE),
             ("maps", _mk.STATE_DTYPE),
-            ("arrays", _I8, (3 * N_ARRAYS,)),
+            ("maps_arrays", _mk.arrays_dtype(sizes.n_regions, sizes.n_intervals, n)),
+            ("rotors", rotors_dtype(n)),
+            ("trajectory", _F8, (sizes.trajectory_capacity,)),  # PoseTrajectory.kernel_data, zero-padded
         ]
     )
-
-
-def _arrays(args: tuple) -> list[np.ndarray]:
-    state, rot, ar, est, sch, traj = args
-    return [*rot, *ar, *est, *sch, traj]
-
-
-def store_addresses(args: tuple) -> None:
-    """Write the addresses of the arrays of ``args`` into its state's ``arrays`` field.
-
-    The arrays must stay alive and in place while the state is used: the controller keeps them in ``args``.
-    """
-    args[0]["arrays"][0] = address_table(_arrays(args))
-
-
-@jit_inline
-def _args_of(state):
-    """``kernel_args`` rebuilt from the state's ``arrays`` (the order of :func:`_arrays`)."""
-    t = state[0].arrays
-    rot = RotorArrays(f64_view(t, 0), f64_view(t, 1), f64_view(t, 2), f64_view(t, 3))
-    ar = _al.AllocArrays(
-        f64_view(t, 4), f64_view2(t, 5), f64_view2(t, 6), f64_view(t, 7), f64_view(t, 8), f64_view(t, 9),
-        f64_view(t, 10), f64_view(t, 11), f64_view(t, 12), f64_view(t, 13), f64_view2(t, 14), f64_view2(t, 15),
-        f64_view(t, 16), i64_view(t, 17), f64_view(t, 18),
-    )  # fmt: skip
-    est = EstimatorArrays(
-        records_at(t, 19, _ek.IMU_SAMPLE_DTYPE), records_at(t, 20, _ek.NOMINAL_DTYPE), records_at(t, 21, _ek.WORK_DTYPE)
-    )
-    return state, rot, ar, est, _mk.arrays_at(t, 22), f64_view(t, 30)
 
 
 @jit
@@ -220,53 +199,67 @@ def _all_finite(x) -> bool:
     return True
 
 
-@jit_inline
-def _put(row, k: int, v) -> int:
-    """Copy the 1-D array ``v`` into ``row[k:]``; the next free index."""
-    for i in range(v.shape[0]):
-        row[k + i] = v[i]
-    return k + v.shape[0]
+# -- the log: one record of the blocks' logged fields ---------------------------------------------------------
 
 
-@jit_inline
-def _put_pose(row, k: int, p, v, a, R, w, b) -> int:
-    """Copy three 3-vectors, a 3 x 3 matrix (row-major) and two 3-vectors into ``row[k:]``; the next index."""
-    k = _put(row, _put(row, _put(row, k, p), v), a)
-    for i in range(3):
-        k = _put(row, k, R[i])
-    return _put(row, _put(row, k, w), b)
+def log_sources(
+    observer_cls: type, admittance_cls: type = _adm.AdmittanceFilter, pose_cls: type = _pose.PoseController
+) -> tuple:
+    """Where the controller's log groups come from, in log order (:func:`omnirotor.blocks.log_groups`).
+
+    Each block's own declaration (``log_fields``, ``log_labels``), and the controller's head: the time, region
+    and status, the estimate (``ESTIMATE_LOG_FIELDS``), the EE tip, the compliant and the desired EE
+    references, the allocated inputs and the command, the frame supervision's causes.
+    """
+    return (
+        ("own", ("t", "region", "status"), {}),
+        ("own.estimate", ESTIMATE_LOG_FIELDS, {}),
+        ("own", ("p_E_W",), {}),
+        ("compliant_ee", _traj.reference_log_fields("E_ref"), {}),
+        ("desired_ee", _traj.reference_log_fields("E_des"), {}),
+        ("admittance", admittance_cls.log_fields, getattr(admittance_cls, "log_labels", {})),
+        ("observer", observer_cls.log_fields, getattr(observer_cls, "log_labels", {})),
+        ("pose", pose_cls.log_fields, getattr(pose_cls, "log_labels", {})),
+        ("rotors", (("u_hz2", ("u_cmd_hz2",)), "omega_cmd_hz"), {}),
+        ("supervisor", _sup.LOG_FIELDS, {}),
+    )
+
+
+def controller_log_groups(state_dtype: np.dtype, *classes: type) -> tuple[LogGroup, ...]:
+    """The groups of the log of a controller with the record ``state_dtype`` and these blocks (:func:`log_sources`)."""
+    return log_groups(state_dtype, log_sources(*classes))
+
+
+def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
+    """The log groups for numba's record types of a log row ``dst`` and a controller ``src`` (else None)."""
+    names = getattr(src, "fields", {})
+    if "observer" not in names or "rotors" not in names:
+        return None
+    classes = tuple(class_of_record(kind, src.typeof(kind)) for kind in ("observer", "admittance", "pose"))
+    if any(cls is None for cls in classes):
+        return None
+    groups = controller_log_groups(as_dtype(src), *classes)
+    return groups if numba.from_dtype(log_dtype(groups)) == dst else None
+
+
+write_log = log_writer("write_log", _log_groups_of_types)
+"""``write_log(row, st)``: the controller's log record ``row`` from its record ``st`` (generated, by name)."""
 
 
 @jit
-def write_log_row(row, st, rot) -> None:
-    """One log row (:data:`omnirotor.control.controller.LOG_GROUPS`) from the named signals."""
-    c = st.own
-    row[0], row[1], row[2] = c.t, c.region, c.status
-    e = c.estimate
-    k = _put_pose(row, 3, e.p_W, e.v_W, e.a_W, e.R_WB, e.omega_B, c.p_E_W)
-    for ref in (st.compliant_ee, st.desired_ee):
-        k = _put_pose(row, k, ref.p_W, ref.v_W, ref.a_W, ref.R_WB, ref.omega_W, ref.alpha_W)
-    k = _put(row, k, st.admittance.xi_p_W)
-    k = _put(row, _put(row, k, st.observer.f_ext_W), st.observer.m_ext_B)
-    k = _put(row, _put(row, k, st.pose.f_ref_W), st.pose.m_ref_B)
-    k = _put(row, k, st.pose.errors)
-    k = _put(row, _put(row, k, rot.u_cmd_hz2), rot.omega_cmd_hz)
-    row[k] = st.supervisor.cause
-
-
-@jit
-def _finish_held(st, rot, bits: int, row) -> None:
+def _finish_held(st, bits: int, row) -> None:
     """Hold the last safe command (nothing else updated), flagged; write the head and the log row."""
     c = st.own
+    rot = st.rotors
     for i in range(rot.omega_cmd_hz.shape[0]):
         rot.omega_cmd_hz[i] = rot.omega_safe_hz[i]
     c.status = bits
     if row.shape[0] > 0:
-        write_log_row(row, st, rot)
+        write_log(row[0], st)
 
 
 @jit_inline
-def step_begin(args, frame, row) -> int:
+def step_begin(state, frame, row) -> int:
     """Everything of a period before the allocation QP (module docstring), the frame's supervision first.
 
     Returns:
@@ -276,9 +269,9 @@ def step_begin(args, frame, row) -> int:
         code of :func:`~omnirotor.control.allocation.alloc_begin` (its linear term is then ready, or the
         allocator holds its last input).
     """
-    state, rot, ar, est, sch, traj = args
     st = state[0]
     c = st.own
+    rot = st.rotors
     fr = frame[0]
     rotor_hz = fr.rotor_hz
     n = rotor_hz.shape[0]
@@ -290,17 +283,14 @@ def step_begin(args, frame, row) -> int:
     f = sv.clean
     # 1. the state estimate
     kind = c.estimator
-    if kind == EST_UKF:
-        m = f.mocap
-        code, _ = _ek.ukf_step(
-            st.ukf, est.imu_buf, est.state_buf, est.work[0], f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t,
-            m.p_W, m.q_WB, e,
-        )  # fmt: skip
+    if kind == EST_UKF:  # the registered estimators, each on its field, by the kind's one signature
+        st.ukf.coasting = sv.coasting
+        code = estimator_step(st.ukf, st.ukf_memory, f, e)
         if act & _sup.ACT_REINIT:
-            _ek.ukf_reinit(st.ukf, m.p_W, m.q_WB, e)
+            _ek.ukf_reinit(st.ukf, f.mocap.p_W, f.mocap.q_WB, e, sv.reinit_v_W)
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
-        code = _est.bypass_step(f.state, st.bypass, e)
+        code = estimator_step(st.bypass, st.ukf_memory, f, e)
         if code == _est.BYPASS_NO_STATE:
             return STEP_NO_ESTIMATE
     else:
@@ -320,8 +310,17 @@ def step_begin(args, frame, row) -> int:
         bits |= _BIT_NOISE_RAISED
     if code & _ek.STEP_MOCAP_REJECTED:
         bits |= _BIT_MOCAP_REJECTED
+    if kind == EST_UKF and code & _ek.STEP_BIAS_RANGE:
+        bits |= _BIT_BIAS_RANGE
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
+    if cause & _sup.CAUSE_FAILSAFE:
+        bits |= _BIT_FAILSAFE
+        if sv.fs_mode == _sup.FS_LANDED:  # touchdown: the rotors stop (supervisor docstring)
+            for i in range(n):
+                rot.omega_safe_hz[i] = 0.0
+            _finish_held(st, bits, row)
+            return BEGIN_DONE
     e.valid = 0.0 if bits & _BIT_DEGRADED else 1.0
     t = f.t - c.t0
     dt = sv.dt_s  # the frame's real interval (the period for evenly spaced frames: supervisor docstring)
@@ -334,16 +333,16 @@ def step_begin(args, frame, row) -> int:
             rot.u_obs_hz2[i] = abs(rotor_hz[i]) * rotor_hz[i]
         finite = finite and _all_finite(rot.u_obs_hz2)
     # 2. the wrench map of this attitude (it follows the attitude only while the estimate is finite)
-    A = sch.out.reshape(6, n)
+    A = st.maps_arrays.out.reshape(6, n)
     c.region = -1.0
     if c.piecewise != 0:
         if finite:
-            _mk.schedule_select(st.maps, sch, R)
+            _mk.schedule_select(st.maps, st.maps_arrays, R)
         c.region = st.maps.region
-    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP):  # no state to act on: hold, as below
+    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP) or sv.blind != 0:  # no state to act on: hold
         finite = False
     if not finite:  # no stateful block is updated: hold the last safe command
-        _finish_held(st, rot, bits | _BIT_NONFINITE, row)
+        _finish_held(st, bits | _BIT_NONFINITE, row)
         return BEGIN_DONE
     # 3. the observer, on the measured rotor inputs or the last command
     u = rot.u_obs_hz2 if measured else rot.u_cmd_hz2
@@ -351,17 +350,18 @@ def step_begin(args, frame, row) -> int:
     observer_step(obs, A, u, a, R, w, dt)
     # 4. the EE wrench, the admittance filter, the desired, compliant and body references
     _adm.ee_wrench(obs.f_ext_W, obs.m_ext_B, R, c.p_E_B, c.f_E_W, c.m_E_W)
-    _adm.admittance_step(st.admittance, c.f_E_W, c.m_E_W, dt)
     if st.segment.active != 0:
         _traj.segment_sample(st.segment, t, st.desired_ee)
     else:
-        _traj.trajectory_sample(traj, t, st.desired_ee)
-    _adm.compliant_reference(st.admittance, st.desired_ee, st.compliant_ee)
+        _traj.trajectory_sample(st.trajectory, t, st.desired_ee)
+    if sv.fs_mode != _sup.FS_OFF:  # the failsafe's hold-then-land replaces the reference
+        _sup.failsafe_reference(sv, e, c.p_E_B, dt, st.desired_ee)
+    admittance_block_step(st.admittance, c.f_E_W, c.m_E_W, st.desired_ee, st.compliant_ee, dt)
     _adm.body_reference(st.compliant_ee, c.p_E_B, st.body_ref)
     # 5. the pose controller compensates the whole unexplained wrench (before bias and zeroing)
-    _pose.pose_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
+    pose_block_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
     # 6. the allocation up to its QP
-    alloc = _al.alloc_begin(st.allocation, ar, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
+    alloc = _al.alloc_begin(st.allocation, st.allocation_arrays, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
     if alloc == _al.BEGIN_HELD:
         bits |= _BIT_NONFINITE
     c.status = bits
@@ -370,7 +370,7 @@ def step_begin(args, frame, row) -> int:
 
 
 @jit_inline
-def step_end(args, solved: bool, row) -> int:
+def step_end(state, solved: bool, row) -> int:
     """Everything of a period after the allocation QP (module docstring).
 
     The QP's answer (``ar.x``; ``solved`` says whether the solver succeeded) to the inputs (the pseudo-inverse
@@ -380,9 +380,10 @@ def step_end(args, solved: bool, row) -> int:
     Returns:
         The ``ControlStatus`` bits.
     """
-    state, rot, ar, est, sch, traj = args
     st = state[0]
     c = st.own
+    rot = st.rotors
+    ar = st.allocation_arrays
     al = st.allocation
     bits = int(c.status)
     if c.alloc_code != _al.BEGIN_HELD:
@@ -420,66 +421,29 @@ def step_end(args, solved: bool, row) -> int:
         c.p_E_W[i] = e.p_W[i] + e.R_WB[i, 0] * ex + e.R_WB[i, 1] * ey + e.R_WB[i, 2] * ez
     c.status = bits
     if row.shape[0] > 0:
-        write_log_row(row, st, rot)
+        write_log(row[0], st)
     return bits
 
 
-@jit_inline
-def controller_step(args, frame, row) -> int:
-    """One control period (module docstring): the ``frame`` record in, the command in ``rot.omega_cmd_hz``.
+@jit_entry
+def controller_step(state, frame, row) -> int:
+    """One control period (module docstring): the ``frame`` record in, the command in ``state[0].rotors``.
 
     Args:
-        args: ``InteractionController.kernel_args``.
+        state: (1,) the controller's record (:func:`controller_dtype`; ``InteractionController.state``).
         frame: (1,) the sensor frame record (:func:`omnirotor.messages.frame_dtype`).
-        row: the log row to fill (length 0: none).
+        row: (1,) the log record to fill (:attr:`InteractionController.log_dtype`); (0,): none.
 
     Returns:
         The ``ControlStatus`` bits of the command, or ``STEP_NO_ESTIMATE``.
     """
-    code = step_begin(args, frame, row)
+    code = step_begin(state, frame, row)
     if code == STEP_NO_ESTIMATE:
         return code
+    st = state[0]
     if code == BEGIN_DONE:
-        return int(args[0][0].own.status)
+        return int(st.own.status)
     solved = False
     if code != _al.BEGIN_HELD:
-        state, rot, ar, est, sch, traj = args
-        al = state[0].allocation
-        solved = _al.boxqp_solve_arrays(ar, int(al.max_iter)) >= 1
-    return step_end(args, solved, row)
-
-
-@jit
-def controller_step_by_state(state, frame, row) -> int:
-    """:func:`controller_step` from the controller's state alone (its arrays by their stored addresses).
-
-    The same step; from Python it costs one structured array instead of some thirty arrays to unbox.
-    """
-    return controller_step(_args_of(state), frame, row)
-
-
-@jit
-def step_begin_by_state(state, frame, row) -> int:
-    """:func:`step_begin` from the controller's state alone."""
-    return step_begin(_args_of(state), frame, row)
-
-
-@jit
-def step_end_by_state(state, solved: bool, row) -> int:
-    """:func:`step_end` from the controller's state alone."""
-    return step_end(_args_of(state), solved, row)
-
-
-DEFAULT_DTYPE = controller_dtype(_obs.STATE_DTYPE)
-"""The controller's state with the default observer, the one :func:`controller_step_by_table` knows."""
-
-
-@jit_entry
-def controller_step_by_table(table, frame, row) -> int:
-    """:func:`controller_step_by_state` for a state of :data:`DEFAULT_DTYPE` given by its address ``table[0]``.
-
-    The same step. Typing a structured array argument costs numba some 14 µs per call from Python (no fast
-    path for record dtypes), an int64 array nothing: the controller with the default blocks calls this one.
-    """
-    state = numba.carray(void_pointer(table[0]), (1,), DEFAULT_DTYPE)
-    return controller_step(_args_of(state), frame, row)
+        solved = _al.boxqp_solve_arrays(st.allocation_arrays, int(st.allocation.max_iter)) >= 1
+    return step_end(state, solved, row)

@@ -30,14 +30,15 @@ Every step is logged in :attr:`InteractionController.log` (a :class:`~omnirotor.
 in :data:`LOG_GROUPS`): time, estimate, actual EE position, desired and compliant EE poses, admittance
 offset, estimated wrench, wrench reference, pose errors, u, omega command, region index and status.
 
-Cost. Every block keeps its state in a field of the controller's one structured state (:attr:`state`, see
-:mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled) :meth:`step` is
-**one** compiled call, :func:`~omnirotor.control.composer.controller_step_by_state`, on the frame's record
-(:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one is written into one first. A
-compiled closed loop calls :func:`~omnirotor.control.composer.controller_step` directly with
-:attr:`InteractionController.kernel_args`. With the "daqp" or "proxsuite" solvers (called from Python) the
-same composer runs in two compiled calls around that solver; with an estimator that is not compiled (e.g. a
-stand-in) its estimate is given to the same composer. There is one implementation of every block's step.
+Cost. Every block keeps its state, and its sized arrays, in a field of the controller's one structured record
+(:attr:`state`, see :mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled)
+:meth:`step` is **one** compiled call, :func:`~omnirotor.control.composer.controller_step` ``(state, frame,
+row)``, on the frame's record (:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one
+is written into one first. A compiled closed loop calls the same function with
+:attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from Python) the
+composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
+(e.g. a stand-in) its estimate is given to the same composer. There is one implementation of every block's
+step.
 """
 
 from __future__ import annotations
@@ -47,18 +48,25 @@ from pathlib import Path
 
 import numpy as np
 
-from omnirotor.blocks import block_class, block_names, new_records, new_state
+from omnirotor.blocks import block_class, block_names, log_dtype, new_records, new_state, record_view
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
-from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
+from omnirotor.control.admittance import AdmittanceParams, body_reference_from_ee
 from omnirotor.control.allocation import BEGIN_HELD, AllocationParams, Allocator
-from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator
-from omnirotor.control.maps import MAP_MODES, MapParams, MapScheduler
+from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator, ukf_capacity
+from omnirotor.control.maps import MAP_MODES, MapParams, MapScheduler, schedule_sizes
 from omnirotor.control.observer import ObserverParams
-from omnirotor.control.pose import PoseController, PoseControlParams
+from omnirotor.control.pose import PoseControlParams
 from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
-from omnirotor.control.trajectory import SEGMENT_DTYPE, PoseTrajectory, ReferenceSample, start_segment
+from omnirotor.control.trajectory import (
+    MIN_CAPACITY_WAYPOINTS,
+    SEGMENT_DTYPE,
+    PoseTrajectory,
+    ReferenceSample,
+    packed_capacity,
+    start_segment,
+)
 from omnirotor.errors import InputError
 from omnirotor.messages import ControlStatus, RotorCommand, SensorFrame, frame_dtype
 from omnirotor.recorder import Recorder
@@ -75,56 +83,30 @@ __all__ = [
 
 OBSERVER_INPUTS = ("measured", "commanded")
 
-_XYZ = ("x", "y", "z")
-_RMAT = ("xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz")  # row-major entries of a rotation matrix
 
+def LOG_GROUPS(n_rotors: int, params: ControllerParams | None = None) -> list[tuple[str, tuple[str, ...]]]:  # noqa: N802
+    """Column groups of the controller log for ``n_rotors`` rotors: ``(name, column labels)`` in row order.
 
-def _reference_groups(prefix: str) -> list[tuple[str, tuple[str, ...]]]:
-    """The six groups of a logged ReferenceSample buffer (its layout: p, v, a, R, omega, alpha)."""
-    return [
-        (f"p_{prefix}_W", _XYZ),
-        (f"v_{prefix}_W", _XYZ),
-        (f"a_{prefix}_W", _XYZ),
-        (f"R_{prefix}", _RMAT),
-        (f"omega_{prefix}_W", _XYZ),
-        (f"alpha_{prefix}_W", _XYZ),
-    ]
-
-
-def LOG_GROUPS(n_rotors: int) -> list[tuple[str, tuple[str, ...] | int]]:  # noqa: N802 (a table, by name)
-    """Column groups of the controller log for a vehicle with ``n_rotors`` rotors.
-
-    ``t`` [s] trajectory time; ``region`` map region index (-1 in nominal/global mode); ``status`` the
-    :class:`ControlStatus` bits; ``p_W, v_W, a_W, R_WB, omega_B`` the state estimate (``R_WB`` row-major);
-    ``p_E_W`` the estimated EE tip; ``*_E_ref*`` the compliant EE reference and ``*_E_des*`` the desired
-    EE reference (pose, velocity, acceleration, world-frame angular velocity and acceleration);
-    ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the observer's interaction estimate;
-    ``w_ref`` the pose controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the
-    body; ``u_hz2`` the allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's
-    cause bits (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
+    Derived from the log record (:func:`omnirotor.control.composer.log_sources`: every block's own
+    ``log_fields``), the flat row being that record's floats in order. ``t`` [s] trajectory time; ``region``
+    map region index (-1 in nominal/global mode); ``status`` the :class:`ControlStatus` bits; ``p_W, v_W, a_W,
+    R_WB, omega_B`` the state estimate (``R_WB`` row-major); ``p_E_W`` the estimated EE tip; ``*_E_ref*`` the
+    compliant EE reference and ``*_E_des*`` the desired EE reference (pose, velocity, acceleration, world-frame
+    angular velocity and acceleration); ``xi_p_W`` the admittance position offset; ``f_ext_W, m_ext_B`` the
+    observer's interaction estimate (with another observer: its ``log_fields``); ``w_ref`` the pose
+    controller's ``[f_ref_W; m_ref_B]``; ``pose_err`` ``[e_p, e_v, e_R, e_omega]`` of the body; ``u_hz2`` the
+    allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's cause bits
+    (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
-    rotors = tuple(str(i + 1) for i in range(n_rotors))
-    return [
-        ("t", 1),
-        ("region", 1),
-        ("status", 1),
-        ("p_W", _XYZ),
-        ("v_W", _XYZ),
-        ("a_W", _XYZ),
-        ("R_WB", _RMAT),
-        ("omega_B", _XYZ),
-        ("p_E_W", _XYZ),
-        *_reference_groups("E_ref"),
-        *_reference_groups("E_des"),
-        ("xi_p_W", _XYZ),
-        ("f_ext_W", _XYZ),
-        ("m_ext_B", _XYZ),
-        ("w_ref", ("fx", "fy", "fz", "mx", "my", "mz")),
-        ("pose_err", tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in _XYZ)),
-        ("u_hz2", rotors),
-        ("omega_cmd_hz", rotors),
-        ("frame_reject", 1),
-    ]
+    classes = _block_classes(params if params is not None else ControllerParams())
+    dtypes = [cls.state_dtype for cls in classes]
+    state_dtype = _c.controller_dtype(dtypes[0], _c.ControllerSizes(n_rotors, 1, 0, 0, 1), *dtypes[1:])
+    return [(g.name, g.labels) for g in _c.controller_log_groups(state_dtype, *classes)]
+
+
+def _block_classes(params: ControllerParams) -> tuple[type, type, type]:
+    """The observer, admittance and pose classes ``params`` name (the kinds reached through the registry)."""
+    return tuple(block_class(kind, getattr(params, f"{kind}_kind")) for kind in ("observer", "admittance", "pose"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,6 +127,10 @@ class ControllerParams:
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
         observer_kind: the registered name of the observer block (:mod:`omnirotor.blocks`; default
             "momentum", :class:`~omnirotor.control.observer.WrenchObserver`); it is built from ``observer``.
+        admittance_kind: the registered name of the admittance block (default "mass-spring-damper",
+            :class:`~omnirotor.control.admittance.AdmittanceFilter`), built from ``admittance``.
+        pose_kind: the registered name of the pose controller (default "geometric-pid",
+            :class:`~omnirotor.control.pose.PoseController`), built from ``pose``.
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -158,6 +144,8 @@ class ControllerParams:
     log_capacity: int = 120_000
     observer_input: str = "measured"
     observer_kind: str = "momentum"
+    admittance_kind: str = "mass-spring-damper"
+    pose_kind: str = "geometric-pid"
 
     def __post_init__(self) -> None:
         check_positive("controller dt", self.dt)
@@ -165,8 +153,10 @@ class ControllerParams:
             raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
-        if self.observer_kind not in block_names("observer"):
-            block_class("observer", self.observer_kind)  # raises, listing the registered observers
+        for kind in ("observer", "admittance", "pose"):
+            name = getattr(self, f"{kind}_kind")
+            if not isinstance(name, str) or name not in block_names(kind):
+                block_class(kind, str(name))  # raises, listing the registered blocks of that kind
 
 
 def load_controller_params(
@@ -174,9 +164,9 @@ def load_controller_params(
 ) -> ControllerParams:
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
-    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
-    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]`` whose keys are the
-    fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
+    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, the ``*_kind`` block names and sections
+    ``[pose]``, ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]``
+    whose keys are the fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
 
     Args:
@@ -193,7 +183,7 @@ def load_controller_params(
 
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
-_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(256))
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(1024))
 
 
 class InteractionController:
@@ -206,7 +196,8 @@ class InteractionController:
 
     Attributes:
         estimator, scheduler, observer, admittance, pose, allocator: the blocks.
-        log: the step log (:data:`LOG_GROUPS`); cleared by :meth:`reset`.
+        log: the step log (:data:`LOG_GROUPS`); cleared by :meth:`reset`. Each row's floats are one record
+            of :attr:`log_dtype`, whose fields are :attr:`log_groups` (every block's ``log_fields``).
         desired_ee, compliant_ee, body_ref: the references of the last step.
     """
 
@@ -217,18 +208,7 @@ class InteractionController:
         self.params = params if params is not None else ControllerParams()
         p = self.params
         n = vehicle.n_rotors
-        # One structured state: the controller's own part and every block's state as a named field
-        # (composer.controller_dtype); each block is built on its field.
-        observer_cls = block_class("observer", p.observer_kind)
-        self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype))
-        self._own = own = state[0]["own"]
-        self.estimator = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind])
         self._wrench_maps = maps
-        self.scheduler = MapScheduler(vehicle, maps, p.maps, state=state["maps"])
-        self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
-        self.admittance = AdmittanceFilter(p.admittance, state=state["admittance"])
-        self.pose = PoseController(vehicle, p.pose, state=state["pose"])
-        self.allocator = Allocator(vehicle, p.allocation, state=state["allocation"])
         self._dt = p.dt
         self._measured_input = p.observer_input == "measured"
         self._p_E_B = vehicle.p_E_B_array
@@ -237,6 +217,52 @@ class InteractionController:
         self._n = n
         self._rotor_shape = (n,)
         self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
+        self._failed_mask: np.ndarray | None = None
+        self._trajectory: PoseTrajectory | None = None
+        self._t0 = 0.0
+        self._frame_buf = new_records(frame_dtype(n))
+        self._frame_dtype = frame_dtype(n)
+        self._kernel_estimator = None  # the estimator the compiled step runs on its field (set by reset)
+        self._fast = False  # step() is one compiled call (set by reset)
+        self.estimator = None
+        self._assemble(packed_capacity(MIN_CAPACITY_WAYPOINTS))
+        self.log_groups = _c.controller_log_groups(self.state.dtype, *_block_classes(p))
+        self.log_dtype = log_dtype(self.log_groups)
+        self.log = Recorder(p.log_capacity, [(g.name, g.labels) for g in self.log_groups], grow_rows=p.log_capacity)
+        self._no_row = np.zeros(0, self.log_dtype)
+        self._row = new_records(self.log_dtype)  # the row the step writes (the log's row is its copy)
+        self._row_values = self._row.view(np.float64)
+
+    def _assemble(self, trajectory_capacity: int) -> None:
+        """Build the controller's record and every block on its field (a trajectory of that many floats).
+
+        The blocks' parameters come from :attr:`params`; the failed-rotor mask is kept. An estimator that does
+        not live in the record (a stand-in given by the user) is kept.
+        """
+        p, vehicle, n = self.params, self.vehicle, self._n
+        observer_cls, admittance_cls, pose_cls = _block_classes(p)
+        n_regions, n_intervals = schedule_sizes(self._wrench_maps)
+        self.sizes = _c.ControllerSizes(n, ukf_capacity(p.estimator), n_regions, n_intervals, trajectory_capacity)
+        old = getattr(self, "state", None)
+        dtype = _c.controller_dtype(
+            observer_cls.state_dtype, self.sizes, admittance_cls.state_dtype, pose_cls.state_dtype
+        )
+        self.state = state = new_state(dtype)
+        self._own = own = state[0]["own"]
+        est = self.estimator
+        est_state = getattr(est, "state", None)
+        if est is None or (old is not None and isinstance(est_state, np.ndarray) and np.shares_memory(est_state, old)):
+            est = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind], memory=state["ukf_memory"])
+        self.estimator = est
+        self.scheduler = MapScheduler(
+            vehicle, self._wrench_maps, p.maps, state=state["maps"], arrays=state["maps_arrays"]
+        )
+        self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
+        self.admittance = admittance_cls(p.admittance, state=state["admittance"])
+        self.pose = pose_cls(vehicle, p.pose, state=state["pose"])
+        self.allocator = Allocator(vehicle, p.allocation, state=state["allocation"], arrays=state["allocation_arrays"])
+        if self._failed_mask is not None:
+            self.allocator.set_failed_rotors(self._failed_mask)
         self.desired_ee = ReferenceSample(state["desired_ee"])
         self.compliant_ee = ReferenceSample(state["compliant_ee"])
         self.body_ref = ReferenceSample(state["body_ref"])
@@ -246,22 +272,13 @@ class InteractionController:
         own["dt"] = self._dt
         own["measured"] = 1 if self._measured_input else 0
         own["piecewise"] = 1 if self._piecewise else 0
-        self._rot = _c.RotorArrays(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n))
-        self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe = self._rot
+        own["excluded"] = 1 if self._excluded else 0
+        rot = record_view(state["rotors"])
+        self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe = (
+            rot.u_obs_hz2, rot.u_cmd_hz2, rot.omega_cmd_hz, rot.omega_safe_hz
+        )  # fmt: skip
+        self._trajectory_field = state["trajectory"][0]
         self._estimate = state["own"]["estimate"]  # (1,) view: the estimate of the last period
-        self._excluded = False
-        self.log = Recorder(p.log_capacity, LOG_GROUPS(n), grow_rows=p.log_capacity)
-        self._no_row = np.zeros(0)
-        self._trajectory: PoseTrajectory | None = None
-        self._t0 = 0.0
-        self._frame_buf = new_records(frame_dtype(n))
-        self._frame_dtype = frame_dtype(n)
-        self._kernel_args: tuple | None = None
-        self._kernel_estimator = None  # the estimator whose arrays the kernel arguments hold
-        self._fast_table = None  # _table when step() is one compiled call (set by reset)
-        self._table = None  # (1,) int64: the state's address, when its dtype is composer.DEFAULT_DTYPE
-        if state.dtype == _c.DEFAULT_DTYPE and not isinstance(state, np.recarray):
-            self._table = np.array([state.ctypes.data], dtype=np.int64)
 
     # -- set-up -------------------------------------------------------------------------------------------
 
@@ -273,20 +290,24 @@ class InteractionController:
     def set_failed_rotors(self, mask: np.ndarray | None) -> None:
         """Exclude rotors from the allocation (see :meth:`Allocator.set_failed_rotors`)."""
         self.allocator.set_failed_rotors(mask)
-        self._excluded = bool(np.any(self.allocator.failed_rotors))
+        self._failed_mask = self.allocator.failed_rotors.copy()
         self._own["excluded"] = 1 if self._excluded else 0
 
     @property
-    def kernel_args(self) -> tuple | None:
-        """The arguments of :func:`omnirotor.control.composer.controller_step` (its module docstring).
+    def _excluded(self) -> bool:
+        return self._failed_mask is not None and bool(np.any(self._failed_mask))
+
+    @property
+    def kernel_state(self) -> np.ndarray | None:
+        """The controller's record, for a compiled loop's call of :func:`omnirotor.control.composer.controller_step`.
 
         None before :meth:`reset`, with a QP solver called from Python ("daqp", "proxsuite"), or while the
         estimator is not one the compiled step runs (not initialised, or replaced after :meth:`reset`).
-        Valid until the next :meth:`reset`.
+        Valid until the next :meth:`reset` (which may build a larger record for a longer trajectory).
         """
-        if self._kernel_args is None or self.allocator.kernel_backend is None or not self._estimator_compiled():
+        if self._trajectory is None or self.allocator.kernel_backend is None or not self._estimator_compiled():
             return None
-        return self._kernel_args
+        return self.state
 
     def _estimator_compiled(self) -> bool:
         est = self.estimator
@@ -302,7 +323,8 @@ class InteractionController:
     def kernel_command(self) -> np.ndarray:
         """(n,) the array the compiled step writes its command into [Hz] (a compiled loop's plant input).
 
-        Read it, never write it: it is the controller's own state (the last command).
+        Read it, never write it: it is the controller's own state (the last command). Valid until the next
+        :meth:`reset`.
         """
         return self._omega_cmd
 
@@ -314,43 +336,34 @@ class InteractionController:
         """
         self.scheduler.sync()
 
-    def _build_kernel_args(self) -> None:
-        est, sched = self.estimator, self.scheduler
+    def _prepare_step(self) -> None:
+        """Say in the record which estimator the compiled step runs, and whether :meth:`step` is one call."""
+        est = self.estimator
         own = self._own
         own["t0"] = self._t0
         own["excluded"] = 1 if self._excluded else 0
         # The compiled step runs the UKF or the bypass kept in the state's field of its name; another estimator
         # (or one kept elsewhere) runs from Python and gives its estimate.
         own["estimator"] = _c.EST_GIVEN
-        est_arrays = _c.EstimatorArrays.placeholder()
         if isinstance(est, UKFEstimator) and np.shares_memory(est.state, self.state["ukf"]):
             own["estimator"] = _c.EST_UKF
-            est_arrays = _c.EstimatorArrays(*est.kernel_arrays[1:])
         elif isinstance(est, BypassEstimator) and np.shares_memory(est.state, self.state["bypass"]):
             own["estimator"] = _c.EST_BYPASS
-        sched_arrays = sched.kernel_arrays
-        self._kernel_args = (
-            self.state,
-            self._rot,
-            self.allocator.arrays,
-            est_arrays,
-            sched_arrays,
-            self._trajectory.kernel_data,
-        )
-        # The same arrays by address, in the state: the arrays stay alive and in place in _kernel_args.
-        _c.store_addresses(self._kernel_args)
         self._kernel_estimator = est
         self._own_estimator_kind = int(own["estimator"])
-        # One compiled call by address when nothing runs from Python (after reset the estimator is
-        # initialised: its reset raises otherwise) and the state has the default dtype.
+        # One compiled call when nothing runs from Python (after reset the estimator is initialised: its reset
+        # raises otherwise).
         compiled = self.allocator.kernel_backend is not None and self._own_estimator_kind != _c.EST_GIVEN
-        self._fast_table = self._table if compiled and self._estimator_compiled() else None
+        self._fast = compiled and self._estimator_compiled()
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
 
         The held "last safe" command starts as the frame's measured rotor speeds (clipped), or the upright
-        hover speeds if those are not finite. The log is cleared.
+        hover speeds if those are not finite. The log is cleared. The trajectory is copied into the record's
+        field ``trajectory``; one with more waypoints than that field holds makes a new, larger record (every
+        block rebuilt on it, as this reset would leave it; the next step compiles once for the new record, and
+        arrays taken from the old one, such as :attr:`kernel_command`, are stale).
 
         Raises:
             InputError: not a :class:`PoseTrajectory`, or a frame whose rotor count is not the vehicle's.
@@ -361,6 +374,11 @@ class InteractionController:
         if hz.shape != (self._n,):
             raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
         record = self._record(frame)
+        packed = trajectory.kernel_data
+        if packed.shape[0] > self.sizes.trajectory_capacity:
+            self._assemble(packed_capacity(len(trajectory.waypoints)))
+        self._trajectory_field[: packed.shape[0]] = packed
+        self._trajectory_field[packed.shape[0] :] = 0.0
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
@@ -385,13 +403,14 @@ class InteractionController:
         body_reference_from_ee(self.compliant_ee, self._p_E_B, self.body_ref)
         self.log.clear()
         self.state["segment"] = np.zeros(1, SEGMENT_DTYPE)  # the trajectory given here flies
-        self._build_kernel_args()
+        self._prepare_step()
         kind = int(self._own["estimator"])
         reset_supervisor(
             self.state["supervisor"], self.params.supervisor, record, dt=self._dt,
             acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
             omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
-            check_mocap=kind == _c.EST_UKF,
+            check_mocap=kind == _c.EST_UKF, gravity=self.vehicle.gravity,
+            acc_physical=self.vehicle.n_rotors * self.vehicle.c_f * self.vehicle.omega_max_hz**2 / self.vehicle.mass,
         )  # fmt: skip
 
     def hold_command(self, t: float | None = None) -> RotorCommand:
@@ -463,18 +482,20 @@ class InteractionController:
         if mode not in MAP_MODES:
             raise InputError(f"map mode must be one of {MAP_MODES}, got {mode!r}")
         maps_params = dataclasses.replace(self.params.maps, mode=mode)
-        saved = self.state["maps"].copy()
+        saved = self.state["maps"].copy(), self.state["maps_arrays"].copy()
         try:
-            scheduler = MapScheduler(self.vehicle, self._wrench_maps, maps_params, state=self.state["maps"])
+            scheduler = MapScheduler(
+                self.vehicle, self._wrench_maps, maps_params, state=self.state["maps"], arrays=self.state["maps_arrays"]
+            )
         except InputError:
-            self.state["maps"] = saved  # the running scheduler stays as it was
+            self.state["maps"], self.state["maps_arrays"] = saved  # the running scheduler stays as it was
             raise
         self.scheduler = scheduler
         self.params = dataclasses.replace(self.params, maps=maps_params)
         self._piecewise = mode == "piecewise"
         self._own["piecewise"] = 1 if self._piecewise else 0
         if self._trajectory is not None:
-            self._build_kernel_args()
+            self._prepare_step()
 
     # -- the 1 kHz step -----------------------------------------------------------------------------------
 
@@ -487,16 +508,19 @@ class InteractionController:
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
         record = self._record(frame)
-        row = self.log.next_row()
-        if row is None:
-            row = self._no_row
-        if self.estimator is self._kernel_estimator and self._fast_table is not None:
-            # The default blocks, a compiled estimator and QP: one compiled call, the state by its address.
-            bits = _c.controller_step_by_table(self._fast_table, record, row)
+        data = self.log.next_row()
+        # The step writes the controller's own row record (one array object: numba types a new view of a
+        # structured dtype slowly), copied into the log's row below.
+        row = self._no_row if data is None else self._row
+        if self.estimator is self._kernel_estimator and self._fast:
+            # A compiled estimator and QP: one compiled call.
+            bits = _c.controller_step(self.state, record, row)
         else:
             bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
+        if data is not None:
+            data[:] = self._row_values
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
@@ -522,10 +546,7 @@ class InteractionController:
         return self._frame_buf
 
     def _step_slow(self, frame: SensorFrame, record: np.ndarray, row: np.ndarray) -> int:
-        """:meth:`step` through the same composer when it is not one compiled call by address.
-
-        That is: another observer (its state passed whole), or an estimator or a QP solver run from Python.
-        """
+        """:meth:`step` through the same composer when an estimator or a QP solver runs from Python."""
         kind = self._own_estimator_kind
         if not self._estimator_compiled():
             kind = self._give_estimate(frame)
@@ -534,12 +555,12 @@ class InteractionController:
         if kind != int(self._own["estimator"]):
             self._own["estimator"] = kind
         if self.allocator.kernel_backend is not None:
-            return _c.controller_step_by_state(self.state, record, row)
+            return _c.controller_step(self.state, record, row)
         # A QP solver called from Python, between the composer's two halves.
-        code = _c.step_begin_by_state(self.state, record, row)
+        code = _c.step_begin(self.state, record, row)
         if code >= 0:
             solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
-            return _c.step_end_by_state(self.state, solved, row)
+            return _c.step_end(self.state, solved, row)
         if code == _c.BEGIN_DONE:
             return int(self._own["status"])
         return code

@@ -48,6 +48,17 @@ start-up instead) or fail the chi-square innovation gate are skipped and counted
 ``mocap_reinit_after`` consecutive gate failures re-initialise the pose from motion capture (the filter,
 not the sensor, is then assumed lost).
 
+Sustained faults (issue 26; the frame supervision, :mod:`omnirotor.control.supervisor`, decides). While the
+IMU *coasts* (its samples rejected for longer than the supervision's ``imu_hold_s``, replaced by the
+specific force of a body at rest) the filter adds its bias estimates back to that sample (the prediction is
+bias-free: no bias is learnt from it) and white acceleration noise of ``coast_acc_std`` over a 10 ms
+correlation to the covariance, so that motion capture steers the estimate. A bias drifting faster than its
+random walk (a running mean of the position innovations over about 10 samples beyond ``bias_drift_m`` or 5
+times the motion-capture noise in use) scales the bias random walks by ``bias_drift_scale`` until the mean
+falls below half the threshold. Neither happens in a run without such faults: the covariance is then what it
+was, bit for bit. A bias estimate beyond the documented range (``acc_bias_range`` 3 m/s², ``gyro_bias_range``
+0.5 rad/s, any component) is flagged ``ControlStatus.BIAS_BEYOND_RANGE``; the filter keeps following it.
+
 Outputs (``StateEstimate``): pose, velocity, ``omega_B = gyro - b_g`` and ``a_W`` (p̈ without gravity, as
 the wrench observer of SPEC §4.3 needs it), each optionally low-passed by a first-order filter
 ``y += lam (x - y)``, ``lam = 2 pi dt f_c / (2 pi dt f_c + 1)`` (the form of SPEC §4.3).
@@ -71,7 +82,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import address_table, jit, jit_entry
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import block_class, new_records, register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
@@ -86,6 +97,7 @@ __all__ = [
     "UKFEstimator",
     "BypassEstimator",
     "make_estimator",
+    "ukf_capacity",
     "ESTIMATOR_KINDS",
     "BYPASS_DTYPE",
     "bypass_step",
@@ -165,6 +177,16 @@ class EstimatorParams:
         ut_alpha: unscented-transform spread alpha.
         ut_beta: unscented-transform beta (2 is optimal for Gaussians).
         ut_kappa: unscented-transform kappa.
+        coast_acc_std: the acceleration the filter does not know while the IMU coasts (rejected samples
+            replaced by the frame supervision's prediction, :mod:`omnirotor.control.supervisor`), one sigma
+            [m/s²]: added as white acceleration noise over a 10 ms correlation, so motion capture steers it.
+        bias_drift_m: a mean position innovation beyond this (or 5 times the motion-capture noise in use, the
+            larger), averaged over about 10 samples, is a bias drifting faster than its random walk says; the bias
+            random walks are then ``bias_drift_scale`` times larger until it falls below half [m].
+        bias_drift_scale: that factor on the bias random walks' standard deviations.
+        acc_bias_range: the accelerometer bias the filter is documented to follow [m/s²]; an estimate beyond it
+            (any component) is flagged ``ControlStatus.BIAS_BEYOND_RANGE``.
+        gyro_bias_range: the same for the gyroscope [rad/s].
     """
 
     kind: str = "ukf"
@@ -197,6 +219,11 @@ class EstimatorParams:
     ut_alpha: float = 1.0
     ut_beta: float = 2.0
     ut_kappa: float = 0.0
+    coast_acc_std: float = 20.0
+    bias_drift_m: float = 0.005
+    bias_drift_scale: float = 100.0
+    acc_bias_range: float = 3.0
+    gyro_bias_range: float = 0.5
 
     def __post_init__(self) -> None:
         if self.kind not in ESTIMATOR_KINDS:
@@ -222,6 +249,11 @@ class EstimatorParams:
             "init_acc_bias_std",
             "init_gyro_bias_std",
             "ut_alpha",
+            "coast_acc_std",
+            "bias_drift_m",
+            "bias_drift_scale",
+            "acc_bias_range",
+            "gyro_bias_range",
         ):
             check_positive(f"estimator {name}", getattr(self, name))
         for name in ("gyro_cutoff_hz", "acc_cutoff_hz"):
@@ -256,18 +288,30 @@ class EstimatorParams:
 # -- the UKF ------------------------------------------------------------------------------------------------
 
 
+def _lag_and_chunk(p: EstimatorParams) -> tuple[int, int]:
+    """IMU samples of the largest motion-capture latency, and of one advance of the fused state."""
+    return int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz)), max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
+
+
+def ukf_capacity(params: EstimatorParams) -> int:
+    """Length of the UKF's ring buffers of IMU samples and output states for ``params``."""
+    lag_n, chunk_n = _lag_and_chunk(params)
+    return lag_n + chunk_n + 8
+
+
 @register("estimator", "ukf")
 class UKFEstimator:
     """Error-state unscented Kalman filter: 1 kHz IMU with delayed motion capture (module docstring).
 
     The filter's state, counters and parameters are one structured record (:attr:`state`, dtype
     :data:`~omnirotor.control._estimator_kernels.UKF_DTYPE`), its ring buffers and scratch three more
-    structured arrays (:attr:`kernel_arrays`); once initialised, a step is one compiled call,
+    structured record (:attr:`memory`, :func:`~omnirotor.control._estimator_kernels.memory_dtype`); once
+    initialised, a step is one compiled call,
     :func:`~omnirotor.control._estimator_kernels.ukf_step`, which reads and writes their fields by name.
 
     A compiled loop may step the filter itself, after :meth:`reset` (or a first :meth:`step` that
-    initialised it; ``initialised`` must be True), with ``ukf_step(state[0], imu_buf, state_buf, work[0],
-    gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, out)`` (the arrays of :attr:`kernel_arrays`):
+    initialised it; ``initialised`` must be True), with ``ukf_step(state[0], m.imu_buf, m.state_buf, m.work,
+    gyro_B, acc_B, t, mocap_new, mocap_t, p_m, q_m, out)`` (``m = memory[0]``, the record of :attr:`memory`):
     ``gyro_B``, ``acc_B`` (3,), ``p_m`` (3,), ``q_m`` (4,) and ``out`` (21,) float64 arrays (``p_m``, ``q_m``
     any such arrays without a sample, NaN for a sample announced without a well-formed pose), floats ``t``
     and ``mocap_t`` [s], the bool ``mocap_new``. It returns ``(code, t)``; the estimate is ``out`` (layout of
@@ -287,14 +331,21 @@ class UKFEstimator:
         n_mocap_fused: count of motion-capture samples fused.
         n_reinit: count of re-initialisations from motion capture after repeated gate failures.
         P: (15, 15) covariance of the error state of the delayed fused state (a view, updated in place).
-        kernel_arrays: the :class:`~omnirotor.control._estimator_kernels.UKFArrays` (``state`` first).
+        memory: the ``(1,)`` ring buffers and scratch (:func:`~omnirotor.control._estimator_kernels.memory_dtype`
+            of :func:`ukf_capacity` samples).
     """
 
     state_dtype = _ek.UKF_DTYPE
     log_fields = ()
+    kernel = _ek.ukf_block_step
 
     def __init__(
-        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+        self,
+        vehicle: VehicleParams,
+        params: EstimatorParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
     ):
         """Allocate the filter; it initialises on the first frame with a pose (see :meth:`reset`).
 
@@ -303,19 +354,16 @@ class UKFEstimator:
             params: estimator parameters; defaults to :class:`EstimatorParams()`.
             state: optional ``(1,)`` array of ``UKF_DTYPE`` to keep the state in (e.g. a field of the
                 controller's state).
+            memory: optional ``(1,)`` array of ``memory_dtype(ukf_capacity(params))`` for the ring buffers
+                and the scratch (the controller's field ``ukf_memory``).
         """
         self.params = p = params if params is not None else EstimatorParams()
         self.vehicle = vehicle
         self._g = vehicle.gravity
         self._dt_nom = 1.0 / p.imu_rate_hz
-        lag_n = int(math.ceil(p.mocap_max_latency_s * p.imu_rate_hz))
-        chunk_n = max(1, int(round(_ADVANCE_CHUNK_S * p.imu_rate_hz)))
-        cap = lag_n + chunk_n + 8  # ring buffers of IMU samples and output states
+        lag_n, chunk_n = _lag_and_chunk(p)
         self.state = state_array(_ek.UKF_DTYPE, state, "UKF")
-        blank = _ek.new_arrays(cap)
-        self.kernel_arrays = _ek.UKFArrays(self.state, *blank[1:])
-        # Their addresses, for one compiled call from Python (typing record arrays costs more than the step).
-        self._table = address_table(list(self.kernel_arrays))
+        self.memory = state_array(_ek.memory_dtype(ukf_capacity(p)), memory, "UKF memory")
         # The pose ukf_step gets for a sample announced without a well-formed one (rejected as non-finite).
         self._no_p = np.full(3, math.nan)
         self._no_q = np.full(4, math.nan)
@@ -360,6 +408,10 @@ class UKFEstimator:
         u["lag_n"] = lag_n
         u["chunk_n"] = chunk_n
         u["timeout_s"] = p.mocap_timeout_s
+        u["q_coast"] = p.coast_acc_std**2 * 0.01
+        u["drift_m"] = p.bias_drift_m
+        u["drift_scale2"] = p.bias_drift_scale**2
+        u["acc_bias_range"], u["gyro_bias_range"] = p.acc_bias_range, p.gyro_bias_range
         u["compensate_latency"] = 1 if p.compensate_latency else 0
         self._clear()
 
@@ -371,7 +423,7 @@ class UKFEstimator:
         "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
         "n_nonfinite", "last_rejected", "degraded", "noise_var_pos", "noise_var_att", "n_noise_adapted",
         "noise_pos_std_max", "noise_att_std_max", "noise_n", "noise_var_pos_top", "noise_var_att_top",
-        "n_noise_discounts",
+        "n_noise_discounts", "coasting", "innov_ema_W", "drift_on", "n_drift",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
 
@@ -539,9 +591,10 @@ class UKFEstimator:
             p, q = np.asarray(frame.mocap_p_W, dtype=_F64), np.asarray(frame.mocap_q_WB, dtype=_F64)
             if p.shape == (3,) and q.shape == (4,):
                 p_m, q_m = p, q
-        code, t = _ek.ukf_step_by_table(
-            self._table, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan, p_m, q_m, out
-        )
+        code, t = _ek.ukf_step_entry(
+            self.state, self.memory, gyro, acc, float(frame.t), mocap, float(frame.mocap_t) if mocap else math.nan,
+            p_m, q_m, out,
+        )  # fmt: skip
         valid = not code & _ek.STEP_DEGRADED
         return estimate_of(t, out, valid)
 
@@ -626,6 +679,15 @@ def bypass_step(s, r, out) -> int:
     return _ek.STEP_REJECTED | _ek.STEP_DEGRADED
 
 
+@jit
+def bypass_block_step(r, memory, f, out) -> int:
+    """The estimator kind's step (:data:`omnirotor.blocks.KIND_STEPS`): :func:`bypass_step` on a frame head's state.
+
+    ``memory`` (the controller's sized estimator memory) is not used: the signature is the kind's.
+    """
+    return bypass_step(f.state, r, out)
+
+
 @jit_entry
 def _bypass_step_entry(frame, state, out) -> int:
     """:func:`bypass_step` on ``(1,)`` arrays (a call from Python)."""
@@ -656,10 +718,15 @@ class BypassEstimator:
 
     state_dtype = BYPASS_DTYPE
     log_fields = ()
-    kernel = bypass_step
+    kernel = bypass_block_step
 
     def __init__(
-        self, vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+        self,
+        vehicle: VehicleParams,
+        params: EstimatorParams | None = None,
+        *,
+        state: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
     ):
         """Set up.
 
@@ -667,6 +734,7 @@ class BypassEstimator:
             vehicle: the vehicle (unused, for a uniform interface).
             params: estimator parameters.
             state: optional ``(1,)`` array of :data:`BYPASS_DTYPE` (e.g. a field of the controller's state).
+            memory: unused (the bypass has no sized memory), for the estimators' uniform interface.
         """
         self.params = params if params is not None else EstimatorParams(kind="bypass")
         self.vehicle = vehicle
@@ -724,7 +792,11 @@ class BypassEstimator:
 
 
 def make_estimator(
-    vehicle: VehicleParams, params: EstimatorParams | None = None, *, state: np.ndarray | None = None
+    vehicle: VehicleParams,
+    params: EstimatorParams | None = None,
+    *,
+    state: np.ndarray | None = None,
+    memory: np.ndarray | None = None,
 ) -> UKFEstimator | BypassEstimator:
     """The estimator ``params.kind`` names (its registered name: "ukf" or "bypass").
 
@@ -732,7 +804,8 @@ def make_estimator(
         vehicle: the vehicle.
         params: estimator parameters.
         state: the ``(1,)`` array of the estimator's ``state_dtype`` to keep its state in (optional).
+        memory: the ``(1,)`` array of its sized memory (the UKF's ring buffers; optional).
     """
     params = params if params is not None else EstimatorParams()
     cls = block_class("estimator", params.kind)
-    return cls(vehicle, params, state=state)
+    return cls(vehicle, params, state=state, memory=memory)

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from omnirotor.blocks import register, state_array
+from omnirotor.blocks import new_state, record_view, register, state_array
 from omnirotor.config import check_positive
 from omnirotor.control import _map_kernels as _mk
 from omnirotor.errors import InputError
@@ -45,7 +45,7 @@ from omnirotor.regions import Partition, Region
 from omnirotor.vehicle import VehicleParams
 from omnirotor.wrench_maps import WrenchMapSet
 
-__all__ = ["MapParams", "MapScheduler", "MAP_MODES", "BLENDS"]
+__all__ = ["schedule_sizes", "MapParams", "MapScheduler", "MAP_MODES", "BLENDS"]
 
 MAP_MODES = ("nominal", "global", "piecewise")
 """Which map(s) the controller flies with."""
@@ -131,6 +131,18 @@ class _SoftRegion:
         return min(widths, default=math.inf)
 
 
+def schedule_sizes(maps: WrenchMapSet | None) -> tuple[int, int]:
+    """(regions, azimuth-interval slots) a scheduler needs for any mode with ``maps`` (its partition's).
+
+    The controller sizes its field ``maps_arrays`` so, so that :meth:`InteractionController.set_map_mode`
+    rebuilds the scheduler in place for any mode.
+    """
+    if maps is None:
+        return 0, 0
+    regions = maps.partition.regions
+    return len(regions), _mk.n_intervals(regions, [_SoftRegion.from_region(r) for r in regions])
+
+
 @register("maps", "regions")
 class MapScheduler:
     """Select the wrench map for the current attitude (SPEC §3.3), for the allocation and the observer.
@@ -151,9 +163,10 @@ class MapScheduler:
         weights: (K,) read-only blending weights of the K regions from the last :meth:`select` (one-hot
             with hard blending); empty outside piecewise mode.
         n_nonfinite: count of :meth:`select` calls with a non-finite attitude (the map was kept).
-        kernel_arrays: the partition and the maps (:class:`~omnirotor.control._map_kernels.SchedulerArrays`):
-            its ``out`` (6n,) is the array behind the map :meth:`select` returns, its ``weights`` the array
-            behind :attr:`weights`.
+        arrays: the partition and the maps, a ``(1,)`` array of
+            :func:`~omnirotor.control._map_kernels.arrays_dtype` (the controller's field ``maps_arrays``): its
+            ``out`` (6n,) is the array behind the map :meth:`select` returns, its ``weights`` the array behind
+            :attr:`weights`.
     """
 
     state_dtype = _mk.STATE_DTYPE
@@ -166,6 +179,7 @@ class MapScheduler:
         params: MapParams | None = None,
         *,
         state: np.ndarray | None = None,
+        arrays: np.ndarray | None = None,
     ):
         """Prepare the maps of the chosen mode.
 
@@ -175,6 +189,9 @@ class MapScheduler:
             params: scheduling parameters; defaults to :class:`MapParams()` (nominal).
             state: optional ``(1,)`` array of ``STATE_DTYPE`` to keep the state in (e.g. a field of the
                 controller's state).
+            arrays: optional ``(1,)`` array of ``_map_kernels.arrays_dtype(K, M, n)`` to keep the partition and
+                the maps in, sized by :func:`schedule_sizes` (e.g. the controller's field); an exact one by
+                default.
 
         Raises:
             InputError: a mode that needs maps without them, no global map in global mode, maps of the
@@ -223,27 +240,32 @@ class MapScheduler:
                     )
         self._names = tuple(r.name for r in regions)
         self.state = state_array(_mk.STATE_DTYPE, state, "map scheduler")
-        self.kernel_arrays = arrays = _mk.pack_schedule(
-            self.state[0], regions, soft, smooth, band, self._maps.reshape(K, 6 * n)
-        )
-        self._table = arrays.table(self.state)
-        self._out = arrays.out.reshape(6, n)
+        if arrays is None:
+            arrays = new_state(_mk.arrays_dtype(len(regions), _mk.n_intervals(regions, soft), n))
+        self.arrays = arrays
+        rec = record_view(arrays)
+        try:
+            _mk.pack_schedule(self.state[0], rec, regions, soft, smooth, band, self._maps.reshape(K, 6 * n))
+        except ValueError as exc:
+            raise InputError(f"map scheduler: {exc}") from None
+        self._out = rec.out.reshape(6, n)
         self._view = self._out.view()
         self._view.flags.writeable = False
-        self._weights_view = arrays.weights.view()
+        self._weights = rec.weights[: len(regions)]
+        self._weights_view = self._weights.view()
         self._weights_view.flags.writeable = False
         self.region_index = -1
         self.region_name = mode
-        self._initial = (self._out.copy(), arrays.weights.copy(), self.state.copy())
+        self._initial = (self._out.copy(), self._weights.copy(), self.state.copy())
         if self._partition is not None:
             self.select(np.eye(3))
-            self._initial = (self._out.copy(), arrays.weights.copy(), self.state.copy())
+            self._initial = (self._out.copy(), self._weights.copy(), self.state.copy())
 
     def reset(self) -> None:
         """Back to the selection made at construction (upright), the counter cleared."""
         out, weights, state = self._initial
         self._out[...] = out
-        self.kernel_arrays.weights[:] = weights
+        self._weights[:] = weights
         self.state[...] = state
         self.sync()
 
@@ -276,7 +298,7 @@ class MapScheduler:
             return self._view
         if type(R_WB) is not np.ndarray or R_WB.dtype != np.float64 or not R_WB.flags.c_contiguous:
             R_WB = np.ascontiguousarray(R_WB, dtype=np.float64)
-        k = _mk.schedule_select_by_table(self._table, R_WB)
+        k = _mk.schedule_select_entry(self.state, self.arrays, R_WB)
         if k != self.region_index:
             self.region_index = k
             self.region_name = self._names[k]
@@ -285,7 +307,7 @@ class MapScheduler:
     def sync(self) -> None:
         """Update :attr:`region_index` and :attr:`region_name` from :attr:`state`.
 
-        Needed only after :func:`_map_kernels.schedule_select` was called on this scheduler's arrays from
+        Needed only after :func:`_map_kernels.schedule_select` was called on this scheduler's records from
         elsewhere (a compiled loop); :meth:`select` keeps them up to date itself.
         """
         if self._partition is None:

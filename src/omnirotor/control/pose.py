@@ -227,7 +227,11 @@ class PoseController:
     """
 
     state_dtype = STATE_DTYPE
-    log_fields = ("f_ref_W", "m_ref_B", "errors")
+    log_fields = (("w_ref", ("f_ref_W", "m_ref_B")), ("pose_err", ("errors",)))
+    log_labels = {
+        "w_ref": ("fx", "fy", "fz", "mx", "my", "mz"),
+        "pose_err": tuple(f"{g}.{a}" for g in ("e_p", "e_v", "e_R", "e_omega") for a in ("x", "y", "z")),
+    }
     kernel = pose_step
 
     def __init__(

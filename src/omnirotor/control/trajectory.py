@@ -47,6 +47,9 @@ __all__ = [
     "trajectory_sample",
     "segment_sample",
     "start_segment",
+    "packed_size",
+    "reference_log_fields",
+    "packed_capacity",
 ]
 
 ATTITUDE_PROFILES = ("quintic", "cubic")
@@ -159,6 +162,41 @@ class ReferenceSample:
 # Packed trajectory (PoseTrajectory.kernel_data): n_waypoints, cubic flag, times (n_wp), thetas (n_wp - 1),
 # then (24 x 8) bases, row-major: hold first, hold last, one per segment.
 _BASIS_SIZE = _N_FLAT * _N_BASIS
+
+
+def reference_log_fields(role: str) -> tuple[tuple[str, tuple[str]], ...]:
+    """The fields of a reference record a log records, named for its ``role`` (``"E_ref"``: ``p_E_ref_W``, ...)."""
+    return (
+        (f"p_{role}_W", ("p_W",)),
+        (f"v_{role}_W", ("v_W",)),
+        (f"a_{role}_W", ("a_W",)),
+        (f"R_{role}", ("R_WB",)),
+        (f"omega_{role}_W", ("omega_W",)),
+        (f"alpha_{role}_W", ("alpha_W",)),
+    )
+
+
+def packed_size(n_waypoints: int) -> int:
+    """Floats of the packed trajectory of ``n_waypoints`` waypoints (:attr:`PoseTrajectory.kernel_data`)."""
+    return 2 + n_waypoints + (n_waypoints - 1) + _BASIS_SIZE * (n_waypoints + 1)
+
+
+MIN_CAPACITY_WAYPOINTS = 32
+"""The controller's trajectory field holds at least this many waypoints (every shipped task's trajectory fits:
+the longest, the point contacts', has 17), so that one record, and one compiled step, serves them all: a larger
+record compiles the step again, which a flight node cannot afford between two frames."""
+
+
+def packed_capacity(n_waypoints: int) -> int:
+    """The trajectory field's capacity [floats] for ``n_waypoints`` (:func:`packed_size`).
+
+    For the next power of two of waypoints (at least :data:`MIN_CAPACITY_WAYPOINTS`), so that few distinct
+    controller records (and compiled steps) exist.
+    """
+    w = MIN_CAPACITY_WAYPOINTS
+    while w < n_waypoints:
+        w *= 2
+    return packed_size(w)
 
 
 @jit

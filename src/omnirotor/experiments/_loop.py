@@ -27,12 +27,12 @@ _NS_PER_US = 1e3
 
 
 @jit_entry
-def run_steps(sim, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
+def run_steps(sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
     """Steps ``k, k+1, ...`` of a closed-loop run, up to ``stop`` or the end of a noise block.
 
     Args:
         sim: :attr:`omnirotor.sim.simulator.Simulator.kernel_state` (the simulator's record).
-        ctl_args: :attr:`omnirotor.control.controller.InteractionController.kernel_args`.
+        ctl_state: :attr:`omnirotor.control.controller.InteractionController.kernel_state` (its record).
         cmd_hz: (n,) the controller's command array [Hz] (the simulator's input; the controller writes it).
         frame: the simulator's packed frame.
         k: first step of this call (row of both logs).
@@ -41,7 +41,7 @@ def run_steps(sim, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: 
         dt: control period [s].
         truth: (rows, TRUTH_ROW_SIZE + n + 2) truth log data; the last two columns get the simulator's and the
             controller's step times [µs].
-        log: the controller log's data (one row per step).
+        log: the controller log's rows as records (``InteractionController.log_dtype``, one per step).
         ts: (2,) int64 scratch of the clock.
 
     Returns:
@@ -56,7 +56,7 @@ def run_steps(sim, ctl_args, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: 
         tic0 = monotonic_ns(ts)
         sim_step(sim, cmd_hz, k_sim0 + k, dt, frame, row)
         tic = monotonic_ns(ts)
-        controller_step(ctl_args, frame, log[k])
+        controller_step(ctl_state, frame, log[k : k + 1])
         toc = monotonic_ns(ts)
         row[timing - 1] = (tic - tic0) / _NS_PER_US
         row[timing] = (toc - tic) / _NS_PER_US

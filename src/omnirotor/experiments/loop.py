@@ -162,9 +162,9 @@ def run_closed_loop(
     truth_log = Recorder(n_steps, TRUTH_GROUPS(controller.vehicle.n_rotors))
     every = max(1, n_steps // _PROGRESS_UPDATES)
     if video is None and on_step is None and isinstance(sim, Simulator):
-        sim_args, ctl_args = sim.kernel_state, controller.kernel_args
-        if sim_args is not None and ctl_args is not None:
-            _run_compiled(sim, controller, sim_args, ctl_args, truth_log, n_steps, every, progress)
+        sim_args, ctl_state = sim.kernel_state, controller.kernel_state
+        if sim_args is not None and ctl_state is not None:
+            _run_compiled(sim, controller, sim_args, ctl_state, truth_log, n_steps, every, progress)
             return controller.log, truth_log
     clock = time.perf_counter
     cmd = controller.hold_command()  # the reset frame is consumed by reset(); hold its speeds for one period
@@ -195,7 +195,7 @@ def _run_compiled(
     sim: Simulator,
     controller: InteractionController,
     sim_args: np.ndarray,
-    ctl_args: tuple,
+    ctl_state: np.ndarray,
     truth_log: Recorder,
     n_steps: int,
     every: int,
@@ -205,6 +205,7 @@ def _run_compiled(
     from omnirotor.experiments._loop import run_steps  # compiles on first use
 
     log = controller.log
+    records = log.data.view(controller.log_dtype).reshape(-1)  # the log's rows as its records (the same memory)
     cmd = controller.kernel_command  # the command array the compiled step writes and the simulator reads
     frame = sim.frame_record
     ts = np.zeros(2, dtype=np.int64)  # the compiled clock's scratch
@@ -219,7 +220,7 @@ def _run_compiled(
             sim.faults.tell_due(k0_sim + k, sim.dt)
             stop = n_steps if progress is None else min(n_steps, (k // every + 1) * every)
             stop = min([stop] + [j for j in notices if j > k])
-            k = run_steps(sim_args, ctl_args, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, log.data, ts)
+            k = run_steps(sim_args, ctl_state, cmd, frame, k, stop, k0_sim, sim.dt, truth_log.data, records, ts)
             if progress is not None and k % every == 0:
                 progress(k / n_steps)
     finally:  # what was run is logged and the Python side of both reflects it

@@ -632,12 +632,14 @@ class NodeLoop:
             self.finished = True
 
 
-def warm_up(controller) -> None:
+def warm_up(controller, trajectory=None) -> None:
     """Compile (or load from numba's cache) the controller's kernels before the first real frame.
 
-    One reset and one step on a synthetic hover frame; the controller's next :meth:`reset` (the director's, on
-    the first real frame) starts it anew and clears its log. Best effort: a controller that refuses the
-    synthetic frame (the bypass estimator wants a state) compiles on its first real frame instead.
+    One reset and one step on a synthetic hover frame, with ``trajectory`` (the one the flight will reset with,
+    so that the controller's record is already sized for it and the director's reset compiles nothing; a
+    hover at the frame's pose when None); the controller's next :meth:`reset` (the director's, on the first
+    real frame) starts it anew and clears its log. Best effort: a controller that refuses the synthetic frame
+    (the bypass estimator wants a state) compiles on its first real frame instead.
     """
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 
@@ -649,7 +651,8 @@ def warm_up(controller) -> None:
     q = np.array([1.0, 0.0, 0.0, 0.0])
     first = SensorFrame(0.0, acc, np.zeros(3), hz.copy(), True, 0.0, p_W, q)
     second = SensorFrame(controller.params.dt, acc, np.zeros(3), hz.copy(), False)
-    trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
+    if trajectory is None:
+        trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
     try:
         controller.reset(first, trajectory)
         controller.step(second)
@@ -725,7 +728,7 @@ def fly_mission(
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
         del sim, progress, video, on_step  # the plant is the simulator's
         controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
-        warm_up(controller)
+        warm_up(controller, trajectory)
         node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
         if realtime is not None and not node_options.lockstep:  # lockstep polls without pause: no real-time class
             realtime()
