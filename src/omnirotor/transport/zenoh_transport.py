@@ -17,11 +17,10 @@ The session is a Zenoh peer with multicast scouting off: it listens on the given
 connects to the given ones, and hears nothing else. Receiving: Zenoh's own thread puts each payload in a bounded
 queue (the newest ``depth`` are kept, older ones dropped, so a flood on a key costs its subscriber little more than
 the queue), and the caller takes from it at once or sleeps on it up to a time-out (measured: a blocking wait wakes
-faster and leaves the CPU to the peer, where polling competes with it on a busy machine). Publishers are at
-real-time priority, not ``express`` (handing a sample to Zenoh's send thread costs the loop a fifth of an express
-put, measured, for the same round trip), and by default drop rather than block when the network is congested, so the
-1 kHz loop never waits on a slow receiver (``block=True`` for what must all arrive: lockstep frames and commands,
-log rows).
+faster and leaves the CPU to the peer, where polling competes with it on a busy machine). Publishers are ``express``
+(sent from the caller's thread: a starved send thread cannot hold them back) at real-time priority, and by default
+drop rather than block when the network is congested, so the 1 kHz loop never waits on a slow receiver
+(``block=True`` for what must all arrive: lockstep frames and commands, log rows).
 """
 
 from __future__ import annotations
@@ -185,10 +184,11 @@ class ZenohTransport(Transport):
         config: further Zenoh configuration as ``{json5 path: value}`` (e.g. access control, TLS).
         config_file: a Zenoh configuration file (JSON5) to start from; its endpoints stand unless ``listen`` or
             ``connect`` are given.
-        express: publish each sample at once from the caller's thread (Zenoh's ``express``) instead of handing it
-            to Zenoh's send thread. Measured in the flight node's loop (lockstep hover, loaded 2-core machine):
-            serialising and publishing a command took about 250 µs express and 57 µs not, for no better round
-            trip; so not, by default.
+        express: publish each sample at once from the caller's thread (Zenoh's ``express``, the default) instead
+            of handing it to Zenoh's send thread. Measured in the flight node's loop (lockstep hover, loaded 2-core
+            machine): serialising and publishing a command took about 250 µs express and 57 µs not; but not
+            express, on a machine at load 5-7, real-time runs lost 50 ms of frames right at their start (a
+            starved send thread and a dropping publisher: link lost), which express did not; so express.
         node: the ROS 2 node name this session is (``omnirotor_fly``): it and every publisher and subscriber
             then declare rmw_zenoh's liveliness tokens (:func:`liveliness_key`); None: no tokens (clients).
     """
@@ -204,7 +204,7 @@ class ZenohTransport(Transport):
         config: dict | None = None,
         config_file: str | None = None,
         node: str | None = None,
-        express: bool = False,
+        express: bool = True,
     ) -> None:
         super().__init__(domain_id=domain_id, namespace=namespace)
         import zenoh
