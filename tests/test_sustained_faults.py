@@ -30,15 +30,6 @@ DT = 1e-3
 
 # Measured on this tree (compiled closed loop, clean plant, seed 1); each stays a strict xfail until met.
 KNOWN = {
-    "accelerometer bias ramp 3 m/s² over 3 s": (
-        "peak 14.1 cm (bound 5 cm): the UKF's position estimate stays within 2.5 cm of the truth, but its bias "
-        "estimate lags the ramp (random walk 1e-3 m/s³/√Hz; the drift detector does not fire because the noise "
-        "matching raises the motion-capture noise first), and the lagging a_W reads as an external force to the "
-        "wrench observer, which the free admittance yields to"
-    ),
-    "accelerometer bias ramp 10 m/s² over 3 s (beyond range)": (
-        "flagged BIAS_BEYOND_RANGE, but peaks at 1.39 m (bound 1 m): as the 3 m/s² ramp, three times larger"
-    ),
     "bypass position drifting 1 mm/frame for 1 s": (
         "caught and flagged (state_velocity), but peaks at 1.29 m: the consistency check takes the disagreement "
         "between position and velocity for a velocity offset and subtracts it, so the controller follows the "
