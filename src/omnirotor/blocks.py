@@ -34,6 +34,7 @@ composer: adding a block is one file plus one registration line.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
@@ -81,6 +82,27 @@ BLOCK_KINDS = (
 
 CONTROLLER_KINDS = BLOCK_KINDS[:7]
 """The controller's kinds (the rest are the simulator's)."""
+
+KIND_STEPS = {
+    "observer": "kernel(r, A, u_hz2, a_W, R_WB, omega_B, dt): r.f_ext_W, r.m_ext_B (interaction), r.f_filt_W, "
+    "r.m_filt_B (compensated) from the (6, n) map A, the rotor inputs u_hz2 [Hz²] and the estimate",
+    "admittance": "kernel(r, f_E_W, m_E_W, desired, compliant, dt): the compliant EE reference record from the "
+    "desired one under the EE wrench [N, N·m, world]; r.xi_p_W is the position offset",
+    "pose": "kernel(r, body_ref, p_W, v_W, R_WB, omega_B, f_filt_W, m_filt_B, dt): r.f_ref_W [N, world], "
+    "r.m_ref_B [N·m, body] from the body reference record and the estimate, compensating the filtered wrench",
+    "estimator": "kernel(r, memory, frame, estimate) -> code: the estimate record from the checked frame head "
+    "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
+    "when there is no estimate yet",
+}
+"""The typed step of each controller kind that the composer reaches through the registry (:func:`compiled_step`).
+
+A block of that kind registers a ``kernel`` of this signature. Its constructor takes ``(vehicle, params, *,
+state=None)``, an admittance block's ``(params, *, state=None)``, with the parameters of its kind
+(``ObserverParams``, ``AdmittanceParams``, ``PoseControlParams``); the controller chooses it by name
+(``ControllerParams.observer_kind``, ``admittance_kind``, ``pose_kind``; the estimator by
+``EstimatorParams.kind``, the UKF or the bypass, whose two fields the record holds). The other kinds (maps,
+allocation, trajectory) are still called directly by the composer.
+"""
 
 
 @runtime_checkable
@@ -290,6 +312,7 @@ def log_groups(state_dtype: np.dtype, sources) -> tuple[LogGroup, ...]:
     return tuple(groups)
 
 
+@functools.cache
 def log_dtype(groups: tuple[LogGroup, ...]) -> np.dtype:
     """The log record of ``groups``: one float64 field per group, packed.
 

@@ -18,7 +18,7 @@ import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
-from omnirotor.safe_io import check_input_file, check_output_dir
+from omnirotor.safe_io import check_input_file
 
 DEFAULT_NODE_ENDPOINT = "tcp/127.0.0.1:7448"
 """Where the node listens by default (loopback), for ``omnirotor ctl``."""
@@ -85,9 +85,9 @@ def fly(
             raise InputError("--maps is for interactive flights; a mission flies the simulator's maps")
         check_input_file(maps, "--maps")
     if record is not None:
-        check_output_dir(record, "--record")
-        if record.exists():
-            raise InputError(f"--record {record}: exists already; give a new folder name")
+        from omnirotor.fly.record import check_recording_path
+
+        check_recording_path(record, "--record")
     if not 0 <= foxglove_port <= 65535:
         raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
     outputs = {"record": str(record) if record is not None else None,

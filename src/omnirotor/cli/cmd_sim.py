@@ -80,9 +80,9 @@ def sim(
     # SIGTERM ends it as Ctrl-C does: the summary (and a recording) finished, not cut off
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     if record is not None:
-        check_output_dir(record, "--record")
-        if record.exists():
-            raise InputError(f"--record {record}: exists already; give a new folder name")
+        from omnirotor.fly.record import check_recording_path
+
+        check_recording_path(record, "--record")
     if not 0 <= foxglove_port <= 65535:
         raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
     outputs = {"record": str(record) if record is not None else None,

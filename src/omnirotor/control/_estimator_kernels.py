@@ -1069,6 +1069,27 @@ def ukf_step_entry(state, memory, gyro, acc, t_frame: float, mocap_new: bool, mo
 
 
 @jit
+def ukf_block_step(u, memory, f, out) -> int:
+    """The estimator kind's step (:data:`omnirotor.blocks.KIND_STEPS`): :func:`ukf_step` on a checked frame head.
+
+    Args:
+        u: the UKF's record (:data:`UKF_DTYPE`).
+        memory: its memory record (:func:`memory_dtype`).
+        f: the frame without its rotor speeds (:data:`omnirotor.messages.FRAME_HEAD_DTYPE`).
+        out: the estimate record (:data:`omnirotor.messages.ESTIMATE_DTYPE`).
+
+    Returns:
+        The ``STEP_*`` bits of :func:`ukf_step`.
+    """
+    m = f.mocap
+    code, _ = ukf_step(
+        u, memory.imu_buf, memory.state_buf, memory.work, f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t, m.p_W,
+        m.q_WB, out,
+    )  # fmt: skip
+    return code
+
+
+@jit
 def ukf_reinit(u, p_m, q_m, out, v_m=None) -> None:
     """Re-initialise the pose from a motion-capture sample at the current time (after a time glitch or a dropout).
 

@@ -195,6 +195,17 @@ def admittance_step(r, f_E_W, m_E_W, dt: float) -> None:
 
 
 @jit
+def admittance_block_step(r, f_E_W, m_E_W, desired, compliant, dt: float) -> None:
+    """The admittance kind's step (:data:`omnirotor.blocks.KIND_STEPS`): the filter, then the compliant reference.
+
+    :func:`admittance_step` under the EE wrench, then :func:`compliant_reference` of the desired reference record
+    ``desired`` into the record ``compliant``.
+    """
+    admittance_step(r, f_E_W, m_E_W, dt)
+    compliant_reference(r, desired, compliant)
+
+
+@jit
 def compliant_reference(r, des, out) -> None:
     """The desired EE reference record ``des`` displaced by the filter's offsets ``r``, into ``out``.
 
@@ -367,7 +378,7 @@ class AdmittanceFilter:
 
     state_dtype = STATE_DTYPE
     log_fields = ("xi_p_W",)
-    kernel = admittance_step
+    kernel = admittance_block_step
 
     def __init__(self, params: AdmittanceParams | None = None, *, state: np.ndarray | None = None) -> None:
         self.state = st = state_array(STATE_DTYPE, state, "admittance")

@@ -32,6 +32,7 @@ QP solver called from Python (daqp, ProxSuite) calls the same two itself around 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numba
@@ -65,6 +66,9 @@ __all__ = [
 ]
 
 observer_step = compiled_step("observer")
+admittance_block_step = compiled_step("admittance")
+pose_block_step = compiled_step("pose")
+estimator_step = compiled_step("estimator")
 
 _F8, _I8 = np.float64, np.int64
 OWN_DTYPE = np.dtype(
@@ -148,16 +152,27 @@ class ControllerSizes:
 CONTROLLER_DTYPE_FIELDS = ("own", "observer", "admittance", "pose", "desired_ee", "compliant_ee", "body_ref")
 
 
-def controller_dtype(observer_dtype: np.dtype, sizes: ControllerSizes) -> np.dtype:
-    """The controller's one record: its own part, its blocks' states and their sized arrays (module docstring)."""
+@functools.cache
+def controller_dtype(
+    observer_dtype: np.dtype,
+    sizes: ControllerSizes,
+    admittance_dtype: np.dtype = _adm.STATE_DTYPE,
+    pose_dtype: np.dtype = _pose.STATE_DTYPE,
+) -> np.dtype:
+    """The controller's one record: its own part, its blocks' states and their sized arrays (module docstring).
+
+    ``observer_dtype``, ``admittance_dtype``, ``pose_dtype``: the state dtypes of the chosen blocks of those kinds.
+    Equal arguments give the same dtype object: numba's dispatcher types a structured array quickly only for a
+    dtype object it has seen (an equal but new one costs tens of microseconds a call).
+    """
     ref = _traj.REFERENCE_DTYPE
     n = sizes.n_rotors
     return np.dtype(
         [
             ("own", OWN_DTYPE),
             ("observer", observer_dtype),
-            ("admittance", _adm.STATE_DTYPE),
-            ("pose", _pose.STATE_DTYPE),
+            ("admittance", admittance_dtype),
+            ("pose", pose_dtype),
             ("desired_ee", ref),
             ("compliant_ee", ref),
             ("body_ref", ref),
@@ -187,31 +202,32 @@ def _all_finite(x) -> bool:
 # -- the log: one record of the blocks' logged fields ---------------------------------------------------------
 
 
-def log_sources(observer_cls: type) -> tuple:
+def log_sources(
+    observer_cls: type, admittance_cls: type = _adm.AdmittanceFilter, pose_cls: type = _pose.PoseController
+) -> tuple:
     """Where the controller's log groups come from, in log order (:func:`omnirotor.blocks.log_groups`).
 
     Each block's own declaration (``log_fields``, ``log_labels``), and the controller's head: the time, region
     and status, the estimate (``ESTIMATE_LOG_FIELDS``), the EE tip, the compliant and the desired EE
     references, the allocated inputs and the command, the frame supervision's causes.
     """
-    pose = _pose.PoseController
     return (
         ("own", ("t", "region", "status"), {}),
         ("own.estimate", ESTIMATE_LOG_FIELDS, {}),
         ("own", ("p_E_W",), {}),
         ("compliant_ee", _traj.reference_log_fields("E_ref"), {}),
         ("desired_ee", _traj.reference_log_fields("E_des"), {}),
-        ("admittance", _adm.AdmittanceFilter.log_fields, getattr(_adm.AdmittanceFilter, "log_labels", {})),
+        ("admittance", admittance_cls.log_fields, getattr(admittance_cls, "log_labels", {})),
         ("observer", observer_cls.log_fields, getattr(observer_cls, "log_labels", {})),
-        ("pose", pose.log_fields, getattr(pose, "log_labels", {})),
+        ("pose", pose_cls.log_fields, getattr(pose_cls, "log_labels", {})),
         ("rotors", (("u_hz2", ("u_cmd_hz2",)), "omega_cmd_hz"), {}),
         ("supervisor", _sup.LOG_FIELDS, {}),
     )
 
 
-def controller_log_groups(state_dtype: np.dtype, observer_cls: type) -> tuple[LogGroup, ...]:
-    """The groups of the log of a controller whose record is ``state_dtype`` (its observer ``observer_cls``)."""
-    return log_groups(state_dtype, log_sources(observer_cls))
+def controller_log_groups(state_dtype: np.dtype, *classes: type) -> tuple[LogGroup, ...]:
+    """The groups of the log of a controller with the record ``state_dtype`` and these blocks (:func:`log_sources`)."""
+    return log_groups(state_dtype, log_sources(*classes))
 
 
 def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
@@ -219,10 +235,10 @@ def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
     names = getattr(src, "fields", {})
     if "observer" not in names or "rotors" not in names:
         return None
-    observer_cls = class_of_record("observer", src.typeof("observer"))
-    if observer_cls is None:
+    classes = tuple(class_of_record(kind, src.typeof(kind)) for kind in ("observer", "admittance", "pose"))
+    if any(cls is None for cls in classes):
         return None
-    groups = controller_log_groups(as_dtype(src), observer_cls)
+    groups = controller_log_groups(as_dtype(src), *classes)
     return groups if numba.from_dtype(log_dtype(groups)) == dst else None
 
 
@@ -267,19 +283,14 @@ def step_begin(state, frame, row) -> int:
     f = sv.clean
     # 1. the state estimate
     kind = c.estimator
-    if kind == EST_UKF:
-        m = f.mocap
-        mem = st.ukf_memory
+    if kind == EST_UKF:  # the registered estimators, each on its field, by the kind's one signature
         st.ukf.coasting = sv.coasting
-        code, _ = _ek.ukf_step(
-            st.ukf, mem.imu_buf, mem.state_buf, mem.work, f.imu.gyro_B, f.imu.acc_B, f.t, m.new != 0.0, m.t,
-            m.p_W, m.q_WB, e,
-        )  # fmt: skip
+        code = estimator_step(st.ukf, st.ukf_memory, f, e)
         if act & _sup.ACT_REINIT:
-            _ek.ukf_reinit(st.ukf, m.p_W, m.q_WB, e, sv.reinit_v_W)
+            _ek.ukf_reinit(st.ukf, f.mocap.p_W, f.mocap.q_WB, e, sv.reinit_v_W)
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
-        code = _est.bypass_step(f.state, st.bypass, e)
+        code = estimator_step(st.bypass, st.ukf_memory, f, e)
         if code == _est.BYPASS_NO_STATE:
             return STEP_NO_ESTIMATE
     else:
@@ -339,17 +350,16 @@ def step_begin(state, frame, row) -> int:
     observer_step(obs, A, u, a, R, w, dt)
     # 4. the EE wrench, the admittance filter, the desired, compliant and body references
     _adm.ee_wrench(obs.f_ext_W, obs.m_ext_B, R, c.p_E_B, c.f_E_W, c.m_E_W)
-    _adm.admittance_step(st.admittance, c.f_E_W, c.m_E_W, dt)
     if st.segment.active != 0:
         _traj.segment_sample(st.segment, t, st.desired_ee)
     else:
         _traj.trajectory_sample(st.trajectory, t, st.desired_ee)
     if sv.fs_mode != _sup.FS_OFF:  # the failsafe's hold-then-land replaces the reference
         _sup.failsafe_reference(sv, e, c.p_E_B, dt, st.desired_ee)
-    _adm.compliant_reference(st.admittance, st.desired_ee, st.compliant_ee)
+    admittance_block_step(st.admittance, c.f_E_W, c.m_E_W, st.desired_ee, st.compliant_ee, dt)
     _adm.body_reference(st.compliant_ee, c.p_E_B, st.body_ref)
     # 5. the pose controller compensates the whole unexplained wrench (before bias and zeroing)
-    _pose.pose_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
+    pose_block_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
     # 6. the allocation up to its QP
     alloc = _al.alloc_begin(st.allocation, st.allocation_arrays, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
     if alloc == _al.BEGIN_HELD:

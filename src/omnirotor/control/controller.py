@@ -52,12 +52,12 @@ from omnirotor.blocks import block_class, block_names, log_dtype, new_records, n
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
-from omnirotor.control.admittance import AdmittanceFilter, AdmittanceParams, body_reference_from_ee
+from omnirotor.control.admittance import AdmittanceParams, body_reference_from_ee
 from omnirotor.control.allocation import BEGIN_HELD, AllocationParams, Allocator
 from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator, ukf_capacity
 from omnirotor.control.maps import MAP_MODES, MapParams, MapScheduler, schedule_sizes
 from omnirotor.control.observer import ObserverParams
-from omnirotor.control.pose import PoseController, PoseControlParams
+from omnirotor.control.pose import PoseControlParams
 from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
 from omnirotor.control.trajectory import (
     MIN_CAPACITY_WAYPOINTS,
@@ -84,7 +84,7 @@ __all__ = [
 OBSERVER_INPUTS = ("measured", "commanded")
 
 
-def LOG_GROUPS(n_rotors: int, observer_kind: str = "momentum") -> list[tuple[str, tuple[str, ...]]]:  # noqa: N802
+def LOG_GROUPS(n_rotors: int, params: ControllerParams | None = None) -> list[tuple[str, tuple[str, ...]]]:  # noqa: N802
     """Column groups of the controller log for ``n_rotors`` rotors: ``(name, column labels)`` in row order.
 
     Derived from the log record (:func:`omnirotor.control.composer.log_sources`: every block's own
@@ -98,10 +98,15 @@ def LOG_GROUPS(n_rotors: int, observer_kind: str = "momentum") -> list[tuple[str
     allocated inputs; ``omega_cmd_hz`` the command; ``frame_reject`` the frame supervision's cause bits
     (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
-    observer_cls = block_class("observer", observer_kind)
-    sizes = _c.ControllerSizes(n_rotors, 1, 0, 0, 1)
-    groups = _c.controller_log_groups(_c.controller_dtype(observer_cls.state_dtype, sizes), observer_cls)
-    return [(g.name, g.labels) for g in groups]
+    classes = _block_classes(params if params is not None else ControllerParams())
+    dtypes = [cls.state_dtype for cls in classes]
+    state_dtype = _c.controller_dtype(dtypes[0], _c.ControllerSizes(n_rotors, 1, 0, 0, 1), *dtypes[1:])
+    return [(g.name, g.labels) for g in _c.controller_log_groups(state_dtype, *classes)]
+
+
+def _block_classes(params: ControllerParams) -> tuple[type, type, type]:
+    """The observer, admittance and pose classes ``params`` name (the kinds reached through the registry)."""
+    return tuple(block_class(kind, getattr(params, f"{kind}_kind")) for kind in ("observer", "admittance", "pose"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,6 +127,10 @@ class ControllerParams:
         observer_input: "measured" rotor speeds (default) or the "commanded" ones feed the observer.
         observer_kind: the registered name of the observer block (:mod:`omnirotor.blocks`; default
             "momentum", :class:`~omnirotor.control.observer.WrenchObserver`); it is built from ``observer``.
+        admittance_kind: the registered name of the admittance block (default "mass-spring-damper",
+            :class:`~omnirotor.control.admittance.AdmittanceFilter`), built from ``admittance``.
+        pose_kind: the registered name of the pose controller (default "geometric-pid",
+            :class:`~omnirotor.control.pose.PoseController`), built from ``pose``.
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -135,6 +144,8 @@ class ControllerParams:
     log_capacity: int = 120_000
     observer_input: str = "measured"
     observer_kind: str = "momentum"
+    admittance_kind: str = "mass-spring-damper"
+    pose_kind: str = "geometric-pid"
 
     def __post_init__(self) -> None:
         check_positive("controller dt", self.dt)
@@ -142,8 +153,10 @@ class ControllerParams:
             raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
-        if self.observer_kind not in block_names("observer"):
-            block_class("observer", self.observer_kind)  # raises, listing the registered observers
+        for kind in ("observer", "admittance", "pose"):
+            name = getattr(self, f"{kind}_kind")
+            if not isinstance(name, str) or name not in block_names(kind):
+                block_class(kind, str(name))  # raises, listing the registered blocks of that kind
 
 
 def load_controller_params(
@@ -151,9 +164,9 @@ def load_controller_params(
 ) -> ControllerParams:
     """Controller parameters from a TOML file and/or dotted ``key=value`` overrides.
 
-    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, ``observer_kind`` and sections ``[pose]``,
-    ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]`` whose keys are the
-    fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
+    The file has top-level ``dt``, ``log_capacity``, ``observer_input``, the ``*_kind`` block names and sections
+    ``[pose]``, ``[allocation]``, ``[maps]``, ``[observer]``, ``[admittance]``, ``[estimator]``, ``[supervisor]``
+    whose keys are the fields of the blocks' parameter classes; unknown keys are errors. Overrides look like
     ``"observer.cutoff_hz=5"`` or ``"admittance.stiffness_pos=[30, 30, 30]"``.
 
     Args:
@@ -213,11 +226,12 @@ class InteractionController:
         self._fast = False  # step() is one compiled call (set by reset)
         self.estimator = None
         self._assemble(packed_capacity(MIN_CAPACITY_WAYPOINTS))
-        observer_cls = block_class("observer", p.observer_kind)
-        self.log_groups = _c.controller_log_groups(self.state.dtype, observer_cls)
+        self.log_groups = _c.controller_log_groups(self.state.dtype, *_block_classes(p))
         self.log_dtype = log_dtype(self.log_groups)
         self.log = Recorder(p.log_capacity, [(g.name, g.labels) for g in self.log_groups], grow_rows=p.log_capacity)
         self._no_row = np.zeros(0, self.log_dtype)
+        self._row = new_records(self.log_dtype)  # the row the step writes (the log's row is its copy)
+        self._row_values = self._row.view(np.float64)
 
     def _assemble(self, trajectory_capacity: int) -> None:
         """Build the controller's record and every block on its field (a trajectory of that many floats).
@@ -226,11 +240,14 @@ class InteractionController:
         not live in the record (a stand-in given by the user) is kept.
         """
         p, vehicle, n = self.params, self.vehicle, self._n
-        observer_cls = block_class("observer", p.observer_kind)
+        observer_cls, admittance_cls, pose_cls = _block_classes(p)
         n_regions, n_intervals = schedule_sizes(self._wrench_maps)
         self.sizes = _c.ControllerSizes(n, ukf_capacity(p.estimator), n_regions, n_intervals, trajectory_capacity)
         old = getattr(self, "state", None)
-        self.state = state = new_state(_c.controller_dtype(observer_cls.state_dtype, self.sizes))
+        dtype = _c.controller_dtype(
+            observer_cls.state_dtype, self.sizes, admittance_cls.state_dtype, pose_cls.state_dtype
+        )
+        self.state = state = new_state(dtype)
         self._own = own = state[0]["own"]
         est = self.estimator
         est_state = getattr(est, "state", None)
@@ -241,8 +258,8 @@ class InteractionController:
             vehicle, self._wrench_maps, p.maps, state=state["maps"], arrays=state["maps_arrays"]
         )
         self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
-        self.admittance = AdmittanceFilter(p.admittance, state=state["admittance"])
-        self.pose = PoseController(vehicle, p.pose, state=state["pose"])
+        self.admittance = admittance_cls(p.admittance, state=state["admittance"])
+        self.pose = pose_cls(vehicle, p.pose, state=state["pose"])
         self.allocator = Allocator(vehicle, p.allocation, state=state["allocation"], arrays=state["allocation_arrays"])
         if self._failed_mask is not None:
             self.allocator.set_failed_rotors(self._failed_mask)
@@ -492,7 +509,9 @@ class InteractionController:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
         record = self._record(frame)
         data = self.log.next_row()
-        row = self._no_row if data is None else data.view(self.log_dtype)  # the row's floats as the log record
+        # The step writes the controller's own row record (one array object: numba types a new view of a
+        # structured dtype slowly), copied into the log's row below.
+        row = self._no_row if data is None else self._row
         if self.estimator is self._kernel_estimator and self._fast:
             # A compiled estimator and QP: one compiled call.
             bits = _c.controller_step(self.state, record, row)
@@ -500,6 +519,8 @@ class InteractionController:
             bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
+        if data is not None:
+            data[:] = self._row_values
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])

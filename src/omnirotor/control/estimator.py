@@ -340,6 +340,7 @@ class UKFEstimator:
 
     state_dtype = _ek.UKF_DTYPE
     log_fields = ()
+    kernel = _ek.ukf_block_step
 
     def __init__(
         self,
@@ -425,7 +426,7 @@ class UKFEstimator:
         "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
         "n_nonfinite", "last_rejected", "degraded", "noise_var_pos", "noise_var_att", "n_noise_adapted",
         "noise_pos_std_max", "noise_att_std_max", "noise_n", "noise_var_pos_top", "noise_var_att_top",
-        "n_noise_discounts",
+        "n_noise_discounts", "coasting", "innov_ema_W", "drift_on", "n_drift",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
 
@@ -681,6 +682,15 @@ def bypass_step(s, r, out) -> int:
     return _ek.STEP_REJECTED | _ek.STEP_DEGRADED
 
 
+@jit
+def bypass_block_step(r, memory, f, out) -> int:
+    """The estimator kind's step (:data:`omnirotor.blocks.KIND_STEPS`): :func:`bypass_step` on a frame head's state.
+
+    ``memory`` (the controller's sized estimator memory) is not used: the signature is the kind's.
+    """
+    return bypass_step(f.state, r, out)
+
+
 @jit_entry
 def _bypass_step_entry(frame, state, out) -> int:
     """:func:`bypass_step` on ``(1,)`` arrays (a call from Python)."""
@@ -711,7 +721,7 @@ class BypassEstimator:
 
     state_dtype = BYPASS_DTYPE
     log_fields = ()
-    kernel = bypass_step
+    kernel = bypass_block_step
 
     def __init__(
         self,

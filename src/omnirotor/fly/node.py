@@ -31,8 +31,11 @@ Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
 
 A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
-counted bad and dropped (a repeated start frame, a replay, a forged or corrupted number that would otherwise
-lock the real frames out); after a link loss any number is followed again.
+counted bad and dropped (a replay, a forged or corrupted number that would otherwise lock the real frames out);
+after a link loss any number is followed again. The one exception is the plant's start frame (number 0), which
+the simulator repeats every 10 ms until it has obeyed a command answering it: repeated, it is answered again
+with the same command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a
+busy machine is not a link loss.
 
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
@@ -87,6 +90,7 @@ __all__ = [
 _STATE_ARMED = 1
 _STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
+_RECENT = 1000
 MAX_FRAME_JUMP = 1000
 """The largest step of the frame number the loop follows (a second of frames); larger ones count as bad."""
 _FRAME_DEPTH = 32
@@ -169,6 +173,18 @@ class LoopStats:
         self.periods += n
         self.missed += n
         self.late += n
+
+    def recent_p99_s(self) -> float:
+        """Frame-to-command p99 [s] of the last 1000 answered frames, for the status.
+
+        A percentile of the whole window (up to 131 072 samples) took milliseconds: at 50 Hz it made periods late.
+        """
+        n = min(self._i, _RECENT)
+        if n == 0:
+            return 0.0
+        i = self._i % _LATENCY_WINDOW
+        recent = self._latency[i - n : i] if i >= n else np.concatenate((self._latency[i - n :], self._latency[:i]))
+        return float(np.percentile(recent, 99))
 
     def latency_percentiles_us(self) -> dict:
         """Frame-to-command latency p50/p99/max [µs] over the last window."""
@@ -256,6 +272,8 @@ class NodeLoop:
 
         def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
             last = self._last_seq
+            if last == 0 and msg.seq == 0 and shape_ok(msg):  # the plant repeats its start frame: answer again
+                return True
             return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
 
         self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
@@ -287,6 +305,8 @@ class NodeLoop:
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
         self.cmd_seq = 0
+        self.start_answers = 0
+        """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
         self.link_lost = False
         self.link_lost_age_s = math.nan
         self.finished = False
@@ -359,9 +379,7 @@ class NodeLoop:
         set_stamp(m.header, m.t)
         m.periods, m.periods_late, m.overruns = s.periods, s.late, s.overruns
         m.worst_late_s = s.worst_late_s
-        p99 = s.latency_percentiles_us().get("p99", 0.0) if s.periods % 50 == 0 or self.link_lost else None
-        if p99 is not None:
-            m.frame_to_command_p99_s = 1e-6 * p99
+        m.frame_to_command_p99_s = s.recent_p99_s()
         m.frames = s.frames
         m.frames_bad = self._frames.n_bad
         m.link_lost = self.link_lost
@@ -376,6 +394,16 @@ class NodeLoop:
                     self.live.status(status)
             except Exception:  # noqa: BLE001  (a status that cannot be built is skipped and counted, never fatal)
                 self.stats.status_errors += 1
+
+    def _republish_command(self, t: float) -> None:
+        """The last command again (a new sequence number, the same frame it answers)."""
+        m = self.msgs.command
+        if self.cmd_seq == 0 or m.t != t:
+            return
+        self.cmd_seq += 1
+        m.seq = self.cmd_seq
+        self._pub_cmd.put(m)
+        self.start_answers += 1
 
     def _publish_wrench(self, t: float) -> None:
         log = self.controller.log
@@ -491,6 +519,12 @@ class NodeLoop:
                     if self.link_lost and o.exit_on_link_loss:
                         break
                     continue
+                if msg.seq == 0 and last_seq == 0:
+                    # the plant's start frame again: our answer has not reached it yet (it repeats the frame
+                    # every 10 ms until it obeys one); the same answer again, nothing stepped, the link alive
+                    self._republish_command(msg.t)
+                    last_seen = mono()
+                    continue
                 # a new frame
                 arrival = now
                 if self.link_lost:
@@ -556,6 +590,7 @@ class NodeLoop:
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
+        out["start_frame_answered_again"] = self.start_answers
         out["session_id"] = f"{self.session_id:016x}"
         return out
 
@@ -597,12 +632,14 @@ class NodeLoop:
             self.finished = True
 
 
-def warm_up(controller) -> None:
+def warm_up(controller, trajectory=None) -> None:
     """Compile (or load from numba's cache) the controller's kernels before the first real frame.
 
-    One reset and one step on a synthetic hover frame; the controller's next :meth:`reset` (the director's, on
-    the first real frame) starts it anew and clears its log. Best effort: a controller that refuses the
-    synthetic frame (the bypass estimator wants a state) compiles on its first real frame instead.
+    One reset and one step on a synthetic hover frame, with ``trajectory`` (the one the flight will reset with,
+    so that the controller's record is already sized for it and the director's reset compiles nothing; a
+    hover at the frame's pose when None); the controller's next :meth:`reset` (the director's, on the first
+    real frame) starts it anew and clears its log. Best effort: a controller that refuses the synthetic frame
+    (the bypass estimator wants a state) compiles on its first real frame instead.
     """
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 
@@ -614,7 +651,8 @@ def warm_up(controller) -> None:
     q = np.array([1.0, 0.0, 0.0, 0.0])
     first = SensorFrame(0.0, acc, np.zeros(3), hz.copy(), True, 0.0, p_W, q)
     second = SensorFrame(controller.params.dt, acc, np.zeros(3), hz.copy(), False)
-    trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
+    if trajectory is None:
+        trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
     try:
         controller.reset(first, trajectory)
         controller.step(second)
@@ -690,7 +728,7 @@ def fly_mission(
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
         del sim, progress, video, on_step  # the plant is the simulator's
         controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
-        warm_up(controller)
+        warm_up(controller, trajectory)
         node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
         if realtime is not None and not node_options.lockstep:  # lockstep polls without pause: no real-time class
             realtime()

@@ -88,6 +88,9 @@ MISSION_OPTION_FIELDS = (
 
 _COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
+_START_REPEAT_S = 0.01
+"""The start frame is repeated this often until a command answering it is obeyed [s] (well inside the node's
+50 ms link loss: each repetition is answered again and keeps its link alive)."""
 _LOCKSTEP_WAIT_S = 0.05  # lockstep: the longest sleep on the command queue before the failsafe's clock is read [s]
 
 
@@ -179,6 +182,7 @@ class SimLink:
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
         self.gate = CommandGate()
         self.rows_malformed = 0
+        self.stale_commands = 0
         self.cmd_hz = np.zeros(n_rotors)
         self.cmd_frame_seq = -1
         self.cmd_wall_s = -math.inf  # monotonic time of the last obeyed command
@@ -219,7 +223,9 @@ class SimLink:
         got = False
         msg = self._sub_cmd.take(timeout_s)
         while msg is not None:
-            if self.gate.offer(int(msg.session_id), int(msg.seq)):
+            if int(msg.session_id) == self.gate.paired and int(msg.frame_seq) < self.cmd_frame_seq:
+                self.stale_commands += 1  # an answer to an older frame than one obeyed (a repeated start frame's)
+            elif self.gate.offer(int(msg.session_id), int(msg.seq)):
                 self.cmd_hz[:] = msg.hz
                 self.cmd_frame_seq = int(msg.frame_seq)
                 self.cmd_t = float(msg.t)
@@ -402,7 +408,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     gc.collect()  # now, not between the first command and the first step
     gc.freeze()
     gc.disable()
-    # wait for the node: the start frame goes out every 50 ms until a command answering it is obeyed
+    # wait for the node: the start frame goes out every 10 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
     try:
@@ -415,7 +421,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if now >= next_send:
                 link.send_frame(record, 0)
                 link.send_status(float(record["t"][0]), 0, 0, False, "", force=True)
-                next_send = now + 0.05
+                next_send = now + _START_REPEAT_S
             link.poll_commands()
             time.sleep(0.0005)
         wall0 = time.monotonic()
