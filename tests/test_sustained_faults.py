@@ -236,3 +236,21 @@ def test_the_imu_coasts_after_the_hold_and_the_acceleration_beyond_the_rotors_is
     np.testing.assert_allclose(rec["clean"]["imu"]["acc_B"], (0.0, 0.0, 9.81))
     np.testing.assert_allclose(rec["clean"]["imu"]["gyro_B"], 0.0)
     assert rec["blind"] == 0  # motion capture came 10 ms ago
+
+
+def test_the_sign_of_a_motion_capture_quaternion_never_matters():
+    """q and -q are the same attitude: neither the supervision nor the UKF's innovation tells them apart."""
+    from omnirotor.control._estimator_kernels import mocap_sample_valid
+
+    state, est = _supervisor()
+    rec = state[0]
+    t = 1.0
+    for k in range(40):  # the sign flips every other sample
+        t += 0.01
+        f = _hover_frame(t, 1e-4 * (k % 5))
+        if k % 2:
+            f["mocap"]["q_WB"] *= -1.0
+        sup.supervise(rec, f[0], est[0])
+        assert rec["cause"] == 0, (k, sup.causes_of(int(rec["cause"])))
+        assert rec["clean"]["mocap"]["new"] == 1.0
+        assert mocap_sample_valid(f["mocap"]["p_W"][0], f["mocap"]["q_WB"][0], 0.1)
