@@ -7,8 +7,11 @@
   controller step and publishing included; p50, p99, max) and the real-time factor, with and without the ROS
   views (Imu, PoseStamped, RotorSpeeds published beside the frame every period);
 * real-time SITL (the same hover on the wall clock): the node's periods late by more than 0.5 ms per 10^5, its
-  frame-to-command latency inside the node, and its CPU time per frame; quiet, and with a CPU hog (a busy
-  Python process) pinned on the other core.
+  frame-to-command latency inside the node, and its CPU time per frame (the process's, Zenoh's threads included,
+  and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core.
+
+The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
+are not the issue's quiet-machine figures.
 
 Goals of the issue (quiet machine): round trip p99 <= 250 µs; <= 0.1 % of periods late (100 per 10^5);
 lockstep >= 5x real time. Never part of the test suite.
@@ -79,7 +82,8 @@ def cpu_hog(cpu: int):
 def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
     """Every figure of the module docstring."""
     lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
-    out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS}
+    out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS,
+                 "load_before": os.getloadavg(), "cpus": os.cpu_count()}  # fmt: skip
     note("warm-up (numba cache)")
     run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
     for views in (False, True):
@@ -89,6 +93,7 @@ def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
             "round_trip_us": r["sim"]["round_trip_us"],
             "rtf": r["sim"]["real_time_factor"],
             "node_cpu_per_frame_us": r["node"]["cpu_per_frame_us"],
+            "node_loop_cpu_per_frame_us": r["node"].get("loop_cpu_per_frame_us"),
             "node_work_us": r["node"]["work_us"],
         }
     n_cpus = os.cpu_count() or 1
@@ -105,15 +110,20 @@ def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
             "worst_late_ms": node["worst_late_ms"],
             "frame_to_command_us": node["frame_to_command_us"],
             "node_cpu_per_frame_us": node["cpu_per_frame_us"],
+            "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
             "sim_late_steps": r["sim"]["late_steps"],
             "sim_round_trip_us": r["sim"]["round_trip_us"],
         }
+    out["load_after"] = os.getloadavg()
     return out
 
 
 def render(r: dict) -> str:
     """The figures as Markdown lines."""
-    lines = [f"Transport (two processes over Zenoh on loopback; {'quick' if r['quick'] else 'full'} sizes):", ""]
+    load = r.get("load_before"), r.get("load_after")
+    where = f"{r.get('cpus')} CPUs, load average {load[0][0]:.1f} before, {load[1][0]:.1f} after" if all(load) else ""
+    lines = [f"Transport (two processes over Zenoh on loopback; {'quick' if r['quick'] else 'full'} sizes; {where}):",
+             ""]  # fmt: skip
     lines += ["| measurement | p50 | p99 | max | other |", "|---|---|---|---|---|"]
     for key, label in (("lockstep_views_off", "lockstep round trip, frame only"),
                        ("lockstep_views_on", "lockstep round trip, frame + ROS views")):  # fmt: skip
@@ -121,7 +131,7 @@ def render(r: dict) -> str:
         rt = d["round_trip_us"]
         lines.append(
             f"| {label} [µs] | {rt['p50']:.0f} | {rt['p99']:.0f} | {rt['max']:.0f} | {d['rtf']:.2f}x real time; "
-            f"node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame |"
+            f"node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame ({_loop(d)} in its loop) |"
         )
     for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0")):
         if key not in r:
@@ -131,9 +141,15 @@ def render(r: dict) -> str:
         lines.append(
             f"| {label}: node frame to command [µs] | {f['p50']:.0f} | {f['p99']:.0f} | {f['max']:.0f} | "
             f"late > 0.5 ms: {d['late']} of {d['periods']} ({d['late_per_1e5']:.0f} per 1e5), worst "
-            f"{d['worst_late_ms']:.1f} ms; node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame |"
+            f"{d['worst_late_ms']:.1f} ms; node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame ({_loop(d)} in its "
+            "loop) |"
         )
     return "\n".join(lines)
+
+
+def _loop(d: dict) -> str:
+    v = d.get("node_loop_cpu_per_frame_us")
+    return "?" if v is None else f"{v:.0f}"
 
 
 def main(argv: list[str] | None = None) -> int:

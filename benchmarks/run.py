@@ -1343,11 +1343,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-rotorpy", action="store_true", help="skip the RotorPy side even if it is installed")
     ap.add_argument("--data", type=Path, default=DATA_DIR, help="hover flight data folder for the identification QP")
     ap.add_argument("--transport", action="store_true", help="only the flight transport's figures (bench_transport)")
+    ap.add_argument("--fly", action="store_true", help="only the flight node's per-period logic (bench_fly)")
     args = ap.parse_args(argv)
     if args.transport:
         import bench_transport
 
         return bench_transport.main(["--quick"] if args.quick else [])
+    if args.fly:
+        import bench_fly
+
+        bench_fly.main(["--periods", "5000" if args.quick else "20000"])
+        return 0
     wide = None if sys.stderr.isatty() else 150  # files and pipes: do not squeeze the tables to 80 columns
     err = Console(stderr=True, width=wide)
     if args.from_json:

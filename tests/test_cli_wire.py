@@ -28,6 +28,12 @@ def _taken_port():
         (["sim", "--serve", "--task", "hover", "--fifo-priority", "100"], "--fifo-priority"),
         (["fly", "--cpu", "4096"], "--cpu"),
         (["fly", "--fifo-priority", "-1"], "--fifo-priority"),
+        (["fly", "--foxglove-port", "70000"], "--foxglove-port"),
+        (["fly", "--maps", "missing.json"], "--maps"),
+        (["fly", "--mission-from-sim", "--maps", "missing.json"], "--maps is for interactive flights"),
+        (["fly", "--record", "no/such/folder/bag"], "--record"),
+        (["sim", "--serve", "--foxglove-port", "-1"], "--foxglove-port"),
+        (["sim", "--serve", "--task", "hover", "--record", "no/such/folder/bag"], "--record"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, says, capsys, tmp_path, monkeypatch):
@@ -45,3 +51,13 @@ def test_a_port_in_use_is_one_line(capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("omnirotor: error: cannot open the Zenoh session"), err
+
+
+@pytest.mark.parametrize("argv", [["fly"], ["sim", "--serve", "--task", "hover"]])
+def test_a_recording_that_exists_is_refused_before_anything_runs(argv, capsys, tmp_path):
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "bag" / "keep.txt").write_text("mine")
+    assert main([*argv, "--record", str(tmp_path / "bag")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists already" in err[0], err
+    assert [p.name for p in (tmp_path / "bag").iterdir()] == ["keep.txt"]

@@ -79,3 +79,16 @@ def test_ctl_bad_input_and_no_node_exit_2_with_one_line(served, capsys):
     assert main(["ctl", "--connect", free, "--timeout", "0.3", "arm"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no answer from a flight node on /omnirotor/ctl" in err
+
+
+def test_connection_options_may_follow_the_request(served, capsys):
+    """``ctl status --connect X`` as a user types it: the group's options after the request's name."""
+    _, base = served
+    connect, namespace = base[2], base[4]
+    assert main(["ctl", "status", "--connect", connect, "--namespace", namespace, "--timeout", "2"]) == 0
+    assert capsys.readouterr().out.startswith("accepted: status: mode")
+    assert main(["ctl", "goto", "0.5", "-0.3", "1.2", f"--connect={connect}", "--yaw", "-90",
+                 f"--namespace={namespace}"]) == 1  # fmt: skip
+    assert capsys.readouterr().out.startswith("refused: goto: not flying")
+    assert main(["ctl", "--connect", connect, "status", "--namespace", namespace]) == 0  # either side
+    assert capsys.readouterr().out.startswith("accepted: status: mode")

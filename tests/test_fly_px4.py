@@ -112,3 +112,61 @@ def test_profile_names_px4_topics_and_known_types():
     shipped = {r.msgtype for r in PX4_PROFILE if r.msgtype in known}
     assert {"px4_msgs/msg/SensorCombined", "px4_msgs/msg/EscStatus", "px4_msgs/msg/ActuatorMotors",
             "px4_msgs/msg/VehicleOdometry"} <= shipped  # fmt: skip
+
+
+def _decoded(name: str, msg):
+    """The message through CDR and back with the type store built from the shipped definitions."""
+    store = typestore()
+    return store.deserialize_cdr(bytes(store.serialize_cdr(msg, name)), name)
+
+
+def test_offboard_sequence_streams_the_heartbeat_switches_mode_then_arms_then_disarms():
+    """Decoded with the type store: heartbeat >= 2 Hz, mode switch after the lead, arm once offboard, disarm."""
+    from omnirotor.fly.px4 import (
+        PX4_CUSTOM_MAIN_MODE_OFFBOARD,
+        VEHICLE_CMD_COMPONENT_ARM_DISARM,
+        VEHICLE_CMD_DO_SET_MODE,
+        Px4Offboard,
+    )
+
+    px4 = Px4Offboard(heartbeat_hz=10.0, lead_s=1.0, retry_s=0.5)
+    beats, commands = [], []
+    for k in range(5000):  # 5 s at 1 kHz from PX4 time 1 s; the node arms at 1.5 s and disarms at 5 s
+        t_us = 1_000_000 + 1000 * k
+        armed = 500 <= k < 4000
+        if k == 2200:
+            px4.px4_state(armed=False, offboard=True)  # PX4 reports the switch
+        if k == 2600:
+            px4.px4_state(armed=True, offboard=True)  # and the arming
+        if k == 4300:
+            px4.px4_state(armed=False, offboard=True)  # and the disarming
+        for route, msg in px4.period(t_us, armed):
+            if route == "offboard_control_mode":
+                m = _decoded("px4_msgs/msg/OffboardControlMode", msg)
+                assert m.direct_actuator and not (m.position or m.velocity or m.attitude or m.thrust_and_torque)
+                beats.append(m.timestamp)
+            else:
+                commands.append(_decoded("px4_msgs/msg/VehicleCommand", msg))
+    beats = np.array(beats)
+    assert beats[0] == 1_500_000 and beats[-1] < 5_000_000  # while armed only
+    assert np.all(np.diff(beats) == 100_000)  # 10 Hz, PX4 wants >= 2 Hz
+    kinds = [(c.command, c.param1, c.param2, c.timestamp) for c in commands]
+    modes = [k for k in kinds if k[0] == VEHICLE_CMD_DO_SET_MODE]
+    arms = [k for k in kinds if k[0] == VEHICLE_CMD_COMPONENT_ARM_DISARM and k[1] == 1.0]
+    disarms = [k for k in kinds if k[0] == VEHICLE_CMD_COMPONENT_ARM_DISARM and k[1] == 0.0]
+    assert modes[0] == (VEHICLE_CMD_DO_SET_MODE, 1.0, PX4_CUSTOM_MAIN_MODE_OFFBOARD, 2_500_000)  # after 1 s of beats
+    assert len(modes) == 2  # repeated every 0.5 s until PX4 reported offboard (at 3.2 s)
+    assert arms[0][3] == 3_200_000 and len(arms) == 1  # armed once PX4 is in offboard; confirmed at 3.6 s
+    assert max(m[3] for m in modes) < arms[0][3]
+    assert [d[3] for d in disarms] == [5_000_000]  # at once (PX4 time 5 s), confirmed before the retry is due
+    assert all(c.from_external and c.target_system == 1 and c.target_component == 1 for c in commands)
+
+
+def test_offboard_gives_up_a_command_px4_never_confirms_and_says_so():
+    from omnirotor.fly.px4 import Px4Offboard
+
+    px4 = Px4Offboard(lead_s=0.0, retry_s=0.1, max_tries=3)
+    sent = sum(route == "vehicle_command" for k in range(2000) for route, _ in px4.period(1000 * k, True))
+    assert sent == 3 and px4.gave_up == ["mode switch to offboard"]
+    with pytest.raises(InputError, match="2 Hz"):
+        Px4Offboard(heartbeat_hz=1.0)

@@ -94,3 +94,90 @@ def test_kernels_outside_the_package_are_keyed_on_their_own_file(tmp_path: Path)
     assert f.resolve() in files and SRC / "so3.py" in files
     h = _closure_hash(str(f))
     assert source_closure("<string>") == () and len(h) == 64
+
+
+NT_KERNEL_V1 = """
+from typing import NamedTuple
+
+import numpy as np
+
+from omnirotor._jit import jit
+
+
+class Pair(NamedTuple):
+    a: np.ndarray
+    b: np.ndarray
+
+
+@jit
+def kernel(p):
+    return p.a[0] + p.b[0]
+
+
+def call():
+    return kernel(Pair(np.ones(1), np.ones(1)))
+"""
+NT_KERNEL_V2 = """
+import numpy as np
+
+from omnirotor._jit import jit
+
+# The NamedTuple is gone; the kernel stays on the same line (numba names its index after the line).
+#
+#
+#
+#
+#
+
+
+@jit
+def kernel(a):
+    return 3.0 * a[0]
+
+
+def call():
+    return kernel(np.ones(1))
+"""
+NT_PROBE = "import json\nfrom omnirotor._probe_nt import call\nprint(json.dumps({'value': call()}))\n"
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_a_cache_naming_a_removed_class_is_a_miss_not_an_error(tmp_path: Path) -> None:
+    """A kernel once took a NamedTuple whose class a later version removed (as issue 23's records did).
+
+    numba unpickles a cache index before it compares its stamp; an index naming the removed class raised
+    ``AttributeError`` in every run after an update. Each source version has its own cache folder now.
+    """
+    pkg = tmp_path / "omnirotor"
+    shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    env = dict(os.environ, PYTHONPATH=str(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+
+    def run() -> float:
+        proc = subprocess.run([sys.executable, "-c", NT_PROBE], env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads(proc.stdout.strip().splitlines()[-1])["value"]
+
+    line = [i for i, t in enumerate(NT_KERNEL_V1.splitlines()) if t.startswith("def kernel")]
+    assert line == [i for i, t in enumerate(NT_KERNEL_V2.splitlines()) if t.startswith("def kernel")]
+    (pkg / "_probe_nt.py").write_text(NT_KERNEL_V1)
+    assert run() == 2.0
+    (pkg / "_probe_nt.py").write_text(NT_KERNEL_V2)
+    assert run() == 3.0
+    (pkg / "_probe_nt.py").write_text(NT_KERNEL_V1)  # back to the first version: its folder is still there
+    assert run() == 2.0
+    folders = list((pkg / "__pycache__").glob("deps-*"))
+    assert 2 <= len(folders)
+
+
+def test_old_cache_folders_are_pruned(tmp_path: Path) -> None:
+    from omnirotor._jit import _KEEP_CACHE_FOLDERS, _prune_cache_folders
+
+    for i in range(_KEEP_CACHE_FOLDERS + 3):
+        d = tmp_path / f"deps-{i:02d}"
+        d.mkdir()
+        (d / "k.nbi").write_bytes(b"x")
+        os.utime(d, ns=(i * 10**9, i * 10**9))
+    _prune_cache_folders(str(tmp_path))
+    kept = sorted(f.name for f in tmp_path.glob("deps-*"))
+    assert kept == [f"deps-{i:02d}" for i in range(3, _KEEP_CACHE_FOLDERS + 3)]

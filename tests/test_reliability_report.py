@@ -27,7 +27,9 @@ def test_every_probe_gets_one_line_and_exit_2_and_the_doc_is_current():
     doc = (ROOT / "docs" / "reliability.md").read_text()
     noise = tool.noise_rows_in(doc)  # measured by the tool (33 hovers); the closed-loop claim is tested elsewhere
     assert [(t, told) for t, told, *_ in noise] == [(round(t, 9), round(told, 9)) for t, told in tool.NOISE_CASES]
-    assert doc == tool.render(results, glitches, noise), (
+    sustained = tool.sustained_rows_in(doc)  # flown by the tool; the bounds are asserted by test_sustained_faults
+    assert len(sustained) >= 26
+    assert doc == tool.render(results, glitches, noise, sustained), (
         "docs/reliability.md is not current: run python tools/reliability_report.py"
     )
 

@@ -48,7 +48,11 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
     valid = {
         FRAME: bytes(store.serialize_cdr(w.frame, FRAME)),
         COMMAND: bytes(store.serialize_cdr(w.command, COMMAND)),
-        CONTROLLER_LOG: bytes(store.serialize_cdr(T[CONTROLLER_LOG](frame_seq=3, row=np.ones(5)), CONTROLLER_LOG)),
+        CONTROLLER_LOG: bytes(
+            store.serialize_cdr(
+                T[CONTROLLER_LOG](frame_seq=np.array([3], np.uint64), n_columns=5, rows=np.ones(5)), CONTROLLER_LOG
+            )
+        ),
     }
     with Pair(tmp_path, "hover", ["--seed", "4", "--duration", "8"], lockstep=False) as pair, pair.transport() as t:
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)

@@ -6,6 +6,7 @@ bounded, children killed on failure.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -121,13 +122,30 @@ def test_an_independent_ros2_listener_decodes_every_topic(tmp_path):
                 assert digest == store.hash_rihs01(msgtype), msgtype
                 msg = store.deserialize_cdr(sample.payload.to_bytes(), msgtype)
                 assert msg.__msgtype__ == msgtype
-                key, seq, key2, _stamp, key3, gid = z_deserialize(
-                    tuple[str, Int64, str, Int64, str, bytes], sample.attachment
-                )
-                assert (key, key2, key3) == ("sequence_number", "source_timestamp", "source_gid")
-                assert seq >= 1 and len(gid) == 16
+                # rmw_zenoh's attachment (zenoh-cpp's serializer): int64 sequence number, int64 source time
+                # stamp [ns], the 16-byte publisher id as a sequence
+                seq, stamp, gid = z_deserialize(tuple[Int64, Int64, bytes], sample.attachment)
+                assert seq >= 1 and len(gid) == 16 and abs(stamp - time.time_ns()) < 60 * 10**9
                 seen[topic] = seen.get(topic, 0) + 1
         finally:
             session.close()
         pair.kill()
     assert want <= set(seen), sorted(seen)
+
+
+@pytest.mark.slow
+def test_a_task_cut_by_the_failsafe_says_why_it_has_no_metrics_without_a_traceback(tmp_path):
+    """Point contact with the node killed early: the metrics of the unflown contact cannot exist (once a traceback)."""
+    with Pair(tmp_path, "point-contact", ["--seed", "1", "--quick"], lockstep=False) as pair, pair.transport() as t:
+        flying(pair, t, 1000)
+        os.kill(pair.node.pid, signal.SIGKILL)
+        try:
+            sim_out, _ = pair.sim.communicate(timeout=300)
+        finally:
+            pair.kill()
+    err = pair.text("sim")
+    assert pair.sim.returncode == 1, err[-3000:]
+    assert "Traceback" not in err
+    assert "offboard-loss failsafe stopped the rotors after" in err and "metrics cannot be computed" in err
+    out = json.loads(sim_out)
+    assert out["metrics"] is None and out["sitl"]["failsafe"] and out["task"] == "point-contact"

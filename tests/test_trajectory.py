@@ -125,3 +125,29 @@ def test_waypoint_arrays_are_private_copies():
     assert w.p_W[0] == 0.0
     with pytest.raises(ValueError):
         w.p_W[0] = 1.0
+
+
+@pytest.mark.parametrize("quick", [False, True])
+def test_every_shipped_task_fits_the_default_record(quick: bool) -> None:
+    """A reset with any task's trajectory keeps the controller's record (a larger one compiles the step again,
+    which a flight node cannot afford after pairing: the lockstep SITL point contact stalled 5 s on it)."""
+    from omnirotor.control.controller import ControllerParams, InteractionController
+    from omnirotor.experiments.tasks import scenarios
+    from omnirotor.messages import SensorFrame
+    from omnirotor.sim import SimParams
+    from omnirotor.vehicle import load_vehicle
+
+    vehicle = load_vehicle()
+    controller = InteractionController(vehicle, ControllerParams())
+    dtype = controller.state.dtype
+    scene = SimParams().scene
+    u = vehicle.hover_input()
+    hz = np.sign(u) * np.sqrt(np.abs(u))
+    for make in (scenarios.point_contact, scenarios.point_contact_tilted, scenarios.sliding, scenarios.peg_in_hole):
+        sc = make(scene, quick=quick)
+        w = sc.waypoints[0]
+        frame = SensorFrame(
+            0.0, np.array([0.0, 0.0, 9.81]), np.zeros(3), hz, True, 0.0, np.asarray(w.p_W), np.array([1.0, 0, 0, 0])
+        )
+        controller.reset(frame, PoseTrajectory(list(sc.waypoints)))
+        assert controller.state.dtype == dtype, make.__name__

@@ -191,7 +191,7 @@ def test_registry_takes_another_transport():
             return (lambda payload, seq: None), name
 
         def _subscriber(self, name, msgtype, depth):
-            return (lambda: None), (lambda: None), name
+            return (lambda timeout_s: None), (lambda: None), name
 
         def _serve(self, name, reqtype, on_request):
             """A transport that carries nothing serves nothing."""
@@ -228,3 +228,92 @@ def test_a_zenoh_configuration_file_is_the_base(tmp_path):
     bad.write_text("{ listen: ")
     with pytest.raises(InputError, match="Zenoh configuration"):
         open_transport(config_file=str(bad))
+
+
+def test_attachment_writer_gives_zenohs_own_serialisation():
+    """The template patched per sample is byte for byte what zenoh.ext serialises for the same values."""
+    import struct
+
+    from omnirotor.transport.zenoh_transport import AttachmentWriter, ros_attachment
+
+    gid = bytes(range(16))
+    write = AttachmentWriter(gid)
+    for seq in (1, 2, 1000, 2**40 + 3):
+        a = write(seq)
+        stamp = struct.unpack_from("<q", a, 8)[0]  # after the int64 sequence number
+        assert abs(stamp - time.time_ns()) < 10**9
+        assert a == ros_attachment(seq, gid, stamp)
+
+
+def test_publisher_payload_is_rosbags_serialisation_and_reuses_no_stale_bytes():
+    """The kept buffer gives Typestore.serialize_cdr's bytes, also when the message's size changes."""
+    store = typestore()
+    port = free_port()
+    with open_transport(listen=[f"tcp/127.0.0.1:{port}"]) as t:
+        pub = t.publisher("/x", SPEEDS)
+        for n in (8, 3, 3, 12):
+            msg = speeds(float(n), n=n)
+            assert pub.serialize(msg) == bytes(store.serialize_cdr(msg, SPEEDS))
+
+
+def test_take_waits_for_a_payload_and_times_out(pair):
+    a, b = pair
+    sub = b.subscriber("/x", SPEEDS, depth=8)
+    pub = a.publisher("/x", SPEEDS, block=True)
+    connected(pub, sub)
+    t0 = time.monotonic()
+    assert sub.take(timeout_s=0.05) is None
+    assert time.monotonic() - t0 >= 0.045
+    pub.put(speeds(7.0))
+    assert sub.take(timeout_s=5.0).t == 7.0
+
+
+def test_liveliness_tokens_follow_rmw_zenoh_and_a_liveliness_subscriber_sees_them():
+    """A node's tokens (rmw_zenoh's graph discovery) as a ROS 2 graph cache receives them, and their removal."""
+    from omnirotor.transport import liveliness_key
+
+    port = free_port()
+    with open_transport(listen=[f"tcp/127.0.0.1:{port}"]) as watcher:
+        seen: dict[str, str] = {}
+        session = watcher._session  # noqa: SLF001  (a raw Zenoh session, as a ROS 2 graph cache has)
+
+        def on_token(sample) -> None:
+            seen[str(sample.key_expr)] = str(sample.kind)
+
+        sub = session.liveliness().declare_subscriber("@ros2_lv/3/**", on_token)
+        node = open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], domain_id=3, namespace="/r1",
+                              node="omnirotor_fly")  # fmt: skip
+        node.publisher("/omnirotor/rotor_cmd", "omnirotor_msgs/msg/RotorCommand", block=True)
+        node.subscriber("/omnirotor/frame", "omnirotor_msgs/msg/SensorFrame", depth=32)
+        assert wait_for(lambda: True if len(seen) >= 3 else None)
+        zid = str(node._session.zid())  # noqa: SLF001
+        keys = {k.split("/")[5]: k.split("/") for k in seen}
+        assert keys["NN"] == ["@ros2_lv", "3", zid, "0", "0", "NN", "%", "%r1", "omnirotor_fly"]
+        mp, ms = keys["MP"], keys["MS"]
+        assert mp[:5] == ["@ros2_lv", "3", zid, "0", mp[4]] and mp[6:9] == ["%", "%r1", "omnirotor_fly"]
+        assert mp[9:12] == ["%r1%omnirotor%rotor_cmd", "omnirotor_msgs::msg::dds_::RotorCommand_",
+                            typestore().hash_rihs01("omnirotor_msgs/msg/RotorCommand")]  # fmt: skip
+        assert mp[12] == "::,:,:,:,,"  # reliable (it blocks), keep last 10: rmw_zenoh's defaults, all empty
+        assert ms[9] == "%r1%omnirotor%frame" and ms[12] == "2::,32:,:,:,,"  # best effort, depth 32
+        assert len({mp[4], ms[4]}) == 2 and "0" not in (mp[4], ms[4])  # entity ids unique, not the node's
+        assert "/".join(mp) == liveliness_key(3, zid, 0, int(mp[4]), "MP", "/r1", "omnirotor_fly",
+                                              "/r1/omnirotor/rotor_cmd", "omnirotor_msgs/msg/RotorCommand",
+                                              "::,:,:,:,,")  # fmt: skip
+        assert all(kind == "SampleKind.PUT" for kind in seen.values())
+        node.close()
+        assert wait_for(lambda: True if all(k == "SampleKind.DELETE" for k in seen.values()) else None)
+        sub.undeclare()
+
+
+def test_a_session_without_a_node_name_declares_no_token_and_a_bad_name_is_refused():
+    port = free_port()
+    with open_transport(listen=[f"tcp/127.0.0.1:{port}"]) as watcher:
+        seen = []
+        sub = watcher._session.liveliness().declare_subscriber("@ros2_lv/**", lambda s: seen.append(s))  # noqa: SLF001
+        with open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"]) as client:
+            client.publisher("/x", SPEEDS)
+            time.sleep(0.5)
+        assert seen == []
+        sub.undeclare()
+    with pytest.raises(InputError, match="node name"):
+        open_transport(listen=[], node="bad name")

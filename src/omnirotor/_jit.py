@@ -135,17 +135,48 @@ def _closure_hash(path: str) -> str:
     return h.hexdigest()
 
 
-class DependencyLocator:
-    """Mixin of a numba cache locator whose source stamp is the hash of the kernel's :func:`source_closure`.
+_KEEP_CACHE_FOLDERS = 4
+"""Cache folders (one per source hash) kept beside each module; older ones are removed when a new one is made."""
 
-    numba keeps one index per function and discards it when the locator's stamp differs from the one it was
-    written with; numba's locators stamp the function's own file only. The hash is taken when the kernel is
-    defined (its module imported), so it describes the sources the process compiles from even if files change
-    while it runs.
+
+@functools.cache
+def _prune_cache_folders(base: str) -> None:
+    """Remove all but the :data:`_KEEP_CACHE_FOLDERS` most recently written ``deps-*`` folders under ``base``.
+
+    Once per folder and process. A process still running older sources that loses its folder compiles again
+    (numba treats a missing file as a cache miss); nothing else is affected.
+    """
+    try:
+        folders = sorted(Path(base).glob("deps-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
+        for old in folders[_KEEP_CACHE_FOLDERS:]:
+            for f in old.iterdir():
+                f.unlink(missing_ok=True)
+            old.rmdir()
+    except OSError:
+        pass  # another process pruned it first, or the folder is read-only: a cache, never an error
+
+
+class DependencyLocator:
+    """Mixin of a numba cache locator keyed on the hash of the kernel's :func:`source_closure`.
+
+    numba's locators stamp the function's own file only. Here the stamp is the closure's hash, and the cache
+    lives in a folder named after that hash (``deps-<hash>`` under numba's usual place), so sources of another
+    version never read an index written by this one: numba unpickles an index before it compares stamps, and
+    an index whose signatures name a class that no longer exists (a NamedTuple type a kernel once took) would
+    raise instead of missing. Switching between checkouts also keeps both versions' machine code. The
+    :data:`_KEEP_CACHE_FOLDERS` newest folders are kept. The hash is taken when the kernel is defined (its
+    module imported), so it describes the sources the process compiles from even if files change while it runs.
     """
 
     def get_source_stamp(self):
         return ("omnirotor-closure", _closure_hash(self._py_file))
+
+    def get_cache_path(self):
+        return os.path.join(super().get_cache_path(), "deps-" + _closure_hash(self._py_file)[:20])
+
+    def ensure_cache_path(self):
+        super().ensure_cache_path()
+        _prune_cache_folders(os.path.dirname(self.get_cache_path()))
 
 
 class _UserDirDependencyLocator(DependencyLocator, UserProvidedCacheLocator):

@@ -112,6 +112,10 @@ class ControlStatus(enum.IntFlag):
     """The estimator weighs motion capture as noisier than configured: its innovations showed more noise."""
     MOCAP_REJECTED = 128
     """The estimator did not fuse a well-formed motion-capture sample (outside its innovation gate, or too late)."""
+    FAILSAFE = 256
+    """The controller's failsafe holds and then lands the vehicle (blind or without motion capture for too long)."""
+    BIAS_BEYOND_RANGE = 512
+    """An estimated IMU bias is beyond the range the estimator is documented to follow."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

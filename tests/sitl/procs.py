@@ -35,7 +35,9 @@ def env() -> dict:
 class Pair:
     """A simulator (``omnirotor sim --serve``) and a node on a fresh port and namespace."""
 
-    def __init__(self, tmp: Path, task: str, sim_args: list[str], lockstep: bool) -> None:
+    def __init__(
+        self, tmp: Path, task: str, sim_args: list[str], lockstep: bool, node_args: tuple[str, ...] = ()
+    ) -> None:
         self.port = free_port()
         self.namespace = f"/t{secrets.token_hex(4)}"
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
@@ -52,7 +54,7 @@ class Pair:
         self.node_endpoint = f"tcp/127.0.0.1:{free_port()}"
         node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
                     "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
-                    "--fifo-priority", "20" if not lockstep else "0"]  # fmt: skip
+                    "--fifo-priority", "20" if not lockstep else "0", *node_args]  # fmt: skip
         self.node = subprocess.Popen(
             node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True, cwd=str(ROOT)
         )

@@ -20,8 +20,36 @@ CTL_ENDPOINT = "tcp/127.0.0.1:7448"
 """Where ``omnirotor fly`` listens by default (loopback): where ``ctl`` connects unless told otherwise."""
 EXIT_REFUSED = 1
 
+_CONNECTION = ("--connect", "--domain-id", "--namespace", "--timeout")
+"""The group's options, each with a value: also accepted after the request (``ctl arm --connect ...``)."""
+
+
+class CtlGroup(CommandGroup):
+    """``ctl``'s group: its connection options may also follow the request, as a user types them."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:  # noqa: D102  (click's documented hook)
+        before, after, i, seen_request = [], [], 0, False
+        while i < len(args):
+            a = args[i]
+            if a == "--":
+                after += args[i:]
+                break
+            if a.split("=", 1)[0] in _CONNECTION:  # wherever it is: the group's, with its value
+                n = 1 if "=" in a else 2
+                before += args[i : i + n]
+                i += n
+                continue
+            if seen_request or not a.startswith("-"):
+                seen_request = True
+                after.append(a)
+            else:
+                before.append(a)
+            i += 1
+        return super().parse_args(ctx, before + after)
+
+
 ctl_app = typer.Typer(
-    cls=CommandGroup,
+    cls=CtlGroup,
     help="Send one request to the flight node (omnirotor fly) and print its answer; exit 0 accepted, 1 refused.",
     no_args_is_help=True,
 )

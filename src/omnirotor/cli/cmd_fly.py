@@ -11,12 +11,14 @@ from __future__ import annotations
 import json
 import signal
 import sys
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from omnirotor.cli import app
 from omnirotor.errors import InputError
+from omnirotor.safe_io import check_input_file
 
 DEFAULT_NODE_ENDPOINT = "tcp/127.0.0.1:7448"
 """Where the node listens by default (loopback), for ``omnirotor ctl``."""
@@ -55,6 +57,14 @@ def fly(
     set_: Annotated[list[str] | None, typer.Option("--set", help="Flight parameter override key=value.")] = None,
     cpu: Annotated[int | None, typer.Option(help="Pin the loop to this CPU (default: the last one).")] = None,
     fifo_priority: Annotated[int, typer.Option(help="SCHED_FIFO priority of the loop (0: do not ask).")] = 50,
+    maps: Annotated[
+        Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify` (for `ctl map global|piecewise`).")
+    ] = None,
+    record: Annotated[
+        Path | None, typer.Option(help="Record every period into this new ROS 2 bag folder (MCAP), streamed.")
+    ] = None,
+    foxglove: Annotated[bool, typer.Option(help="Serve the live view (Foxglove WebSocket) on loopback.")] = False,
+    foxglove_port: Annotated[int, typer.Option(help="Port of the live view (0: any free one, said).")] = 8765,
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
@@ -70,6 +80,18 @@ def fly(
     if cpu is not None and not 0 <= cpu < n_cpus:
         raise InputError(f"--cpu must be in 0..{n_cpus - 1}, got {cpu}")
     factory = _director_factory(flight, list(set_ or ()))
+    if maps is not None:
+        if mission_from_sim:
+            raise InputError("--maps is for interactive flights; a mission flies the simulator's maps")
+        check_input_file(maps, "--maps")
+    if record is not None:
+        from omnirotor.fly.record import check_recording_path
+
+        check_recording_path(record, "--record")
+    if not 0 <= foxglove_port <= 65535:
+        raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
+    outputs = {"record": str(record) if record is not None else None,
+               "foxglove_port": foxglove_port if foxglove else None}  # fmt: skip
 
     def say(line: str) -> None:
         print(f"omnirotor fly: {line}", file=sys.stderr)
@@ -82,21 +104,28 @@ def fly(
     endpoints = list(connect) if connect else ([] if from_file else ["tcp/127.0.0.1:7447"])
     listening = list(listen) if listen else ([] if from_file else [DEFAULT_NODE_ENDPOINT])
     with open_transport(
-        domain_id=domain_id, namespace=namespace, listen=listening, connect=endpoints, config_file=zenoh_config
+        domain_id=domain_id,
+        namespace=namespace,
+        listen=listening,
+        connect=endpoints,
+        config_file=zenoh_config,
+        node="omnirotor_fly",
     ) as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
-            summary = fly_mission(t, task, options, NodeOptions(lockstep=lockstep), factory, realtime)
+            summary = fly_mission(t, task, options, NodeOptions(lockstep=lockstep, **outputs), factory, realtime)
         else:
             from omnirotor.control.controller import InteractionController, load_controller_params
             from omnirotor.vehicle import load_vehicle
+            from omnirotor.wrench_maps import load_wrench_maps
 
             veh = load_vehicle(vehicle)
             params = load_controller_params(config) if config is not None else None
-            controller = InteractionController(veh, params)
+            wrench_maps = load_wrench_maps(str(maps), n_rotors=veh.n_rotors) if maps is not None else None
+            controller = InteractionController(veh, params, wrench_maps)
             warm_up(controller)
-            node = NodeLoop(t, controller, factory(controller, None), NodeOptions())
+            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(**outputs))
             realtime()
             say(f"flight node up (session {node.session_id:016x}); `omnirotor ctl` on {', '.join(listening)}")
             summary = node.run()
@@ -115,3 +144,10 @@ def _print_summary(s: dict) -> None:
         f"worst lateness {s['worst_late_ms']:.2f} ms; frame to command p50 {lat.get('p50', float('nan')):.0f} µs, "
         f"p99 {lat.get('p99', float('nan')):.0f} µs; link lost: {s['link_lost']}"
     )
+    rec = s.get("recording")
+    if rec is not None:
+        n = sum(rec.get("messages", {}).values())
+        print(
+            f"recording {rec['path']}: "
+            + (rec["error"] if "error" in rec else f"{n} messages, {rec['dropped']} periods dropped")
+        )

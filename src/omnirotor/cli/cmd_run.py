@@ -153,6 +153,17 @@ def run(
             f"the estimator found motion capture noisier than configured and weighed it so in {raised} of "
             f"{rep['safety']['steps']} steps: set estimator.mocap_pos_std / mocap_att_std_deg to the system's noise"
         )
+    flags = rep.get("safety", {}).get("flags", {})
+    if flags.get("failsafe", 0):
+        note(
+            f"the controller's failsafe took over (held, then landed) in {flags['failsafe']} steps: a sensor was "
+            "lost for too long (the log's frame_reject says which); the task's metrics include the landing"
+        )
+    if flags.get("bias_beyond_range", 0):
+        note(
+            f"an estimated IMU bias was beyond the range the estimator follows in {flags['bias_beyond_range']} "
+            "steps (accelerometer 3 m/s², gyroscope 0.5 rad/s)"
+        )
     if out is not None:
         from omnirotor.safe_io import write_json_atomic
 

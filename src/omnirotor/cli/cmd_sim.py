@@ -2,7 +2,9 @@
 
 See :mod:`omnirotor.sitl.server` for the topics, the clocks and the failsafe. With ``--task`` the server flies
 that task of ``omnirotor run`` (same options) with the controller of ``omnirotor fly --mission-from-sim`` and
-prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``).
+prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``). When the
+offboard-loss failsafe cut a task so that its metrics cannot be computed, it says why on one line and exits 1
+(with ``--json``: the wire's counts and ``"metrics": null``).
 """
 
 from __future__ import annotations
@@ -65,14 +67,29 @@ def sim(
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file.")] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", help="Controller parameter override key=value.")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for the run's JSON and truth log (truth.npz).")] = None,
+    record: Annotated[
+        Path | None, typer.Option(help="Record the plant every period into this new ROS 2 bag folder (MCAP).")
+    ] = None,
+    foxglove: Annotated[bool, typer.Option(help="Serve the live view (Foxglove WebSocket) on loopback.")] = False,
+    foxglove_port: Annotated[int, typer.Option(help="Port of the live view (0: any free one, said).")] = 8766,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Serve the MuJoCo plant on the flight topics for `omnirotor fly` (software in the loop)."""
     if not serve:
         raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
+    # SIGTERM ends it as Ctrl-C does: the summary (and a recording) finished, not cut off
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    if record is not None:
+        from omnirotor.fly.record import check_recording_path
+
+        check_recording_path(record, "--record")
+    if not 0 <= foxglove_port <= 65535:
+        raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
+    outputs = {"record": str(record) if record is not None else None,
+               "foxglove_port": foxglove_port if foxglove else None}  # fmt: skip
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                    ros_views, offboard_loss, fifo_priority)  # fmt: skip
+                    ros_views, offboard_loss, fifo_priority, outputs)  # fmt: skip
         return
     from omnirotor.experiments.tasks import TASKS
     from omnirotor.experiments.tasks.common import ExperimentOptions
@@ -94,7 +111,7 @@ def sim(
     if not 0 <= fifo_priority <= 99:
         raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
     serve_opts = ServeOptions(
-        lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views
+        lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views, **outputs
     )
     endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
     if zenoh_config is not None:
@@ -105,6 +122,7 @@ def sim(
         listen=endpoints,
         connect=list(connect or ()),
         config_file=zenoh_config,
+        node="omnirotor_sim",
     ) as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
@@ -113,10 +131,20 @@ def sim(
 
             set_realtime(None, fifo_priority, lambda line: note(line))
         result, report = _serve(t, task, options, serve_opts)
+    if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
+        _say_recording(report.recording)
+        note(
+            f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a "
+            f"command; the task's metrics cannot be computed from the part flown ({report.metrics_error})"
+        )
+        if as_json:
+            print(dumps_json({"task": task, "metrics": None, "sitl": report.as_dict()}))
+        raise typer.Exit(1)
     rep = result.summary()
     rep["sitl"] = report.as_dict()
     if report.log_rows_missing:
         note(f"{report.log_rows_missing} controller log rows did not arrive; the previous row stands in for each")
+    _say_recording(report.recording)
     if report.failsafe:
         note(f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a command")
     if out is not None:
@@ -152,7 +180,7 @@ def _serve(transport, task, options, serve_opts):
 
 
 def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                ros_views, offboard_loss, fifo_priority) -> None:  # fmt: skip
+                ros_views, offboard_loss, fifo_priority, outputs) -> None:  # fmt: skip
     """Interactive flight: the plant on its stand until the node takes off (omnirotor.sitl.server.serve_free)."""
     from omnirotor.experiments.loop import task_sim_params
     from omnirotor.sim import SCENES, Simulator
@@ -168,13 +196,14 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         check_input_file(Path(zenoh_config), "--zenoh-config")
     sim = Simulator(load_vehicle(vehicle), scene=scene, params=task_sim_params(truth, disturbances), seed=seed)
     endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
-    serve_opts = ServeOptions(offboard_loss_s=offboard_loss, ros_views=ros_views)
+    serve_opts = ServeOptions(offboard_loss_s=offboard_loss, ros_views=ros_views, **outputs)
     with open_transport(
         domain_id=domain_id,
         namespace=namespace,
         listen=endpoints,
         connect=list(connect or ()),
         config_file=zenoh_config,
+        node="omnirotor_sim",
     ) as t:
         if fifo_priority:
             from omnirotor.fly.node import set_realtime
@@ -189,3 +218,11 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         f"{report.commands_obeyed}, held {report.commands_held}, refused {report.commands_refused}"
         + (f"; offboard-loss failsafe after {report.failsafe_after_s:.3f} s" if report.failsafe else "")
     )
+    _say_recording(report.recording)
+
+
+def _say_recording(rec: dict) -> None:
+    if rec:
+        n = sum(rec.get("messages", {}).values())
+        note(f"recording {rec['path']}: " + (rec["error"] if "error" in rec else f"{n} messages, {rec['dropped']} "
+                                                "periods dropped"))  # fmt: skip

@@ -155,6 +155,16 @@ UKF_DTYPE = np.dtype(
         ("adapt_prior_n", _F8),  # the estimates start at the assumed variance, worth this many samples
         ("var_pos_assumed", _F8),  # assumed position noise variance per axis [m²]
         ("var_att_assumed", _F8),  # assumed attitude noise variance per axis [rad²]
+        # sustained faults (issue 26): coasting, drifting biases, biases beyond the documented range
+        ("coasting", _I8),  # 1: this step's IMU sample is the frame supervision's prediction (set by the caller)
+        ("q_coast", _F8),  # white acceleration noise added while coasting [m²/s³]
+        ("innov_ema_W", _F8, 3),  # running mean of the position innovations [m]
+        ("drift_m", _F8),  # its threshold ...
+        ("drift_scale2", _F8),  # ... and the factor on the bias random walks' variances above it
+        ("drift_on", _I8),  # 1: the biases drift (random walks scaled)
+        ("n_drift", _I8),  # motion-capture samples fused with the bias walks scaled
+        ("acc_bias_range", _F8),  # [m/s²]
+        ("gyro_bias_range", _F8),  # [rad/s]
     ]
 )
 """State, counters and parameters of the UKF (named fields; the kernels read them so)."""
@@ -205,6 +215,7 @@ STEP_DEGRADED = 2  # no motion-capture sample accepted for longer than the timeo
 STEP_NOISE_RAISED = 4  # motion capture is weighed with more noise than assumed (match_noise)
 STEP_MOCAP_REJECTED = 8  # a well-formed motion-capture sample was not fused (outside the gate, too late, singular)
 STEP_ADVANCE = 4  # the delayed fused state lags too far: advance it (predict to k - lag_n)
+STEP_BIAS_RANGE = 16  # a bias estimate is beyond the documented range
 
 QUAT_NORM_TOL = 0.1
 """A motion-capture quaternion whose norm is off 1 by more than this is rejected."""
@@ -333,6 +344,10 @@ def imu_step(u, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
         for i in range(3):
             u.gyro_B[i] = gyro[i]
             u.acc_B[i] = acc[i]
+        if u.coasting != 0:  # the frame supervision's prediction is bias-free: the biases are added back
+            for i in range(3):
+                u.gyro_B[i] += u.x_out.b_gyro_B[i]
+                u.acc_B[i] += u.x_out.b_acc_B[i]
     else:
         rejected = True
     for i in range(3):
@@ -641,12 +656,60 @@ def predict(u, buf, sbuf, w, k_end: int) -> None:
             q += Q3[i, j] * T3
             P[i, j] += q
             P[j, i] = P[i, j]
+    _extra_process_noise(u, P, T_total)
     # The mean: the output state already propagated to sample k_end - 1.
     last = (k_end - 1) % cap
     copy_nominal(sbuf[last], f)
     R_from_quat_into(f.q_WB, u.R_WB_fused)
     u.t_fused = buf[last].t
     u.k_fused = k_end
+
+
+@jit
+def _extra_process_noise(u, P, T: float) -> None:
+    """Process noise beyond the model's, over ``T`` seconds (none in a run without sustained faults).
+
+    While coasting, white acceleration noise ``q_coast`` (velocity ``q T``, position ``q T³ / 3``, cross ``q T² /
+    2``); while the biases drift, their random walks' variances ``drift_scale2`` times the model's.
+    """
+    if u.coasting != 0:
+        q = u.q_coast
+        for i in range(3):
+            P[i, i] += q * T * T * T / 3.0
+            P[3 + i, 3 + i] += q * T
+            P[i, 3 + i] += q * T * T / 2.0
+            P[3 + i, i] = P[i, 3 + i]
+    if u.drift_on != 0:
+        c = (u.drift_scale2 - 1.0) * T
+        for i in range(9, 15):
+            P[i, i] += c * u.Q1[i, i]
+
+
+@jit
+def _track_drift(u, r) -> None:
+    """The running mean of the position innovations ``r[:3]`` (about 10 samples) against the drift threshold."""
+    e2 = 0.0
+    for i in range(3):
+        u.innov_ema_W[i] += 0.1 * (r[i] - u.innov_ema_W[i])
+        e2 += u.innov_ema_W[i] * u.innov_ema_W[i]
+    threshold = max(u.drift_m, 5.0 * math.sqrt(u.Rn[0, 0]))
+    e = math.sqrt(e2)
+    if e > threshold:
+        u.drift_on = 1
+    elif e < 0.5 * threshold:
+        u.drift_on = 0
+    if u.drift_on != 0:
+        u.n_drift += 1
+
+
+@jit
+def bias_beyond_range(u) -> bool:
+    """Whether a bias estimate of the output state is beyond the documented range (a component)."""
+    ba, bg = u.x_out.b_acc_B, u.x_out.b_gyro_B
+    for i in range(3):
+        if not (abs(ba[i]) <= u.acc_bias_range and abs(bg[i]) <= u.gyro_bias_range):
+            return True
+    return False
 
 
 # -- motion-capture update -------------------------------------------------------------------------------------
@@ -813,6 +876,7 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     r[3], r[4], r[5] = kq * ex, kq * ey, kq * ez
     if u.adapt_noise != 0:
         match_noise(u, r)
+    _track_drift(u, r)
     n = N_ERR
     PHt = w.PHt
     for i in range(n):
@@ -980,6 +1044,8 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     result = code & STEP_DEGRADED
     if noise_raised(u):
         result |= STEP_NOISE_RAISED
+    if u.acc_bias_range > 0.0 and bias_beyond_range(u):
+        result |= STEP_BIAS_RANGE
     if rejected:
         u.n_rejected_inputs += 1
         result |= STEP_REJECTED if invalid else STEP_MOCAP_REJECTED
@@ -1019,7 +1085,7 @@ def ukf_block_step(u, memory, f, out) -> int:
 
 
 @jit
-def ukf_reinit(u, p_m, q_m, out) -> None:
+def ukf_reinit(u, p_m, q_m, out, v_m=None) -> None:
     """Re-initialise the pose from a motion-capture sample at the current time (after a time glitch or a dropout).
 
     The output and the delayed fused state both become the sample's pose at the time of the last step; the
@@ -1032,6 +1098,7 @@ def ukf_reinit(u, p_m, q_m, out) -> None:
         p_m: (3,) measured position [m] (finite).
         q_m: (4,) measured attitude, wxyz (finite, non-zero; normalised here).
         out: the estimate record, rewritten.
+        v_m: (3,) the velocity to take [m/s] (after the IMU coasted, from two samples), NaN or None: keep it.
     """
     s = u.x_out
     qn = math.sqrt(q_m[0] * q_m[0] + q_m[1] * q_m[1] + q_m[2] * q_m[2] + q_m[3] * q_m[3])
@@ -1039,6 +1106,10 @@ def ukf_reinit(u, p_m, q_m, out) -> None:
         s.p_W[i] = p_m[i]
     for i in range(4):
         s.q_WB[i] = q_m[i] / qn
+    if v_m is not None:
+        for i in range(3):
+            if math.isfinite(v_m[i]):
+                s.v_W[i] = v_m[i]
     for i in range(3):
         if not math.isfinite(s.v_W[i]):
             s.v_W[i] = 0.0

@@ -114,6 +114,8 @@ _BIT_EXCLUDED = 16
 _BIT_REJECTED = 32
 _BIT_NOISE_RAISED = 64
 _BIT_MOCAP_REJECTED = 128
+_BIT_FAILSAFE = 256
+_BIT_BIAS_RANGE = 512
 
 
 def rotors_dtype(n: int) -> np.dtype:
@@ -282,9 +284,10 @@ def step_begin(state, frame, row) -> int:
     # 1. the state estimate
     kind = c.estimator
     if kind == EST_UKF:  # the registered estimators, each on its field, by the kind's one signature
+        st.ukf.coasting = sv.coasting
         code = estimator_step(st.ukf, st.ukf_memory, f, e)
         if act & _sup.ACT_REINIT:
-            _ek.ukf_reinit(st.ukf, f.mocap.p_W, f.mocap.q_WB, e)
+            _ek.ukf_reinit(st.ukf, f.mocap.p_W, f.mocap.q_WB, e, sv.reinit_v_W)
             code &= ~_ek.STEP_DEGRADED
     elif kind == EST_BYPASS:
         code = estimator_step(st.bypass, st.ukf_memory, f, e)
@@ -307,8 +310,17 @@ def step_begin(state, frame, row) -> int:
         bits |= _BIT_NOISE_RAISED
     if code & _ek.STEP_MOCAP_REJECTED:
         bits |= _BIT_MOCAP_REJECTED
+    if kind == EST_UKF and code & _ek.STEP_BIAS_RANGE:
+        bits |= _BIT_BIAS_RANGE
     if c.excluded != 0:
         bits |= _BIT_EXCLUDED
+    if cause & _sup.CAUSE_FAILSAFE:
+        bits |= _BIT_FAILSAFE
+        if sv.fs_mode == _sup.FS_LANDED:  # touchdown: the rotors stop (supervisor docstring)
+            for i in range(n):
+                rot.omega_safe_hz[i] = 0.0
+            _finish_held(st, bits, row)
+            return BEGIN_DONE
     e.valid = 0.0 if bits & _BIT_DEGRADED else 1.0
     t = f.t - c.t0
     dt = sv.dt_s  # the frame's real interval (the period for evenly spaced frames: supervisor docstring)
@@ -327,7 +339,7 @@ def step_begin(state, frame, row) -> int:
         if finite:
             _mk.schedule_select(st.maps, st.maps_arrays, R)
         c.region = st.maps.region
-    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP):  # no state to act on: hold, as below
+    if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP) or sv.blind != 0:  # no state to act on: hold
         finite = False
     if not finite:  # no stateful block is updated: hold the last safe command
         _finish_held(st, bits | _BIT_NONFINITE, row)
@@ -342,6 +354,8 @@ def step_begin(state, frame, row) -> int:
         _traj.segment_sample(st.segment, t, st.desired_ee)
     else:
         _traj.trajectory_sample(st.trajectory, t, st.desired_ee)
+    if sv.fs_mode != _sup.FS_OFF:  # the failsafe's hold-then-land replaces the reference
+        _sup.failsafe_reference(sv, e, c.p_E_B, dt, st.desired_ee)
     admittance_block_step(st.admittance, c.f_E_W, c.m_E_W, st.desired_ee, st.compliant_ee, dt)
     _adm.body_reference(st.compliant_ee, c.p_E_B, st.body_ref)
     # 5. the pose controller compensates the whole unexplained wrench (before bias and zeroing)

@@ -183,7 +183,7 @@ def load_controller_params(
 
 
 # ControlStatus values by bit pattern, so that step() never builds an enum by OR-ing flags.
-_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(256))
+_STATUS_BY_BITS = tuple(ControlStatus(i) for i in range(1024))
 
 
 class InteractionController:
@@ -409,7 +409,8 @@ class InteractionController:
             self.state["supervisor"], self.params.supervisor, record, dt=self._dt,
             acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
             omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
-            check_mocap=kind == _c.EST_UKF,
+            check_mocap=kind == _c.EST_UKF, gravity=self.vehicle.gravity,
+            acc_physical=self.vehicle.n_rotors * self.vehicle.c_f * self.vehicle.omega_max_hz**2 / self.vehicle.mass,
         )  # fmt: skip
 
     def hold_command(self, t: float | None = None) -> RotorCommand:

@@ -48,6 +48,17 @@ start-up instead) or fail the chi-square innovation gate are skipped and counted
 ``mocap_reinit_after`` consecutive gate failures re-initialise the pose from motion capture (the filter,
 not the sensor, is then assumed lost).
 
+Sustained faults (issue 26; the frame supervision, :mod:`omnirotor.control.supervisor`, decides). While the
+IMU *coasts* (its samples rejected for longer than the supervision's ``imu_hold_s``, replaced by the
+specific force of a body at rest) the filter adds its bias estimates back to that sample (the prediction is
+bias-free: no bias is learnt from it) and white acceleration noise of ``coast_acc_std`` over a 10 ms
+correlation to the covariance, so that motion capture steers the estimate. A bias drifting faster than its
+random walk (a running mean of the position innovations over about 10 samples beyond ``bias_drift_m`` or 5
+times the motion-capture noise in use) scales the bias random walks by ``bias_drift_scale`` until the mean
+falls below half the threshold. Neither happens in a run without such faults: the covariance is then what it
+was, bit for bit. A bias estimate beyond the documented range (``acc_bias_range`` 3 m/s², ``gyro_bias_range``
+0.5 rad/s, any component) is flagged ``ControlStatus.BIAS_BEYOND_RANGE``; the filter keeps following it.
+
 Outputs (``StateEstimate``): pose, velocity, ``omega_B = gyro - b_g`` and ``a_W`` (p̈ without gravity, as
 the wrench observer of SPEC §4.3 needs it), each optionally low-passed by a first-order filter
 ``y += lam (x - y)``, ``lam = 2 pi dt f_c / (2 pi dt f_c + 1)`` (the form of SPEC §4.3).
@@ -166,6 +177,16 @@ class EstimatorParams:
         ut_alpha: unscented-transform spread alpha.
         ut_beta: unscented-transform beta (2 is optimal for Gaussians).
         ut_kappa: unscented-transform kappa.
+        coast_acc_std: the acceleration the filter does not know while the IMU coasts (rejected samples
+            replaced by the frame supervision's prediction, :mod:`omnirotor.control.supervisor`), one sigma
+            [m/s²]: added as white acceleration noise over a 10 ms correlation, so motion capture steers it.
+        bias_drift_m: a mean position innovation beyond this (or 5 times the motion-capture noise in use, the
+            larger), averaged over about 10 samples, is a bias drifting faster than its random walk says; the bias
+            random walks are then ``bias_drift_scale`` times larger until it falls below half [m].
+        bias_drift_scale: that factor on the bias random walks' standard deviations.
+        acc_bias_range: the accelerometer bias the filter is documented to follow [m/s²]; an estimate beyond it
+            (any component) is flagged ``ControlStatus.BIAS_BEYOND_RANGE``.
+        gyro_bias_range: the same for the gyroscope [rad/s].
     """
 
     kind: str = "ukf"
@@ -198,6 +219,11 @@ class EstimatorParams:
     ut_alpha: float = 1.0
     ut_beta: float = 2.0
     ut_kappa: float = 0.0
+    coast_acc_std: float = 20.0
+    bias_drift_m: float = 0.005
+    bias_drift_scale: float = 100.0
+    acc_bias_range: float = 3.0
+    gyro_bias_range: float = 0.5
 
     def __post_init__(self) -> None:
         if self.kind not in ESTIMATOR_KINDS:
@@ -223,6 +249,11 @@ class EstimatorParams:
             "init_acc_bias_std",
             "init_gyro_bias_std",
             "ut_alpha",
+            "coast_acc_std",
+            "bias_drift_m",
+            "bias_drift_scale",
+            "acc_bias_range",
+            "gyro_bias_range",
         ):
             check_positive(f"estimator {name}", getattr(self, name))
         for name in ("gyro_cutoff_hz", "acc_cutoff_hz"):
@@ -377,6 +408,10 @@ class UKFEstimator:
         u["lag_n"] = lag_n
         u["chunk_n"] = chunk_n
         u["timeout_s"] = p.mocap_timeout_s
+        u["q_coast"] = p.coast_acc_std**2 * 0.01
+        u["drift_m"] = p.bias_drift_m
+        u["drift_scale2"] = p.bias_drift_scale**2
+        u["acc_bias_range"], u["gyro_bias_range"] = p.acc_bias_range, p.gyro_bias_range
         u["compensate_latency"] = 1 if p.compensate_latency else 0
         self._clear()
 
@@ -388,7 +423,7 @@ class UKFEstimator:
         "k_fused", "just_reset", "gate_fails", "n_mocap_fused", "n_rejected_mocap", "n_reinit", "n_rejected_inputs",
         "n_nonfinite", "last_rejected", "degraded", "noise_var_pos", "noise_var_att", "n_noise_adapted",
         "noise_pos_std_max", "noise_att_std_max", "noise_n", "noise_var_pos_top", "noise_var_att_top",
-        "n_noise_discounts",
+        "n_noise_discounts", "coasting", "innov_ema_W", "drift_on", "n_drift",
     )  # fmt: skip
     """The fields :meth:`reset` clears (the rest are parameters and constants)."""
 

@@ -14,13 +14,27 @@ period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by wha
   a row, each a step within those bounds after the one before) is accepted: from then on
   an offset maps the plant's clock onto the controller's, whose time (and so the trajectory's) stays
   continuous (``CAUSE_CLOCK_RESET``), and the estimator re-initialises from motion capture;
-* **IMU** (``CAUSE_IMU``): non-finite, or beyond the sensor ranges (the estimator's ``acc_range``,
-  ``gyro_range``): the last good sample;
+* **IMU** (``CAUSE_IMU``): non-finite, beyond the sensor ranges (the estimator's ``acc_range``,
+  ``gyro_range``), or an accelerometer reading beyond ``acc_physical_margin`` times the largest specific force
+  the rotors can give (an IMU running away passes through such values before it leaves its range): the last
+  good sample for ``imu_hold_s``, then the **coasting** prediction (``coasting``): the specific force of a body
+  at rest in its estimated attitude, no rotation, to which the UKF adds its bias estimates and white
+  acceleration noise (``EstimatorParams.coast_acc_std``) so that motion capture steers it. Holding one sample
+  for long integrates its vibration (or, for an IMU running away, its last plausible value) into metres;
 * **motion capture** (``CAUSE_MOCAP``): a non-finite time, position or quaternion, a quaternion norm more than
-  ``quat_norm_tol`` from 1, a sample taken after the frame; or (``CAUSE_MOCAP_JUMP``, UKF only) a position
-  farther from the last estimate than ``pos_jump_m + max_speed_mps * (time since the last accepted sample)``,
-  farther than the vehicle can have flown. The sample is dropped: the UKF runs its prediction (IMU only) for
-  that period;
+  ``quat_norm_tol`` from 1, a sample taken after the frame. UKF only: a sample repeating the pose of the one
+  before exactly, the ``mocap_frozen_samples``-th time in a row (``CAUSE_MOCAP_FROZEN``: a real motion
+  capture's noise never repeats; a frozen one re-sends its last pose with fresh stamps); a **jump against the
+  IMU's prediction** (``CAUSE_MOCAP_JUMP``): the innovation (sample minus estimate) moved from the running
+  mean of the accepted samples' (about 5) by more than ``pos_jump_m + mocap_drift_mps2 tau² / 2`` (``tau`` the
+  time since the last accepted sample: the drift an IMU prediction can have gathered), and every later sample
+  offset as that one was (within ``pos_jump_m``, and nearer to it than to the prediction) is the same jump,
+  rejected however long it lasts (a marker swap, an offset marker), until
+  samples agree with the prediction again. Never flown into: without motion capture the UKF predicts on the
+  IMU (flagged degraded), and after ``dropout_reinit_s`` re-anchors on the first samples that agree with the
+  prediction. After the IMU coasted the prediction is void: the jump check waits for the next accepted
+  sample (and after a blackout the re-initialisation takes its velocity from two samples). The sample is
+  dropped: the UKF runs its prediction for that period;
 * **bypass state** (``CAUSE_STATE``): non-finite, ``R_WB`` not a proper rotation (``|R^T R - I|`` or
   ``|det R - 1|`` beyond ``rotation_tol``), or (``CAUSE_STATE_JUMP``) a position or velocity jump from the
   last accepted state beyond ``pos_jump_m + max_speed_mps tau`` or ``vel_jump_mps + max_accel_mps2 tau``
@@ -50,16 +64,37 @@ real loop's jitter is integrated as it happened (the UKF takes its own interval 
 interval within ``DT_SNAP_S`` (1 ns) of the configured period is taken as the period itself: a simulator's
 evenly spaced frames (``k dt``, whose differences wander by rounding) replay bit for bit.
 
-Re-initialisation (UKF): after a clock reset, or when no motion-capture sample was accepted for
-``dropout_reinit_s``, the estimator's pose is taken from the next two consecutive valid motion-capture samples
-that agree with each other and pass the jump check (``CAUSE_REINIT`` in the period it happens; :func:`ukf_reinit
-<omnirotor.control._estimator_kernels.ukf_reinit>`), so that a run recovers instead of staying degraded.
+**Blind, and the failsafe** (UKF; SPEC §4.5's supervision, issue 26). While the IMU coasts and no
+motion-capture sample was accepted for ``blind_mocap_s``, the controller is *blind*: it holds the last safe
+command (computed from the last good estimate: in hover a hover command) and updates no stateful block, as for
+a rejected bypass state. The failsafe engages (``CAUSE_FAILSAFE`` on every period from then on,
+``ControlStatus.FAILSAFE``; latched until the controller is reset) when the IMU has been rejected for longer than
+``failsafe_blind_s`` (a blackout of every input, or of the IMU alone, longer than the 0.3 s the issue asks to
+be ridden through) or no motion-capture sample was accepted for ``failsafe_mocap_s``. It belongs here, in the
+controller, because in simulation and on a link that drops there is nobody to tell it what to do: the fly node's
+director (:mod:`omnirotor.fly.director`) has its own land mode, from the ground height recorded at arming, for a
+failsafe it decides; this one needs nothing from outside. It replaces the EE reference
+(:func:`failsafe_reference`, called by the composer after the trajectory's sample): **hold** the body's pose
+where it engaged (the estimate then) for ``failsafe_hold_s`` of good IMU (while blind the command is held
+anyway), then **descend** at ``land_speed_mps`` with that attitude, only while within ``land_radius_m`` of that
+point horizontally (a vehicle pushed away while blind first flies back), until **touchdown**: the estimate
+``touchdown_m`` above the descending reference (the ground holds it up), after which the rotors get 0 Hz
+(``FS_LANDED``). The motion-capture jump check is off during the failsafe: landing, motion capture is the best
+truth there is. Shown by ``tests/test_sustained_faults.py``: a 0.5 s or 2 s blackout and an accelerometer
+running away land within a few centimetres of where the fault began.
+
+Re-initialisation (UKF): after a clock reset, after the IMU coasted with no motion capture, or when no
+motion-capture sample was accepted for ``dropout_reinit_s``, the estimator's pose is taken from the next two
+consecutive valid motion-capture samples that agree with each other and pass the jump check (``CAUSE_REINIT``
+in the period it happens; :func:`ukf_reinit <omnirotor.control._estimator_kernels.ukf_reinit>`), so that a run
+recovers instead of staying degraded.
 
 Shapes (frame length, rotor count) are checked in Python at the API boundary,
 :meth:`InteractionController.step <omnirotor.control.controller.InteractionController.step>`.
 
 A clean frame is copied unchanged (its time offset is exactly 0): supervision does not change a clean run's
-numbers.
+numbers (``tests/test_controller_reference.py``: none of the checks above fires on the recorded runs, the
+corrupted one included, so they replay bit for bit).
 """
 
 from __future__ import annotations
@@ -70,7 +105,7 @@ import math
 import numpy as np
 
 from omnirotor._jit import jit
-from omnirotor.config import check_positive
+from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.errors import InputError
 from omnirotor.frame_kernels import clear_mocap, copy_head, copy_state, state_finite
@@ -91,6 +126,13 @@ __all__ = [
     "CAUSE_CLOCK_RESET",
     "CAUSE_REINIT",
     "CAUSE_STATE_VELOCITY",
+    "CAUSE_MOCAP_FROZEN",
+    "CAUSE_FAILSAFE",
+    "FS_OFF",
+    "FS_HOLD",
+    "FS_DESCEND",
+    "FS_LANDED",
+    "failsafe_reference",
     "REJECTING",
     "supervise",
     "reset_supervisor",
@@ -119,6 +161,10 @@ CAUSE_REINIT = 512
 """The estimator re-initialised its pose from motion capture (after a clock reset or a long dropout)."""
 CAUSE_STATE_VELOCITY = 1024
 """The bypass velocity disagrees with its positions over the window: its offset is subtracted."""
+CAUSE_MOCAP_FROZEN = 2048
+"""The motion-capture sample repeats the last one exactly (a frozen motion capture with fresh stamps)."""
+CAUSE_FAILSAFE = 4096
+"""The failsafe holds and then lands the vehicle (blind too long, or no motion capture for too long)."""
 
 CAUSES = (
     ("time", CAUSE_TIME),
@@ -132,6 +178,8 @@ CAUSES = (
     ("clock_reset", CAUSE_CLOCK_RESET),
     ("reinit", CAUSE_REINIT),
     ("state_velocity", CAUSE_STATE_VELOCITY),
+    ("mocap_frozen", CAUSE_MOCAP_FROZEN),
+    ("failsafe", CAUSE_FAILSAFE),
 )
 """Name and bit of every cause, in bit order (``counts`` has one entry per cause, in this order)."""
 N_CAUSES = len(CAUSES)
@@ -145,6 +193,7 @@ REJECTING = (
     | CAUSE_STATE_JUMP
     | CAUSE_ROTOR
     | CAUSE_STATE_VELOCITY
+    | CAUSE_MOCAP_FROZEN
 )
 """The causes that reject a part of the frame (``ControlStatus.FRAME_REJECTED``); the others only inform."""
 INVALID_VALUE = CAUSE_IMU | CAUSE_MOCAP | CAUSE_STATE | CAUSE_ROTOR
@@ -153,6 +202,9 @@ INVALID_VALUE = CAUSE_IMU | CAUSE_MOCAP | CAUSE_STATE | CAUSE_ROTOR
 # What the estimator should do after supervision (the return value's upper bits, below the cause bits).
 ACT_REINIT = 1 << 20
 """Return flag of :func:`supervise`: re-initialise the UKF's pose from ``clean``'s motion-capture sample."""
+
+FS_OFF, FS_HOLD, FS_DESCEND, FS_LANDED = 0, 1, 2, 3
+"""The failsafe's modes (``fs_mode``): off; holding the pose where it began; descending; landed (rotors off)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,6 +235,29 @@ class SupervisorParams:
             position change [s].
         velocity_tol_m: largest accepted difference between the two over one window [m]; a velocity offset
             larger than ``velocity_tol_m / velocity_window_s`` (0.15 m/s) is found and removed.
+        acc_physical_margin: an accelerometer reading beyond this many times the largest specific force the
+            rotors can give (all at full speed, aligned: ``n c_f omega_max² / m``) is rejected as implausible (an
+            IMU running away passes through such values before it leaves the sensor's range); 0: only the range.
+        mocap_frozen_samples: a motion-capture sample that repeats the pose of the one before exactly, the
+            this-many-th time in a row, is rejected as frozen (``CAUSE_MOCAP_FROZEN``: a real motion capture's
+            noise never repeats; a frozen one re-sends its last pose with fresh stamps).
+        imu_hold_s: a rejected IMU sample is replaced by the last good one for this long after it; after that
+            by the coasting prediction (no acceleration, no rotation) [s].
+        blind_mocap_s: the IMU coasting and no motion-capture sample accepted for this long, the controller is
+            *blind*: it holds the last safe command (nothing to fly on) [s].
+        mocap_drift_mps2: the acceleration error the IMU prediction may have accumulated since the last
+            accepted motion-capture sample, for the jump check ``pos_jump_m + mocap_drift_mps2 tau² / 2`` [m/s²].
+        failsafe: hold and then land when blind or without motion capture for too long (UKF).
+        failsafe_blind_s: the IMU rejected for longer than this starts the failsafe [s] (a blackout of up to
+            0.3 s is ridden through).
+        failsafe_mocap_s: no motion-capture sample accepted for longer than this starts the failsafe [s].
+        failsafe_hold_s: the failsafe holds the pose where it began this long (counted while the IMU is
+            good) before it descends [s].
+        land_speed_mps: the failsafe's descent speed [m/s].
+        touchdown_m: the descent is over (touchdown: rotors off) once the estimate is this far above the
+            landing reference [m].
+        land_radius_m: the failsafe descends only while the estimate is within this of the hold point,
+            horizontally (it first flies back there) [m].
     """
 
     rotor_margin: float = 0.1
@@ -200,6 +275,18 @@ class SupervisorParams:
     bypass_resume_window_s: float = 0.05
     velocity_window_s: float = 0.05
     velocity_tol_m: float = 0.0075
+    acc_physical_margin: float = 1.5
+    imu_hold_s: float = 0.005
+    mocap_frozen_samples: int = 3
+    blind_mocap_s: float = 0.05
+    mocap_drift_mps2: float = 0.5
+    failsafe: bool = True
+    failsafe_blind_s: float = 0.35
+    failsafe_mocap_s: float = 5.0
+    failsafe_hold_s: float = 1.0
+    land_speed_mps: float = 0.3
+    touchdown_m: float = 0.15
+    land_radius_m: float = 0.2
 
     def __post_init__(self) -> None:
         for name in (
@@ -217,11 +304,28 @@ class SupervisorParams:
             "bypass_resume_window_s",
             "velocity_window_s",
             "velocity_tol_m",
+            "imu_hold_s",
+            "blind_mocap_s",
+            "mocap_drift_mps2",
+            "failsafe_blind_s",
+            "failsafe_mocap_s",
+            "failsafe_hold_s",
+            "land_speed_mps",
+            "touchdown_m",
+            "land_radius_m",
         ):
             check_positive(f"supervisor {name}", getattr(self, name))
         n = self.clock_settle_frames
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise InputError(f"supervisor clock_settle_frames must be an integer >= 1, got {n!r}")
+        check_finite("supervisor acc_physical_margin", self.acc_physical_margin)
+        if self.acc_physical_margin < 0:
+            raise InputError(f"supervisor acc_physical_margin must be >= 0, got {self.acc_physical_margin}")
+        n = self.mocap_frozen_samples
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(f"supervisor mocap_frozen_samples must be an integer >= 1, got {n!r}")
+        if not isinstance(self.failsafe, bool):
+            raise InputError(f"supervisor failsafe must be true or false, got {self.failsafe!r}")
 
 
 _F8, _I8 = np.float64, np.int64
@@ -287,6 +391,38 @@ STATE_DTYPE = np.dtype(
         ("vel_ring_p_W", _F8, (VEL_RING, 3)),  # ... positions [m] ...
         ("vel_ring_int_W", _F8, (VEL_RING, 3)),  # ... and velocity integrals [m]
         ("vel_offset_W", _F8, 3),  # the velocity offset subtracted this frame (0: none) [m/s]
+        # sustained faults (issue 26): IMU coasting, motion-capture jumps and freezes, the failsafe
+        ("g", _F8),  # gravity [m/s²] (the coasting IMU sample)
+        ("imu_hold_s", _F8),
+        ("t_imu_ok", _F8),  # controller time of the last accepted IMU sample [s]
+        ("blind_mocap_s", _F8),
+        ("blind", _I8),  # 1: the IMU coasts and no motion capture came since: the last safe command is held
+        ("coasting", _I8),  # 1: this frame's IMU sample is the coasting prediction
+        ("void", _I8),  # 1: the IMU coasted: the prediction is void until motion capture re-anchors it
+        ("reinit_v_W", _F8, 3),  # the velocity a re-initialisation takes (NaN: keep the estimator's) [m/s]
+        ("drift_mps2", _F8),
+        ("innov_ok_W", _F8, 3),  # running mean of motion capture minus estimate of the accepted samples [m]
+        ("jump_on", _I8),  # 1: the samples are offset by jump_W from the prediction (rejected)
+        ("jump_W", _F8, 3),  # the offset of the last jumped sample [m]
+        ("mocap_seen", _I8),
+        ("n_same", _I8),  # samples in a row that repeated the one before exactly
+        ("frozen_n", _I8),  # 1: last_p_W, last_q_WB hold the last well-formed sample received
+        ("last_p_W", _F8, 3),
+        ("last_q_WB", _F8, 4),
+        ("fs_on", _I8),  # 1: the failsafe is armed (parameters)
+        ("fs_blind_s", _F8),
+        ("fs_mocap_s", _F8),
+        ("fs_hold_s", _F8),
+        ("land_speed_mps", _F8),
+        ("touchdown_m", _F8),
+        ("land_radius_m", _F8),
+        ("fs_mode", _I8),  # FS_* (FS_OFF: not engaged)
+        ("fs_cause", _I8),  # the causes of the frame that engaged it
+        ("fs_t", _F8),  # controller time it engaged [s]
+        ("fs_held_s", _F8),  # time held with a good IMU [s]
+        ("fs_depth_m", _F8),  # descended so far [m]
+        ("fs_p_W", _F8, 3),  # the body's position where it engaged [m] ...
+        ("fs_R_WB", _F8, (3, 3)),  # ... and its attitude
     ]
 )
 """The supervisor's record: outputs, parameters and state, by name (a field of the controller's state)."""
@@ -304,6 +440,8 @@ def reset_supervisor(
     omega_max_hz: float,
     check_state: bool,
     check_mocap: bool,
+    gravity: float = 9.81,
+    acc_physical: float = 0.0,
 ) -> None:
     """Set the parameters and start from the reset frame (its record); counters cleared.
 
@@ -318,12 +456,16 @@ def reset_supervisor(
         omega_max_hz: its upper limit [Hz].
         check_state: the estimator reads the bypass state.
         check_mocap: the estimator reads motion capture.
+        gravity: [m/s²] (the coasting IMU sample).
+        acc_physical: the largest specific force the rotors can give [m/s²] (0: unknown, the range alone).
     """
     state[:] = np.zeros(1, STATE_DTYPE)
     rec = state[0]
     margin = params.rotor_margin * max(abs(omega_min_hz), abs(omega_max_hz))
     rec["dt_nom"] = dt
     rec["acc_range"], rec["gyro_range"] = acc_range, gyro_range
+    if acc_physical > 0.0 and params.acc_physical_margin > 0.0:
+        rec["acc_range"] = min(acc_range, params.acc_physical_margin * acc_physical)
     rec["rotor_lo_hz"], rec["rotor_hi_hz"] = omega_min_hz - margin, omega_max_hz + margin
     rec["min_step_s"], rec["max_step_s"] = params.min_clock_step_s, params.max_clock_step_s
     rec["settle"] = params.clock_settle_frames
@@ -335,9 +477,16 @@ def reset_supervisor(
     rec["vel_tol_m"] = params.velocity_tol_m
     rec["vel_n"] = min(max(1, round(params.velocity_window_s / dt)), VEL_RING - 1)
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
+    rec["blind_mocap_s"] = params.blind_mocap_s
+    rec["frozen_n"] = params.mocap_frozen_samples
+    rec["g"], rec["imu_hold_s"], rec["drift_mps2"] = gravity, params.imu_hold_s, params.mocap_drift_mps2
+    rec["fs_on"] = int(params.failsafe and check_mocap)
+    rec["fs_blind_s"], rec["fs_mocap_s"] = params.failsafe_blind_s, params.failsafe_mocap_s
+    rec["fs_hold_s"], rec["land_speed_mps"] = params.failsafe_hold_s, params.land_speed_mps
+    rec["touchdown_m"], rec["land_radius_m"] = params.touchdown_m, params.land_radius_m
     f = frame[0]
     t = float(f["t"])
-    rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = t
+    rec["t_last"] = rec["t_raw_last"] = rec["t_mocap_ok"] = rec["t_state_ok"] = rec["t_imu_ok"] = t
     for name in FRAME_HEAD_DTYPE.names:
         rec["clean"][name] = f[name]
     imu = np.r_[f["imu"]["acc_B"], f["imu"]["gyro_B"]]
@@ -393,7 +542,12 @@ def _check_time(sv, frame, clean) -> int:
 
 
 @jit
-def _check_imu(sv, clean) -> int:
+def _check_imu(sv, clean, estimate) -> int:
+    """The IMU check; a rejected sample is replaced by the last good one, then by the coasting prediction.
+
+    After ``imu_hold_s`` the prediction is the specific force of a body at rest in its estimated attitude, no
+    rotation (the estimator adds its biases back).
+    """
     ok = True
     acc, gyro = clean.imu.acc_B, clean.imu.gyro_B
     for i in range(3):
@@ -404,10 +558,26 @@ def _check_imu(sv, clean) -> int:
         for i in range(3):
             sv.imu_last[i] = acc[i]
             sv.imu_last[3 + i] = gyro[i]
+        sv.t_imu_ok = clean.t
+        sv.coasting = 0
         return 0
+    if clean.t - sv.t_imu_ok <= sv.imu_hold_s:
+        for i in range(3):
+            acc[i] = sv.imu_last[i]
+            gyro[i] = sv.imu_last[3 + i]
+        return CAUSE_IMU
+    sv.coasting = 1
+    if sv.void == 0:  # coasting starts: the prediction no longer says where the vehicle is
+        sv.void = 1
+        if clean.t - sv.t_mocap_ok > sv.imu_hold_s:  # nor does motion capture: re-anchor when it returns
+            sv.reinit = sv.check_mocap
+    R = estimate.R_WB
     for i in range(3):
-        acc[i] = sv.imu_last[i]
-        gyro[i] = sv.imu_last[3 + i]
+        acc[i] = R[2, i] * sv.g  # R^T (0, 0, g)
+        gyro[i] = 0.0
+    if not (math.isfinite(acc[0]) and math.isfinite(acc[1]) and math.isfinite(acc[2])):
+        for i in range(3):
+            acc[i] = sv.imu_last[i]
     return CAUSE_IMU
 
 
@@ -415,6 +585,54 @@ def _check_imu(sv, clean) -> int:
 def _dist3(x, y) -> float:
     d0, d1, d2 = x[0] - y[0], x[1] - y[1], x[2] - y[2]
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@jit
+def _frozen(sv, m) -> bool:
+    """Whether the well-formed sample ``m`` is the ``frozen_n``-th in a row to repeat the same pose exactly."""
+    same = sv.mocap_seen != 0
+    for i in range(3):
+        if m.p_W[i] != sv.last_p_W[i]:
+            same = False
+        sv.last_p_W[i] = m.p_W[i]
+    for i in range(4):
+        if m.q_WB[i] != sv.last_q_WB[i]:
+            same = False
+        sv.last_q_WB[i] = m.q_WB[i]
+    sv.mocap_seen = 1
+    sv.n_same = sv.n_same + 1 if same else 0
+    return sv.n_same >= sv.frozen_n
+
+
+@jit
+def _jumped(sv, p_m, p_est, since: float) -> bool:
+    """The jump check against the IMU's prediction (module docstring); remembers the innovation it judged.
+
+    The innovation ``p_m - p_est`` must stay within ``pos_jump_m + drift_mps2 since² / 2`` of the running mean
+    of the accepted samples' (over about 5). A sample beyond starts (or continues) a *jump*: later samples
+    offset as it is (within ``pos_jump_m``, and nearer to it than to the prediction) are the same jump,
+    rejected however long it lasts (a marker swap, a moved origin), until samples agree with the prediction
+    again.
+    """
+    d_ok, d_jump = 0.0, 0.0
+    if not (math.isfinite(p_est[0]) and math.isfinite(p_est[1]) and math.isfinite(p_est[2])):
+        return False  # nothing to judge against
+    for i in range(3):
+        r = p_m[i] - p_est[i]
+        d_ok += (r - sv.innov_ok_W[i]) ** 2
+        d_jump += (r - sv.jump_W[i]) ** 2
+    bound = sv.pos_jump_m + 0.5 * sv.drift_mps2 * since * since
+    d_ok, d_jump = math.sqrt(d_ok), math.sqrt(d_jump)
+    same_jump = sv.jump_on != 0 and d_jump <= sv.pos_jump_m and d_jump < d_ok
+    if same_jump or d_ok > bound:
+        sv.jump_on = 1
+        for i in range(3):
+            sv.jump_W[i] = p_m[i] - p_est[i]
+        return True
+    sv.jump_on = 0
+    for i in range(3):  # a running mean (5 samples): one noisy sample does not move the reference far
+        sv.innov_ok_W[i] += 0.2 * (p_m[i] - p_est[i] - sv.innov_ok_W[i])
+    return False
 
 
 @jit
@@ -436,24 +654,39 @@ def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
         return CAUSE_MOCAP
     if sv.check_mocap == 0:
         return 0
+    if _frozen(sv, m):
+        clear_mocap(m)
+        sv.prev_ok = 0
+        return CAUSE_MOCAP_FROZEN
     since = tc - sv.t_mocap_ok
-    if _dist3(m.p_W, estimate.p_W) > sv.pos_jump_m + sv.max_speed_mps * since:
-        clear_mocap(m)  # farther than the vehicle can have flown since the last accepted sample
+    if sv.void == 0 and sv.fs_mode == FS_OFF and _jumped(sv, m.p_W, estimate.p_W, since):
+        clear_mocap(m)  # not where the IMU's prediction can have drifted since the last accepted sample
+        sv.prev_ok = 0
         return CAUSE_MOCAP_JUMP
     if sv.reinit != 0 or since > sv.dropout_reinit_s:
         # Re-initialise from two consecutive samples that agree; the first one waits (not fused).
-        agree = sv.prev_ok != 0 and _dist3(m.p_W, sv.prev_p_W) <= sv.pos_jump_m + sv.max_speed_mps * (mt - sv.prev_t)
+        t_prev = sv.prev_t
+        agree = sv.prev_ok != 0 and _dist3(m.p_W, sv.prev_p_W) <= sv.pos_jump_m + sv.max_speed_mps * (mt - t_prev)
         for i in range(3):
             sv.prev_p_W[i] = m.p_W[i]
-        sv.prev_t = mt
         sv.prev_ok = 1
         m.new = 0.0
         if not agree:
+            for i in range(3):
+                sv.reinit_v_W[i] = m.p_W[i]  # the first candidate, kept for the velocity
+            sv.prev_t = mt
             return 0
+        for i in range(3):  # after a void prediction, the velocity of the two samples; else the estimator's
+            void = sv.void != 0 and mt > t_prev
+            sv.reinit_v_W[i] = (m.p_W[i] - sv.reinit_v_W[i]) / (mt - t_prev) if void else math.nan
+            sv.innov_ok_W[i] = 0.0
         sv.reinit = 0
         sv.prev_ok = 0
+        sv.jump_on = 0
+        sv.void = 0
         sv.t_mocap_ok = tc
         return CAUSE_REINIT | ACT_REINIT
+    sv.void = 0
     sv.t_mocap_ok = tc
     return 0
 
@@ -606,6 +839,64 @@ def _check_rotors(sv, rotor_hz) -> int:
 
 
 @jit
+def _failsafe_check(sv, tc: float, estimate, cause: int) -> int:
+    """Engage the failsafe (module docstring) when blind or without motion capture for too long; its bit."""
+    if sv.fs_mode == FS_OFF:
+        if not (tc - sv.t_imu_ok > sv.fs_blind_s or tc - sv.t_mocap_ok > sv.fs_mocap_s):
+            return 0
+        sv.fs_mode = FS_HOLD
+        sv.fs_cause = cause
+        sv.fs_t = tc
+        sv.fs_held_s = 0.0
+        sv.fs_depth_m = 0.0
+        for i in range(3):
+            sv.fs_p_W[i] = estimate.p_W[i]
+            for j in range(3):
+                sv.fs_R_WB[i, j] = estimate.R_WB[i, j]
+    return CAUSE_FAILSAFE
+
+
+@jit
+def _horizontal(p, q) -> float:
+    return math.sqrt((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2)
+
+
+@jit
+def failsafe_reference(sv, estimate, p_E_B, dt: float, ref) -> None:
+    """The failsafe's EE reference into ``ref`` (a ``REFERENCE_DTYPE`` record) for this period; its mode on.
+
+    Holds the body where the failsafe engaged for ``fs_hold_s`` (counted while the IMU is good: blind, it
+    holds), then descends at ``land_speed_mps`` with the attitude it had, while within ``land_radius_m`` of
+    that point horizontally; touchdown (``FS_LANDED``: the rotors
+    stop) once the estimate is ``touchdown_m`` above the descending reference. Called by the composer after
+    the trajectory's sample while ``fs_mode`` is on (SPEC §4.5's supervision; the fly node's director lands
+    the same way from its own ground height, :mod:`omnirotor.fly.director`).
+    """
+    good = sv.clean.t - sv.t_imu_ok <= sv.imu_hold_s
+    v = 0.0
+    if sv.fs_mode == FS_HOLD and good:
+        sv.fs_held_s += dt
+        if sv.fs_held_s >= sv.fs_hold_s:
+            sv.fs_mode = FS_DESCEND
+    elif sv.fs_mode == FS_DESCEND and good and _horizontal(estimate.p_W, sv.fs_p_W) <= sv.land_radius_m:
+        sv.fs_depth_m += sv.land_speed_mps * dt
+        v = -sv.land_speed_mps
+        if estimate.p_W[2] - (sv.fs_p_W[2] - sv.fs_depth_m) > sv.touchdown_m:
+            sv.fs_mode = FS_LANDED
+    R = sv.fs_R_WB
+    for i in range(3):
+        ref.p_W[i] = sv.fs_p_W[i] + R[i, 0] * p_E_B[0] + R[i, 1] * p_E_B[1] + R[i, 2] * p_E_B[2]
+        ref.v_W[i] = 0.0
+        ref.a_W[i] = 0.0
+        ref.omega_W[i] = 0.0
+        ref.alpha_W[i] = 0.0
+        for j in range(3):
+            ref.R_WB[i, j] = R[i, j]
+    ref.p_W[2] -= sv.fs_depth_m
+    ref.v_W[2] = v
+
+
+@jit
 def supervise(sv, frame, estimate) -> int:
     """Check one frame record (module docstring): ``sv.clean`` gets the checked frame, ``sv.cause`` the causes.
 
@@ -623,10 +914,14 @@ def supervise(sv, frame, estimate) -> int:
     copy_head(frame, clean)
     cause = _check_time(sv, frame, clean)
     time_bad = (cause & CAUSE_TIME) != 0
-    cause |= _check_imu(sv, clean)
+    cause |= _check_imu(sv, clean, estimate)
     cause |= _check_mocap(sv, clean, estimate, time_bad)
     if sv.check_mocap != 0 and clean.t - sv.t_mocap_ok > sv.dropout_reinit_s:
         sv.reinit = 1
+    tc = clean.t
+    sv.blind = 1 if (tc - sv.t_imu_ok > sv.imu_hold_s and tc - sv.t_mocap_ok > sv.blind_mocap_s) else 0
+    if sv.fs_on != 0:
+        cause |= _failsafe_check(sv, tc, estimate, cause)
     if sv.check_state != 0:
         cause |= _check_state(sv, clean, time_bad)
     cause |= _check_rotors(sv, frame.rotor_hz)

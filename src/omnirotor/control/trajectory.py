@@ -181,8 +181,10 @@ def packed_size(n_waypoints: int) -> int:
     return 2 + n_waypoints + (n_waypoints - 1) + _BASIS_SIZE * (n_waypoints + 1)
 
 
-MIN_CAPACITY_WAYPOINTS = 8
-"""The controller's trajectory field holds at least this many waypoints."""
+MIN_CAPACITY_WAYPOINTS = 32
+"""The controller's trajectory field holds at least this many waypoints (every shipped task's trajectory fits:
+the longest, the point contacts', has 17), so that one record, and one compiled step, serves them all: a larger
+record compiles the step again, which a flight node cannot afford between two frames."""
 
 
 def packed_capacity(n_waypoints: int) -> int:

@@ -28,7 +28,8 @@ Faults (times in simulator seconds, windows ``[t_start_s, t_start_s + duration_s
   integrator), every command still within the limits.
 * :class:`SensorCorruption`: NaN, inf, an added spike or a set value in one signal of the frame
   (accelerometer, gyroscope, rotor speeds, motion-capture position or quaternion, bypass position, velocity
-  or attitude, the frame's time stamp) over a window. The controller's frame supervision
+  or attitude, the frame's time stamp) over a window; or, sustained, the signal frozen on its first value,
+  a ramp (a growing bias, a drifting position) or a geometric growth. The controller's frame supervision
   (:mod:`omnirotor.control.supervisor`) rejects them, flagged ``FRAME_REJECTED`` with the cause logged.
 * :class:`WindGust`: an external force (and moment) at the CoM, world frame, with a "1-cos" or "step"
   profile, applied as the simulator's external wrench (the gust owns the external wrench while it blows and
@@ -77,6 +78,7 @@ __all__ = [
     "GUST_PROFILES",
     "FRAME_GLITCHES",
     "glitch_fault",
+    "random_mix",
 ]
 
 CORRUPTIBLE_SIGNALS = SIGNALS
@@ -146,10 +148,19 @@ class SensorCorruption:
         signal: one of :data:`CORRUPTIBLE_SIGNALS`.
         t_start_s: start [s].
         duration_s: length [s] (one control period for a single bad sample).
-        kind: "nan", "inf", "spike" (``magnitude`` added to every component) or "set" (``magnitude`` replaces it).
-        magnitude: the spike or value, in the signal's unit (m/s², rad/s, Hz, m, s; for "state": m on the
-            position; "state_v": m/s; "state_R" and "mocap_q": none).
+        kind: "nan", "inf", "spike" (``magnitude`` added to every component), "set" (``magnitude`` replaces
+            it), "freeze" (the signal's first value in the window is repeated: a motion capture frozen on one
+            pose with fresh time stamps), "ramp" (``magnitude`` times the fraction of ``rise_s`` elapsed, at most
+            1, added: a growing bias, a drifting position) or "grow" (``|magnitude|`` to the power of that
+            fraction, with its sign, added: a value running away geometrically).
+        magnitude: the spike, value or final ramp, in the signal's unit (m/s², rad/s, Hz, m, s; for "state": m
+            on the position; "state_v": m/s; "state_R" and "mocap_q": none).
         component: only this component (0-based) of the signal; None for all of them.
+        rise_s: the time a ramp or growth takes to reach ``magnitude`` [s] (None: ``duration_s``).
+        random: ``(probability, seed, group, member, members)``: each frame of the window is bad with the
+            probability and is then hit by one fault of the group (``members`` corruptions sharing ``group``
+            and ``seed``, this one the ``member``-th), drawn from the seed and the frame's step; None: every
+            frame. :func:`random_mix` builds such a group.
     """
 
     signal: str
@@ -158,6 +169,8 @@ class SensorCorruption:
     kind: str = "nan"
     magnitude: float = 0.0
     component: int | None = None
+    rise_s: float | None = None
+    random: tuple[float, int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
         if self.signal not in CORRUPTIBLE_SIGNALS:
@@ -170,6 +183,23 @@ class SensorCorruption:
             isinstance(self.component, bool) or not isinstance(self.component, int) or self.component < 0
         ):
             raise InputError(f"sensor_corruption.component must be an integer >= 0, got {self.component!r}")
+        if self.rise_s is not None:
+            check_positive("sensor_corruption.rise_s", self.rise_s)
+        if self.random is not None:
+            if len(self.random) != 5:
+                raise InputError("sensor_corruption.random must be (probability, seed, group, member, members)")
+            p, *ints = self.random
+            check_finite("sensor_corruption.random probability", p)
+            if not 0.0 < p <= 1.0:
+                raise InputError(f"sensor_corruption.random probability must be in (0, 1], got {p}")
+            if any(isinstance(i, bool) or not isinstance(i, (int, np.integer)) or i < 0 for i in ints):
+                raise InputError("sensor_corruption.random seed, group, member and members must be integers >= 0")
+            if not ints[2] < ints[3]:
+                raise InputError("sensor_corruption.random member must be below members")
+        if self.signal == "time" and self.kind in ("freeze", "ramp", "grow"):
+            raise InputError(
+                f"sensor_corruption.kind {self.kind!r} does not apply to the time (a clock step is a spike)"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -298,7 +328,9 @@ def install_faults(sim: Simulator, faults: Sequence[Fault] = (), controller=None
         elif isinstance(f, MocapDropout):
             schedule.add_mocap_dropout(f.t_start_s, f.duration_s, f.drop_state)
         elif isinstance(f, SensorCorruption):
-            schedule.add_corruption(f.signal, f.kind, f.t_start_s, f.duration_s, f.magnitude, f.component)
+            schedule.add_corruption(
+                f.signal, f.kind, f.t_start_s, f.duration_s, f.magnitude, f.component, f.rise_s, f.random
+            )
         else:
             schedule.add_gust(f.t_start_s, f.duration_s, f.force_W, f.moment_W, f.profile)
     if controller is not None and any(isinstance(f, RotorFailure) and f.tell_controller for f in faults):
@@ -419,3 +451,19 @@ def glitch_fault(glitch: FrameGlitch, t_start_s: float, dt: float = 1e-3) -> Sen
     """The :class:`SensorCorruption` of a glitch (a row of :data:`FRAME_GLITCHES`) from ``t_start_s``; period ``dt``."""
     _, signal, kind, magnitude, component, frames, *_ = glitch
     return SensorCorruption(signal, t_start_s, frames * dt, kind, magnitude, component)
+
+
+def random_mix(
+    glitches: Sequence[FrameGlitch], p: float, t_start_s: float, duration_s: float, seed: int, group: int = 0
+) -> tuple[SensorCorruption, ...]:
+    """Random bad frames: one :class:`SensorCorruption` per glitch, sharing their draws.
+
+    In ``[t_start_s, t_start_s + duration_s)`` each frame is bad with probability ``p``, hit then by one of
+    ``glitches`` (rows of :data:`FRAME_GLITCHES`, each drawn equally often), the draws from ``seed``. At most
+    :data:`~omnirotor.sim.faults.MAX_FAULTS` glitches in all of a schedule.
+    """
+    m = len(glitches)
+    return tuple(
+        SensorCorruption(signal, t_start_s, duration_s, kind, magnitude, component, None, (p, seed, group, j, m))
+        for j, (_, signal, kind, magnitude, component, *_) in enumerate(glitches)
+    )

@@ -7,30 +7,35 @@ its ``on_frame``/``wants_step``/``output``/``request``/``status``), per sensor f
     cmd = controller.step(frame) if director.wants_step() else None
     publish RotorCommand(director.output(cmd), session, seq, frame_seq)
 
-Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, polled: the newest is taken, older
-ones count as missed periods), commands go to ``/omnirotor/rotor_cmd`` with this process's random session id
+Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, waited for: the newest is taken,
+older ones count as missed periods), commands go to ``/omnirotor/rotor_cmd`` with this process's random session id
 and increasing sequence numbers (the plant obeys one session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl``
 requests (``/omnirotor/ctl``) are answered between frames on the loop's own thread (the director is not
 thread-safe). Status: ``/omnirotor/status`` (the director's, ``FlightStatus``) and ``/omnirotor/loop_status``
 (``LoopStatus``, the deadline accounting below) about 50 times a second; ``/omnirotor/wrench_est``
-(``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz.
+(``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One message per period is on the
+hot path, the command; a mission's controller-log rows go to the simulator in batches of 20.
 
-Real time (the default): between frames the loop sleeps until a little before the next frame is due, then
-polls; the garbage collector is frozen and disabled in the loop; the loop's thread asks for CPU affinity and
-``SCHED_FIFO`` (said on stderr where the OS refuses). A period with no frame calls the director with the
-growing link ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in
-the status, the director told (``frames_stopped``), and no command is published until frames come back.
-Deadline accounting: a period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after
-its frame was taken from the wire, when its frame came that much later than one period after the previous
-one, or when its frame was missed; an *overrun* is a period whose work took longer than the period. Counts,
-the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in the summary on exit.
+Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
+director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
+is frozen and disabled in the loop; the loop's thread asks for CPU affinity and ``SCHED_FIFO`` (said on stderr where
+the OS refuses). A period with no frame calls the director with the growing link ages (its failsafes); no frame for
+``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the director told (``frames_stopped``),
+and no command is published until frames come back. Deadline accounting: a period is *late* when its command left
+more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the wire, when its frame came that much later
+than one period after the previous one, or when its frame was missed; an *overrun* is a period whose work took
+longer than the period. Counts, the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in
+the summary on exit.
 
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
 
 A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
-counted bad and dropped (a repeated start frame, a replay, a forged or corrupted number that would otherwise
-lock the real frames out); after a link loss any number is followed again.
+counted bad and dropped (a replay, a forged or corrupted number that would otherwise lock the real frames out);
+after a link loss any number is followed again. The one exception is the plant's start frame (number 0), which
+the simulator repeats every 10 ms until it has obeyed a command answering it: repeated, it is answered again
+with the same command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a
+busy machine is not a link loss.
 
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
@@ -54,7 +59,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.fly.failsafe import LinkAges
-from omnirotor.messages import SensorFrame, new_frame
+from omnirotor.messages import SensorFrame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -63,10 +68,10 @@ from omnirotor.rosmsg.convert import (
     LOOP_STATUS,
     SIM_STATUS,
     WRENCH,
+    FrameCodec,
     WireMessages,
     frame_check,
     set_stamp,
-    unpack_frame,
 )
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
@@ -85,11 +90,13 @@ __all__ = [
 _STATE_ARMED = 1
 _STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
-_SPIN_S = 0.0003
+_RECENT = 1000
 MAX_FRAME_JUMP = 1000
 """The largest step of the frame number the loop follows (a second of frames); larger ones count as bad."""
-_LATE_POLL_S = 0.00005
 _FRAME_DEPTH = 32
+_ROW_BATCH = 20
+"""Controller-log rows per ControllerLog message (missions): one message every 20 steps, not one per step."""
+_LOCKSTEP_WAIT_S = 0.02
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +114,10 @@ class NodeOptions:
         log_rows: publish the controller's log rows (missions of ``omnirotor sim --serve``).
         exit_on_link_loss: end the loop when the link is lost (missions); else wait for frames again.
         max_frames: end after this many frames (None: until stopped or the simulator says it finished).
+        record: a ROS 2 bag to record the flight into (a new folder; :class:`~omnirotor.fly.record.FlightRecorder`:
+            every period, from a writer process, in bounded memory), or None.
+        foxglove_port: serve the live view (:class:`~omnirotor.fly.live.LiveView`) on this loopback port (0: any
+            free one), or None.
     """
 
     period_s: float = 0.001
@@ -119,6 +130,8 @@ class NodeOptions:
     log_rows: bool = False
     exit_on_link_loss: bool = False
     max_frames: int | None = None
+    record: str | None = None
+    foxglove_port: int | None = None
 
 
 class LoopStats:
@@ -135,6 +148,7 @@ class LoopStats:
         self.link_losses = 0
         self.controller_errors = 0
         self.status_errors = 0
+        self.output_errors = 0
         self._latency = np.zeros(_LATENCY_WINDOW)
         self._work = np.zeros(_LATENCY_WINDOW)
         self._i = 0
@@ -160,6 +174,18 @@ class LoopStats:
         self.missed += n
         self.late += n
 
+    def recent_p99_s(self) -> float:
+        """Frame-to-command p99 [s] of the last 1000 answered frames, for the status.
+
+        A percentile of the whole window (up to 131 072 samples) took milliseconds: at 50 Hz it made periods late.
+        """
+        n = min(self._i, _RECENT)
+        if n == 0:
+            return 0.0
+        i = self._i % _LATENCY_WINDOW
+        recent = self._latency[i - n : i] if i >= n else np.concatenate((self._latency[i - n :], self._latency[:i]))
+        return float(np.percentile(recent, 99))
+
     def latency_percentiles_us(self) -> dict:
         """Frame-to-command latency p50/p99/max [µs] over the last window."""
         return _percentiles(self._latency[: min(self._i, _LATENCY_WINDOW)])
@@ -184,6 +210,7 @@ class LoopStats:
             "link_losses": self.link_losses,
             "controller_errors": self.controller_errors,
             "status_errors": self.status_errors,
+            "output_errors": self.output_errors,
         }
 
 
@@ -240,11 +267,13 @@ class NodeLoop:
         self.session_id = secrets.randbits(63) | 1
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
-        self._record = new_frame(n)
+        self._codec = FrameCodec(n)
         shape_ok = frame_check(n)
 
         def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
             last = self._last_seq
+            if last == 0 and msg.seq == 0 and shape_ok(msg):  # the plant repeats its start frame: answer again
+                return True
             return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
 
         self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
@@ -266,19 +295,39 @@ class NodeLoop:
             transport.serve(
                 TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request
             )
-        self._row_msg = T[CONTROLLER_LOG](frame_seq=0, row=np.zeros(0)) if o.log_rows else None
+        self._row_msg = T[CONTROLLER_LOG](frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0))
+        self._row_seq = np.zeros(_ROW_BATCH, np.uint64)
+        self._rows: np.ndarray | None = None  # (_ROW_BATCH, columns), allocated on the first row
+        self._n_rows = 0
         self._loop_msg = T[LOOP_STATUS](
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
         self.cmd_seq = 0
+        self.start_answers = 0
+        """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
         self.link_lost = False
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
         self._last_seq = -1
         self.last_t = math.nan
+        self.recorder = self.live = None
+        columns = list(getattr(getattr(controller, "log", None), "column_names", ()))
+        if o.record is not None:
+            from omnirotor.fly.record import FlightRecorder
+
+            self.recorder = FlightRecorder(o.record, n, columns)
+        if o.foxglove_port is not None:
+            from omnirotor.fly.live import start_live_view
+
+            try:
+                self.live = start_live_view(o.foxglove_port, log_columns=columns)
+            except InputError:
+                self.close_outputs()
+                raise
+            self._say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
         self._f_idx = self._m_idx = self._R_idx = None
         log = getattr(controller, "log", None)
         if log is not None:
@@ -318,7 +367,7 @@ class NodeLoop:
         m.t = t
         set_stamp(m.header, t)
         m.control_status = control_status
-        m.state = _STATE_ARMED if bool(np.any(hz != 0.0)) else _STATE_STOP
+        m.state = _STATE_ARMED if hz.any() else _STATE_STOP  # any nonzero speed (NaN never reaches here)
         m.session_id = self.session_id
         m.seq = self.cmd_seq
         m.frame_seq = frame_seq
@@ -330,18 +379,31 @@ class NodeLoop:
         set_stamp(m.header, m.t)
         m.periods, m.periods_late, m.overruns = s.periods, s.late, s.overruns
         m.worst_late_s = s.worst_late_s
-        p99 = s.latency_percentiles_us().get("p99", 0.0) if s.periods % 50 == 0 or self.link_lost else None
-        if p99 is not None:
-            m.frame_to_command_p99_s = 1e-6 * p99
+        m.frame_to_command_p99_s = s.recent_p99_s()
         m.frames = s.frames
         m.frames_bad = self._frames.n_bad
         m.link_lost = self.link_lost
         self._pub_loop.put(m)
         if self._pub_status is not None:
             try:
-                self._pub_status.put(self._flight_status_type(**self.director.status().to_fields()))
+                status = self.director.status()
+                self._pub_status.put(self._flight_status_type(**status.to_fields()))
+                if self.recorder is not None:
+                    self.recorder.status(status)
+                if self.live is not None:
+                    self.live.status(status)
             except Exception:  # noqa: BLE001  (a status that cannot be built is skipped and counted, never fatal)
                 self.stats.status_errors += 1
+
+    def _republish_command(self, t: float) -> None:
+        """The last command again (a new sequence number, the same frame it answers)."""
+        m = self.msgs.command
+        if self.cmd_seq == 0 or m.t != t:
+            return
+        self.cmd_seq += 1
+        m.seq = self.cmd_seq
+        self._pub_cmd.put(m)
+        self.start_answers += 1
 
     def _publish_wrench(self, t: float) -> None:
         log = self.controller.log
@@ -356,13 +418,61 @@ class NodeLoop:
         w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(v) for v in m_W)
         self._pub_wrench.put(w)
 
-    def _publish_row(self, frame_seq: int) -> None:
+    def _keep_row(self, frame_seq: int) -> None:
+        """Copy the step's log row into the batch; a full batch is published (:meth:`_flush_rows`)."""
         log = self.controller.log
         if log.n == 0:
             return
-        self._row_msg.frame_seq = frame_seq
-        self._row_msg.row = log.data[log.n - 1]
-        self._pub_rows.put(self._row_msg)
+        row = log.data[log.n - 1]
+        if self._rows is None or self._rows.shape[1] != row.shape[0]:
+            self._flush_rows()
+            self._rows = np.zeros((_ROW_BATCH, row.shape[0]))
+        self._rows[self._n_rows] = row
+        self._row_seq[self._n_rows] = frame_seq
+        self._n_rows += 1
+        if self._n_rows == _ROW_BATCH:
+            self._flush_rows()
+
+    def _flush_rows(self) -> None:
+        """Publish the rows kept so far as one ``ControllerLog`` (missions: the simulator's metrics need them)."""
+        k = self._n_rows
+        if k == 0 or self._pub_rows is None:
+            return
+        m = self._row_msg
+        m.frame_seq = self._row_seq[:k]
+        m.n_columns = self._rows.shape[1]
+        m.rows = self._rows[:k].reshape(-1)
+        self._pub_rows.put(m)
+        self._n_rows = 0
+
+    def _record_period(self, frame: SensorFrame, hz: np.ndarray, cmd) -> None:
+        """The period to the recording and the live view (after the command left: off its latency)."""
+        log = self.controller.log
+        row = log.data[log.n - 1] if cmd is not None and log.n else None
+        try:
+            if self.recorder is not None:
+                self.recorder.period(frame, hz, int(cmd.status) if cmd is not None else 0, row)
+            if self.live is not None:
+                self.live.node_period(frame, hz, row)
+        except Exception:  # noqa: BLE001  (a recording or view that fails never ends the flight: counted)
+            self.stats.output_errors += 1
+
+    def close_outputs(self) -> dict:
+        """Finish the recording and stop the live view (idempotent); what the recording wrote."""
+        out: dict = {}
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            try:
+                summary = rec.close()
+                out["recording"] = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
+                                    "messages": summary.get("messages", {})}  # fmt: skip
+            except InputError as exc:
+                self._say(str(exc))
+                out["recording"] = {"path": str(rec.path), "error": str(exc)}
+        return out
 
     # -- the loop ---------------------------------------------------------------------------------------------
     def run(self, stop: threading.Event | None = None) -> dict:
@@ -383,13 +493,19 @@ class NodeLoop:
         next_status = 0.0
         next_gap_call = math.inf
         steps = 0
-        cpu0 = time.process_time()
+        cpu0, thread0 = time.process_time(), time.thread_time()
         gc.collect()
         gc.freeze()
         gc.disable()
         try:
             while not stop.is_set() and not self.finished:
-                msg = frames.take_latest()
+                # asleep until a frame arrives or the next thing is due (the director's gap call, the status)
+                now = mono()
+                if o.lockstep or last_frame is None or self.link_lost:
+                    timeout = min(_LOCKSTEP_WAIT_S, max(next_status - now, 0.0))
+                else:
+                    timeout = min(period, max(min(next_gap_call, next_status) - now, 0.0))
+                msg = frames.take_latest(timeout)
                 now = mono()
 
                 if msg is None:
@@ -402,7 +518,12 @@ class NodeLoop:
                     self._serve_requests()
                     if self.link_lost and o.exit_on_link_loss:
                         break
-                    self._wait(now, last_arrival, period, o.lockstep)
+                    continue
+                if msg.seq == 0 and last_seq == 0:
+                    # the plant's start frame again: our answer has not reached it yet (it repeats the frame
+                    # every 10 ms until it obeys one); the same answer again, nothing stepped, the link alive
+                    self._republish_command(msg.t)
+                    last_seen = mono()
                     continue
                 # a new frame
                 arrival = now
@@ -416,7 +537,7 @@ class NodeLoop:
                     arrival_late = max(0.0, arrival - last_arrival - period)
                 last_seq = self._last_seq = int(msg.seq)
                 stats.frames += 1
-                frame = SensorFrame.from_record(unpack_frame(msg, self._record))
+                frame = self._codec.decode(msg)
                 self.last_t = frame.t
                 if frame.mocap_new:
                     last_mocap_t = frame.mocap_t
@@ -434,9 +555,11 @@ class NodeLoop:
                 hz = director.output(cmd)
                 self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0)
                 sent = mono()
+                if self.recorder is not None or self.live is not None:
+                    self._record_period(frame, hz, cmd)
                 if cmd is not None:
                     if self._pub_rows is not None:
-                        self._publish_row(last_seq)
+                        self._keep_row(last_seq)
                     if steps % o.wrench_every == 0:
                         self._publish_wrench(frame.t)
                 stats.period(sent - arrival, sent - arrival, arrival_late, period)
@@ -448,23 +571,26 @@ class NodeLoop:
                     next_status = sent + status_every
                     self._poll_sim_status()
                     self._publish_status()
+                    self._flush_rows()
                 self._serve_requests()
                 if o.max_frames is not None and stats.frames >= o.max_frames:
                     break
-                if not o.lockstep:
-                    self._wait(mono(), arrival, period, False)
         except KeyboardInterrupt:
             pass
         finally:
             gc.enable()
             gc.unfreeze()
+        self._flush_rows()
         self._publish_status()
         out = stats.summary()
+        out.update(self.close_outputs())
         out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
+        out["loop_cpu_per_frame_us"] = 1e6 * (time.thread_time() - thread0) / max(stats.frames, 1)
         out["frames_bad"] = self._frames.n_bad
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
+        out["start_frame_answered_again"] = self.start_answers
         out["session_id"] = f"{self.session_id:016x}"
         return out
 
@@ -505,27 +631,15 @@ class NodeLoop:
         if self._last_seq >= self._finish_seq:
             self.finished = True
 
-    def _wait(self, now: float, last_arrival: float, period: float, lockstep: bool) -> None:
-        """Until shortly before the next frame is due: sleep, then poll (lockstep: a very short pause)."""
-        if lockstep or not math.isfinite(last_arrival):
-            time.sleep(0)
-            return
-        due = last_arrival + period
-        left = due - now - _SPIN_S
-        if left > 0:
-            time.sleep(min(left, period))
-        elif now < due + _SPIN_S:
-            time.sleep(0)  # the frame is due: poll
-        else:
-            time.sleep(_LATE_POLL_S)  # it is late: poll, but leave the CPU to the threads that deliver it
 
-
-def warm_up(controller) -> None:
+def warm_up(controller, trajectory=None) -> None:
     """Compile (or load from numba's cache) the controller's kernels before the first real frame.
 
-    One reset and one step on a synthetic hover frame; the controller's next :meth:`reset` (the director's, on
-    the first real frame) starts it anew and clears its log. Best effort: a controller that refuses the
-    synthetic frame (the bypass estimator wants a state) compiles on its first real frame instead.
+    One reset and one step on a synthetic hover frame, with ``trajectory`` (the one the flight will reset with,
+    so that the controller's record is already sized for it and the director's reset compiles nothing; a
+    hover at the frame's pose when None); the controller's next :meth:`reset` (the director's, on the first
+    real frame) starts it anew and clears its log. Best effort: a controller that refuses the synthetic frame
+    (the bypass estimator wants a state) compiles on its first real frame instead.
     """
     from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 
@@ -537,7 +651,8 @@ def warm_up(controller) -> None:
     q = np.array([1.0, 0.0, 0.0, 0.0])
     first = SensorFrame(0.0, acc, np.zeros(3), hz.copy(), True, 0.0, p_W, q)
     second = SensorFrame(controller.params.dt, acc, np.zeros(3), hz.copy(), False)
-    trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
+    if trajectory is None:
+        trajectory = PoseTrajectory([Waypoint(0.0, p_W + np.asarray(vehicle.p_E_B_array), np.eye(3))])
     try:
         controller.reset(first, trajectory)
         controller.step(second)
@@ -613,7 +728,7 @@ def fly_mission(
     def loop(sim, controller, trajectory, duration_s, progress=None, video=None, on_step=None):
         del sim, progress, video, on_step  # the plant is the simulator's
         controller.log.ensure_capacity(int(round(duration_s / controller.params.dt)))
-        warm_up(controller)
+        warm_up(controller, trajectory)
         node = NodeLoop(transport, controller, director_factory(controller, trajectory), node_options)
         if realtime is not None and not node_options.lockstep:  # lockstep polls without pause: no real-time class
             realtime()

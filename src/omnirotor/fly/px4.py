@@ -46,12 +46,26 @@ __all__ = [
     "rotor_hz_from_esc_status",
     "imu_from_sensor_combined",
     "actuator_motors_msg",
+    "offboard_control_mode_msg",
+    "vehicle_command_msg",
+    "Px4Offboard",
+    "VEHICLE_CMD_DO_SET_MODE",
+    "VEHICLE_CMD_COMPONENT_ARM_DISARM",
+    "PX4_CUSTOM_MAIN_MODE_OFFBOARD",
 ]
 
 NUM_CONTROLS = 12
 """Controls in one ``ActuatorMotors`` (PX4's ``NUM_CONTROLS``)."""
 MOTOR1 = 101
 """PX4's ``actuator_function`` of Motor1 (``ACTUATOR_FUNCTION_MOTOR1``)."""
+VEHICLE_CMD_DO_SET_MODE = 176
+"""``VehicleCommand.command``: set the mode (param1 base mode flags, param2 PX4's custom main mode)."""
+VEHICLE_CMD_COMPONENT_ARM_DISARM = 400
+"""``VehicleCommand.command``: arm (param1 = 1) or disarm (param1 = 0)."""
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+"""MAVLink's base-mode flag saying param2 is the autopilot's own (custom) mode."""
+PX4_CUSTOM_MAIN_MODE_OFFBOARD = 6
+"""PX4's custom main mode number of *Offboard*."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,9 +95,9 @@ PX4_PROFILE: tuple[Px4Route, ...] = (
     Px4Route("/omnirotor/rotor_cmd", "/fmu/in/actuator_motors", "px4_msgs/msg/ActuatorMotors", True,
              "the command: normalised thrust |w| w / w_max^2 per motor, NaN stops (module docstring)"),
     Px4Route("", "/fmu/in/offboard_control_mode", "px4_msgs/msg/OffboardControlMode", True,
-             "direct_actuator = true, at >= 2 Hz while the node commands (PX4's offboard proof of life)"),
+             "direct_actuator = true, at 10 Hz while the node commands (PX4's offboard proof of life; Px4Offboard)"),
     Px4Route("", "/fmu/in/vehicle_command", "px4_msgs/msg/VehicleCommand", True,
-             "arm/disarm and the switch to offboard mode (VEHICLE_CMD_COMPONENT_ARM_DISARM, DO_SET_MODE)"),
+             "the switch to offboard mode (DO_SET_MODE 1, 6), then arm; disarm (COMPONENT_ARM_DISARM; Px4Offboard)"),
     Px4Route("/omnirotor/mocap", "/fmu/in/vehicle_mocap_odometry", "px4_msgs/msg/VehicleOdometry", True,
              "motion capture forwarded to PX4 (NWU -> NED), so that its estimator and failsafes see it too"),
     Px4Route("", "/fmu/out/vehicle_odometry", "px4_msgs/msg/VehicleOdometry", False,
@@ -195,3 +209,125 @@ def actuator_motors_msg(control: np.ndarray, timestamp_us: int, flags: int, time
         timestamp=int(timestamp_us), timestamp_sample=int(timestamp_sample_us or timestamp_us),
         reversible_flags=int(flags), control=c,
     )  # fmt: skip
+
+
+def offboard_control_mode_msg(timestamp_us: int) -> Any:
+    """``px4_msgs/msg/OffboardControlMode`` of direct actuator control (PX4's offboard proof of life)."""
+    from omnirotor.rosmsg import msg_type
+
+    return msg_type("px4_msgs/msg/OffboardControlMode")(
+        timestamp=int(timestamp_us), position=False, velocity=False, acceleration=False, attitude=False,
+        body_rate=False, thrust_and_torque=False, direct_actuator=True,
+    )  # fmt: skip
+
+
+def vehicle_command_msg(
+    command: int, timestamp_us: int, param1: float = 0.0, param2: float = 0.0, *, target_system: int = 1,
+    source_system: int = 1, source_component: int = 1,
+) -> Any:  # fmt: skip
+    """A ``px4_msgs/msg/VehicleCommand`` from an external component (this node) to PX4's commander.
+
+    Args:
+        command: ``VEHICLE_CMD_*``.
+        timestamp_us: PX4's time [µs].
+        param1: the command's first parameter.
+        param2: its second (the others are 0).
+        target_system: PX4's MAVLink system id (``MAV_SYS_ID``, 1 by default).
+        source_system: the sender's system id.
+        source_component: the sender's component id.
+    """
+    from omnirotor.rosmsg import msg_type
+
+    return msg_type("px4_msgs/msg/VehicleCommand")(
+        timestamp=int(timestamp_us), param1=float(param1), param2=float(param2), param3=0.0, param4=0.0,
+        param5=0.0, param6=0.0, param7=0.0, command=int(command), target_system=int(target_system),
+        target_component=1, source_system=int(source_system), source_component=int(source_component),
+        confirmation=0, from_external=True,
+    )  # fmt: skip
+
+
+class Px4Offboard:
+    """What the node sends PX4 besides ``ActuatorMotors`` to fly in offboard direct actuator control.
+
+    PX4 (v1.18) accepts the offboard mode only while ``OffboardControlMode`` streams (at 2 Hz or more, here
+    ``heartbeat_hz``) and the vehicle is armed only in a mode that allows it; so, per period, :meth:`period` gives
+    the messages due: the heartbeat whenever the node commands (or wants to), and on the node's arming the
+    switch to offboard (``DO_SET_MODE``: custom main mode 6) once the heartbeat has streamed for
+    ``lead_s``, followed by the arming command; on disarming, the disarm command. Commands are repeated every
+    ``retry_s`` until the state PX4 reports (:meth:`px4_state`, from ``VehicleStatus``) matches, at most
+    ``max_tries`` times.
+
+    Args:
+        heartbeat_hz: OffboardControlMode rate [Hz] (>= 2; 10 by default).
+        lead_s: heartbeat time before the mode switch [s] (PX4 wants set-points before it switches).
+        retry_s: period of a command's repetition until PX4 confirms it [s].
+        max_tries: repetitions of a command before it is given up (said in :attr:`gave_up`).
+        target_system: PX4's MAVLink system id.
+    """
+
+    def __init__(self, heartbeat_hz: float = 10.0, lead_s: float = 1.0, retry_s: float = 0.5, max_tries: int = 10,
+                 target_system: int = 1) -> None:  # fmt: skip
+        if not (math.isfinite(heartbeat_hz) and heartbeat_hz >= 2.0):
+            raise InputError(f"the offboard heartbeat must be at 2 Hz or more (PX4's limit), got {heartbeat_hz}")
+        self.heartbeat_every_us = int(1e6 / heartbeat_hz)
+        self.lead_us = int(1e6 * lead_s)
+        self.retry_us = int(1e6 * retry_s)
+        self.max_tries = max_tries
+        self.target_system = target_system
+        self._next_beat = 0
+        self._streaming_since: int | None = None
+        self._last_cmd = {VEHICLE_CMD_DO_SET_MODE: -(1 << 62), VEHICLE_CMD_COMPONENT_ARM_DISARM: -(1 << 62)}
+        self._tries = dict.fromkeys(self._last_cmd, 0)
+        self.px4_armed = False
+        self.px4_offboard = False
+        self.gave_up: list[str] = []
+
+    def px4_state(self, armed: bool, offboard: bool) -> None:
+        """PX4's own state (``VehicleStatus``: arming state armed, navigation state offboard)."""
+        self.px4_armed, self.px4_offboard = bool(armed), bool(offboard)
+
+    def _command(self, out: list, t_us: int, command: int, param1: float, param2: float = 0.0) -> None:
+        if t_us - self._last_cmd[command] < self.retry_us:
+            return
+        if self._tries[command] >= self.max_tries:
+            name = "mode switch to offboard" if command == VEHICLE_CMD_DO_SET_MODE else "arm/disarm"
+            if name not in self.gave_up:
+                self.gave_up.append(name)
+            return
+        self._last_cmd[command] = t_us
+        self._tries[command] += 1
+        out.append(("vehicle_command", vehicle_command_msg(command, t_us, param1, param2,
+                                                           target_system=self.target_system)))  # fmt: skip
+
+    def period(self, t_us: int, armed: bool) -> list[tuple[str, Any]]:
+        """The messages due at PX4 time ``t_us`` [µs] when the node is ``armed`` (commands, or wants to).
+
+        Returns:
+            ``[(route, message)]`` with route ``"offboard_control_mode"`` or ``"vehicle_command"``
+            (:data:`PX4_PROFILE`'s ``/fmu/in/`` topics).
+        """
+        out: list[tuple[str, Any]] = []
+        if armed:
+            if self._streaming_since is None:
+                self._streaming_since = t_us
+                self._next_beat = t_us
+            if t_us >= self._next_beat:
+                out.append(("offboard_control_mode", offboard_control_mode_msg(t_us)))
+                self._next_beat += self.heartbeat_every_us
+                if self._next_beat <= t_us:  # a long gap: the cadence restarts from now
+                    self._next_beat = t_us + self.heartbeat_every_us
+            if t_us - self._streaming_since >= self.lead_us:
+                if not self.px4_offboard:
+                    self._command(out, t_us, VEHICLE_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                  PX4_CUSTOM_MAIN_MODE_OFFBOARD)  # fmt: skip
+                elif not self.px4_armed:
+                    self._command(out, t_us, VEHICLE_CMD_COMPONENT_ARM_DISARM, 1.0)
+                else:
+                    self._tries = dict.fromkeys(self._tries, 0)
+        else:
+            self._streaming_since = None
+            if self.px4_armed:
+                self._command(out, t_us, VEHICLE_CMD_COMPONENT_ARM_DISARM, 0.0)
+            else:
+                self._tries = dict.fromkeys(self._tries, 0)
+        return out

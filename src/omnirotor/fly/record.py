@@ -45,7 +45,7 @@ import numpy as np
 from omnirotor.errors import InputError
 from omnirotor.messages import SensorFrame
 
-__all__ = ["FlightRecorder", "record_dtype", "read_recording", "TOPICS", "column_groups"]
+__all__ = ["FlightRecorder", "record_dtype", "read_recording", "TOPICS", "column_groups", "check_recording_path"]
 
 TOPICS = {
     "/omnirotor/frame": "omnirotor_msgs/msg/SensorFrame",
@@ -87,6 +87,24 @@ def record_dtype(n_rotors: int, n_log: int) -> np.dtype:
     )
 
 
+def check_recording_path(path: str | Path, label: str = "recording") -> Path:
+    """A new bag folder's path, checked before anything runs (``--record``).
+
+    Raises:
+        InputError: the path exists (a recording is never written over), its folder does not exist or is not
+            writable, or the name is not one a folder can have.
+    """
+    from omnirotor.safe_io import check_output_dir
+
+    path = Path(path)
+    check_output_dir(path, label)
+    if path.exists() or path.is_symlink():
+        raise InputError(f"{label} {path}: exists already; give a new folder name")
+    if not path.parent.is_dir():
+        raise InputError(f"{label} {path}: folder {path.parent} does not exist")
+    return path
+
+
 class FlightRecorder:
     """Record a flight into the ROS 2 bag ``path`` from a writer process (module docstring).
 
@@ -105,13 +123,9 @@ class FlightRecorder:
     def __init__(
         self, path: str | Path, n_rotors: int, log_columns=(), capacity: int = 4096, derived_every: int = 10
     ) -> None:
-        path = Path(path)
-        if path.exists():
-            raise InputError(f"recording {path} exists already; give a new name")
+        path = check_recording_path(path)
         if isinstance(derived_every, bool) or not isinstance(derived_every, int) or derived_every < 1:
             raise InputError(f"derived_every must be an integer >= 1, got {derived_every!r}")
-        if not path.parent.is_dir():
-            raise InputError(f"recording {path}: folder {path.parent} does not exist")
         self.path = path
         self.capacity = int(capacity)
         self.dtype = record_dtype(n_rotors, len(log_columns))

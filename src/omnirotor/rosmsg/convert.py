@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from omnirotor.messages import SensorFrame, StateEstimate, frame_dtype, new_frame
 from omnirotor.rosmsg import typestore
 
 __all__ = [
@@ -34,6 +35,8 @@ __all__ = [
     "frame_check",
     "command_check",
     "unpack_frame",
+    "FrameCodec",
+    "flat_view",
 ]
 
 FRAME = "omnirotor_msgs/msg/SensorFrame"
@@ -50,6 +53,36 @@ STRING = "std_msgs/msg/String"
 _STATE_SIZE = 21
 _P, _V, _A, _R, _OMEGA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 21)
 """The message's ``state`` (21 numbers): the record's state fields in this order (``R_WB`` row-major)."""
+
+
+def _flat_slices(dtype: np.dtype, base: int = 0, prefix: str = "") -> dict[str, slice]:
+    """Every leaf field of an all-float64 record dtype as a slice of its flat float64 view (``a.b`` names)."""
+    out = {}
+    for name in dtype.names:
+        sub, offset = dtype.fields[name][:2]
+        start = base + offset // 8
+        if sub.names is not None:
+            out.update(_flat_slices(sub, start, f"{prefix}{name}."))
+        else:
+            out[prefix + name] = slice(start, start + sub.itemsize // 8)
+    return out
+
+
+_F = _flat_slices(frame_dtype(1))
+_T, _ACC, _GYRO = _F["t"].start, _F["imu.acc_B"], _F["imu.gyro_B"]
+_M_NEW, _M_T, _M_P, _M_Q = _F["mocap.new"].start, _F["mocap.t"].start, _F["mocap.p_W"], _F["mocap.q_WB"]
+_S_VALID = _F["state.valid"].start
+_S_STATE = slice(_F["state.p_W"].start, _F["state.omega_B"].stop)  # p_W, v_W, a_W, R_WB (row-major), omega_B
+_HZ_START = _F["rotor_hz"].start
+if [_F[k] for k in ("state.p_W", "state.v_W", "state.a_W", "state.R_WB", "state.omega_B")] != [
+    slice(_S_STATE.start + s.start, _S_STATE.start + s.stop) for s in (_P, _V, _A, _R, _OMEGA)
+]:  # the message's state order is the record's (module docstring)
+    raise ImportError("omnirotor.messages' state layout is not the SensorFrame message's")
+
+
+def flat_view(record: np.ndarray) -> np.ndarray:
+    """The flat float64 view of a ``(1,)`` frame record (every field of it is a float64)."""
+    return record.view(np.float64)
 
 
 def set_stamp(header, t: float) -> None:
@@ -100,6 +133,8 @@ class WireMessages:
             header=header(world_id),
             pose=Pose(position=P(x=0.0, y=0.0, z=0.0), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0)),
         )
+        self._record: np.ndarray | None = None
+        self._flat = np.zeros(0)
         W = T["geometry_msgs/msg/Wrench"]
         self.wrench = T[WRENCH](
             header=header(world_id), wrench=W(force=V3(x=0.0, y=0.0, z=0.0), torque=V3(x=0.0, y=0.0, z=0.0))
@@ -107,28 +142,21 @@ class WireMessages:
 
     def fill_frame(self, record: np.ndarray, seq: int) -> object:
         """The frame message of a ``(1,)`` frame record (:mod:`omnirotor.messages`), exact; returns :attr:`frame`."""
-        m = self.frame
-        r = record[0]
+        if record is not self._record:  # the plant writes the same record every period: its view is kept
+            self._record, self._flat = record, flat_view(record)
+        x, m = self._flat, self.frame
         m.seq = seq
-        m.t = float(r["t"])
-        set_stamp(m.header, m.t)
-        imu, mocap, state = r["imu"], r["mocap"], r["state"]
-        m.imu_acc_b[:] = imu["acc_B"]
-        m.imu_gyro_b[:] = imu["gyro_B"]
-        m.mocap_new = bool(mocap["new"] != 0.0)
-        m.mocap_t = float(mocap["t"])
-        m.mocap_p_w[:] = mocap["p_W"]
-        m.mocap_q_wb[:] = mocap["q_WB"]
-        m.has_state = bool(state["valid"] != 0.0)
-        x = m.state
-        x[_P], x[_V], x[_A], x[_R], x[_OMEGA] = (
-            state["p_W"],
-            state["v_W"],
-            state["a_W"],
-            state["R_WB"].reshape(9),
-            state["omega_B"],
-        )
-        m.rotor_hz[:] = r["rotor_hz"]
+        m.t = t = float(x[_T])
+        set_stamp(m.header, t)
+        m.imu_acc_b[:] = x[_ACC]
+        m.imu_gyro_b[:] = x[_GYRO]
+        m.mocap_new = x[_M_NEW] != 0.0
+        m.mocap_t = float(x[_M_T])
+        m.mocap_p_w[:] = x[_M_P]
+        m.mocap_q_wb[:] = x[_M_Q]
+        m.has_state = x[_S_VALID] != 0.0
+        m.state[:] = x[_S_STATE]
+        m.rotor_hz[:] = x[_HZ_START:]
         return m
 
     def fill_views(self, record: np.ndarray) -> None:
@@ -152,21 +180,75 @@ class WireMessages:
 
 def unpack_frame(msg, out: np.ndarray) -> np.ndarray:
     """Write a frame message into the ``(1,)`` frame record ``out``, exact; returns ``out``."""
-    r = out[0]
-    r["t"] = msg.t
-    imu, mocap, state = r["imu"], r["mocap"], r["state"]
-    imu["acc_B"] = msg.imu_acc_b
-    imu["gyro_B"] = msg.imu_gyro_b
-    mocap["new"] = 1.0 if msg.mocap_new else 0.0
-    mocap["t"] = msg.mocap_t
-    mocap["p_W"] = msg.mocap_p_w
-    mocap["q_WB"] = msg.mocap_q_wb
-    state["valid"] = 1.0 if msg.has_state else 0.0
-    x = msg.state
-    state["p_W"], state["v_W"], state["a_W"], state["omega_B"] = x[_P], x[_V], x[_A], x[_OMEGA]
-    state["R_WB"] = x[_R].reshape(3, 3)
-    r["rotor_hz"] = msg.rotor_hz
+    _unpack(msg, flat_view(out))
     return out
+
+
+def _unpack(msg, x: np.ndarray) -> None:
+    x[_T] = msg.t
+    x[_ACC] = msg.imu_acc_b
+    x[_GYRO] = msg.imu_gyro_b
+    if msg.mocap_new:
+        x[_M_NEW] = 1.0
+        x[_M_T] = msg.mocap_t
+        x[_M_P] = msg.mocap_p_w
+        x[_M_Q] = msg.mocap_q_wb
+    else:  # the record's convention: no sample, its entries zero
+        x[_M_NEW : _M_Q.stop] = 0.0
+    if msg.has_state:
+        x[_S_VALID] = 1.0
+        x[_S_STATE] = msg.state
+    else:
+        x[_S_VALID : _S_STATE.stop] = 0.0
+    x[_HZ_START:] = msg.rotor_hz
+
+
+_SET = {name: SensorFrame.__dict__[name].__set__ for name in ("t", "mocap_new", "mocap_t", "mocap_p_W", "mocap_q_WB",
+                                                               "state")}  # fmt: skip
+
+
+class FrameCodec:
+    """One vehicle's frame record and :class:`SensorFrame`, refilled from each frame message in place.
+
+    Args:
+        n_rotors: the vehicle's rotors.
+        record: a ``(1,)`` frame record to view (e.g. the simulator's own, which its step rewrites; then
+            :meth:`refresh` gives its frame); None: a new one.
+
+    :meth:`decode` writes the message into :attr:`record` (slices of its flat float64 view, computed once) and
+    returns :attr:`frame`: a frame whose arrays are views of that record and whose scalar slots are set in place,
+    so a period builds no frame object and copies no record. It is valid until the next :meth:`decode`: a
+    consumer keeps copies (as the flight director and the controller do), never the frame.
+    """
+
+    def __init__(self, n_rotors: int, record: np.ndarray | None = None) -> None:
+        self.record = new_frame(n_rotors) if record is None else record
+        self._x = x = flat_view(self.record)
+        self._p, self._q = x[_M_P], x[_M_Q]
+        self.frame = SensorFrame(0.0, x[_ACC], x[_GYRO], x[_HZ_START:])
+        SensorFrame.__dict__["record"].__set__(self.frame, self.record)
+
+    def decode(self, msg) -> SensorFrame:
+        """The frame of a (checked) ``SensorFrame`` message, exact."""
+        _unpack(msg, self._x)
+        return self.refresh()
+
+    def refresh(self) -> SensorFrame:
+        """The frame of :attr:`record` as it is now (after :meth:`decode`, or after its producer wrote it)."""
+        x, f, s = self._x, self.frame, _SET
+        t = float(x[_T])
+        s["t"](f, t)
+        new = x[_M_NEW] != 0.0
+        s["mocap_new"](f, bool(new))
+        s["mocap_t"](f, float(x[_M_T]) if new else 0.0)
+        s["mocap_p_W"](f, self._p if new else None)
+        s["mocap_q_WB"](f, self._q if new else None)
+        if x[_S_VALID] != 0.0:  # bypass studies only: a state object per frame
+            st = self.record[0]["state"]
+            s["state"](f, StateEstimate(t, st["p_W"], st["v_W"], st["a_W"], st["R_WB"], st["omega_B"]))
+        else:
+            s["state"](f, None)
+        return f
 
 
 def frame_check(n_rotors: int):

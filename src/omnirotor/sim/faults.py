@@ -11,7 +11,13 @@ so a run with faults takes the same compiled loop as one without. Per control pe
 3. after the step, :func:`faults_frame` edits the new frame (its time ``t'``): a motion-capture dropout
    ``[t_start, t_end)`` removes the sample delivered in it and any sample taken in it (and the bypass state
    with ``drop_state``); a corruption puts NaN, inf, an added spike or a set value into one signal (all
-   components, or one), in the order of the schedule.
+   components, or one), in the order of the schedule. Sustained faults (issue 26) have three more kinds:
+   *freeze* repeats the signal's first value in the window (a motion capture frozen on one pose whose samples
+   keep fresh time stamps), *ramp* adds ``magnitude * min(1, tau / rise_s)`` (``tau`` the time since the
+   window's start: a bias growing over ``rise_s`` then held, a position drifting) and *grow* adds
+   ``|magnitude| ** min(1, tau / rise_s)`` with the magnitude's sign (a value growing geometrically from 1 to
+   the magnitude, e.g. an accelerometer running away to 1e300). A clock reset is a *spike* of ``-t_start`` on
+   "time" over the rest of the run (the clock restarts from 0 and runs on).
 
 Telling the controller that a rotor failed is not the plant's business: the schedule gives the steps at
 which it is due (:meth:`FaultSchedule.notice_steps`) and calls :attr:`FaultSchedule.notify` at them from the
@@ -56,10 +62,12 @@ SIGNALS = ("imu_acc", "imu_gyro", "rotor_hz", "mocap", "state", "time", "mocap_q
 """Signals of the frame a corruption can hit (their codes are their indices): "mocap" is the position (and the
 quaternion for nan/inf), "state" the bypass state's position, "time" the frame's time stamp, "mocap_q" the
 quaternion, "state_v" the bypass velocity and "state_R" its attitude matrix (row-major)."""
-CORRUPTIONS = ("nan", "inf", "spike", "set")
+CORRUPTIONS = ("nan", "inf", "spike", "set", "freeze", "ramp", "grow")
 PROFILES = ("1-cos", "step")
 _SIG_ACC, _SIG_GYRO, _SIG_ROTOR, _SIG_MOCAP, _SIG_STATE, _SIG_TIME, _SIG_MOCAP_Q, _SIG_STATE_V, _SIG_STATE_R = range(9)
-_NAN, _INF, _SPIKE, _SET = range(4)
+_NAN, _INF, _SPIKE, _SET, _FREEZE, _RAMP, _GROW = range(7)
+N_HELD = 9
+"""Values a frozen signal keeps (the largest signal: the bypass attitude matrix)."""
 _STEP_PROFILE = 1
 _TIME_TOL_S = 1e-12
 """A fault due at ``t_start`` starts at the first period whose time is within this of it."""
@@ -78,6 +86,14 @@ FAULT_DTYPE = np.dtype(
         ("corruption", np.int64),  # index in CORRUPTIONS
         ("magnitude", np.float64),  # spike
         ("component", np.int64),  # -1: all components
+        ("rise_s", np.float64),  # ramp and grow: time to reach the magnitude [s]
+        ("held", np.float64, (N_HELD,)),  # freeze: the values held (the signal's first in the window)
+        ("n_held", np.int64),  # freeze: values held so far (0: none yet)
+        ("probability", np.float64),  # random: the chance of a bad frame in the window (0: every frame)
+        ("group", np.int64),  # random: faults of one group share the draw, one of them hits a bad frame
+        ("member", np.int64),  # its index in the group ...
+        ("members", np.int64),  # ... of this many
+        ("seed", np.int64),  # random: the draws' seed
         ("force_W", np.float64, (3,)),  # gust peak [N]
         ("moment_W", np.float64, (3,)),  # gust peak [N·m]
         ("profile", np.int64),  # index in PROFILES
@@ -196,28 +212,68 @@ def faults_wrench(st, t: float, ext) -> None:
 
 
 @jit
-def _corrupted(x: float, f) -> float:
-    """The value ``x`` corrupted by fault ``f``."""
-    if f["corruption"] == _NAN:
+def _corrupted(x: float, f, t: float) -> float:
+    """The value ``x`` corrupted by fault ``f`` at time ``t`` (freeze: handled by :func:`_bad`)."""
+    kind = f["corruption"]
+    if kind == _NAN:
         return math.nan
-    if f["corruption"] == _INF:
+    if kind == _INF:
         return math.inf
-    if f["corruption"] == _SET:
+    if kind == _SET:
         return f["magnitude"]
+    if kind == _RAMP or kind == _GROW:
+        frac = min(1.0, max(0.0, (t - f["t_start_s"]) / f["rise_s"]))
+        if kind == _RAMP:
+            return x + f["magnitude"] * frac
+        return x + math.copysign(abs(f["magnitude"]) ** frac, f["magnitude"])
     return x + f["magnitude"]
 
 
 @jit
-def _bad(values, f) -> None:
-    """Corrupt ``values`` (a signal of the frame) by fault ``f``: one component or all; an absent one: nothing."""
+def _bad(values, f, t: float, first: int = 0) -> None:
+    """Corrupt ``values`` (a signal of the frame) by fault ``f`` at ``t``: one component or all.
+
+    An absent component: nothing. A freeze holds the values from ``f.held[first]`` on (taken the first time it
+    sees the signal).
+    """
     size = values.shape[0]
     lo, hi = 0, size
     if f["component"] >= 0:
         if f["component"] >= size:
             return
         lo, hi = f["component"], f["component"] + 1
+    if f["corruption"] == _FREEZE:
+        held = f["held"]
+        if f["n_held"] <= first:
+            for j in range(lo, hi):
+                held[first + j] = values[j]
+            f["n_held"] = first + size
+        for j in range(lo, hi):
+            values[j] = held[first + j]
+        return
     for j in range(lo, hi):
-        values[j] = _corrupted(values[j], f)
+        values[j] = _corrupted(values[j], f, t)
+
+
+@jit
+def _draw(seed: int, k: int) -> float:
+    """A uniform number in [0, 1) from ``seed`` and the step ``k`` (splitmix64: no generator state to keep)."""
+    z = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(k) + np.uint64(0x632BE59BD9B4E019)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@jit
+def _hits(c, t: float) -> bool:
+    """Whether a random corruption hits the frame of time ``t``: its group's draw falls in its share."""
+    if c["probability"] <= 0.0:
+        return True
+    u = _draw(c["seed"] * 1000 + c["group"], int(round(t * 1e6)))
+    if u >= c["probability"]:
+        return False
+    return int(u / c["probability"] * c["members"]) == c["member"]
 
 
 @jit
@@ -248,36 +304,38 @@ def faults_frame(st, frame) -> None:
         active = c["t_start_s"] <= t < c["t_end_s"]
         if active != c["on"]:
             c["on"] = active
+            c["n_held"] = 0
             _log(st, t, EV_CORR_ON if active else EV_CORR_OFF, i)
-        if not active:
+        if not active or not _hits(c, t):
             continue
         sig = c["signal"]
         if sig == _SIG_ACC:
-            _bad(frame.imu.acc_B, c)
+            _bad(frame.imu.acc_B, c, t)
         elif sig == _SIG_GYRO:
-            _bad(frame.imu.gyro_B, c)
+            _bad(frame.imu.gyro_B, c, t)
         elif sig == _SIG_ROTOR:
-            _bad(frame.rotor_hz, c)
+            _bad(frame.rotor_hz, c, t)
         elif sig == _SIG_MOCAP:
             if mocap.new != 0.0 and mocap_new:
-                _bad(mocap.p_W, c)
-                if c["corruption"] == _NAN or c["corruption"] == _INF:
-                    _bad(mocap.q_WB, c)
+                _bad(mocap.p_W, c, t)
+                kind = c["corruption"]
+                if kind == _NAN or kind == _INF or kind == _FREEZE:  # a frozen sample: its pose, fresh stamps
+                    _bad(mocap.q_WB, c, t, 3)
         elif sig == _SIG_MOCAP_Q:
             if mocap.new != 0.0 and mocap_new:
-                _bad(mocap.q_WB, c)
+                _bad(mocap.q_WB, c, t)
         elif sig == _SIG_TIME:  # a clock step (spike) moves the motion-capture stamp of the same clock too
             if c["component"] <= 0:
-                frame.t = _corrupted(frame.t, c)
+                frame.t = _corrupted(frame.t, c, t)
             if c["corruption"] == _SPIKE and mocap.new != 0.0:
                 mocap.t += c["magnitude"]
         elif state.valid != 0.0:  # the bypass state's position, velocity or attitude
             if sig == _SIG_STATE_V:
-                _bad(state.v_W, c)
+                _bad(state.v_W, c, t)
             elif sig == _SIG_STATE_R:
-                _bad(state.R_WB.reshape(9), c)
+                _bad(state.R_WB.reshape(9), c, t)
             else:
-                _bad(state.p_W, c)
+                _bad(state.p_W, c, t)
 
 
 @register("faults", "schedule")
@@ -343,12 +401,28 @@ class FaultSchedule:
         self.state[0]["has_frame_faults"] = True
 
     def add_corruption(
-        self, signal: str, kind: str, t_start_s: float, duration_s: float, magnitude: float, component: int | None
+        self,
+        signal: str,
+        kind: str,
+        t_start_s: float,
+        duration_s: float,
+        magnitude: float,
+        component: int | None,
+        rise_s: float | None = None,
+        random: tuple[float, int, int, int, int] | None = None,
     ) -> None:
-        """``kind`` (nan, inf, spike of ``magnitude``) in ``signal`` (:data:`SIGNALS`) over the window."""
+        """``kind`` (:data:`CORRUPTIONS`, of ``magnitude``) in ``signal`` (:data:`SIGNALS`) over the window.
+
+        ``rise_s``: the time a ramp or a growth takes to reach its magnitude [s] (None: the window's length).
+        ``random``: ``(probability, seed, group, member, members)``: each frame of the window is bad with the
+        probability, and then hit by one of the group's ``members`` faults, drawn (None: every frame).
+        """
+        p, seed, group, member, members = (0.0, 0, 0, 0, 1) if random is None else random
         self._add(
             CORRUPTION, f"{kind} on {signal}", t_start_s, t_start_s + duration_s, signal=SIGNALS.index(signal),
             corruption=CORRUPTIONS.index(kind), magnitude=magnitude, component=-1 if component is None else component,
+            rise_s=duration_s if rise_s is None else rise_s, probability=p, seed=seed, group=group, member=member,
+            members=members,
         )  # fmt: skip
         self.state[0]["has_frame_faults"] = True
 
@@ -365,6 +439,7 @@ class FaultSchedule:
         """Back to the start of the run: nothing failed, nothing active, counters and log cleared."""
         s = self.state[0]
         s["faults"]["on"] = False
+        s["faults"]["n_held"] = 0
         s["failed"], s["any_failed"], s["gust_on"] = 0, False, False
         s["commands_checked"] = s["commands_nonfinite"] = s["commands_out_of_limits"] = 0
         s["n_events"] = 0

@@ -54,6 +54,7 @@ from omnirotor.rosmsg.convert import (
     SIM_STATUS,
     SPEEDS,
     STRING,
+    FrameCodec,
     WireMessages,
     command_check,
     set_stamp,
@@ -87,7 +88,10 @@ MISSION_OPTION_FIELDS = (
 
 _COMMAND_DEPTH = 64
 _LOG_DEPTH = 1 << 15
-_SPIN_S = 0.0002  # the last part of a wait is spent polling instead of sleeping [s]
+_START_REPEAT_S = 0.01
+"""The start frame is repeated this often until a command answering it is obeyed [s] (well inside the node's
+50 ms link loss: each repetition is answered again and keeps its link alive)."""
+_LOCKSTEP_WAIT_S = 0.05  # lockstep: the longest sleep on the command queue before the failsafe's clock is read [s]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +107,10 @@ class ServeOptions:
         status_hz: SimStatus rate [Hz].
         ros_views: also publish the standard ROS views (Imu, PoseStamped, RotorSpeeds) every period.
         row_wait_s: at the end of a run, how long to wait for the node's last log rows [s].
+        record: a ROS 2 bag to record the plant into (a new folder): every period's frame, the speeds it flew
+            and its ground truth (``/omnirotor/pose`` is the true pose), streamed from a writer process; or None.
+        foxglove_port: serve the simulator's live view (true pose, contact, rotors) on this loopback port (0: any
+            free one), or None.
     """
 
     lockstep: bool = False
@@ -112,6 +120,8 @@ class ServeOptions:
     status_hz: float = 50.0
     ros_views: bool = True
     row_wait_s: float = 2.0
+    record: str | None = None
+    foxglove_port: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -134,6 +144,8 @@ class SitlReport:
     failsafe: bool = False
     failsafe_after_s: float | None = None
     log_rows_missing: int = 0
+    recording: dict = dataclasses.field(default_factory=dict)
+    metrics_error: str = ""
     late_steps: int = 0
     wall_s: float = 0.0
     real_time_factor: float = 0.0
@@ -169,6 +181,8 @@ class SimLink:
         )
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
         self.gate = CommandGate()
+        self.rows_malformed = 0
+        self.stale_commands = 0
         self.cmd_hz = np.zeros(n_rotors)
         self.cmd_frame_seq = -1
         self.cmd_wall_s = -math.inf  # monotonic time of the last obeyed command
@@ -186,7 +200,7 @@ class SimLink:
     @property
     def bad_payloads(self) -> int:
         """Payloads on the command and log keys that did not decode or were malformed."""
-        return self._sub_cmd.n_bad + self._sub_rows.n_bad
+        return self._sub_cmd.n_bad + self._sub_rows.n_bad + self.rows_malformed
 
     def send_frame(self, record: np.ndarray, seq: int) -> None:
         """Publish a frame record as ``SensorFrame`` number ``seq`` (and its ROS views)."""
@@ -200,22 +214,36 @@ class SimLink:
                 pose.put(m.pose)
             speeds.put(m.speeds)
 
-    def poll_commands(self) -> bool:
-        """Take every queued command through the gate; True if one was obeyed (the newest obeyed is kept)."""
+    def poll_commands(self, timeout_s: float = 0.0) -> bool:
+        """Take every queued command through the gate; True if one was obeyed (the newest obeyed is kept).
+
+        Args:
+            timeout_s: wait (asleep) up to this long [s] for a first command.
+        """
         got = False
-        while (msg := self._sub_cmd.take()) is not None:
-            if self.gate.offer(int(msg.session_id), int(msg.seq)):
+        msg = self._sub_cmd.take(timeout_s)
+        while msg is not None:
+            if int(msg.session_id) == self.gate.paired and int(msg.frame_seq) < self.cmd_frame_seq:
+                self.stale_commands += 1  # an answer to an older frame than one obeyed (a repeated start frame's)
+            elif self.gate.offer(int(msg.session_id), int(msg.seq)):
                 self.cmd_hz[:] = msg.hz
                 self.cmd_frame_seq = int(msg.frame_seq)
                 self.cmd_t = float(msg.t)
                 self.cmd_wall_s = time.monotonic()
                 got = True
+            msg = self._sub_cmd.take()
         return got
 
     def drain_rows(self, store: Callable[[int, np.ndarray], None]) -> None:
-        """Hand every queued controller-log row to ``store(frame_seq, row)``."""
+        """Hand every queued controller-log row (they come in batches) to ``store(frame_seq, row)``."""
         while (msg := self._sub_rows.take()) is not None:
-            store(int(msg.frame_seq), msg.row)
+            n, k = int(msg.n_columns), len(msg.frame_seq)
+            if n <= 0 or msg.rows.size != n * k:
+                self.rows_malformed += 1
+                continue
+            rows = msg.rows.reshape(k, n)
+            for seq, row in zip(msg.frame_seq, rows, strict=True):
+                store(int(seq), row)
 
     def send_status(self, t: float, steps: int, held: int, failsafe: bool, cause: str, finished: bool = False,
                     force: bool = False) -> None:  # fmt: skip
@@ -239,6 +267,67 @@ class SimLink:
         s.command_age_s = now - self.cmd_wall_s
         s.finished = finished
         self._pub_status.put(s)
+
+
+class SimOutputs:
+    """The plant's recording and live view (:attr:`ServeOptions.record`, :attr:`ServeOptions.foxglove_port`).
+
+    :meth:`period` is called after each plant step, with the speeds the plant flew; nothing when neither is on.
+    """
+
+    def __init__(self, sim, options: ServeOptions, say: Callable[[str], None]) -> None:
+        from omnirotor.experiments.loop import TRUTH_GROUPS
+
+        n = sim.vehicle.n_rotors
+        self._sim = sim
+        self._codec = FrameCodec(n, sim.frame_record)
+        columns = Recorder(1, TRUTH_GROUPS(n)).column_names
+        self._row = np.zeros(len(columns))
+        self.recorder = self.live = None
+        self.errors = 0
+        if options.record is not None:
+            from omnirotor.fly.record import FlightRecorder
+
+            self.recorder = FlightRecorder(options.record, n, columns)
+        if options.foxglove_port is not None:
+            from omnirotor.fly.live import start_live_view
+
+            try:
+                self.live = start_live_view(options.foxglove_port, log_columns=columns)
+            except InputError:
+                self.close()
+                raise
+            say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
+        self.active = self.recorder is not None or self.live is not None
+
+    def period(self, cmd_hz: np.ndarray) -> None:
+        """The period just stepped: its frame, the speeds flown and the ground truth."""
+        sim = self._sim
+        try:
+            if self.recorder is not None:
+                sim.truth_row(self._row)
+                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row)
+            if self.live is not None:
+                self.live.sim_period(sim.t, sim.truth)
+        except Exception:  # noqa: BLE001  (a recording or a view that fails never stops the plant: counted)
+            self.errors += 1
+
+    def close(self) -> dict:
+        """Finish the recording, stop the live view (idempotent); what the recording wrote."""
+        out: dict = {}
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            try:
+                summary = rec.close()
+                out = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
+                       "messages": summary.get("messages", {})}  # fmt: skip
+            except InputError as exc:
+                out = {"path": str(rec.path), "error": str(exc)}
+        self.active = False
+        return out
 
 
 def _percentiles_us(samples: np.ndarray) -> dict:
@@ -280,7 +369,11 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
                 log.data[j] = row
                 have_row[j] = True
 
-        _run(link, report, sim, n_steps, truth_log, store_row, progress, on_step)
+        outputs = SimOutputs(sim, link.options, _say)
+        try:
+            _run(link, report, sim, n_steps, truth_log, store_row, progress, on_step, outputs)
+        finally:
+            report.recording = outputs.close()
         # the last rows may still be on their way
         end = time.monotonic() + link.options.row_wait_s
         while not have_row.all() and time.monotonic() < end and not report.failsafe:
@@ -300,7 +393,8 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
     return loop
 
 
-def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step) -> None:
+def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step,
+         outputs: SimOutputs) -> None:  # fmt: skip
     """Step the plant ``n_steps`` periods over the link (module docstring), filling the truth log."""
     opts = link.options
     dt = sim.dt
@@ -314,7 +408,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     gc.collect()  # now, not between the first command and the first step
     gc.freeze()
     gc.disable()
-    # wait for the node: the start frame goes out every 50 ms until a command answering it is obeyed
+    # wait for the node: the start frame goes out every 10 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
     try:
@@ -327,7 +421,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if now >= next_send:
                 link.send_frame(record, 0)
                 link.send_status(float(record["t"][0]), 0, 0, False, "", force=True)
-                next_send = now + 0.05
+                next_send = now + _START_REPEAT_S
             link.poll_commands()
             time.sleep(0.0005)
         wall0 = time.monotonic()
@@ -338,15 +432,13 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if not failsafe:
                 if lockstep:
                     while True:
-                        link.poll_commands()
+                        link.poll_commands(_LOCKSTEP_WAIT_S)
                         if link.cmd_frame_seq >= k:
                             break
                         now = time.monotonic()
                         if now - link.cmd_wall_s > opts.lockstep_offboard_loss_s:
                             failsafe = _engage(link, report, now)
                             break
-                        if now - sent_at > _SPIN_S:
-                            time.sleep(0.00005)
                     rtt[k] = (link.cmd_wall_s - sent_at) * 1e6
                 else:
                     due = wall0 + k * dt
@@ -370,6 +462,8 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
             if on_step is not None:
                 on_step(sim, sim.t)
             sim.step(cmd)
+            if outputs.active:
+                outputs.period(cmd.omega_hz)
             row = truth_log.next_row()
             if row is not None:
                 sim.truth_row(row)
@@ -402,6 +496,34 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
         progress(1.0)
 
 
+def _resting_pose(sim, p0: np.ndarray, R0: np.ndarray, say: Callable[[str], None],
+                  settle_s: float = 4.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Where the vehicle comes to rest on the floor when dropped (rotors stopped) from ``(p0, R0)``.
+
+    An interactive flight starts (and lands) on the ground, as a robot does, not held in the air at the task's
+    start height: a landing there would disarm in the air. A scene without a floor under the start (the vehicle
+    still falling, or 3 m down, after ``settle_s`` of simulated time) keeps ``(p0, R0)``, said.
+    """
+    zeros = np.zeros(sim.vehicle.n_rotors)
+    sim.reset(p_W=p0, R_WB=R0, omega_hz=zeros)
+    stop = RotorCommand(0.0, zeros)
+    still = 0
+    for _ in range(int(round(settle_s / sim.dt))):
+        sim.step(stop)
+        truth = sim.truth
+        if float(p0[2] - truth.p_W[2]) > 3.0:
+            break
+        still = still + 1 if float(np.linalg.norm(truth.v_W)) < 1e-3 else 0
+        if still * sim.dt >= 0.2:
+            return truth.p_W.copy(), np.asarray(truth.R_WB).copy()
+    say("no floor under the scene's start pose: the vehicle waits held in the air there")
+    return p0, R0
+
+
+def _say(line: str) -> None:
+    print(f"omnirotor sim: {line}", file=sys.stderr)
+
+
 def _engage(link: SimLink, report: SitlReport, now: float) -> bool:
     """The offboard-loss failsafe: rotors stopped, said once, the pairing released."""
     age = now - link.cmd_wall_s
@@ -417,14 +539,17 @@ def _engage(link: SimLink, report: SitlReport, now: float) -> bool:
 
 
 def _sleep_until(when: float, link: SimLink | None) -> None:
-    """Sleep until the monotonic time ``when``, polling ``link``'s commands meanwhile; the last part spinning."""
+    """Sleep until the monotonic time ``when``, taking ``link``'s commands as they arrive meanwhile (no polling)."""
     while True:
         left = when - time.monotonic()
-        if link is not None:
-            link.poll_commands()
         if left <= 0:
+            if link is not None:
+                link.poll_commands()
             return
-        time.sleep(min(left - _SPIN_S, 0.0005) if left > _SPIN_S else 0)
+        if link is None:
+            time.sleep(left)
+        else:
+            link.poll_commands(left)
 
 
 def mission_json(task: str, options, lockstep: bool) -> str:
@@ -443,7 +568,9 @@ def serve_task(
     """Fly ``task`` (an ``omnirotor run`` task with its ``ExperimentOptions``) with the controller on the wire.
 
     Returns:
-        ``(the task's result, the server's report)``; the result's summary is the run's JSON as ``omnirotor run``
+        ``(the task's result, the server's report)``; the result is None when the offboard-loss failsafe cut
+        the run and the task's metrics cannot be computed from what was flown (why: ``report.metrics_error``);
+        otherwise its summary is the run's JSON as ``omnirotor run``
         gives it (its timing entries are the wire's: the truth log's ``controller_step_us`` is the frame-to-command
         round trip).
 
@@ -461,7 +588,15 @@ def serve_task(
     transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
     report = SitlReport(lockstep=serve.lockstep)
     with loop_override(remote_loop(link, report)):
-        result = run_task(task, options, progress=progress)
+        try:
+            result = run_task(task, options, progress=progress)
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001  (only after the failsafe cut the run: its metrics are undefined)
+            if not report.failsafe:
+                raise
+            report.metrics_error = f"{type(exc).__name__}: {exc}"
+            return None, report
     return result, report
 
 
@@ -474,18 +609,22 @@ def serve_free(
 ) -> SitlReport:
     """Interactive flight (no task): the plant on its stand until the paired node commands rotor speeds.
 
-    The plant starts at the scene's start pose, *held*: not stepped, its start frame published every period
-    (fresh numbers, the same time), so that the node can ``arm`` on it. The first nonzero command of the paired
-    session (the take-off's hover command) releases it; from then on it steps on the wall clock, a missing command
-    held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records no logs.
+    The plant starts where the vehicle comes to rest when dropped, rotors stopped, from the scene's start pose (on
+    the scene's floor: :func:`_resting_pose`), *held* there: not stepped, its start frame published every period
+    (fresh numbers, the same time), so that the node can ``arm`` on it and lands back on a floor. The first nonzero
+    command of the paired session (the take-off's hover command) releases it; from then on it steps on the wall
+    clock, a missing command held, the offboard-loss failsafe as in a task. Runs until ``stop`` or Ctrl-C; records
+    (``serve.record``) and serves the live view (``serve.foxglove_port``) when asked.
     """
     stop = stop if stop is not None else threading.Event()
     p0, R0 = sim.default_start()
     sim.reset(p_W=p0, R_WB=R0)  # compile (or load) the plant's kernels now, not at the take-off
     sim.step(RotorCommand(0.0, sim.hover_speeds_hz(R0)))
-    sim.reset(p_W=p0, R_WB=R0)
+    p0, R0 = _resting_pose(sim, p0, R0, say)
+    sim.reset(p_W=p0, R_WB=R0, omega_hz=np.zeros(sim.vehicle.n_rotors))
     link = SimLink(transport, sim.vehicle.n_rotors, dataclasses.replace(serve, lockstep=False))
     report = SitlReport()
+    outputs = SimOutputs(sim, serve, say)
     record = sim.frame_record
     zeros = np.zeros(link.n)
     dt = sim.dt
@@ -515,7 +654,10 @@ def serve_free(
                 failsafe = _engage(link, report, now)
             if link.cmd_frame_seq != seq - 1:
                 held += 1
-            sim.step(RotorCommand(sim.t, zeros if failsafe else link.cmd_hz))
+            flown = zeros if failsafe else link.cmd_hz
+            sim.step(RotorCommand(sim.t, flown))
+            if outputs.active:
+                outputs.period(flown)
             report.steps += 1
             link.send_frame(record, seq)
             seq += 1
@@ -525,6 +667,7 @@ def serve_free(
     finally:
         gc.enable()
         gc.unfreeze()
+        report.recording = outputs.close()
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held
     report.commands_refused = link.gate.refused

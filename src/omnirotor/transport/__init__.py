@@ -14,7 +14,7 @@ from omnirotor.transport.base import (
     register_transport,
     ros_topic,
 )
-from omnirotor.transport.zenoh_transport import ZenohTransport, key_expression
+from omnirotor.transport.zenoh_transport import ZenohTransport, key_expression, liveliness_key
 
 __all__ = [
     "DEFAULT_TRANSPORT",
@@ -24,6 +24,7 @@ __all__ = [
     "Transport",
     "ZenohTransport",
     "key_expression",
+    "liveliness_key",
     "open_transport",
     "register_transport",
     "ros_topic",

@@ -11,8 +11,9 @@ only; serialisation, decoding errors, sequence numbers and counting live here, o
     msg = sub.take()          # non-blocking; None when nothing (valid) arrived
     t.close()
 
-Receiving polls (no callback wakes the hot path): the concrete transport queues raw payloads in a bounded
-ring in its own threads, and :meth:`Subscriber.take` decodes them on the caller's thread. A payload that does
+Receiving: the concrete transport queues raw payloads (at most ``depth``, the oldest dropped first) in its own
+threads, and :meth:`Subscriber.take` decodes them on the caller's thread, at once or after waiting (asleep, not
+polling) up to a time-out for the first one. A payload that does
 not decode, or that the subscriber's ``check`` refuses, is counted (:attr:`Subscriber.n_bad`) and dropped,
 never raised. Another transport (DDS, say) is one module with a :class:`Transport` subclass and one
 :func:`register_transport` line.
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import abc
 import re
+import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -66,27 +68,57 @@ def ros_topic(namespace: str, topic: str) -> str:
 
 
 class Publisher:
-    """Publishes messages of one type on one topic; :meth:`put` serialises with rosbags' CDR."""
+    """Publishes messages of one type on one topic; :meth:`put` serialises with rosbags' CDR.
+
+    The type's serialiser (rosbags' generated function, :meth:`Typestore.get_msgdef`) is looked up once, and the
+    payload is written into a buffer kept between calls (reallocated only when the message's size changes):
+    the same bytes as ``Typestore.serialize_cdr``, without its per-call lookup and allocation.
+    """
 
     def __init__(self, send: Callable[[bytes, int], None], msgtype: str, key: str) -> None:
+        store = typestore()
+        msgdef = store.get_msgdef(msgtype)
         self._send = send
-        self._serialize = typestore().serialize_cdr
+        self._store = store
+        self._static_size = 4 + msgdef.size_cdr if msgdef.size_cdr else 0
+        self._getsize = msgdef.getsize_cdr
+        little = sys.byteorder == "little"
+        self._serialize = msgdef.serialize_cdr_le if little else msgdef.serialize_cdr_be
+        self._head = b"\x00\x01" if little else b"\x00\x00"  # CDR encapsulation: plain CDR, the byte order
+        self._buf = bytearray()
+        self._body = memoryview(self._buf)
         self.msgtype = msgtype
         self.key = key
         self.n_sent = 0
 
+    def serialize(self, msg: Any) -> bytes:
+        """The CDR payload of ``msg`` (an instance of the store's class for :attr:`msgtype`)."""
+        size = self._static_size or 4 + self._getsize(0, msg, self._store)
+        if len(self._buf) != size:
+            self._body.release()
+            self._buf = bytearray(size)
+            self._buf[:2] = self._head
+            self._body = memoryview(self._buf)[4:]
+        end = self._serialize(self._body, 0, msg, self._store)
+        if end + 4 != size:
+            raise ValueError(f"{self.msgtype}: serialised {end + 4} bytes, sized {size}")
+        return bytes(self._buf)
+
     def put(self, msg: Any) -> None:
-        """Serialise ``msg`` (an instance of the store's class for :attr:`msgtype`) and send it."""
-        self.put_raw(bytes(self._serialize(msg, self.msgtype)))
+        """Serialise ``msg`` and send it."""
+        self.put_raw(self.serialize(msg))
 
     def put_raw(self, payload: bytes) -> None:
-        """Send an already serialised payload (fuzz tests, relays)."""
+        """Send an already serialised payload (fuzz tests, relays, batches)."""
         self.n_sent += 1
         self._send(payload, self.n_sent)
 
 
 class Subscriber:
-    """Receives messages of one type on one topic by polling; decoding errors are counted, never raised.
+    """Receives messages of one type on one topic; decoding errors are counted, never raised.
+
+    :meth:`take` and :meth:`take_latest` return at once by default, or wait up to ``timeout_s`` for a payload
+    (the waiting thread sleeps in the transport's queue: no polling, the CPU stays free for the peer).
 
     Attributes:
         n_ok: messages decoded and accepted.
@@ -96,14 +128,18 @@ class Subscriber:
 
     def __init__(
         self,
-        poll: Callable[[], bytes | None],
+        poll: Callable[[float], bytes | None],
         msgtype: str,
         key: str,
         check: Callable[[Any], bool] | None = None,
         close: Callable[[], None] | None = None,
     ) -> None:
+        store = typestore()
+        msgdef = store.get_msgdef(msgtype)
         self._poll = poll
-        self._deserialize = typestore().deserialize_cdr
+        self._store = store
+        self._cls = msgdef.cls
+        self._deserialize = (msgdef.deserialize_cdr_be, msgdef.deserialize_cdr_le)
         self._check = check
         self._close = close
         self.msgtype = msgtype
@@ -115,12 +151,16 @@ class Subscriber:
         """Monotonic time [s] of the last accepted message (``time.monotonic``), -1 before the first."""
 
     def _decode(self, payload: bytes) -> Any | None:
-        try:
-            msg = self._deserialize(payload, self.msgtype)
-            if self._check is not None and not self._check(msg):
+        # rosbags' generated deserialiser of the type, with Typestore.deserialize_cdr's checks: the CDR
+        # encapsulation (plain CDR, either byte order) and no bytes left over beyond the final alignment
+        msg = None
+        if len(payload) >= 4 and payload[0] == 0 and payload[1] <= 1:
+            try:
+                msg, end = self._deserialize[payload[1]](memoryview(payload)[4:], 0, self._cls, self._store)
+                if end + 4 + 3 < len(payload) or (self._check is not None and not self._check(msg)):
+                    msg = None
+            except Exception:  # noqa: BLE001  (any malformed payload: counted and dropped, never raised)
                 msg = None
-        except Exception:  # noqa: BLE001  (any malformed payload: counted and dropped, never raised)
-            msg = None
         if msg is None:
             self.n_bad += 1
             return None
@@ -128,20 +168,31 @@ class Subscriber:
         self.last_take_s = time.monotonic()
         return msg
 
-    def take(self) -> Any | None:
-        """The oldest queued message that decodes, or None (non-blocking); bad payloads on the way are dropped."""
-        while True:
-            payload = self._poll()
-            if payload is None:
-                return None
+    def take(self, timeout_s: float = 0.0) -> Any | None:
+        """The oldest queued message that decodes, or None; bad payloads on the way are dropped.
+
+        Args:
+            timeout_s: wait up to this long [s] for a first payload (0: do not wait).
+        """
+        payload = self._poll(timeout_s)
+        while payload is not None:
             msg = self._decode(payload)
             if msg is not None:
                 return msg
+            payload = self._poll(0.0)
+        return None
 
-    def take_latest(self) -> Any | None:
-        """The newest queued message that decodes, or None; older queued payloads are dropped (counted skipped)."""
-        queued = []
-        while (payload := self._poll()) is not None:
+    def take_latest(self, timeout_s: float = 0.0) -> Any | None:
+        """The newest queued message that decodes, or None; older queued payloads are dropped (counted skipped).
+
+        Args:
+            timeout_s: wait up to this long [s] for a first payload (0: do not wait).
+        """
+        payload = self._poll(timeout_s)
+        if payload is None:
+            return None
+        queued = [payload]
+        while (payload := self._poll(0.0)) is not None:
             queued.append(payload)
         while queued:
             msg = self._decode(queued.pop())
@@ -257,8 +308,12 @@ class Transport(abc.ABC):
     @abc.abstractmethod
     def _subscriber(
         self, name: str, msgtype: str, depth: int
-    ) -> tuple[Callable[[], bytes | None], Callable[[], None], str]:
-        """``(poll() -> payload | None, close(), key)``."""
+    ) -> tuple[Callable[[float], bytes | None], Callable[[], None], str]:
+        """``(poll(timeout_s) -> payload | None, close(), key)``.
+
+        ``poll`` gives the oldest queued payload, waiting up to ``timeout_s`` for one (0: not at all); at most
+        ``depth`` are kept, the oldest dropped first.
+        """
 
     @abc.abstractmethod
     def _serve(self, name: str, reqtype: str, on_request: Callable[[bytes], bytes | None]) -> None:

@@ -41,7 +41,8 @@ def glitch_hover(
         disturbances: fly the simulator's calibrated disturbances too.
 
     Returns:
-        ``t`` (k,) [s], ``err`` (k,) distance of the body from its hover reference [m], ``status`` and
+        ``t`` (k,) [s], ``err`` (k,) distance of the body from its hover reference [m], ``p_W`` (k, 3) the
+        body's true position [m], ``status`` and
         ``cause`` (k,) the controller's status and frame-supervision bits, ``omega`` (k, n) the commands [Hz],
         ``sim`` (its fault schedule counted the commands) and ``ctl``.
     """
@@ -55,6 +56,7 @@ def glitch_hover(
     return {
         "t": tlog.group("t").copy(),
         "err": np.linalg.norm(tlog.group("p_W") - p0, axis=1),
+        "p_W": tlog.group("p_W").copy(),
         "status": clog.group("status").astype(np.int64),
         "cause": clog.group("frame_reject").astype(np.int64),
         "omega": clog.group("omega_cmd_hz").copy(),

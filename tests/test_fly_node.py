@@ -1,0 +1,110 @@
+"""The flight node's loop (``omnirotor.fly.node.NodeLoop``) against a scripted plant over real Zenoh on loopback."""
+
+from __future__ import annotations
+
+import threading
+import time
+import types
+
+import numpy as np
+import pytest
+
+from omnirotor.fly.node import _LATENCY_WINDOW, LoopStats, NodeLoop, NodeOptions
+from omnirotor.messages import ControlStatus, RotorCommand, new_frame
+from omnirotor.rosmsg.convert import COMMAND, FRAME, WireMessages
+from omnirotor.transport import open_transport
+from sitl.procs import free_port
+
+N = 8
+
+
+class _Controller:
+    """Steps count; the command is the frame's time as every rotor's speed."""
+
+    def __init__(self) -> None:
+        self.vehicle = types.SimpleNamespace(n_rotors=N)
+        self.steps = 0
+
+    def step(self, frame) -> RotorCommand:
+        self.steps += 1
+        return RotorCommand(frame.t, np.full(N, 100.0 + 1000.0 * frame.t), ControlStatus.OK)
+
+
+class _Director:
+    def __init__(self) -> None:
+        self.frames = []
+        self.stopped = False
+        self._out = np.zeros(N)
+
+    def on_frame(self, frame, ages) -> None:
+        if ages.frames_stopped:
+            self.stopped = True
+        elif ages.imu_age_s == 0.0:  # a frame (between frames the node calls with the growing link age)
+            self.frames.append(float(frame.t))
+
+    def wants_step(self) -> bool:
+        return True
+
+    def output(self, cmd) -> np.ndarray:
+        self._out[:] = cmd.omega_hz if cmd is not None else 0.0
+        return self._out
+
+
+def test_a_repeated_start_frame_is_answered_again_and_keeps_the_link():
+    """The simulator repeats its start frame every 10 ms until it obeys an answer: no link loss, nothing stepped."""
+    port = free_port()
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/node") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/node") as wire,
+    ):
+        ctl, director = _Controller(), _Director()
+        node = NodeLoop(wire, ctl, director, NodeOptions(), say=lambda line: said.append(line))
+        said: list[str] = []
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        stop = threading.Event()
+        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
+        summary: dict = {}
+        thread.start()
+        try:
+            w, record = WireMessages(N), new_frame(N)
+            record["t"] = 0.5
+            answers = []
+            deadline = time.monotonic() + 10
+            while not answers and time.monotonic() < deadline:  # the subscription takes a moment to match
+                frames.put(w.fill_frame(record, 0))
+                answers += [m for m in iter(lambda: commands.take(0.01), None)]
+            for _ in range(6):  # the start frame again, 20 ms apart, for longer than the 50 ms link loss
+                time.sleep(0.02)
+                frames.put(w.fill_frame(record, 0))
+            time.sleep(0.02)
+            record["t"] = 0.501
+            frames.put(w.fill_frame(record, 1))
+            deadline = time.monotonic() + 5
+            while (not answers or answers[-1].frame_seq != 1) and time.monotonic() < deadline:
+                if (m := commands.take(0.01)) is not None:
+                    answers.append(m)
+            lost = [line for line in said if "link lost" in line]  # before the frames stop here
+        finally:
+            stop.set()
+            thread.join(10)
+    assert lost == [], said
+    assert ctl.steps == 2 and director.frames == [0.5, 0.501]  # the repeats stepped nothing
+    seqs = [int(m.seq) for m in answers]
+    assert seqs == sorted(set(seqs)) and len(answers) >= 5  # every answer a new sequence number
+    assert [int(m.frame_seq) for m in answers[:-1]] == [0] * (len(answers) - 1) and answers[-1].frame_seq == 1
+    assert all(np.array_equal(m.hz, answers[0].hz) for m in answers[:-1])  # the same answer again
+    assert np.allclose(answers[-1].hz, 100.0 + 501.0)
+    assert summary["start_frame_answered_again"] >= len(answers) - 2
+
+
+def test_the_status_p99_is_of_the_recent_periods_across_the_window_wrap():
+    """The status's percentile looks at the last 1000 frames only (the whole window took milliseconds)."""
+
+    s = LoopStats(0.0005)
+    assert s.recent_p99_s() == 0.0
+    for k in range(_LATENCY_WINDOW + 500):  # wraps the window: the last 1000 straddle its end
+        s.period(1e-3 if k < _LATENCY_WINDOW - 500 else 1e-4, 0.0, 0.0, 1e-3)
+    assert s.recent_p99_s() == pytest.approx(1e-4)
+    s.period(5e-3, 0.0, 0.0, 1e-3)
+    assert s.recent_p99_s() == pytest.approx(np.percentile([1e-4] * 999 + [5e-3], 99))
