@@ -45,7 +45,12 @@ def _hover_hz(vehicle, R):
 
 
 class Stream:
-    """Frames of a vehicle at rest at ``p`` (body) with attitude ``R``: IMU every period, motion capture at 100 Hz."""
+    """Frames of a vehicle at rest at ``p`` (body) with attitude ``R``: IMU every period, motion capture at 100 Hz.
+
+    The motion capture carries picometre noise: a real one never repeats a pose exactly (the controller's
+    supervision takes exact repeats with fresh stamps for a frozen system, issue 26), and the references these
+    tests check stay exact to 1e-9.
+    """
 
     def __init__(self, vehicle, p=(0.0, 0.0, 1.0), R=None, dt=1e-3):
         self.p = np.array(p, dtype=float)
@@ -57,6 +62,7 @@ class Stream:
         self.t_mocap = 0.0
         self.imu_on = True
         self.mocap_on = True
+        self._rng = np.random.default_rng(11)
 
     def next(self):
         t = self.k * self.dt
@@ -68,7 +74,8 @@ class Stream:
             self.t_mocap = t
         frame = SensorFrame(
             t, self.R.T @ np.array([0.0, 0.0, G]), np.zeros(3), self.hz.copy(), mocap, t,
-            self.p.copy() if mocap else None, quat_wxyz_from_R(self.R) if mocap else None,
+            self.p + self._rng.normal(0.0, 1e-12, 3) if mocap else None,
+            quat_wxyz_from_R(self.R) + self._rng.normal(0.0, 1e-12, 4) if mocap else None,
         )  # fmt: skip
         return frame, LinkAges(t - self.t_imu, t - self.t_mocap)
 
