@@ -679,7 +679,7 @@ def _extra_process_noise(u, P, T: float) -> None:
             P[3 + i, 3 + i] += q * T
             P[i, 3 + i] += q * T * T / 2.0
             P[3 + i, i] = P[i, 3 + i]
-    if u.drift_on != 0:
+    if u.drift_on != 0 and u.coasting == 0:
         c = (u.drift_scale2 - 1.0) * T
         for i in range(9, 15):
             P[i, i] += c * u.Q1[i, i]
@@ -687,12 +687,17 @@ def _extra_process_noise(u, P, T: float) -> None:
 
 @jit
 def _track_drift(u, r) -> None:
-    """The running mean of the position innovations ``r[:3]`` (about 10 samples) against the drift threshold."""
+    """The running mean of the position innovations ``r[:3]`` (about 10 samples) against the drift threshold.
+
+    Not while coasting: the innovations then say how the unmeasured acceleration went, not how the biases did.
+    """
+    if u.coasting != 0:
+        return
     e2 = 0.0
     for i in range(3):
         u.innov_ema_W[i] += 0.1 * (r[i] - u.innov_ema_W[i])
         e2 += u.innov_ema_W[i] * u.innov_ema_W[i]
-    threshold = max(u.drift_m, 5.0 * math.sqrt(u.Rn[0, 0]))
+    threshold = max(u.drift_m, 1.15 * math.sqrt(u.Rn[0, 0]))  # 5 sigma of the running mean of white noise
     e = math.sqrt(e2)
     if e > threshold:
         u.drift_on = 1

@@ -223,8 +223,9 @@ class SimLink:
         got = False
         msg = self._sub_cmd.take(timeout_s)
         while msg is not None:
-            if int(msg.session_id) == self.gate.paired and int(msg.frame_seq) < self.cmd_frame_seq:
-                self.stale_commands += 1  # an answer to an older frame than one obeyed (a repeated start frame's)
+            if int(msg.session_id) == self.gate.paired and int(msg.frame_seq) <= self.cmd_frame_seq:
+                # an answer to a frame already answered (the repeated start frame's second answer), or to an older
+                self.stale_commands += 1
             elif self.gate.offer(int(msg.session_id), int(msg.seq)):
                 self.cmd_hz[:] = msg.hz
                 self.cmd_frame_seq = int(msg.frame_seq)
