@@ -84,14 +84,9 @@ def fly(
         if mission_from_sim:
             raise InputError("--maps is for interactive flights; a mission flies the simulator's maps")
         check_input_file(maps, "--maps")
-    if record is not None:
-        from omnirotor.fly.record import check_recording_path
+    from omnirotor.fly.record import output_options
 
-        check_recording_path(record, "--record")
-    if not 0 <= foxglove_port <= 65535:
-        raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
-    outputs = {"record": str(record) if record is not None else None,
-               "foxglove_port": foxglove_port if foxglove else None}  # fmt: skip
+    outputs = output_options(record, foxglove, foxglove_port)
 
     def say(line: str) -> None:
         print(f"omnirotor fly: {line}", file=sys.stderr)

@@ -79,14 +79,9 @@ def sim(
         raise InputError("omnirotor sim needs --serve (the simulator on the flight topics)")
     # SIGTERM ends it as Ctrl-C does: the summary (and a recording) finished, not cut off
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-    if record is not None:
-        from omnirotor.fly.record import check_recording_path
+    from omnirotor.fly.record import output_options
 
-        check_recording_path(record, "--record")
-    if not 0 <= foxglove_port <= 65535:
-        raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
-    outputs = {"record": str(record) if record is not None else None,
-               "foxglove_port": foxglove_port if foxglove else None}  # fmt: skip
+    outputs = output_options(record, foxglove, foxglove_port)
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
                     ros_views, offboard_loss, fifo_priority, outputs)  # fmt: skip

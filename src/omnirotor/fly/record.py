@@ -87,6 +87,22 @@ def record_dtype(n_rotors: int, n_log: int) -> np.dtype:
     )
 
 
+def output_options(record: Path | None, foxglove: bool, foxglove_port: int) -> dict:
+    """``--record``/``--foxglove``/``--foxglove-port`` of ``fly`` and ``sim --serve``, checked before anything runs.
+
+    Returns:
+        ``{"record": path or None, "foxglove_port": port or None}``.
+
+    Raises:
+        InputError: a recording path that cannot be a new bag folder, or a port outside 0..65535.
+    """
+    if record is not None:
+        check_recording_path(record, "--record")
+    if not 0 <= foxglove_port <= 65535:
+        raise InputError(f"--foxglove-port must be in 0..65535, got {foxglove_port}")
+    return {"record": str(record) if record is not None else None, "foxglove_port": foxglove_port if foxglove else None}
+
+
 def check_recording_path(path: str | Path, label: str = "recording") -> Path:
     """A new bag folder's path, checked before anything runs (``--record``).
 

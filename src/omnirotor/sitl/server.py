@@ -664,7 +664,7 @@ def serve_free(
             seq += 1
             link.send_status(sim.t, report.steps, held, failsafe, "offboard loss" if failsafe else "")
     except KeyboardInterrupt:
-        pass
+        pass  # Ctrl-C or SIGTERM ends the run here; the summary below is still written
     finally:
         gc.enable()
         gc.unfreeze()
