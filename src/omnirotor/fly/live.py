@@ -186,3 +186,48 @@ class LiveView:
 def start_live_view(port: int = 8765, *, log_columns=(), rate_hz: float = 50.0, host: str = "127.0.0.1") -> LiveView:
     """The one call that enables the live view (``--foxglove``): a :class:`LiveView` serving on ``host:port``."""
     return LiveView(host=host, port=port, rate_hz=rate_hz, log_columns=log_columns)
+
+
+def open_outputs(record, foxglove_port: int | None, n_rotors: int, columns, say) -> tuple:
+    """The recording and the live view a process was asked for (``fly``, ``sim --serve``); None where not.
+
+    Args:
+        record: a new bag folder to record into, or None.
+        foxglove_port: the live view's port, or None.
+        n_rotors: rotors of the vehicle.
+        columns: the log (or ground-truth) columns recorded and viewed.
+        say: where the live view's address is said.
+
+    Returns:
+        ``(recorder, live)``. A live view that cannot start closes the recording first, then raises.
+    """
+    from omnirotor.fly.record import FlightRecorder
+
+    recorder = FlightRecorder(record, n_rotors, columns) if record is not None else None
+    live = None
+    if foxglove_port is not None:
+        try:
+            live = start_live_view(foxglove_port, log_columns=columns)
+        except InputError:
+            close_outputs(recorder, None)
+            raise
+        say(f"live view on ws://127.0.0.1:{live.port} (Foxglove: Open connection)")
+    return recorder, live
+
+
+def close_outputs(recorder, live) -> dict:
+    """Stop the live view and finish the recording; what the recording wrote (``{}`` without one).
+
+    Returns:
+        ``{"path", "dropped", "messages"}``, or ``{"path", "error"}`` if finishing the bag failed.
+    """
+    if live is not None:
+        live.close()
+    if recorder is None:
+        return {}
+    try:
+        summary = recorder.close()
+    except InputError as exc:
+        return {"path": str(recorder.path), "error": str(exc)}
+    return {"path": str(recorder.path), "dropped": int(summary.get("dropped", 0)),
+            "messages": summary.get("messages", {})}  # fmt: skip

@@ -315,19 +315,10 @@ class NodeLoop:
         self.last_t = math.nan
         self.recorder = self.live = None
         columns = list(getattr(getattr(controller, "log", None), "column_names", ()))
-        if o.record is not None:
-            from omnirotor.fly.record import FlightRecorder
+        if o.record is not None or o.foxglove_port is not None:
+            from omnirotor.fly.live import open_outputs
 
-            self.recorder = FlightRecorder(o.record, n, columns)
-        if o.foxglove_port is not None:
-            from omnirotor.fly.live import start_live_view
-
-            try:
-                self.live = start_live_view(o.foxglove_port, log_columns=columns)
-            except InputError:
-                self.close_outputs()
-                raise
-            self._say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
+            self.recorder, self.live = open_outputs(o.record, o.foxglove_port, n, columns, self._say)
         self._f_idx = self._m_idx = self._R_idx = None
         log = getattr(controller, "log", None)
         if log is not None:
@@ -459,20 +450,15 @@ class NodeLoop:
 
     def close_outputs(self) -> dict:
         """Finish the recording and stop the live view (idempotent); what the recording wrote."""
-        out: dict = {}
-        if self.live is not None:
-            self.live.close()
-            self.live = None
-        if self.recorder is not None:
-            rec, self.recorder = self.recorder, None
-            try:
-                summary = rec.close()
-                out["recording"] = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
-                                    "messages": summary.get("messages", {})}  # fmt: skip
-            except InputError as exc:
-                self._say(str(exc))
-                out["recording"] = {"path": str(rec.path), "error": str(exc)}
-        return out
+        if self.recorder is None and self.live is None:
+            return {}
+        from omnirotor.fly.live import close_outputs
+
+        (rec, self.recorder), (live, self.live) = (self.recorder, None), (self.live, None)
+        recording = close_outputs(rec, live)
+        if "error" in recording:
+            self._say(recording["error"])
+        return {"recording": recording} if recording else {}
 
     # -- the loop ---------------------------------------------------------------------------------------------
     def run(self, stop: threading.Event | None = None) -> dict:

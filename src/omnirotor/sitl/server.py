@@ -286,19 +286,10 @@ class SimOutputs:
         self._row = np.zeros(len(columns))
         self.recorder = self.live = None
         self.errors = 0
-        if options.record is not None:
-            from omnirotor.fly.record import FlightRecorder
+        if options.record is not None or options.foxglove_port is not None:
+            from omnirotor.fly.live import open_outputs
 
-            self.recorder = FlightRecorder(options.record, n, columns)
-        if options.foxglove_port is not None:
-            from omnirotor.fly.live import start_live_view
-
-            try:
-                self.live = start_live_view(options.foxglove_port, log_columns=columns)
-            except InputError:
-                self.close()
-                raise
-            say(f"live view on ws://127.0.0.1:{self.live.port} (Foxglove: Open connection)")
+            self.recorder, self.live = open_outputs(options.record, options.foxglove_port, n, columns, say)
         self.active = self.recorder is not None or self.live is not None
 
     def period(self, cmd_hz: np.ndarray) -> None:
@@ -315,20 +306,11 @@ class SimOutputs:
 
     def close(self) -> dict:
         """Finish the recording, stop the live view (idempotent); what the recording wrote."""
-        out: dict = {}
-        if self.live is not None:
-            self.live.close()
-            self.live = None
-        if self.recorder is not None:
-            rec, self.recorder = self.recorder, None
-            try:
-                summary = rec.close()
-                out = {"path": str(rec.path), "dropped": int(summary.get("dropped", 0)),
-                       "messages": summary.get("messages", {})}  # fmt: skip
-            except InputError as exc:
-                out = {"path": str(rec.path), "error": str(exc)}
+        from omnirotor.fly.live import close_outputs
+
+        (rec, self.recorder), (live, self.live) = (self.recorder, None), (self.live, None)
         self.active = False
-        return out
+        return close_outputs(rec, live)
 
 
 def _percentiles_us(samples: np.ndarray) -> dict:
