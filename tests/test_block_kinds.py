@@ -23,6 +23,7 @@ from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.pose import STATE_DTYPE as POSE_DTYPE
 from omnirotor.control.pose import PoseController, pose_step
+from omnirotor.control.supervisor import N_CAUSES
 from omnirotor.control.trajectory import PoseTrajectory, Waypoint
 from omnirotor.experiments.loop import run_closed_loop
 from omnirotor.frame_kernels import copy_head
@@ -99,7 +100,7 @@ PASS_DTYPE = np.dtype(
         # the supervisor kind's outputs (KIND_STEPS)
         ("clean", FRAME_HEAD_DTYPE),
         ("cause", np.int64),
-        ("counts", np.int64, 13),
+        ("counts", np.int64, N_CAUSES),
         ("dt_s", F8),
         ("coasting", np.int64),
         ("blind", np.int64),

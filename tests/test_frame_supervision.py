@@ -199,6 +199,35 @@ def test_a_persistent_bypass_velocity_offset_is_found_and_subtracted():
     assert not any(codes[-100:]) and rec["clean"]["state"]["v_W"][0] == 1.0  # the offset ended: cleared again
 
 
+def test_a_drifting_bypass_position_is_told_from_a_velocity_offset_by_the_imu():
+    """Position and velocity disagree alike whether the velocity is offset or the position drifts; the IMU's
+    acceleration (the third vote, SPEC §4.5) says which: here the velocity changed as the IMU says (not at all),
+    so the position drifts. It is replaced by the velocity's integral (flagged ``state_drift``, never followed),
+    and accepted again once it agrees with that."""
+    state, estimate = supervisor(check_state=True, check_mocap=False)
+    rec = state[0]
+    rec["state_last"]["v_W"] = (1.0, -0.5, 0.0)
+    for k in range(1, 201):  # consistent motion first
+        assert supervise(rec, _moving_state(1.0 + k * DT), estimate) == 0
+    codes, px, truth = [], [], []
+    for k in range(201, 701):  # then 0.5 s of a position drifting 1 mm per frame along x (1 m/s)
+        t = 1.0 + k * DT
+        f = _moving_state(t)
+        truth.append(f["state"]["p_W"][0, 0])
+        f["state"]["p_W"][0, 0] += 1e-3 * (k - 200)
+        codes.append(supervise(rec, f, estimate))
+        px.append(rec["clean"]["state"]["p_W"][0])
+        assert rec["clean"]["state"]["v_W"][0] == 1.0  # the velocity is believed, not "corrected"
+    codes, err = np.array(codes), np.abs(np.array(px) - np.array(truth))
+    found = np.flatnonzero(codes & sup.CAUSE_STATE_DRIFT)
+    assert found.size and found[0] < 20 and np.all(codes[found[0] :] == sup.CAUSE_STATE_DRIFT)
+    assert not np.any(codes & sup.CAUSE_STATE_VELOCITY)
+    assert err.max() < 0.02 and err[-1] < 0.02  # what the estimator reads stays by the truth (the drift: 0.5 m)
+    codes = [supervise(rec, _moving_state(1.0 + k * DT), estimate) for k in range(701, 801)]
+    assert codes[0] == 0 and not any(codes)  # the drift ended: the position agrees again, accepted
+    assert rec["clean"]["state"]["p_W"][0] == _moving_state(1.0 + 800 * DT)["state"]["p_W"][0, 0]
+
+
 def test_a_bypass_velocity_offset_no_longer_flies_the_vehicle_away():
     run = fly([SensorCorruption("state_v", 1.0, 1.0, "spike", 3.0, component=0)], "bypass", 4.5)
     t, err, cause = run["t"], run["err"], run["cause"]

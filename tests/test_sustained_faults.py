@@ -29,13 +29,7 @@ V = load_vehicle()
 DT = 1e-3
 
 # Measured on this tree (compiled closed loop, clean plant, seed 1); each stays a strict xfail until met.
-KNOWN = {
-    "bypass position drifting 1 mm/frame for 1 s": (
-        "caught and flagged (state_velocity), but peaks at 1.29 m: the consistency check takes the disagreement "
-        "between position and velocity for a velocity offset and subtracts it, so the controller follows the "
-        "drifting position; telling the two apart needs the state's acceleration (or the IMU) as a third vote"
-    ),
-}
+KNOWN: dict[str, str] = {}
 
 
 def _params(sc: sf.Scenario):

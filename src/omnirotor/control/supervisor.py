@@ -54,6 +54,18 @@ period carries ``ControlStatus.FRAME_REJECTED``, and the part is replaced by wha
   metres). The offset over the window, ``(integral - position change) / window``, is subtracted from the
   velocity in every period in which the window disagrees, each such frame flagged; a constant offset is
   removed exactly one window after it began. The check starts afresh after a loss of the state (hold timeout);
+* **bypass position drifting** (``CAUSE_STATE_DRIFT``; SPEC §4.5's supervision, issue 26): position and
+  velocity alone cannot say which of the two is wrong when they disagree, so the IMU votes: the velocity's change
+  over the window is held against the IMU's acceleration (``R_WB acc_B - g e3``) integrated over it. Beyond
+  ``velocity_vote_mps`` the velocity jumped (the offset above is subtracted); within it the velocity moved as
+  the vehicle did and the *position* drifts (the vote is taken once, when the window starts to disagree: the
+  onset is what tells the two apart; a velocity blamed stays blamed while the window disagrees). From then on
+  the position is replaced by the position one window before the disagreement, moved on as the velocities say
+  (trapezoids), each frame flagged, until a received position
+  agrees with that prediction again (within ``velocity_tol_m``; the velocity check then starts afresh). The jump
+  check is off while it drifts (a drift leaves it behind slowly, and would otherwise hold the command). A
+  coasting IMU gives no vote (the velocity is then blamed, as before). A drift slower than the velocity check's
+  own resolution (``velocity_tol_m / velocity_window_s``, 0.15 m/s) is not seen;
 * **rotor speeds** (``CAUSE_ROTOR``): a non-finite speed or one beyond the vehicle's limits by more than
   ``rotor_margin`` of the larger limit: the wrench observer takes the last command for that period.
 
@@ -130,6 +142,7 @@ __all__ = [
     "CAUSE_STATE_VELOCITY",
     "CAUSE_MOCAP_FROZEN",
     "CAUSE_FAILSAFE",
+    "CAUSE_STATE_DRIFT",
     "FS_OFF",
     "FS_HOLD",
     "FS_DESCEND",
@@ -167,6 +180,8 @@ CAUSE_MOCAP_FROZEN = 2048
 """The motion-capture sample repeats the last one exactly (a frozen motion capture with fresh stamps)."""
 CAUSE_FAILSAFE = 4096
 """The failsafe holds and then lands the vehicle (blind too long, or no motion capture for too long)."""
+CAUSE_STATE_DRIFT = 8192
+"""The bypass position drifts from what its velocity and the IMU say: replaced by the velocity's integral."""
 
 CAUSES = (
     ("time", CAUSE_TIME),
@@ -182,6 +197,7 @@ CAUSES = (
     ("state_velocity", CAUSE_STATE_VELOCITY),
     ("mocap_frozen", CAUSE_MOCAP_FROZEN),
     ("failsafe", CAUSE_FAILSAFE),
+    ("state_drift", CAUSE_STATE_DRIFT),
 )
 """Name and bit of every cause, in bit order (``counts`` has one entry per cause, in this order)."""
 N_CAUSES = len(CAUSES)
@@ -196,6 +212,7 @@ REJECTING = (
     | CAUSE_ROTOR
     | CAUSE_STATE_VELOCITY
     | CAUSE_MOCAP_FROZEN
+    | CAUSE_STATE_DRIFT
 )
 """The causes that reject a part of the frame (``ControlStatus.FRAME_REJECTED``); the others only inform."""
 INVALID_VALUE = CAUSE_IMU | CAUSE_MOCAP | CAUSE_STATE | CAUSE_ROTOR
@@ -237,6 +254,9 @@ class SupervisorParams:
             position change [s].
         velocity_tol_m: largest accepted difference between the two over one window [m]; a velocity offset
             larger than ``velocity_tol_m / velocity_window_s`` (0.15 m/s) is found and removed.
+        velocity_vote_mps: the third vote, when the two disagree: the velocity's change over the window against
+            the IMU's acceleration integrated over it [m/s]; within this, the velocity is believed and the
+            position drifts (``CAUSE_STATE_DRIFT``), beyond it the velocity jumped (``CAUSE_STATE_VELOCITY``).
         acc_physical_margin: an accelerometer reading beyond this many times the largest specific force the
             rotors can give (all at full speed, aligned: ``n c_f omega_max² / m``) is rejected as implausible (an
             IMU running away passes through such values before it leaves the sensor's range); 0: only the range.
@@ -277,6 +297,7 @@ class SupervisorParams:
     bypass_resume_window_s: float = 0.05
     velocity_window_s: float = 0.05
     velocity_tol_m: float = 0.0075
+    velocity_vote_mps: float = 0.075
     acc_physical_margin: float = 1.5
     imu_hold_s: float = 0.005
     mocap_frozen_samples: int = 3
@@ -306,6 +327,7 @@ class SupervisorParams:
             "bypass_resume_window_s",
             "velocity_window_s",
             "velocity_tol_m",
+            "velocity_vote_mps",
             "imu_hold_s",
             "blind_mocap_s",
             "mocap_drift_mps2",
@@ -394,6 +416,13 @@ STATE_DTYPE = np.dtype(
         ("vel_ring_p_W", _F8, (VEL_RING, 3)),  # ... positions [m] ...
         ("vel_ring_int_W", _F8, (VEL_RING, 3)),  # ... and velocity integrals [m]
         ("vel_offset_W", _F8, 3),  # the velocity offset subtracted this frame (0: none) [m/s]
+        ("vel_ring_v_W", _F8, (VEL_RING, 3)),  # ... the velocities received [m/s] ...
+        ("vel_ring_ia_W", _F8, (VEL_RING, 3)),  # ... and the IMU's acceleration integrals [m/s]
+        ("acc_int_W", _F8, 3),  # the running integral of the IMU's acceleration (world, gravity removed) [m/s]
+        ("acc_prev_W", _F8, 3),  # the last IMU acceleration integrated [m/s²]
+        ("vote_mps", _F8),  # the third vote's tolerance on a window's velocity change [m/s]
+        ("drift_on", _I8),  # 1: the position drifts; it is replaced by the velocity's integral
+        ("vel_blamed", _I8),  # 1: the vote blamed the velocity: its offset is subtracted while the window disagrees
         # sustained faults (issue 26): IMU coasting, motion-capture jumps and freezes, the failsafe
         ("g", _F8),  # gravity [m/s²] (the coasting IMU sample)
         ("imu_hold_s", _F8),
@@ -479,6 +508,7 @@ def reset_supervisor(
     rec["resume_window_s"] = params.bypass_resume_window_s
     rec["vel_tol_m"] = params.velocity_tol_m
     rec["vel_n"] = min(max(1, round(params.velocity_window_s / dt)), VEL_RING - 1)
+    rec["vote_mps"] = params.velocity_vote_mps
     rec["check_state"], rec["check_mocap"] = int(check_state), int(check_mocap)
     rec["blind_mocap_s"] = params.blind_mocap_s
     rec["frozen_n"] = params.mocap_frozen_samples
@@ -741,21 +771,40 @@ def _resume_check(sv, s, tc: float) -> int:
 
 
 @jit
-def _check_velocity(sv, s, tc: float) -> int:
-    """The velocity against the positions (module docstring); subtracts the offset found from the state ``s``.
+def _imu_accel_W(sv, clean, R, i: int) -> float:
+    """Component ``i`` of the IMU's acceleration in the world frame, gravity removed: ``R acc_B - g e3``."""
+    acc = clean.imu.acc_B
+    a = R[i, 0] * acc[0] + R[i, 1] * acc[1] + R[i, 2] * acc[2]
+    return a - sv.g if i == 2 else a
 
-    A ring of the last ``vel_n`` states holds their times, positions and the running integral of the received
-    velocities, so the window slides by one frame each period and the offset follows within one window.
+
+@jit
+def _check_velocity(sv, s, clean, tc: float) -> int:
+    """The velocity against the positions, the IMU the third vote (module docstring); fixes the state ``s``.
+
+    A ring of the last ``vel_n`` states holds their times, positions, velocities and the running integrals of
+    the received velocities and of the IMU's acceleration, so the window slides by one frame each period and
+    an offset is found within one window. When the window disagrees, the velocity's change over it is held
+    against the IMU's acceleration integrated over it: the velocity that changed as the IMU says is believed
+    and the position drifts (:func:`_drift_position`); otherwise the velocity's offset is subtracted, and keeps
+    being subtracted (the velocity stays blamed, the vote is not asked again) while the window disagrees: once
+    the offset has lasted a window, the velocity no longer changes, and only the onset told the two apart.
     """
     integral, prev = sv.vel_int_W, sv.vel_prev_W
+    ia, aprev = sv.acc_int_W, sv.acc_prev_W
+    R = s.R_WB
     if sv.vel_k == 0:
         for i in range(3):
             integral[i], prev[i] = 0.0, s.v_W[i]
+            ia[i], aprev[i] = 0.0, _imu_accel_W(sv, clean, R, i)
     else:
         h = 0.5 * (tc - sv.vel_t_prev)
         for i in range(3):
             integral[i] += h * (prev[i] + s.v_W[i])
             prev[i] = s.v_W[i]
+            a = _imu_accel_W(sv, clean, R, i)
+            ia[i] += h * (aprev[i] + a)
+            aprev[i] = a
     sv.vel_t_prev = tc
     size = sv.vel_ring_t.shape[0]
     j = sv.vel_k % size
@@ -763,9 +812,12 @@ def _check_velocity(sv, s, tc: float) -> int:
     for i in range(3):
         sv.vel_ring_p_W[j, i] = s.p_W[i]
         sv.vel_ring_int_W[j, i] = integral[i]
+        sv.vel_ring_v_W[j, i] = s.v_W[i]
+        sv.vel_ring_ia_W[j, i] = ia[i]
     sv.vel_k += 1
     offset = sv.vel_offset_W
     biased = 0
+    o = 0
     if sv.vel_k > sv.vel_n:
         o = (sv.vel_k - 1 - sv.vel_n) % size  # the state one window ago
         window = tc - sv.vel_ring_t[o]
@@ -780,10 +832,48 @@ def _check_velocity(sv, s, tc: float) -> int:
     if biased == 0:
         for i in range(3):
             offset[i] = 0.0
+        sv.vel_blamed = 0
         return 0
+    if sv.vel_blamed == 0 and sv.coasting == 0:  # the third vote, once (a coasting IMU has none)
+        d2 = 0.0
+        for i in range(3):
+            d = (s.v_W[i] - sv.vel_ring_v_W[o, i]) - (ia[i] - sv.vel_ring_ia_W[o, i])
+            d2 += d * d
+        if math.sqrt(d2) <= sv.vote_mps:  # the velocity changed as the IMU says: the position drifts
+            for i in range(3):
+                offset[i] = 0.0
+            sv.drift_on = 1
+            for i in range(3):  # from the position one window ago, moved as the velocities say
+                s.p_W[i] = sv.vel_ring_p_W[o, i] + integral[i] - sv.vel_ring_int_W[o, i]
+            return CAUSE_STATE_DRIFT
+    sv.vel_blamed = 1  # the velocity jumped: it stays blamed while the window disagrees
     for i in range(3):
         s.v_W[i] -= offset[i]
     return CAUSE_STATE_VELOCITY
+
+
+@jit
+def _drift_position(sv, s, tc: float) -> int:
+    """While the position drifts: replace it by the last accepted one moved as the velocity says (trapezoid).
+
+    Until a received position agrees with that prediction again (within ``velocity_tol_m``, the disagreement
+    the drift was found by: a drift found goes on beyond it): the drift is over and the velocity check starts
+    afresh.
+    """
+    last = sv.state_last
+    h = 0.5 * (tc - sv.t_state_ok)
+    e2 = 0.0
+    for i in range(3):
+        e = s.p_W[i] - (last.p_W[i] + h * (last.v_W[i] + s.v_W[i]))
+        e2 += e * e
+    if math.sqrt(e2) <= sv.vel_tol_m:
+        sv.drift_on = 0
+        sv.vel_k = 0
+        sv.vel_blamed = 0
+        return 0
+    for i in range(3):
+        s.p_W[i] = last.p_W[i] + h * (last.v_W[i] + s.v_W[i])
+    return CAUSE_STATE_DRIFT
 
 
 @jit
@@ -803,15 +893,21 @@ def _check_state(sv, clean, time_bad: bool) -> int:
     elif not time_bad and tau > sv.hold_timeout_s:
         cause = _resume_check(sv, s, tc)
         sv.vel_k = 0  # after a loss the velocity check starts afresh
+        sv.drift_on = 0
+        sv.vel_blamed = 0
     elif not time_bad:
         dp = 0.0
         for i in range(3):
             e = s.p_W[i] - last.p_W[i] - last.v_W[i] * tau
             dp += e * e
-        if math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau:
+        if sv.drift_on != 0:  # the position drifts: its own check, not the jump's (module docstring)
+            flag = _drift_position(sv, s, tc)
+            if _dist3(s.v_W, last.v_W) > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
+                cause = CAUSE_STATE_JUMP
+        elif math.sqrt(dp) > sv.pos_jump_m + sv.max_speed_mps * tau:
             cause = CAUSE_STATE_JUMP
         else:
-            flag = _check_velocity(sv, s, tc)
+            flag = _check_velocity(sv, s, clean, tc)
             if _dist3(s.v_W, last.v_W) > sv.vel_jump_mps + sv.max_accel_mps2 * tau:
                 cause = CAUSE_STATE_JUMP
     if cause == 0 and not time_bad:

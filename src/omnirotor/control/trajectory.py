@@ -50,6 +50,7 @@ __all__ = [
     "packed_size",
     "reference_log_fields",
     "MIN_CAPACITY_WAYPOINTS",
+    "capacity_for",
     "TRAJECTORY_DTYPE",
     "WaypointTrajectory",
     "min_jerk_step",
@@ -186,7 +187,19 @@ def packed_size(n_waypoints: int) -> int:
 
 MIN_CAPACITY_WAYPOINTS = 32
 """The waypoints the controller's trajectory field holds by default (``ControllerParams.trajectory_waypoints``):
-every shipped task's trajectory fits (the longest, the point contacts', has 17)."""
+every shipped contact task's trajectory fits (the longest, the point contacts', has 17)."""
+
+
+def capacity_for(n_waypoints: int) -> int:
+    """A trajectory capacity [waypoints] for a run that flies ``n_waypoints``, set before its controller is built.
+
+    The next power of two (at least :data:`MIN_CAPACITY_WAYPOINTS`), so that runs of similar length share one
+    controller record, and one compiled step.
+    """
+    w = MIN_CAPACITY_WAYPOINTS
+    while w < n_waypoints:
+        w *= 2
+    return w
 
 
 @jit

@@ -151,7 +151,7 @@ def _scenarios() -> tuple[Scenario, ...]:
         ),
         Scenario(
             "bypass position drifting 1 mm/frame for 1 s", "bypass", "bypass",
-            (_c("state", 1.0, "ramp", 1.0, component=0),), 1.0, "recover", 0.1, "state_velocity",
+            (_c("state", 1.0, "ramp", 1.0, component=0),), 1.0, "recover", 0.1, "state_drift",
         ),
     ]  # fmt: skip
     for seed in MIX_SEEDS:

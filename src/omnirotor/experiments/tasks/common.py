@@ -28,7 +28,7 @@ from omnirotor.config import apply_values
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import ControllerParams, InteractionController
 from omnirotor.control.maps import MapParams
-from omnirotor.control.trajectory import PoseTrajectory, Waypoint
+from omnirotor.control.trajectory import PoseTrajectory, Waypoint, capacity_for
 from omnirotor.errors import InputError
 from omnirotor.experiments.faults import PlantPerturbation, plant_simulator, safety_stats
 from omnirotor.experiments.loop import (
@@ -213,10 +213,16 @@ def _task_map_params(configured: MapParams, opts: ExperimentOptions) -> MapParam
 
 
 def _controller(
-    vehicle: VehicleParams, opts: ExperimentOptions, admittance: str, zero: bool, maps: WrenchMapSet | None
+    vehicle: VehicleParams,
+    opts: ExperimentOptions,
+    admittance: str,
+    zero: bool,
+    maps: WrenchMapSet | None,
+    n_waypoints: int = 1,
 ) -> InteractionController:
     params = opts.controller_params(AdmittanceParams.preset(admittance))
-    params = dataclasses.replace(params, maps=_task_map_params(params.maps, opts))
+    waypoints = max(params.trajectory_waypoints, capacity_for(n_waypoints))  # room for the run's trajectory
+    params = dataclasses.replace(params, maps=_task_map_params(params.maps, opts), trajectory_waypoints=waypoints)
     zero = zero if opts.zero_observer is None else opts.zero_observer
     if zero and not params.observer.zero_at_start:
         params = dataclasses.replace(params, observer=dataclasses.replace(params.observer, zero_at_start=True))
@@ -234,7 +240,7 @@ def _fly(
     zero: bool,
 ):
     maps = opts.load_maps(vehicle)
-    controller = _controller(vehicle, opts, admittance, zero, maps)
+    controller = _controller(vehicle, opts, admittance, zero, maps, len(trajectory.waypoints))
     # run_closed_loop resets the plant at the trajectory's start first: no reset at the scene's start before it
     sim = plant_simulator(vehicle, scene, opts.sim_params(), opts.seed, opts.plant, controller, reset=False)
     with video_sink(sim, opts.video) as video:

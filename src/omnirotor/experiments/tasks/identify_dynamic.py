@@ -34,7 +34,7 @@ import numpy as np
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.controller import InteractionController
 from omnirotor.control.maps import MapParams
-from omnirotor.control.trajectory import PoseTrajectory
+from omnirotor.control.trajectory import PoseTrajectory, capacity_for
 from omnirotor.errors import InputError
 from omnirotor.experiments.faults import plant_simulator
 from omnirotor.experiments.loop import TaskOptions, run_closed_loop, run_log
@@ -287,7 +287,10 @@ def fly_sweeps(
     if opts.duration_s is not None:
         duration = opts.duration_s
     params = opts.controller_params(AdmittanceParams.preset("free"))
-    params = dataclasses.replace(params, maps=MapParams(mode=opts.map_mode, blend=opts.blend))
+    waypoints = max(params.trajectory_waypoints, capacity_for(len(wps)))  # room for the sweep's trajectory
+    params = dataclasses.replace(
+        params, maps=MapParams(mode=opts.map_mode, blend=opts.blend), trajectory_waypoints=waypoints
+    )
     controller = InteractionController(vehicle, params, opts.load_maps(vehicle))
     sim = plant_simulator(vehicle, "free", opts.sim_params(), opts.seed, opts.plant, controller)
     if proto.null_dither_hz2 > 0:
