@@ -63,6 +63,8 @@ _NO_COMMAND = int(Cause.NO_COMMAND)
 _NONFINITE_COMMAND = int(Cause.NONFINITE_COMMAND)
 _LAND_TIMEOUT = int(Cause.LAND_TIMEOUT)
 _CONTROLLER_ERROR = int(Cause.CONTROLLER_ERROR)
+_GEOFENCE = int(Cause.GEOFENCE)
+_ESTIMATE_DIVERGED = int(Cause.ESTIMATE_DIVERGED)
 _sum = np.add.reduce  # the ufunc itself: ndarray.sum's Python wrapper costs more than the sum of 8 speeds
 # What output() sends this period (decided by on_frame).
 _ZERO, _IDLE, _FIRST, _STEP = range(4)
@@ -133,6 +135,9 @@ class FlightDirector:
         self._td_since = math.nan  # touchdown window start [s] and its z band
         self._td_zmin = math.inf
         self._td_zmax = -math.inf
+        self._diverged_since = math.nan  # frame time the estimate began to disagree with motion capture [s]
+        self._fence_lo = np.asarray(p.workspace_min_m, dtype=float) - p.geofence_margin_m
+        self._fence_hi = np.asarray(p.workspace_max_m, dtype=float) + p.geofence_margin_m
         self.preset = preset if preset is not None else ("task" if trajectory is not None else p.free_preset)
         self.counts = {"frames": 0, "steps": 0, "accepted": 0, "refused": 0, "failsafe_events": 0, "bad_commands": 0}
         self.message = "disarmed"
@@ -183,6 +188,8 @@ class FlightDirector:
                 return
             self._plan = _FIRST
             return
+        if self.mode in FLYING and frame.mocap_new and self._have_mocap:
+            self._check_vehicle(t_frame)
         if self.mode in FLYING:
             self._progress(self.inflight.time(t_frame))
         if self.mode in FLYING:
@@ -191,6 +198,11 @@ class FlightDirector:
             self._plan = _IDLE
         else:
             self._plan = _ZERO
+
+    @property
+    def armed(self) -> bool:
+        """False when disarmed: the node then publishes zero speeds only, flagged ``STATE_STOP`` (its invariant)."""
+        return self.mode != _M.DISARMED
 
     def wants_step(self) -> bool:
         """True if the node should step the controller on this period's frame."""
@@ -454,6 +466,46 @@ class FlightDirector:
             self._sticky |= _LAND_TIMEOUT
             self.message = f"landed: no touchdown within {p.land_timeout_s:g} s, disarmed"
 
+    def _check_vehicle(self, t: float) -> None:
+        """The geofence and the estimate's divergence (:mod:`omnirotor.fly.failsafe`): either terminates the flight.
+
+        Called in flight on frames with a motion-capture sample, after the controller's reset (its estimate is
+        the one of the last step: a period older than the sample at most).
+        """
+        p = self._mocap_p
+        if not np.isfinite(p).all():
+            return
+        if bool(np.any(p < self._fence_lo)) or bool(np.any(p > self._fence_hi)):
+            self._terminate(
+                _GEOFENCE,
+                f"failsafe stop: the body at {_xyz(p)} is more than {self.params.geofence_margin_m:g} m outside the "
+                f"workspace {_box(self.params)}: rotors stopped, disarmed",
+            )
+            return
+        est = self.inflight.estimate_p_W()
+        if est is None:
+            self._diverged_since = math.nan
+            return
+        off = float(np.linalg.norm(est - p))
+        if not off <= self.params.divergence_m:  # NaN too
+            if self._diverged_since != self._diverged_since:
+                self._diverged_since = t
+            if t - self._diverged_since >= self.params.divergence_s:
+                self._terminate(
+                    _ESTIMATE_DIVERGED,
+                    f"failsafe stop: the position estimate {_xyz(est)} is {off:.2f} m from motion capture "
+                    f"{_xyz(p)} for {t - self._diverged_since:.2f} s: rotors stopped, disarmed",
+                )
+        else:
+            self._diverged_since = math.nan
+
+    def _terminate(self, cause: int, message: str) -> None:
+        """Stop the rotors and disarm now, flagged with ``cause`` (shown until the next frame)."""
+        self.cause |= cause
+        self._sticky |= cause
+        self._disarm()
+        self._failsafe_action(Failsafe.STOP, message)
+
     def _hold(self) -> str:
         """Stop the reference: a braking segment from where it is, at the acceleration limit."""
         ref = self.inflight.reference()
@@ -499,6 +551,7 @@ class FlightDirector:
         self._depth = 0.0
         self._target = None
         self._plan = _ZERO
+        self._diverged_since = math.nan
 
     def _set_preset(self, name: str) -> None:
         if name != self.preset:

@@ -63,6 +63,8 @@ from omnirotor.messages import SensorFrame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
+    COMMAND_ARMED,
+    COMMAND_STOP,
     CONTROLLER_LOG,
     FRAME,
     LOOP_STATUS,
@@ -87,8 +89,6 @@ __all__ = [
     "fly_mission",
 ]
 
-_STATE_ARMED = 1
-_STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
 _RECENT = 1000
 MAX_FRAME_JUMP = 1000
@@ -149,6 +149,8 @@ class LoopStats:
         self.controller_errors = 0
         self.status_errors = 0
         self.output_errors = 0
+        self.disarmed_nonzero = 0
+        """Periods a disarmed director gave nonzero speeds, replaced by zeros (never, unless a director is wrong)."""
         self._latency = np.zeros(_LATENCY_WINDOW)
         self._work = np.zeros(_LATENCY_WINDOW)
         self._i = 0
@@ -211,6 +213,7 @@ class LoopStats:
             "controller_errors": self.controller_errors,
             "status_errors": self.status_errors,
             "output_errors": self.output_errors,
+            "disarmed_nonzero": self.disarmed_nonzero,
         }
 
 
@@ -304,6 +307,7 @@ class NodeLoop:
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
+        self._zeros = np.zeros(n)
         self.cmd_seq = 0
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
@@ -351,14 +355,15 @@ class NodeLoop:
                 self._say(f"request failed: {exc.__class__.__name__}: {exc}")
 
     # -- publishing -------------------------------------------------------------------------------------------
-    def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int) -> None:
+    def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int, armed: bool) -> None:
+        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then)."""
         m = self.msgs.command
         self.cmd_seq += 1
         m.hz[:] = hz
         m.t = t
         set_stamp(m.header, t)
         m.control_status = control_status
-        m.state = _STATE_ARMED if hz.any() else _STATE_STOP  # any nonzero speed (NaN never reaches here)
+        m.state = COMMAND_ARMED if armed else COMMAND_STOP
         m.session_id = self.session_id
         m.seq = self.cmd_seq
         m.frame_seq = frame_seq
@@ -390,6 +395,8 @@ class NodeLoop:
         """The last command again (a new sequence number, the same frame it answers)."""
         m = self.msgs.command
         if self.cmd_seq == 0 or m.t != t:
+            return
+        if m.state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since: not again
             return
         self.cmd_seq += 1
         m.seq = self.cmd_seq
@@ -470,6 +477,7 @@ class NodeLoop:
         status_every = 1.0 / o.status_hz
         mono = time.monotonic
         director, controller, stats = self.director, self.controller, self.stats
+        has_armed = hasattr(type(director), "armed")
         frames = self._frames
         last_seq = -1
         last_arrival = math.nan
@@ -539,7 +547,11 @@ class NodeLoop:
                     stats.controller_errors += 1
                     cmd = None
                 hz = director.output(cmd)
-                self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0)
+                armed = director.armed if has_armed else bool(hz.any())
+                if not armed and hz.any():  # the invariant: a disarmed node commands zeros, whatever it was told
+                    stats.disarmed_nonzero += 1
+                    hz = self._zeros
+                self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0, armed)
                 sent = mono()
                 if self.recorder is not None or self.live is not None:
                     self._record_period(frame, hz, cmd)
