@@ -499,6 +499,19 @@ def test_an_estimate_that_leaves_motion_capture_terminates_the_flight(vehicle, o
     assert not np.any(later)
 
 
+def test_a_plant_that_stops_obeying_disarms_the_director(vehicle):
+    """The simulator's offboard-loss failsafe or PX4 out of offboard (the plant status the node reads)."""
+    d, ctl, s = _armed_in_hover(vehicle)
+    d.plant_failsafe("PX4 left offboard (nav_state 4)")
+    st = d.status()
+    assert not d.armed and st.failsafe == Failsafe.STOP and st.cause & Cause.PLANT_FAILSAFE
+    assert st.message == "the robot stopped obeying (PX4 left offboard (nav_state 4)): disarmed"
+    outs = []
+    _run(d, ctl, s, 0.05, outs)
+    assert not np.any(outs)
+    assert _req(d, "arm").accepted  # the operator may arm again (the plant's status disarms it while it lasts)
+
+
 def test_a_disarmed_director_outputs_zeros_and_says_so(vehicle):
     """The node's invariant (``armed``): after landing or a disarm, only zeros, whatever the controller says."""
     d, ctl, s = _armed_in_hover(vehicle)

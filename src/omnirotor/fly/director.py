@@ -65,6 +65,7 @@ _LAND_TIMEOUT = int(Cause.LAND_TIMEOUT)
 _CONTROLLER_ERROR = int(Cause.CONTROLLER_ERROR)
 _GEOFENCE = int(Cause.GEOFENCE)
 _ESTIMATE_DIVERGED = int(Cause.ESTIMATE_DIVERGED)
+_PLANT_FAILSAFE = int(Cause.PLANT_FAILSAFE)
 _sum = np.add.reduce  # the ufunc itself: ndarray.sum's Python wrapper costs more than the sum of 8 speeds
 # What output() sends this period (decided by on_frame).
 _ZERO, _IDLE, _FIRST, _STEP = range(4)
@@ -498,6 +499,18 @@ class FlightDirector:
                 )
         else:
             self._diverged_since = math.nan
+
+    def plant_failsafe(self, why: str) -> None:
+        """The plant stopped obeying the commands: disarm (zeros from now on), said in the status.
+
+        The simulator's offboard-loss failsafe, or PX4 out of offboard or disarmed (said by the robot bridge).
+        """
+        if self.mode == _M.DISARMED:
+            return
+        self.cause |= _PLANT_FAILSAFE
+        self._sticky |= _PLANT_FAILSAFE
+        self._disarm()
+        self._failsafe_action(Failsafe.STOP, f"the robot stopped obeying ({why}): disarmed")
 
     def _terminate(self, cause: int, message: str) -> None:
         """Stop the rotors and disarm now, flagged with ``cause`` (shown until the next frame)."""

@@ -83,6 +83,8 @@ class Cause(enum.IntFlag):
     """Motion capture put the body outside the workspace box by more than its margin: the flight was terminated."""
     ESTIMATE_DIVERGED = 512
     """The position estimate and motion capture disagreed beyond their bound: the flight was terminated."""
+    PLANT_FAILSAFE = 1024
+    """The plant stopped obeying (the simulator's offboard-loss failsafe, PX4 out of offboard): disarmed."""
 
 
 class FailsafeMonitor:

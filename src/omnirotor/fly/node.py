@@ -312,6 +312,7 @@ class NodeLoop:
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
         self.link_lost = False
+        self._plant_failsafe = False
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -624,6 +625,20 @@ class NodeLoop:
     def _poll_sim_status(self) -> None:
         """A mission ends when the simulator says its run finished."""
         msg = self._sim_status.take_latest()
+        if msg is not None and msg.failsafe:
+            # the plant does not obey (its offboard-loss failsafe; PX4 out of offboard): the director disarms
+            why = str(msg.cause) or "its failsafe"
+            if not self._plant_failsafe:
+                self._plant_failsafe = True
+                self._say(f"the plant stopped obeying the commands: {why}")
+            plant_failsafe = getattr(self.director, "plant_failsafe", None)
+            if plant_failsafe is not None:
+                try:
+                    plant_failsafe(why)
+                except Exception:  # noqa: BLE001  (never fatal: counted)
+                    self.stats.controller_errors += 1
+        elif msg is not None:
+            self._plant_failsafe = False
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
