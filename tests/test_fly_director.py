@@ -316,6 +316,17 @@ def test_land_disarms_on_touchdown_or_after_its_bounded_time(vehicle):
     assert d.message == "landed: touchdown, disarmed"
 
 
+def test_touchdown_is_never_judged_from_a_stale_motion_capture_sample(vehicle):
+    """Motion capture stops during the landing: its last sample (at the ground height) is no proof of touchdown;
+    the landing ends by its bounded time instead, said."""
+    params = FlyParams(min_segment_s=0.2, touchdown_dwell_s=0.3, land_timeout_s=1.5)
+    d, ctl, s = _armed_in_hover(vehicle, params)
+    assert _req(d, "land").accepted
+    s.mocap_on = False
+    assert _run(d, ctl, s, 5.0, until=lambda d: d.mode == M.DISARMED)
+    assert d.message == "landed: no touchdown within 1.5 s, disarmed"
+
+
 def test_whole_flight_in_the_simulator(vehicle):
     from omnirotor.sim import SimParams, Simulator
 

@@ -29,7 +29,8 @@ Take-off and landing: ``arm`` records the vehicle's pose (motion capture; the *g
 starts from it; rotors at idle until then) with a vertical climb of the EE to ``height`` above
 it. ``land`` descends at ``land_speed_mps`` to the ground height with the armed attitude, then disarms on
 touchdown (body within ``touchdown_height_m`` of the ground height, moving less than
-``touchdown_speed_mps``, for ``touchdown_dwell_s``) or ``land_timeout_s`` after the reference arrived.
+``touchdown_speed_mps``, for ``touchdown_dwell_s``, on fresh motion capture: a stale sample proves nothing) or
+``land_timeout_s`` after the reference arrived.
 
 A *mission* (``trajectory=`` given, as ``omnirotor sim --serve`` replays a task of ``omnirotor run``) arms
 and starts tracking on the first frame exactly as the in-process closed loop does: ``reset`` on that frame,
@@ -122,6 +123,7 @@ class FlightDirector:
         self._mocap_p = np.full(3, math.nan)
         self._mocap_q = np.full(4, math.nan)
         self._have_mocap = False
+        self._mocap_fresh = False  # the last sample is within mocap_stale_s (touchdown is judged on fresh ones only)
         self._ground_p = np.zeros(3)  # body pose when armed
         self._ground_R = np.eye(3)
         self._pending: PoseTrajectory | None = None  # take-off/mission trajectory to reset on the next frame
@@ -163,6 +165,7 @@ class FlightDirector:
             self._mocap_p[:] = frame.mocap_p_W
             self._mocap_q[:] = frame.mocap_q_WB
             self._have_mocap = True
+        self._mocap_fresh = ages.mocap_age_s <= self.params.mocap_stale_s  # NaN: not fresh
         level, cause = self._monitor.level(ages)
         self.cause = int(cause) | self._sticky
         self._sticky = 0
@@ -447,7 +450,7 @@ class FlightDirector:
     def _touchdown(self, t: float) -> None:
         p = self.params
         z = self._mocap_p[2]
-        if self._have_mocap and abs(z - self._ground_p[2]) <= p.touchdown_height_m:
+        if self._have_mocap and self._mocap_fresh and abs(z - self._ground_p[2]) <= p.touchdown_height_m:
             if (
                 self._td_since != self._td_since
                 or self._td_zmax - self._td_zmin > p.touchdown_speed_mps * p.touchdown_dwell_s
