@@ -7,14 +7,16 @@ its ``on_frame``/``wants_step``/``output``/``request``/``status``), per sensor f
     cmd = controller.step(frame) if director.wants_step() else None
     publish RotorCommand(director.output(cmd), session, seq, frame_seq)
 
-Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, waited for: the newest is taken,
-older ones count as missed periods), commands go to ``/omnirotor/rotor_cmd`` with this process's random session id
-and increasing sequence numbers (the plant obeys one session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl``
-requests (``/omnirotor/ctl``) are answered between frames on the loop's own thread (the director is not
-thread-safe). Status: ``/omnirotor/status`` (the director's, ``FlightStatus``) and ``/omnirotor/loop_status``
-(``LoopStatus``, the deadline accounting below) about 50 times a second; ``/omnirotor/wrench_est``
-(``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One message per period is on the
-hot path, the command; a mission's controller-log rows go to the simulator in batches of 20.
+Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, waited for: the newest is taken, older
+ones count as missed periods, but the newest motion-capture sample among the skipped frames is carried into it when
+it has none: a loop that falls behind must not lose the samples that anchor the estimate), commands go to
+``/omnirotor/rotor_cmd`` with this process's random session id and increasing sequence numbers (the plant obeys one
+session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl`` requests (``/omnirotor/ctl``) are answered between frames on
+the loop's own thread (the director is not thread-safe). Status: ``/omnirotor/status`` (the director's,
+``FlightStatus``) and ``/omnirotor/loop_status`` (``LoopStatus``, the deadline accounting below) about 50 times a
+second; ``/omnirotor/wrench_est`` (``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One
+message per period is on the hot path, the command; a mission's controller-log rows go to the simulator in batches
+of 20.
 
 Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
@@ -311,6 +313,8 @@ class NodeLoop:
         self.cmd_seq = 0
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
+        self.mocap_carried = 0
+        """Motion-capture samples of skipped frames carried into the newest frame (the loop had fallen behind)."""
         self.link_lost = False
         self._plant_failsafe = False
         self.link_lost_age_s = math.nan
@@ -500,8 +504,12 @@ class NodeLoop:
                     timeout = min(_LOCKSTEP_WAIT_S, max(next_status - now, 0.0))
                 else:
                     timeout = min(period, max(min(next_gap_call, next_status) - now, 0.0))
-                msg = frames.take_latest(timeout)
+                msg, mocap = frames.take_latest_keeping(timeout, _has_mocap)
                 now = mono()
+                if mocap is not None:  # the newest frame has no sample, a skipped one had: not lost (docstring)
+                    msg.mocap_new, msg.mocap_t = True, mocap.mocap_t
+                    msg.mocap_p_w, msg.mocap_q_wb = mocap.mocap_p_w, mocap.mocap_q_wb
+                    self.mocap_carried += 1
 
                 if msg is None:
                     if self._idle(now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call):
@@ -590,6 +598,7 @@ class NodeLoop:
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
         out["start_frame_answered_again"] = self.start_answers
+        out["mocap_carried"] = self.mocap_carried
         out["session_id"] = f"{self.session_id:016x}"
         return out
 
@@ -643,6 +652,10 @@ class NodeLoop:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
             self.finished = True
+
+
+def _has_mocap(msg) -> bool:
+    return bool(msg.mocap_new)
 
 
 def warm_up(controller, trajectory=None) -> None:
