@@ -316,6 +316,17 @@ def test_land_disarms_on_touchdown_or_after_its_bounded_time(vehicle):
     assert d.message == "landed: touchdown, disarmed"
 
 
+def test_touchdown_is_never_judged_from_a_stale_motion_capture_sample(vehicle):
+    """Motion capture stops during the landing: its last sample (at the ground height) is no proof of touchdown;
+    the landing ends by its bounded time instead, said."""
+    params = FlyParams(min_segment_s=0.2, touchdown_dwell_s=0.3, land_timeout_s=1.5)
+    d, ctl, s = _armed_in_hover(vehicle, params)
+    assert _req(d, "land").accepted
+    s.mocap_on = False
+    assert _run(d, ctl, s, 5.0, until=lambda d: d.mode == M.DISARMED)
+    assert d.message == "landed: no touchdown within 1.5 s, disarmed"
+
+
 def test_whole_flight_in_the_simulator(vehicle):
     from omnirotor.sim import SimParams, Simulator
 
@@ -454,6 +465,74 @@ def test_frames_that_stop_stop_the_rotors(vehicle):
     _run(d, ctl, s, 0.05)
     assert d.mode == M.DISARMED and not d.output(None).any()
     assert _req(d, "arm").accepted
+
+
+def test_a_vehicle_outside_the_geofence_is_terminated(vehicle):
+    """Motion capture puts the body more than geofence_margin_m outside the workspace box: rotors stopped at once."""
+    d, ctl, s = _armed_in_hover(vehicle)
+    _run(d, ctl, s, 0.05)
+    assert d.mode == M.HOLD
+    s.p = np.array([0.0, 0.0, 2.5 + 0.45])  # outside the box, inside the margin: flown on (the estimate follows)
+    _run(d, ctl, s, 0.03)
+    assert d.mode == M.HOLD and d.armed
+    s.p = np.array([0.0, 0.0, 2.5 + 0.55])
+    assert _run(d, ctl, s, 0.011, until=lambda d: d.mode == M.DISARMED)  # the next motion-capture sample
+    st = d.status()
+    assert not d.armed and st.failsafe == Failsafe.STOP and st.cause & Cause.GEOFENCE
+    assert st.message.startswith("failsafe stop: the body at (") and "3.050) is more than 0.5 m outside" in st.message
+    outs = []
+    s.p = np.array([0.0, 0.0, 1.0])  # back inside: stays disarmed, zeros, until armed again
+    _run(d, ctl, s, 0.1, outs)
+    assert not np.any(outs) and d.mode == M.DISARMED
+
+
+@pytest.mark.parametrize("offset_m, terminated", [(0.25, False), (0.5, True)])
+def test_an_estimate_that_leaves_motion_capture_terminates_the_flight(vehicle, offset_m, terminated):
+    """Motion capture moves away from the estimate (the supervision rejects it as a jump: the estimate stays) by
+    more than divergence_m for divergence_s: the controller flies on an estimate that left the vehicle; stopped.
+    """
+    d, ctl, s = _armed_in_hover(vehicle)
+    _run(d, ctl, s, 0.05)
+    s.p = s.p + np.array([offset_m, 0.0, 0.0])
+    outs = []
+    stopped = _run(d, ctl, s, 0.3, outs, until=lambda d: d.mode == M.DISARMED)
+    st = d.status()
+    if not terminated:
+        assert not stopped and d.mode == M.HOLD and st.failsafe == Failsafe.NONE
+        assert np.all(np.any(np.array(outs), axis=1))
+        return
+    assert stopped and st.failsafe == Failsafe.STOP and st.cause & Cause.ESTIMATE_DIVERGED
+    assert "the position estimate" in st.message and "m from motion capture" in st.message
+    assert 0.09 <= len(outs) * s.dt <= 0.13  # divergence_s after the first sample that disagreed (10 ms apart)
+    assert not outs[-1].any()
+    later = []
+    _run(d, ctl, s, 0.05, later)
+    assert not np.any(later)
+
+
+def test_a_plant_that_stops_obeying_disarms_the_director(vehicle):
+    """The simulator's offboard-loss failsafe or PX4 out of offboard (the plant status the node reads)."""
+    d, ctl, s = _armed_in_hover(vehicle)
+    d.plant_failsafe("PX4 left offboard (nav_state 4)")
+    st = d.status()
+    assert not d.armed and st.failsafe == Failsafe.STOP and st.cause & Cause.PLANT_FAILSAFE
+    assert st.message == "the robot stopped obeying (PX4 left offboard (nav_state 4)): disarmed"
+    outs = []
+    _run(d, ctl, s, 0.05, outs)
+    assert not np.any(outs)
+    assert _req(d, "arm").accepted  # the operator may arm again (the plant's status disarms it while it lasts)
+
+
+def test_a_disarmed_director_outputs_zeros_and_says_so(vehicle):
+    """The node's invariant (``armed``): after landing or a disarm, only zeros, whatever the controller says."""
+    d, ctl, s = _armed_in_hover(vehicle)
+    assert d.armed
+    assert _req(d, "disarm", force=True).accepted
+    assert not d.armed
+    frame, ages = s.next()
+    d.on_frame(frame, ages)
+    assert not d.wants_step()
+    assert not d.output(RotorCommand(frame.t, np.full(8, 300.0))).any()
 
 
 def test_bad_commands_never_reach_the_rotors(vehicle):

@@ -108,3 +108,73 @@ def test_the_status_p99_is_of_the_recent_periods_across_the_window_wrap():
     assert s.recent_p99_s() == pytest.approx(1e-4)
     s.period(5e-3, 0.0, 0.0, 1e-3)
     assert s.recent_p99_s() == pytest.approx(np.percentile([1e-4] * 999 + [5e-3], 99))
+
+
+class _SlowDirector(_Director):
+    """Records each frame's motion capture; on the first frame it holds the loop until told (frames queue up)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.mocap = []
+        self.busy = threading.Event()
+        self.release = threading.Event()
+
+    def on_frame(self, frame, ages) -> None:
+        super().on_frame(frame, ages)
+        if ages.imu_age_s == 0.0 and not ages.frames_stopped:
+            self.mocap.append((float(frame.t), frame.mocap_new, None if not frame.mocap_new else
+                               (float(frame.mocap_t), tuple(frame.mocap_p_W))))  # fmt: skip
+            if len(self.mocap) == 1:
+                self.busy.set()
+                self.release.wait(10)
+
+
+def test_a_motion_capture_sample_in_a_skipped_frame_is_not_lost():
+    """A loop that fell behind takes the newest frame; the motion-capture sample of a frame it skipped rides with it.
+
+    Before: the node took the newest frame only, so under load the motion-capture samples (one frame in ten) were
+    dropped with the frames skipped and the estimate ran on the IMU alone.
+    """
+    port = free_port()
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/skip") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/skip") as wire,
+    ):
+        ctl, director = _Controller(), _SlowDirector()
+        node = NodeLoop(wire, ctl, director, NodeOptions(lockstep=True), say=lambda line: None)
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        stop = threading.Event()
+        summary: dict = {}
+        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
+        thread.start()
+        try:
+            w, record = WireMessages(N), new_frame(N)
+
+            def send(k: int, mocap: bool) -> None:
+                record["t"] = 0.001 * k
+                record["mocap"]["new"] = mocap
+                record["mocap"]["t"] = 0.001 * k - 0.0005 if mocap else 0.0
+                record["mocap"]["p_W"] = (k, 2.0, 3.0)
+                record["mocap"]["q_WB"] = (1.0, 0.0, 0.0, 0.0)
+                frames.put(w.fill_frame(record, k))
+
+            deadline = time.monotonic() + 10
+            while not director.busy.is_set() and time.monotonic() < deadline:  # matching takes a moment
+                send(1, False)
+                time.sleep(0.02)
+            assert director.busy.is_set()
+            send(2, True)  # the loop is busy: these queue up
+            send(3, False)
+            send(4, False)
+            time.sleep(0.5)
+            director.release.set()
+            deadline = time.monotonic() + 5
+            while len(director.mocap) < 2 and time.monotonic() < deadline:
+                time.sleep(0.01)
+        finally:
+            stop.set()
+            thread.join(10)
+    first, newest = director.mocap[0], director.mocap[1]
+    assert first[:2] == (0.001, False)
+    assert newest == (0.004, True, (0.0015, (2.0, 2.0, 3.0)))  # frame 4, with frame 2's sample
+    assert summary["mocap_carried"] == 1

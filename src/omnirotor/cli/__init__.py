@@ -124,6 +124,7 @@ COMMAND_MODULES = (
     "cmd_hover_windows",
     "cmd_identify",
     "cmd_info",
+    "cmd_px4_bridge",
     "cmd_regions",
     "cmd_render",
     "cmd_reproduce",

@@ -29,7 +29,8 @@ Take-off and landing: ``arm`` records the vehicle's pose (motion capture; the *g
 starts from it; rotors at idle until then) with a vertical climb of the EE to ``height`` above
 it. ``land`` descends at ``land_speed_mps`` to the ground height with the armed attitude, then disarms on
 touchdown (body within ``touchdown_height_m`` of the ground height, moving less than
-``touchdown_speed_mps``, for ``touchdown_dwell_s``) or ``land_timeout_s`` after the reference arrived.
+``touchdown_speed_mps``, for ``touchdown_dwell_s``, on fresh motion capture: a stale sample proves nothing) or
+``land_timeout_s`` after the reference arrived.
 
 A *mission* (``trajectory=`` given, as ``omnirotor sim --serve`` replays a task of ``omnirotor run``) arms
 and starts tracking on the first frame exactly as the in-process closed loop does: ``reset`` on that frame,
@@ -63,6 +64,9 @@ _NO_COMMAND = int(Cause.NO_COMMAND)
 _NONFINITE_COMMAND = int(Cause.NONFINITE_COMMAND)
 _LAND_TIMEOUT = int(Cause.LAND_TIMEOUT)
 _CONTROLLER_ERROR = int(Cause.CONTROLLER_ERROR)
+_GEOFENCE = int(Cause.GEOFENCE)
+_ESTIMATE_DIVERGED = int(Cause.ESTIMATE_DIVERGED)
+_PLANT_FAILSAFE = int(Cause.PLANT_FAILSAFE)
 _sum = np.add.reduce  # the ufunc itself: ndarray.sum's Python wrapper costs more than the sum of 8 speeds
 # What output() sends this period (decided by on_frame).
 _ZERO, _IDLE, _FIRST, _STEP = range(4)
@@ -119,6 +123,7 @@ class FlightDirector:
         self._mocap_p = np.full(3, math.nan)
         self._mocap_q = np.full(4, math.nan)
         self._have_mocap = False
+        self._mocap_fresh = False  # the last sample is within mocap_stale_s (touchdown is judged on fresh ones only)
         self._ground_p = np.zeros(3)  # body pose when armed
         self._ground_R = np.eye(3)
         self._pending: PoseTrajectory | None = None  # take-off/mission trajectory to reset on the next frame
@@ -133,6 +138,9 @@ class FlightDirector:
         self._td_since = math.nan  # touchdown window start [s] and its z band
         self._td_zmin = math.inf
         self._td_zmax = -math.inf
+        self._diverged_since = math.nan  # frame time the estimate began to disagree with motion capture [s]
+        self._fence_lo = np.asarray(p.workspace_min_m, dtype=float) - p.geofence_margin_m
+        self._fence_hi = np.asarray(p.workspace_max_m, dtype=float) + p.geofence_margin_m
         self.preset = preset if preset is not None else ("task" if trajectory is not None else p.free_preset)
         self.counts = {"frames": 0, "steps": 0, "accepted": 0, "refused": 0, "failsafe_events": 0, "bad_commands": 0}
         self.message = "disarmed"
@@ -157,6 +165,7 @@ class FlightDirector:
             self._mocap_p[:] = frame.mocap_p_W
             self._mocap_q[:] = frame.mocap_q_WB
             self._have_mocap = True
+        self._mocap_fresh = ages.mocap_age_s <= self.params.mocap_stale_s  # NaN: not fresh
         level, cause = self._monitor.level(ages)
         self.cause = int(cause) | self._sticky
         self._sticky = 0
@@ -183,6 +192,8 @@ class FlightDirector:
                 return
             self._plan = _FIRST
             return
+        if self.mode in FLYING and frame.mocap_new and self._have_mocap:
+            self._check_vehicle(t_frame)
         if self.mode in FLYING:
             self._progress(self.inflight.time(t_frame))
         if self.mode in FLYING:
@@ -191,6 +202,11 @@ class FlightDirector:
             self._plan = _IDLE
         else:
             self._plan = _ZERO
+
+    @property
+    def armed(self) -> bool:
+        """False when disarmed: the node then publishes zero speeds only, flagged ``STATE_STOP`` (its invariant)."""
+        return self.mode != _M.DISARMED
 
     def wants_step(self) -> bool:
         """True if the node should step the controller on this period's frame."""
@@ -434,7 +450,7 @@ class FlightDirector:
     def _touchdown(self, t: float) -> None:
         p = self.params
         z = self._mocap_p[2]
-        if self._have_mocap and abs(z - self._ground_p[2]) <= p.touchdown_height_m:
+        if self._have_mocap and self._mocap_fresh and abs(z - self._ground_p[2]) <= p.touchdown_height_m:
             if (
                 self._td_since != self._td_since
                 or self._td_zmax - self._td_zmin > p.touchdown_speed_mps * p.touchdown_dwell_s
@@ -453,6 +469,58 @@ class FlightDirector:
             self.cause |= _LAND_TIMEOUT
             self._sticky |= _LAND_TIMEOUT
             self.message = f"landed: no touchdown within {p.land_timeout_s:g} s, disarmed"
+
+    def _check_vehicle(self, t: float) -> None:
+        """The geofence and the estimate's divergence (:mod:`omnirotor.fly.failsafe`): either terminates the flight.
+
+        Called in flight on frames with a motion-capture sample, after the controller's reset (its estimate is
+        the one of the last step: a period older than the sample at most).
+        """
+        p = self._mocap_p
+        if not np.isfinite(p).all():
+            return
+        if bool(np.any(p < self._fence_lo)) or bool(np.any(p > self._fence_hi)):
+            self._terminate(
+                _GEOFENCE,
+                f"failsafe stop: the body at {_xyz(p)} is more than {self.params.geofence_margin_m:g} m outside the "
+                f"workspace {_box(self.params)}: rotors stopped, disarmed",
+            )
+            return
+        est = self.inflight.estimate_p_W()
+        if est is None:
+            self._diverged_since = math.nan
+            return
+        off = float(np.linalg.norm(est - p))
+        if not off <= self.params.divergence_m:  # NaN too
+            if self._diverged_since != self._diverged_since:
+                self._diverged_since = t
+            if t - self._diverged_since >= self.params.divergence_s:
+                self._terminate(
+                    _ESTIMATE_DIVERGED,
+                    f"failsafe stop: the position estimate {_xyz(est)} is {off:.2f} m from motion capture "
+                    f"{_xyz(p)} for {t - self._diverged_since:.2f} s: rotors stopped, disarmed",
+                )
+        else:
+            self._diverged_since = math.nan
+
+    def plant_failsafe(self, why: str) -> None:
+        """The plant stopped obeying the commands: disarm (zeros from now on), said in the status.
+
+        The simulator's offboard-loss failsafe, or PX4 out of offboard or disarmed (said by the robot bridge).
+        """
+        if self.mode == _M.DISARMED:
+            return
+        self.cause |= _PLANT_FAILSAFE
+        self._sticky |= _PLANT_FAILSAFE
+        self._disarm()
+        self._failsafe_action(Failsafe.STOP, f"the robot stopped obeying ({why}): disarmed")
+
+    def _terminate(self, cause: int, message: str) -> None:
+        """Stop the rotors and disarm now, flagged with ``cause`` (shown until the next frame)."""
+        self.cause |= cause
+        self._sticky |= cause
+        self._disarm()
+        self._failsafe_action(Failsafe.STOP, message)
 
     def _hold(self) -> str:
         """Stop the reference: a braking segment from where it is, at the acceleration limit."""
@@ -499,6 +567,7 @@ class FlightDirector:
         self._depth = 0.0
         self._target = None
         self._plan = _ZERO
+        self._diverged_since = math.nan
 
     def _set_preset(self, name: str) -> None:
         if name != self.preset:

@@ -10,6 +10,14 @@ decides the level, a pure function of the ages (:meth:`FailsafeMonitor.level`):
     stale for land_after_s or more       LAND       the landing of :mod:`omnirotor.fly.modes`
     frames stopped altogether            STOP       no step, zero speeds (the director disarms)
 
+Besides the links, two checks of the vehicle itself terminate a flight (STOP: rotors stopped, disarmed; the
+director's, from its motion capture, :meth:`FlightDirector.on_frame <omnirotor.fly.director.FlightDirector>`):
+the *geofence* (motion capture puts the body more than ``geofence_margin_m`` outside the workspace box, which
+every reference stays inside) and the *estimate's divergence* (the controller's position estimate and motion
+capture disagree by more than ``divergence_m`` for ``divergence_s``). Either means the controller no longer
+controls where the vehicle is; flying on, even a landing flown on that estimate, is how a vehicle flies away
+while its controller believes it is on its reference (PX4's geofence action "terminate" is the same choice).
+
 The director latches the action of each level reached during one incident (a hold or a landing is not
 undone when the link comes back; the operator decides), while the DEGRADED flag follows the link. Every
 status carries the cause bits (:class:`Cause`) of what is wrong now and the level reached.
@@ -71,6 +79,12 @@ class Cause(enum.IntFlag):
     """The controller refused a frame (reset or in-flight change raised): the flight was stopped or held."""
     BAD_AGES = 128
     """The link ages given were not numbers: treated as stale."""
+    GEOFENCE = 256
+    """Motion capture put the body outside the workspace box by more than its margin: the flight was terminated."""
+    ESTIMATE_DIVERGED = 512
+    """The position estimate and motion capture disagreed beyond their bound: the flight was terminated."""
+    PLANT_FAILSAFE = 1024
+    """The plant stopped obeying (the simulator's offboard-loss failsafe, PX4 out of offboard): disarmed."""
 
 
 class FailsafeMonitor:

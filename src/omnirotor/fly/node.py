@@ -7,14 +7,16 @@ its ``on_frame``/``wants_step``/``output``/``request``/``status``), per sensor f
     cmd = controller.step(frame) if director.wants_step() else None
     publish RotorCommand(director.output(cmd), session, seq, frame_seq)
 
-Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, waited for: the newest is taken,
-older ones count as missed periods), commands go to ``/omnirotor/rotor_cmd`` with this process's random session id
-and increasing sequence numbers (the plant obeys one session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl``
-requests (``/omnirotor/ctl``) are answered between frames on the loop's own thread (the director is not
-thread-safe). Status: ``/omnirotor/status`` (the director's, ``FlightStatus``) and ``/omnirotor/loop_status``
-(``LoopStatus``, the deadline accounting below) about 50 times a second; ``/omnirotor/wrench_est``
-(``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One message per period is on the
-hot path, the command; a mission's controller-log rows go to the simulator in batches of 20.
+Frames come from ``/omnirotor/frame`` (``omnirotor_msgs/msg/SensorFrame``, waited for: the newest is taken, older
+ones count as missed periods, but the newest motion-capture sample among the skipped frames is carried into it when
+it has none: a loop that falls behind must not lose the samples that anchor the estimate), commands go to
+``/omnirotor/rotor_cmd`` with this process's random session id and increasing sequence numbers (the plant obeys one
+session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl`` requests (``/omnirotor/ctl``) are answered between frames on
+the loop's own thread (the director is not thread-safe). Status: ``/omnirotor/status`` (the director's,
+``FlightStatus``) and ``/omnirotor/loop_status`` (``LoopStatus``, the deadline accounting below) about 50 times a
+second; ``/omnirotor/wrench_est`` (``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One
+message per period is on the hot path, the command; a mission's controller-log rows go to the simulator in batches
+of 20.
 
 Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
@@ -63,6 +65,8 @@ from omnirotor.messages import SensorFrame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
+    COMMAND_ARMED,
+    COMMAND_STOP,
     CONTROLLER_LOG,
     FRAME,
     LOOP_STATUS,
@@ -87,8 +91,6 @@ __all__ = [
     "fly_mission",
 ]
 
-_STATE_ARMED = 1
-_STATE_STOP = 2
 _LATENCY_WINDOW = 1 << 17
 _RECENT = 1000
 MAX_FRAME_JUMP = 1000
@@ -149,6 +151,8 @@ class LoopStats:
         self.controller_errors = 0
         self.status_errors = 0
         self.output_errors = 0
+        self.disarmed_nonzero = 0
+        """Periods a disarmed director gave nonzero speeds, replaced by zeros (never, unless a director is wrong)."""
         self._latency = np.zeros(_LATENCY_WINDOW)
         self._work = np.zeros(_LATENCY_WINDOW)
         self._i = 0
@@ -211,6 +215,7 @@ class LoopStats:
             "controller_errors": self.controller_errors,
             "status_errors": self.status_errors,
             "output_errors": self.output_errors,
+            "disarmed_nonzero": self.disarmed_nonzero,
         }
 
 
@@ -304,10 +309,14 @@ class NodeLoop:
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
+        self._zeros = np.zeros(n)
         self.cmd_seq = 0
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
+        self.mocap_carried = 0
+        """Motion-capture samples of skipped frames carried into the newest frame (the loop had fallen behind)."""
         self.link_lost = False
+        self._plant_failsafe = False
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -351,14 +360,15 @@ class NodeLoop:
                 self._say(f"request failed: {exc.__class__.__name__}: {exc}")
 
     # -- publishing -------------------------------------------------------------------------------------------
-    def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int) -> None:
+    def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int, armed: bool) -> None:
+        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then)."""
         m = self.msgs.command
         self.cmd_seq += 1
         m.hz[:] = hz
         m.t = t
         set_stamp(m.header, t)
         m.control_status = control_status
-        m.state = _STATE_ARMED if hz.any() else _STATE_STOP  # any nonzero speed (NaN never reaches here)
+        m.state = COMMAND_ARMED if armed else COMMAND_STOP
         m.session_id = self.session_id
         m.seq = self.cmd_seq
         m.frame_seq = frame_seq
@@ -390,6 +400,8 @@ class NodeLoop:
         """The last command again (a new sequence number, the same frame it answers)."""
         m = self.msgs.command
         if self.cmd_seq == 0 or m.t != t:
+            return
+        if m.state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since: not again
             return
         self.cmd_seq += 1
         m.seq = self.cmd_seq
@@ -470,6 +482,7 @@ class NodeLoop:
         status_every = 1.0 / o.status_hz
         mono = time.monotonic
         director, controller, stats = self.director, self.controller, self.stats
+        has_armed = hasattr(type(director), "armed")
         frames = self._frames
         last_seq = -1
         last_arrival = math.nan
@@ -491,8 +504,12 @@ class NodeLoop:
                     timeout = min(_LOCKSTEP_WAIT_S, max(next_status - now, 0.0))
                 else:
                     timeout = min(period, max(min(next_gap_call, next_status) - now, 0.0))
-                msg = frames.take_latest(timeout)
+                msg, mocap = frames.take_latest_keeping(timeout, _has_mocap)
                 now = mono()
+                if mocap is not None:  # the newest frame has no sample, a skipped one had: not lost (docstring)
+                    msg.mocap_new, msg.mocap_t = True, mocap.mocap_t
+                    msg.mocap_p_w, msg.mocap_q_wb = mocap.mocap_p_w, mocap.mocap_q_wb
+                    self.mocap_carried += 1
 
                 if msg is None:
                     if self._idle(now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call):
@@ -539,7 +556,11 @@ class NodeLoop:
                     stats.controller_errors += 1
                     cmd = None
                 hz = director.output(cmd)
-                self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0)
+                armed = director.armed if has_armed else bool(hz.any())
+                if not armed and hz.any():  # the invariant: a disarmed node commands zeros, whatever it was told
+                    stats.disarmed_nonzero += 1
+                    hz = self._zeros
+                self._publish_command(hz, frame.t, last_seq, int(cmd.status) if cmd is not None else 0, armed)
                 sent = mono()
                 if self.recorder is not None or self.live is not None:
                     self._record_period(frame, hz, cmd)
@@ -577,6 +598,7 @@ class NodeLoop:
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
         out["start_frame_answered_again"] = self.start_answers
+        out["mocap_carried"] = self.mocap_carried
         out["session_id"] = f"{self.session_id:016x}"
         return out
 
@@ -612,10 +634,28 @@ class NodeLoop:
     def _poll_sim_status(self) -> None:
         """A mission ends when the simulator says its run finished."""
         msg = self._sim_status.take_latest()
+        if msg is not None and msg.failsafe:
+            # the plant does not obey (its offboard-loss failsafe; PX4 out of offboard): the director disarms
+            why = str(msg.cause) or "its failsafe"
+            if not self._plant_failsafe:
+                self._plant_failsafe = True
+                self._say(f"the plant stopped obeying the commands: {why}")
+            plant_failsafe = getattr(self.director, "plant_failsafe", None)
+            if plant_failsafe is not None:
+                try:
+                    plant_failsafe(why)
+                except Exception:  # noqa: BLE001  (never fatal: counted)
+                    self.stats.controller_errors += 1
+        elif msg is not None:
+            self._plant_failsafe = False
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
             self.finished = True
+
+
+def _has_mocap(msg) -> bool:
+    return bool(msg.mocap_new)
 
 
 def warm_up(controller, trajectory=None) -> None:

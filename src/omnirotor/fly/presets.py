@@ -60,6 +60,12 @@ class FlyParams:
         land_timeout_s: the vehicle disarms this long after the landing reference reached the ground even
             without touchdown detected [s] (a bounded landing).
         idle_hz: rotor speed while armed on the ground [Hz] (0 for reversible propellers: no thrust).
+        geofence_margin_m: motion capture puts the body further than this outside the workspace box in flight:
+            the flight is terminated (rotors stopped, disarmed) [m]. Every reference stays inside the box, so a
+            vehicle this far outside it is not under control (:mod:`omnirotor.fly.failsafe`).
+        divergence_m: the controller's position estimate and motion capture disagree by more than this ...
+        divergence_s: ... for this long in flight: the flight is terminated [s] (a controller flying on an estimate
+            that left the vehicle would fly it away while believing it is on its reference).
         admittance_presets: presets added by the flight file (name, parameters); the built-in ones
             (:func:`admittance_presets`) cannot be redefined.
     """
@@ -87,6 +93,9 @@ class FlyParams:
     touchdown_dwell_s: float = 1.0
     land_timeout_s: float = 10.0
     idle_hz: float = 0.0
+    geofence_margin_m: float = 0.5
+    divergence_m: float = 0.3
+    divergence_s: float = 0.1
     admittance_presets: tuple[tuple[str, AdmittanceParams], ...] = ()
 
     def __post_init__(self) -> None:
@@ -94,7 +103,7 @@ class FlyParams:
             "takeoff_height_m", "max_takeoff_height_m", "climb_speed_mps", "land_speed_mps", "max_speed_mps",
             "max_acc_mps2", "max_rate_dps", "min_segment_s", "max_depth_m", "depth_speed_mps", "imu_stale_s",
             "mocap_stale_s", "hold_after_s", "land_after_s", "touchdown_height_m", "touchdown_speed_mps",
-            "touchdown_dwell_s", "land_timeout_s",
+            "touchdown_dwell_s", "land_timeout_s", "geofence_margin_m", "divergence_m", "divergence_s",
         ):  # fmt: skip
             check_positive(f"fly {name}", getattr(self, name))
         check_finite("fly idle_hz", self.idle_hz)

@@ -93,6 +93,21 @@ class InFlight:
         self._sample.copy_from(self.controller.desired_ee)
         return self._sample
 
+    def estimate_p_W(self) -> np.ndarray | None:  # noqa: N802  (a frame in the name)
+        """The controller's position estimate of its last step (body, world frame) [m]; None when not finite.
+
+        Read from the controller's record (``own.estimate``, :mod:`omnirotor.control.composer`): a copy.
+        """
+        state = getattr(self.controller, "state", None)
+        if state is None:
+            return None
+        try:
+            est = state[0]["own"]["estimate"]
+        except (KeyError, ValueError, IndexError, TypeError):
+            return None
+        p = np.array(est["p_W"], dtype=float)
+        return p if np.isfinite(p).all() else None  # a degraded (coasting) estimate is compared too
+
     def move_to(self, t: float, p_W: np.ndarray, R_WB: np.ndarray, duration_s: float) -> float:
         """A minimum-jerk segment from the current reference to the EE pose ``(p_W [m], R_WB)`` in ``duration_s``.
 

@@ -30,6 +30,8 @@ __all__ = [
     "POSE",
     "WRENCH",
     "STRING",
+    "COMMAND_ARMED",
+    "COMMAND_STOP",
     "WireMessages",
     "set_stamp",
     "frame_check",
@@ -49,6 +51,10 @@ IMU = "sensor_msgs/msg/Imu"
 POSE = "geometry_msgs/msg/PoseStamped"
 WRENCH = "geometry_msgs/msg/WrenchStamped"
 STRING = "std_msgs/msg/String"
+COMMAND_ARMED = 1
+"""``RotorCommand.state``: the node is armed and the speeds are meant to fly (``STATE_ARMED``)."""
+COMMAND_STOP = 2
+"""``RotorCommand.state``: the node is disarmed (landed, stopped, link lost): a plant flies zeros (``STATE_STOP``)."""
 
 _STATE_SIZE = 21
 _P, _V, _A, _R, _OMEGA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 21)

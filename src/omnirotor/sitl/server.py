@@ -26,6 +26,10 @@ command obeyed (it publishes its start frame until then), and when no command ha
 ``offboard_loss_s`` (0.5 s; in lockstep 5 s of wall time, so that a descheduled process does not end a
 deterministic run) the offboard-loss failsafe stops the rotors, says so on stderr and in its status; a lockstep
 run then goes on in real time.
+
+Only an armed node's speeds are flown: a command flagged ``STATE_STOP`` (the node disarmed: landed, stopped by a
+failsafe or its operator, link lost) is obeyed as zeros whatever speeds it carries (counted when they were not
+zeros), and held as zeros; a robot bridge does the same (:mod:`omnirotor.fly.px4`).
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
+    COMMAND_ARMED,
     CONTROLLER_LOG,
     FRAME,
     IMU,
@@ -139,6 +144,7 @@ class SitlReport:
     commands_obeyed: int = 0
     commands_held: int = 0
     commands_refused: int = 0
+    stop_with_speeds: int = 0
     foreign_sessions: int = 0
     bad_payloads: int = 0
     failsafe: bool = False
@@ -183,6 +189,8 @@ class SimLink:
         self.gate = CommandGate()
         self.rows_malformed = 0
         self.stale_commands = 0
+        self.stop_nonzero = 0
+        """Commands of the paired session flagged ``STATE_STOP`` whose speeds were not zeros (zeros were flown)."""
         self.cmd_hz = np.zeros(n_rotors)
         self.cmd_frame_seq = -1
         self.cmd_wall_s = -math.inf  # monotonic time of the last obeyed command
@@ -227,7 +235,12 @@ class SimLink:
                 # an answer to a frame already answered (the repeated start frame's second answer), or to an older
                 self.stale_commands += 1
             elif self.gate.offer(int(msg.session_id), int(msg.seq)):
-                self.cmd_hz[:] = msg.hz
+                if int(msg.state) == COMMAND_ARMED:
+                    self.cmd_hz[:] = msg.hz
+                else:  # the node is disarmed (landed, stopped): zeros, whatever speeds the message carries
+                    if msg.hz.any():
+                        self.stop_nonzero += 1
+                    self.cmd_hz.fill(0.0)
                 self.cmd_frame_seq = int(msg.frame_seq)
                 self.cmd_t = float(msg.t)
                 self.cmd_wall_s = time.monotonic()
@@ -467,6 +480,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held
     report.commands_refused = link.gate.refused
+    report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
     report.bad_payloads = link.bad_payloads
     report.wall_s = wall
@@ -654,6 +668,7 @@ def serve_free(
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held
     report.commands_refused = link.gate.refused
+    report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
     report.bad_payloads = link.bad_payloads
     report.wall_s = time.monotonic() - wall0

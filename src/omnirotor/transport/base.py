@@ -201,6 +201,36 @@ class Subscriber:
                 return msg
         return None
 
+    def take_latest_keeping(self, timeout_s: float, keep: Callable[[Any], bool]) -> tuple[Any | None, Any | None]:
+        """:meth:`take_latest`, and the newest of the older queued messages for which ``keep`` is true.
+
+        The older payloads are decoded (newest first) only until one is kept, and only when some were queued:
+        a loop that fell behind takes the newest message without losing a rarer content carried by one it
+        skips (the flight node: the newest frame, and the newest motion-capture sample among the frames skipped).
+
+        Returns:
+            ``(newest, kept)``: either may be None.
+        """
+        payload = self._poll(timeout_s)
+        if payload is None:
+            return None, None
+        queued = [payload]
+        while (payload := self._poll(0.0)) is not None:
+            queued.append(payload)
+        msg = None
+        while queued and msg is None:
+            msg = self._decode(queued.pop())
+        if msg is None:
+            return None, None
+        self.n_skipped += len(queued)
+        kept = None
+        if not keep(msg):
+            while queued and kept is None:
+                older = self._decode(queued.pop())
+                if older is not None and keep(older):
+                    kept = older
+        return msg, kept
+
     def close(self) -> None:
         """Stop receiving."""
         if self._close is not None:
