@@ -178,3 +178,46 @@ def test_a_motion_capture_sample_in_a_skipped_frame_is_not_lost():
     assert first[:2] == (0.001, False)
     assert newest == (0.004, True, (0.0015, (2.0, 2.0, 3.0)))  # frame 4, with frame 2's sample
     assert summary["mocap_carried"] == 1
+
+
+class _DisarmedButSpinning(_Director):
+    """A wrong director: disarmed, yet it outputs speeds."""
+
+    armed = False
+
+    def output(self, cmd) -> np.ndarray:
+        self._out[:] = 300.0
+        return self._out
+
+
+def test_a_disarmed_director_never_gets_speeds_published():
+    """The node's invariant: while the director is disarmed only zeros go out, flagged STATE_STOP."""
+    from omnirotor.rosmsg.convert import COMMAND_STOP
+
+    port = free_port()
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as wire,
+    ):
+        node = NodeLoop(wire, _Controller(), _DisarmedButSpinning(), NodeOptions(lockstep=True), say=lambda line: None)
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        stop = threading.Event()
+        summary: dict = {}
+        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
+        thread.start()
+        try:
+            w, record = WireMessages(N), new_frame(N)
+            answers, k = [], 0
+            deadline = time.monotonic() + 10
+            while len(answers) < 5 and time.monotonic() < deadline:
+                k += 1
+                record["t"] = 0.001 * k
+                frames.put(w.fill_frame(record, k))
+                answers += [m for m in iter(lambda: commands.take(0.02), None)]
+        finally:
+            stop.set()
+            thread.join(10)
+    assert len(answers) >= 5
+    assert all(not m.hz.any() and m.state == COMMAND_STOP for m in answers)
+    assert summary["disarmed_nonzero"] >= 5
