@@ -221,3 +221,56 @@ def test_a_disarmed_director_never_gets_speeds_published():
     assert len(answers) >= 5
     assert all(not m.hz.any() and m.state == COMMAND_STOP for m in answers)
     assert summary["disarmed_nonzero"] >= 5
+
+
+class _TellableDirector(_Director):
+    def __init__(self) -> None:
+        super().__init__()
+        self.told = []
+
+    def plant_failsafe(self, why: str) -> None:
+        self.told.append(why)
+
+
+def test_the_plant_s_failsafe_is_told_to_the_director():
+    """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
+    is told while it lasts, the node says it once."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    T = typestore().types
+    port = free_port()
+    said: list[str] = []
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/told") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/told") as wire,
+    ):
+        director = _TellableDirector()
+        node = NodeLoop(wire, _Controller(), director, NodeOptions(status_hz=200.0), say=said.append)
+        status = plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        stop = threading.Event()
+        thread = threading.Thread(target=lambda: node.run(stop))
+        thread.start()
+        msg = T[SIM_STATUS](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+            t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
+            finished=False,
+        )  # fmt: skip
+        try:
+            for _ in range(20):  # healthy: nothing told
+                status.put(msg)
+                time.sleep(0.01)
+            assert director.told == []
+            msg.failsafe, msg.cause = 1, "offboard loss"
+            deadline = time.monotonic() + 10
+            while len(director.told) < 3 and time.monotonic() < deadline:
+                status.put(msg)
+                time.sleep(0.01)
+        finally:
+            stop.set()
+            thread.join(10)
+    assert len(director.told) >= 3 and set(director.told) == {"offboard loss"}
+    assert [line for line in said if "stopped obeying" in line] == [
+        "the plant stopped obeying the commands: offboard loss"
+    ]
