@@ -166,7 +166,7 @@ def test_estimator_and_scheduler_state_are_named_records():
     assert ctl["ukf"] == ek.UKF_DTYPE and ctl["maps"] == mk.STATE_DTYPE
     # Their sized arrays are subarray fields of the same record (no addresses, no arrays beside it).
     assert ctl["ukf_memory"]["imu_buf"].shape == (40,) and ctl["maps_arrays"]["az_lo_rad"].shape == (10, 3)
-    assert ctl["allocation_arrays"]["H"].shape == (8, 8) and ctl["trajectory"].shape == (600,)
+    assert ctl["allocation_arrays"]["H"].shape == (8, 8) and ctl["trajectory_data"].shape == (600,)
     assert "arrays" not in ctl.names
     # The kernels' sources read fields as attributes of their records (u.x_out, st.region), never by offset.
     for module, fields in ((ek, ("u.x_out", "u.P", "w.sigma_R_WB", "u.k_fused")), (mk, ("st.region", "r.n_az"))):

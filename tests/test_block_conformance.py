@@ -25,14 +25,15 @@ import numpy as np
 import pytest
 
 import omnirotor.control.controller  # noqa: F401 (imports, hence registers, every controller block)
-from omnirotor.blocks import Block, block_class, block_names, log_groups
+from omnirotor.blocks import CONTROLLER_KINDS, Block, block_class, block_names, log_groups
 from omnirotor.control.admittance import AdmittanceParams
 from omnirotor.control.allocation import AllocationParams
 from omnirotor.control.estimator import EstimatorParams
 from omnirotor.control.maps import MapParams
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseControlParams
-from omnirotor.control.trajectory import ReferenceSample
+from omnirotor.control.supervisor import SupervisorParams
+from omnirotor.control.trajectory import PoseTrajectory, ReferenceSample, Waypoint
 from omnirotor.messages import SensorFrame, StateEstimate, new_frame
 from omnirotor.regions import load_partition
 from omnirotor.so3 import exp_so3
@@ -46,7 +47,6 @@ V = load_vehicle("omnirotor")
 DT = 1e-3
 STEPS = 40
 REFERENCE = Path(__file__).parent / "data" / "controller_reference.npz"
-CONTROLLER_KINDS = ("observer", "admittance", "pose", "allocation", "maps", "estimator")
 
 
 def _controller_blocks():
@@ -235,7 +235,64 @@ class _Estimator(_Driver):
         block.reset(frame_of_flat(self.frames[0]))
 
 
+class _Supervisor(_Driver):
+    """Frames recorded from the simulator, each checked against a random estimate near the recorded state."""
+
+    frames = None
+
+    def make(self, cls):
+        if _Supervisor.frames is None:
+            _Supervisor.frames = np.load(REFERENCE)["ukf_piecewise_hard/frames"]
+        block = cls(V, SupervisorParams())
+        self.reset(block)
+        return block
+
+    def reset(self, block):
+        record = new_frame(V.n_rotors)
+        frame_of_flat(self.frames[0]).write_record(record)
+        block.reset(record, dt=DT, acc_range=160.0, gyro_range=35.0, check_state=False, check_mocap=True)
+
+    def inputs(self, rng, k):
+        frame = frame_of_flat(self.frames[1 + k])
+        frame.imu_acc_B[:] += rng.normal(0.0, 1e-3, 3)  # IMU noise of this seed
+        return frame, _state(rng)
+
+    def step(self, block, inputs):
+        block.step(*inputs)
+        clean = block.state[0]["clean"]
+        return clean["imu"]["acc_B"], clean["imu"]["gyro_B"], clean["mocap"]["p_W"], block.state[0]["dt_s"]
+
+    def poisoned(self, inputs):
+        frame, estimate = inputs
+        record = new_frame(frame.rotor_hz.shape[0])
+        frame.write_record(record)
+        record["imu"]["gyro_B"][0, 0] = math.nan  # gyro x
+        return SensorFrame.from_record(record), estimate
+
+
+class _Trajectory(_Driver):
+    """A three-waypoint trajectory, sampled at random times."""
+
+    def make(self, cls):
+        block = cls(8)
+        R0, R1 = np.eye(3), exp_so3(np.array([0.0, 0.0, 0.5]))
+        waypoints = [Waypoint(0.0, np.zeros(3), R0), Waypoint(1.0, np.ones(3), R1), Waypoint(2.0, -np.ones(3), R0)]
+        block.load(PoseTrajectory(waypoints))
+        return block
+
+    def inputs(self, rng, k):
+        return (rng.uniform(-0.5, 2.5),)
+
+    def step(self, block, inputs):
+        return (block.sample(inputs[0], ReferenceSample()).data,)
+
+    def poisoned(self, inputs):
+        return (math.nan,)
+
+
 DRIVERS = {
+    "supervisor": _Supervisor(),
+    "trajectory": _Trajectory(),
     "observer": _Observer(),
     "admittance": _Admittance(),
     "pose": _Pose(),

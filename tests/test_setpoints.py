@@ -134,29 +134,29 @@ def test_the_map_mode_switches_in_flight():
     assert math.isfinite(float(np.abs(cmd.omega_hz).sum()))
 
 
-def test_a_longer_trajectory_gets_a_larger_record_at_reset():
-    """A trajectory with more waypoints than the record's trajectory field holds: reset builds a larger record
-    with every block on it (the failed-rotor mask kept), and the flight follows the whole trajectory."""
+def test_a_trajectory_beyond_the_capacity_is_refused_and_the_record_kept():
+    """The trajectory capacity is fixed when the controller is built: a reset with more waypoints is refused with
+    one line, before anything changed (the record, its type and the flight go on); a controller built with a
+    larger ``trajectory_waypoints`` flies the same trajectory whole."""
     from omnirotor.control.trajectory import MIN_CAPACITY_WAYPOINTS, packed_size
 
     sim, ctl, cmd = _hover()
-    small = ctl.sizes.trajectory_capacity
-    assert small == packed_size(MIN_CAPACITY_WAYPOINTS)
-    failed = np.zeros(V.n_rotors, dtype=bool)
-    failed[0] = True
-    ctl.set_failed_rotors(failed)
+    state, dtype = ctl.state, ctl.state.dtype
+    assert ctl.sizes.trajectory_capacity == packed_size(MIN_CAPACITY_WAYPOINTS)
     p, R = sim.default_start()
     p_E = p + R @ V.p_E_B_array
     n_wp = 2 * MIN_CAPACITY_WAYPOINTS + 1
-    wps = [Waypoint(0.05 * i, p_E + [0.002 * i, 0.0, 0.0], R) for i in range(n_wp)]
-    traj = PoseTrajectory(wps)
-    assert traj.kernel_data.shape[0] > small
-    ctl.reset(sim.reset(p, R), traj)
-    assert ctl.sizes.trajectory_capacity == packed_size(4 * MIN_CAPACITY_WAYPOINTS)
-    for block in (ctl.observer, ctl.admittance, ctl.pose, ctl.allocator, ctl.scheduler, ctl.estimator):
-        assert np.shares_memory(block.state, ctl.state)
-    np.testing.assert_array_equal(ctl.allocator.failed_rotors, failed)
-    _, des, _, times = _fly(sim, ctl, ctl.hold_command(), 900)
+    traj = PoseTrajectory([Waypoint(0.05 * i, p_E + [0.002 * i, 0.0, 0.0], R) for i in range(n_wp)])
+    before = state.tobytes()
+    with pytest.raises(InputError, match=f"trajectory of {n_wp} waypoints exceeds the controller's capacity of 32"):
+        ctl.reset(sim.reset(p, R), traj)
+    assert ctl.state is state and ctl.state.dtype is dtype and state.tobytes() == before  # nothing changed
+    _fly(sim, ctl, cmd, 50)  # and the controller flies on with what it had
+    # Room for it when the controller is built so.
+    big = InteractionController(V, ControllerParams(trajectory_waypoints=n_wp))
+    assert big.sizes.trajectory_capacity == packed_size(n_wp)
+    big.reset(sim.reset(p, R), traj)
+    _, des, _, times = _fly(sim, big, big.hold_command(), 900)
     want = np.array([traj(t).p_W for t in times])
     np.testing.assert_array_equal(des[:, :3], want)  # the same compiled sampling on the whole packed trajectory
     assert des[-1, 0] - des[0, 0] > 0.02

@@ -231,6 +231,40 @@ def test_fields_renamed_retyped_resized(base, tmp_path, capsys, case):
 # -- huge declared sizes and times, parameters out of range -------------------------------------------------------
 
 
+def pwm_log_bytes(tmp_path) -> bytes:
+    """A level 4 s hover whose rotor speeds are only PX4's ``actuator_outputs`` PWM (no ESC telemetry)."""
+    from omnirotor.px4.ulog_writer import ULogWriter
+
+    n = 400
+    ts = np.arange(n, dtype=np.uint64) * 10_000
+    w = ULogWriter()
+    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
+    att["timestamp"], att["q"][:, 0] = ts, 1.0
+    w.add_topic("vehicle_attitude", att)
+    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
+    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, 1500.0
+    w.add_topic("actuator_outputs", out)
+    path = tmp_path / f"pwm-{uuid.uuid4().hex}.ulg"
+    w.write(path)
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize(
+    ("new", "words"),
+    [
+        ("char[64] output", "field output is char[64]"),  # PWM bytes read as numbers: a wrong flight, not an error
+        ("uint8_t[64] output", "field output is uint8_t[64]"),
+        ("float output;float[15] pad", "field output is float, expected"),
+        ("float[16] outputs", "has no field output"),
+    ],
+)
+def test_pwm_outputs_retyped_fail_with_the_field_named(tmp_path, capsys, new, words):
+    f = write(tmp_path, patch_format(pwm_log_bytes(tmp_path), "actuator_outputs", "float[16] output", new))
+    for command in ("identify", "hover-windows"):
+        code, err = outcome(capsys, command, f, tmp_path)
+        assert code == 2 and words in err[0], (command, err)
+
+
 def test_start_time_of_2_64_minus_1(base, tmp_path, capsys):
     f = write(tmp_path, base[:8] + struct.pack("<Q", 2**64 - 1) + base[16:])
     for command in COMMANDS:

@@ -24,7 +24,8 @@ faults, airflow). Each block lives in one module, which owns:
 Compiled code reaches the step of whichever block of a kind it was given through :func:`compiled_step`:
 ``compiled_step("observer")(state, ...)`` compiles to the ``kernel`` of the class registered under that kind
 whose ``state_dtype`` is the record type of ``state``, so a composer is written once for every implementation
-and is compiled (and cached) per combination of its blocks' state types.
+and is compiled (and cached) per combination of its blocks' state types. Every controller kind is reached so
+(:data:`KIND_STEPS` gives each kind's typed step; the controller's composer calls no block directly).
 
 A block registers itself under its kind and a name (:func:`register`), so a composer can be given another
 implementation of the same kind (for example a different wrench observer) by name, without editing the
@@ -64,13 +65,14 @@ __all__ = [
 ]
 
 BLOCK_KINDS = (
+    "supervisor",
+    "estimator",
+    "maps",
+    "observer",
     "trajectory",
     "admittance",
     "pose",
     "allocation",
-    "maps",
-    "observer",
-    "estimator",
     "rotors",
     "aero",
     "sensors",
@@ -80,28 +82,53 @@ BLOCK_KINDS = (
 )
 """The kinds of block the composers know, in the order of one period's data flow."""
 
-CONTROLLER_KINDS = BLOCK_KINDS[:7]
+CONTROLLER_KINDS = BLOCK_KINDS[:8]
 """The controller's kinds (the rest are the simulator's)."""
 
 KIND_STEPS = {
+    "supervisor": "kernel(r, frame, estimate) -> act: checks the frame record against the last period's estimate "
+    "record; writes r.clean (the checked frame head, FRAME_HEAD_DTYPE), r.cause (CAUSE_* bits), r.counts, "
+    "r.dt_s (the interval the frame closes [s]), r.coasting, r.blind, r.reinit_v_W, r.fs_mode; act: the cause "
+    "bits plus ACT_REINIT. Entry reference(r, estimate, p_E_B, dt, ref): the failsafe's EE reference record, "
+    "called while r.fs_mode is on (optional)",
+    "estimator": "kernel(r, memory, frame, estimate) -> code: the estimate record from the checked frame head "
+    "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
+    "when there is no estimate yet",
+    "maps": "kernel(r, arrays, R_WB) -> region: the (6, n) wrench map of the attitude R_WB into arrays.out "
+    "(row-major; arrays: the controller's maps_arrays record), r.region the region index (-1: none)",
     "observer": "kernel(r, A, u_hz2, a_W, R_WB, omega_B, dt): r.f_ext_W, r.m_ext_B (interaction), r.f_filt_W, "
     "r.m_filt_B (compensated) from the (6, n) map A, the rotor inputs u_hz2 [Hz²] and the estimate",
+    "trajectory": "kernel(r, data, t, ref): the desired EE reference record ref at trajectory time t [s]; data: the "
+    "controller's trajectory field (floats the block's load() packed)",
     "admittance": "kernel(r, f_E_W, m_E_W, desired, compliant, dt): the compliant EE reference record from the "
     "desired one under the EE wrench [N, N·m, world]; r.xi_p_W is the position offset",
     "pose": "kernel(r, body_ref, p_W, v_W, R_WB, omega_B, f_filt_W, m_filt_B, dt): r.f_ref_W [N, world], "
     "r.m_ref_B [N·m, body] from the body reference record and the estimate, compensating the filtered wrench",
-    "estimator": "kernel(r, memory, frame, estimate) -> code: the estimate record from the checked frame head "
-    "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
-    "when there is no estimate yet",
+    "allocation": "kernel(r, arrays, f_ref_W, m_ref_B, R_WB, A) -> code: the rotor inputs of the wrench reference "
+    "(arrays: the block's arrays_dtype(n) record, the controller's allocation_arrays): ALLOC_DONE (arrays.u_hz2 "
+    "holds them), BEGIN_HELD (an input was not finite: the last safe inputs held), or BEGIN_SOLVE / "
+    "BEGIN_SOLVE_NEW_MAP (a QP is prepared: entries qp(r, arrays) -> solved, then finish(r, arrays, solved) "
+    "write arrays.u_hz2; optional); r.status (1.0: a fallback), r.saturated",
 }
-"""The typed step of each controller kind that the composer reaches through the registry (:func:`compiled_step`).
+"""The typed step of each controller kind, reached by the composer through the registry (:func:`compiled_step`).
 
-A block of that kind registers a ``kernel`` of this signature. Its constructor takes ``(vehicle, params, *,
-state=None)``, an admittance block's ``(params, *, state=None)``, with the parameters of its kind
-(``ObserverParams``, ``AdmittanceParams``, ``PoseControlParams``); the controller chooses it by name
-(``ControllerParams.observer_kind``, ``admittance_kind``, ``pose_kind``; the estimator by
-``EstimatorParams.kind``, the UKF or the bypass, whose two fields the record holds). The other kinds (maps,
-allocation, trajectory) are still called directly by the composer.
+A block of that kind registers a ``kernel`` of this signature (and the further entries named there, which a
+block may leave out when it never asks for them). Its record holds the output fields named. Constructors, by
+kind, with the parameters of the kind (``omnirotor.control``'s ``*Params``):
+
+* supervisor ``(vehicle, params, *, state=None)``, ``reset(frame_record, *, dt, acc_range, gyro_range,
+  check_state, check_mocap)``;
+* estimator ``(vehicle, params, *, state=None, memory=None)``, ``reset(frame)`` (``EstimatorParams.kind``: the
+  UKF or the bypass, whose two fields the record holds);
+* maps ``(vehicle, maps, params, *, state=None, arrays=None)``, ``follows_attitude`` (its kernel runs each
+  period), ``sync()``;
+* observer, pose ``(vehicle, params, *, state=None)``; admittance ``(params, *, state=None)``;
+* trajectory ``(capacity_waypoints, *, state=None, data=None)``, ``load(trajectory)`` (an ``InputError``
+  beyond its capacity), ``data_size(capacity_waypoints)`` (a class method: floats of ``data``);
+* allocation ``(vehicle, params, *, state=None, arrays=None)``, ``arrays_dtype(n)`` (a static method),
+  ``solves_compiled`` (False: ``solve_qp(code)`` is called from Python between the composer's two halves).
+
+The controller chooses each by name: ``ControllerParams.<kind>_kind`` (the estimator by ``EstimatorParams.kind``).
 """
 
 
@@ -387,43 +414,78 @@ def _get_path(record, path: str):
     return record
 
 
-_STEPS: dict[str, Callable[..., Any]] = {}
+_STEPS: dict[tuple[str, str], Callable[..., Any]] = {}
 
 
-def compiled_step(kind: str) -> Callable[..., Any]:
+def _entry_params(kind: str, entry: str) -> tuple[str, ...]:
+    """The parameter names of a kind's entry, as :data:`KIND_STEPS` writes them (``r``, ...)."""
+    text = KIND_STEPS.get(kind, "")
+    start = 0 if entry == "kernel" else text.find(f"{entry}(")
+    if not text or start < 0:
+        raise InputError(f"the {kind} kind has no entry {entry!r} (KIND_STEPS)")
+    inner = text[text.index("(", start) + 1 : text.index(")", start)]
+    return tuple(a.strip() for a in inner.split(","))
+
+
+def compiled_step(kind: str, entry: str = "kernel", default: Callable[..., Any] | None = None) -> Callable[..., Any]:
     """The step of blocks of ``kind`` for compiled code, chosen by the record type of its first argument.
 
     ``compiled_step(kind)(record, *inputs)`` inside a compiled function compiles to ``cls.kernel(record,
     *inputs)`` of the registered class of that kind whose ``state_dtype`` is the record's type; called from
-    Python it does the same lookup. A block registered later (another module, a test) is found too.
+    Python it does the same lookup. A block registered later (another module, a test) is found too. The
+    choice is made when the caller compiles: nothing is looked up per call.
+
+    Args:
+        kind: one of :data:`BLOCK_KINDS`.
+        entry: the class attribute to call (``"kernel"``, or a further entry of the kind, :data:`KIND_STEPS`).
+        default: a compiled function called instead when the class has no such entry (an optional entry);
+            None: the entry is required.
     """
     if kind not in _REGISTRY:
         raise InputError(f"unknown block kind {kind!r}; known: {', '.join(BLOCK_KINDS)}")
-    if kind in _STEPS:
-        return _STEPS[kind]
+    key = (kind, entry)
+    if key in _STEPS:
+        return _STEPS[key]
 
-    def step(record, *inputs):
+    names = _entry_params(kind, entry)
+    args = ", ".join(names)
+
+    def lookup(record):
         dtype = getattr(record, "dtype", None)
         for cls in _REGISTRY[kind].values():
             if dtype is not None and getattr(cls, "state_dtype", None) == dtype:
-                return cls.kernel(record, *inputs)
+                fn = getattr(cls, entry, default)
+                if fn is None:
+                    raise InputError(f"{kind} block {cls.name!r} has no {entry!r}")
+                return fn
         raise InputError(f"no {kind} block has the state type of this record")
 
-    step.__name__ = step.__qualname__ = f"{kind}_step"
-
-    @overload(step)
-    def _step_overload(record, *inputs):
+    def implementation(record):
         if not isinstance(record, types.Record):
             return None
         cls = class_of_record(kind, record)
         if cls is None:
             return None
-        kernel = cls.kernel
+        fn = getattr(cls, entry, default)
+        if fn is None:
+            return None
+        namespace = {"fn": fn}
+        exec(f"def impl({args}):\n    return fn({args})", namespace)  # noqa: S102 (the kind's parameter names)
+        return namespace["impl"]
 
-        def impl(record, *inputs):
-            return kernel(record, *inputs)
+    # The step and its overload take the kind's parameters by name (numba cannot inline a callee, such as a
+    # jit_inline kernel, called with *args from a closure).
+    namespace = {"lookup": lookup, "implementation": implementation}
+    exec(  # noqa: S102 (generated from KIND_STEPS' parameter names)
+        f"def step({args}):\n    return lookup({names[0]})({args})\n"
+        f"def typer({args}):\n    return implementation({names[0]})\n",
+        namespace,
+    )
+    step = namespace["step"]
+    step.__name__ = step.__qualname__ = f"{kind}_{entry}"
+    # Inlined where it is called (its body is the one call): no compiled wrapper of its own, whose machine code
+    # would hold the block's whole kernel once more (numba links each callee's code into its caller's).
+    overload(step, inline="always")(namespace["typer"])
 
-        return impl
-
-    _STEPS[kind] = step
+    _STEPS[key] = step
     return step

@@ -185,6 +185,7 @@ _OK, _FALLBACK, _NONFINITE = 0.0, 1.0, 2.0  # AllocationStatus values, as the st
 BEGIN_SOLVE = 0  # the QP's linear term is ready
 BEGIN_SOLVE_NEW_MAP = 1  # ready, after a new map rebuilt H (a Python backend must be given the new H)
 BEGIN_HELD = 2  # an input was not finite: the last safe input is held (status NONFINITE)
+ALLOC_DONE = 3  # (an allocation block without a QP) the inputs are final in ``u_hz2``: nothing to solve
 
 
 @jit_entry
@@ -495,6 +496,10 @@ class Allocator:
 
     state_dtype = STATE_DTYPE
     log_fields = ()
+    arrays_dtype = staticmethod(arrays_dtype)
+    # The allocation kind's entries (omnirotor.blocks.KIND_STEPS): up to the QP, the compiled QP, its answer.
+    kernel = alloc_begin
+    finish = alloc_end
 
     def __init__(
         self,
@@ -571,6 +576,11 @@ class Allocator:
     def kernel_backend(self) -> _ActiveSetBackend | None:
         """The compiled solver's backend, or None for daqp and proxsuite (solved from Python)."""
         return self._backend if isinstance(self._backend, _ActiveSetBackend) else None
+
+    @property
+    def solves_compiled(self) -> bool:
+        """True when the compiled step solves the QP itself (active-set); False: :meth:`solve_qp` from Python."""
+        return self.kernel_backend is not None
 
     @property
     def reg_lambda_used(self) -> float:
@@ -683,3 +693,12 @@ class Allocator:
 def boxqp_solve_arrays(ar, max_iter: int) -> int:
     """The compiled QP (:func:`omnirotor.control._qp.boxqp_solve`) on the allocator's arrays; its code."""
     return _qp.boxqp_solve(ar.H, ar.f, ar.lo, ar.hi, ar.x, ar.active, ar.work, max_iter)
+
+
+@jit_inline
+def boxqp_solve_record(r, ar) -> bool:
+    """The allocation kind's entry ``qp``: the compiled QP on the allocator's arrays; True when it solved."""
+    return boxqp_solve_arrays(ar, int(r.max_iter)) >= 1
+
+
+Allocator.qp = boxqp_solve_record  # the kind's entry ``qp`` (defined after the class, beside the solver it calls)

@@ -17,16 +17,19 @@ speeds, and after a clock reset or a long dropout the UKF re-initialises from mo
 Every block's state is a field of the controller's one structured record (:func:`controller_dtype`, built
 from the blocks' registered dtypes and the controller's sizes, :class:`ControllerSizes`): the per-rotor
 arrays (``rotors``), the allocator's (``allocation_arrays``), the UKF's ring buffers and scratch
-(``ukf_memory``), the map scheduler's partition and maps (``maps_arrays``) and the packed trajectory
-(``trajectory``) are subarray fields of it too. The composer reads and writes the signals by name
-(``st.observer.f_ext_W``, ``st.pose.f_ref_W``, ``st.rotors.u_cmd_hz2``) and calls each block's own kernel (the
-observer through :func:`omnirotor.blocks.compiled_step`, so that any registered observer fits).
+(``ukf_memory``), the map scheduler's partition and maps (``maps_arrays``) and the trajectory block's packed
+waypoints (``trajectory_data``) are subarray fields of it too. The composer reads and writes the signals by name
+(``st.observer.f_ext_W``, ``st.pose.f_ref_W``, ``st.rotors.u_cmd_hz2``) and calls every block, of every kind,
+through :func:`omnirotor.blocks.compiled_step` (the kind's typed step, :data:`omnirotor.blocks.KIND_STEPS`),
+so that any registered block of a kind fits; the choice is made when the step compiles, per combination of the
+blocks' record types, and costs nothing per period.
 
 One period is one compiled call, :func:`controller_step` ``(state, frame, row)``, from Python
 (``InteractionController.step``) and from the compiled closed loop alike. It is split around the allocation
-QP: :func:`step_begin` (estimate to :func:`~omnirotor.control.allocation.alloc_begin`) and :func:`step_end`
-(the QP's answer to the command and the log row), inlined into it around the compiled QP; a controller with a
-QP solver called from Python (daqp, ProxSuite) calls the same two itself around that solver.
+QP: :func:`step_begin` (estimate to the allocation kind's ``kernel``, which prepares the QP) and
+:func:`step_end` (the QP's answer, through the kind's ``finish``, to the command and the log row), inlined into
+it around the kind's compiled ``qp``; a controller with a QP solver called from Python (daqp, ProxSuite) calls
+the same two itself around that solver. An allocation block without a QP answers ``ALLOC_DONE`` at once.
 """
 
 from __future__ import annotations
@@ -65,10 +68,37 @@ __all__ = [
     "write_log",
 ]
 
+
+@jit
+def _no_reference(r, estimate, p_E_B, dt, ref) -> None:
+    """A supervisor without a failsafe reference (the optional entry ``reference``): the trajectory's stays."""
+    return None
+
+
+@jit
+def _no_qp(r, arrays) -> bool:
+    """An allocation block without a QP (the optional entry ``qp``): nothing solved."""
+    return False
+
+
+@jit
+def _no_finish(r, arrays, solved: bool) -> None:
+    """An allocation block without a QP (the optional entry ``finish``): its inputs are final."""
+    return None
+
+
+# Every controller kind through the registry (omnirotor.blocks.KIND_STEPS): resolved when the step compiles.
+supervisor_step = compiled_step("supervisor")
+supervisor_reference = compiled_step("supervisor", "reference", default=_no_reference)
+estimator_step = compiled_step("estimator")
+maps_step = compiled_step("maps")
 observer_step = compiled_step("observer")
+trajectory_step = compiled_step("trajectory")
 admittance_block_step = compiled_step("admittance")
 pose_block_step = compiled_step("pose")
-estimator_step = compiled_step("estimator")
+allocation_step = compiled_step("allocation")
+allocation_qp = compiled_step("allocation", "qp", default=_no_qp)
+allocation_finish = compiled_step("allocation", "finish", default=_no_finish)
 
 _F8, _I8 = np.float64, np.int64
 OWN_DTYPE = np.dtype(
@@ -139,7 +169,8 @@ class ControllerSizes:
         ukf_capacity: length of the UKF's ring buffers (``estimator.ukf_capacity``).
         n_regions: regions of the wrench maps' partition (0 without maps).
         n_intervals: azimuth-interval slots per region (``maps.schedule_sizes``).
-        trajectory_capacity: floats of the packed trajectory field (``trajectory.packed_capacity``).
+        trajectory_capacity: floats of the trajectory block's data (its ``data_size`` of
+            ``ControllerParams.trajectory_waypoints``), fixed when the controller is built.
     """
 
     n_rotors: int
@@ -151,6 +182,9 @@ class ControllerSizes:
 
 CONTROLLER_DTYPE_FIELDS = ("own", "observer", "admittance", "pose", "desired_ee", "compliant_ee", "body_ref")
 
+LOGGED_KINDS = ("admittance", "observer", "pose", "supervisor", "maps", "trajectory", "allocation")
+"""The kinds whose blocks' ``log_fields`` the log records (in that order, after the controller's head)."""
+
 
 @functools.cache
 def controller_dtype(
@@ -158,13 +192,21 @@ def controller_dtype(
     sizes: ControllerSizes,
     admittance_dtype: np.dtype = _adm.STATE_DTYPE,
     pose_dtype: np.dtype = _pose.STATE_DTYPE,
+    supervisor_dtype: np.dtype = _sup.STATE_DTYPE,
+    maps_dtype: np.dtype = _mk.STATE_DTYPE,
+    trajectory_dtype: np.dtype = _traj.TRAJECTORY_DTYPE,
+    allocation_dtype: np.dtype = _al.STATE_DTYPE,
+    allocation_arrays_dtype: np.dtype | None = None,
 ) -> np.dtype:
     """The controller's one record: its own part, its blocks' states and their sized arrays (module docstring).
 
-    ``observer_dtype``, ``admittance_dtype``, ``pose_dtype``: the state dtypes of the chosen blocks of those kinds.
-    Equal arguments give the same dtype object: numba's dispatcher types a structured array quickly only for a
-    dtype object it has seen (an equal but new one costs tens of microseconds a call).
+    ``*_dtype``: the state dtypes of the chosen blocks of those kinds; ``allocation_arrays_dtype``: the chosen
+    allocation block's ``arrays_dtype(n)`` (default the box QP's). Equal arguments give the same dtype object:
+    numba's dispatcher types a structured array quickly only for a dtype object it has seen (an equal but new
+    one costs tens of microseconds a call).
     """
+    if allocation_arrays_dtype is None:
+        allocation_arrays_dtype = _al.arrays_dtype(sizes.n_rotors)
     ref = _traj.REFERENCE_DTYPE
     n = sizes.n_rotors
     return np.dtype(
@@ -177,16 +219,17 @@ def controller_dtype(
             ("compliant_ee", ref),
             ("body_ref", ref),
             ("segment", _traj.SEGMENT_DTYPE),  # an in-flight set-point replacing the trajectory (when active)
-            ("allocation", _al.STATE_DTYPE),
-            ("allocation_arrays", _al.arrays_dtype(n)),
+            ("allocation", allocation_dtype),
+            ("allocation_arrays", allocation_arrays_dtype),
             ("bypass", _est.BYPASS_DTYPE),  # the estimators, by their registered names
             ("ukf", _ek.UKF_DTYPE),
             ("ukf_memory", _ek.memory_dtype(sizes.ukf_capacity)),
-            ("supervisor", _sup.STATE_DTYPE),
-            ("maps", _mk.STATE_DTYPE),
+            ("supervisor", supervisor_dtype),
+            ("maps", maps_dtype),
             ("maps_arrays", _mk.arrays_dtype(sizes.n_regions, sizes.n_intervals, n)),
             ("rotors", rotors_dtype(n)),
-            ("trajectory", _F8, (sizes.trajectory_capacity,)),  # PoseTrajectory.kernel_data, zero-padded
+            ("trajectory", trajectory_dtype),
+            ("trajectory_data", _F8, (sizes.trajectory_capacity,)),  # the trajectory block's data (packed)
         ]
     )
 
@@ -202,32 +245,40 @@ def _all_finite(x) -> bool:
 # -- the log: one record of the blocks' logged fields ---------------------------------------------------------
 
 
-def log_sources(
-    observer_cls: type, admittance_cls: type = _adm.AdmittanceFilter, pose_cls: type = _pose.PoseController
-) -> tuple:
+def log_sources(classes: dict[str, type]) -> tuple:
     """Where the controller's log groups come from, in log order (:func:`omnirotor.blocks.log_groups`).
 
-    Each block's own declaration (``log_fields``, ``log_labels``), and the controller's head: the time, region
-    and status, the estimate (``ESTIMATE_LOG_FIELDS``), the EE tip, the compliant and the desired EE
-    references, the allocated inputs and the command, the frame supervision's causes.
+    Each block's own declaration (``log_fields``, ``log_labels``; ``classes``: the chosen class of each of
+    :data:`LOGGED_KINDS`), and the controller's head: the time, region and status, the estimate
+    (``ESTIMATE_LOG_FIELDS``), the EE tip, the compliant and the desired EE references, the allocated inputs and
+    the command. The default blocks' log is the admittance's, the observer's, the pose controller's, the rotors'
+    and the frame supervision's causes.
     """
+
+    def block(kind: str, prefix: str | None = None) -> tuple:
+        cls = classes[kind]
+        return (prefix or kind, cls.log_fields, getattr(cls, "log_labels", {}))
+
     return (
         ("own", ("t", "region", "status"), {}),
         ("own.estimate", ESTIMATE_LOG_FIELDS, {}),
         ("own", ("p_E_W",), {}),
         ("compliant_ee", _traj.reference_log_fields("E_ref"), {}),
         ("desired_ee", _traj.reference_log_fields("E_des"), {}),
-        ("admittance", admittance_cls.log_fields, getattr(admittance_cls, "log_labels", {})),
-        ("observer", observer_cls.log_fields, getattr(observer_cls, "log_labels", {})),
-        ("pose", pose_cls.log_fields, getattr(pose_cls, "log_labels", {})),
+        block("admittance"),
+        block("observer"),
+        block("pose"),
         ("rotors", (("u_hz2", ("u_cmd_hz2",)), "omega_cmd_hz"), {}),
-        ("supervisor", _sup.LOG_FIELDS, {}),
+        block("supervisor"),
+        block("maps"),
+        block("trajectory"),
+        block("allocation"),
     )
 
 
-def controller_log_groups(state_dtype: np.dtype, *classes: type) -> tuple[LogGroup, ...]:
+def controller_log_groups(state_dtype: np.dtype, classes: dict[str, type]) -> tuple[LogGroup, ...]:
     """The groups of the log of a controller with the record ``state_dtype`` and these blocks (:func:`log_sources`)."""
-    return log_groups(state_dtype, log_sources(*classes))
+    return log_groups(state_dtype, log_sources(classes))
 
 
 def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
@@ -235,10 +286,10 @@ def _log_groups_of_types(dst, src) -> tuple[LogGroup, ...] | None:
     names = getattr(src, "fields", {})
     if "observer" not in names or "rotors" not in names:
         return None
-    classes = tuple(class_of_record(kind, src.typeof(kind)) for kind in ("observer", "admittance", "pose"))
-    if any(cls is None for cls in classes):
+    classes = {kind: class_of_record(kind, src.typeof(kind)) for kind in LOGGED_KINDS}
+    if any(cls is None for cls in classes.values()):
         return None
-    groups = controller_log_groups(as_dtype(src), *classes)
+    groups = controller_log_groups(as_dtype(src), classes)
     return groups if numba.from_dtype(log_dtype(groups)) == dst else None
 
 
@@ -278,7 +329,7 @@ def step_begin(state, frame, row) -> int:
     e = c.estimate
     # 0. the frame's supervision: the estimator reads the checked frame f (e still holds the last estimate)
     sv = st.supervisor
-    act = _sup.supervise(sv, fr, e)
+    act = supervisor_step(sv, fr, e)
     cause = sv.cause
     f = sv.clean
     # 1. the state estimate
@@ -337,7 +388,7 @@ def step_begin(state, frame, row) -> int:
     c.region = -1.0
     if c.piecewise != 0:
         if finite:
-            _mk.schedule_select(st.maps, st.maps_arrays, R)
+            maps_step(st.maps, st.maps_arrays, R)
         c.region = st.maps.region
     if cause & (_sup.CAUSE_STATE | _sup.CAUSE_STATE_JUMP) or sv.blind != 0:  # no state to act on: hold
         finite = False
@@ -353,15 +404,15 @@ def step_begin(state, frame, row) -> int:
     if st.segment.active != 0:
         _traj.segment_sample(st.segment, t, st.desired_ee)
     else:
-        _traj.trajectory_sample(st.trajectory, t, st.desired_ee)
+        trajectory_step(st.trajectory, st.trajectory_data, t, st.desired_ee)
     if sv.fs_mode != _sup.FS_OFF:  # the failsafe's hold-then-land replaces the reference
-        _sup.failsafe_reference(sv, e, c.p_E_B, dt, st.desired_ee)
+        supervisor_reference(sv, e, c.p_E_B, dt, st.desired_ee)
     admittance_block_step(st.admittance, c.f_E_W, c.m_E_W, st.desired_ee, st.compliant_ee, dt)
     _adm.body_reference(st.compliant_ee, c.p_E_B, st.body_ref)
     # 5. the pose controller compensates the whole unexplained wrench (before bias and zeroing)
     pose_block_step(st.pose, st.body_ref, p, v, R, w, obs.f_filt_W, obs.m_filt_B, dt)
     # 6. the allocation up to its QP
-    alloc = _al.alloc_begin(st.allocation, st.allocation_arrays, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
+    alloc = allocation_step(st.allocation, st.allocation_arrays, st.pose.f_ref_W, st.pose.m_ref_B, R, A)
     if alloc == _al.BEGIN_HELD:
         bits |= _BIT_NONFINITE
     c.status = bits
@@ -386,8 +437,8 @@ def step_end(state, solved: bool, row) -> int:
     ar = st.allocation_arrays
     al = st.allocation
     bits = int(c.status)
-    if c.alloc_code != _al.BEGIN_HELD:
-        _al.alloc_end(al, ar, solved)
+    if c.alloc_code == _al.BEGIN_SOLVE or c.alloc_code == _al.BEGIN_SOLVE_NEW_MAP:
+        allocation_finish(al, ar, solved)
         if al.status == _al._FALLBACK:
             bits |= _BIT_QP_FALLBACK
     if al.saturated != 0.0:
@@ -444,6 +495,6 @@ def controller_step(state, frame, row) -> int:
     if code == BEGIN_DONE:
         return int(st.own.status)
     solved = False
-    if code != _al.BEGIN_HELD:
-        solved = _al.boxqp_solve_arrays(st.allocation_arrays, int(st.allocation.max_iter)) >= 1
+    if code == _al.BEGIN_SOLVE or code == _al.BEGIN_SOLVE_NEW_MAP:
+        solved = allocation_qp(st.allocation, st.allocation_arrays)
     return step_end(state, solved, row)

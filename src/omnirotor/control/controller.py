@@ -53,18 +53,17 @@ from omnirotor.config import apply_overrides, check_positive, from_mapping, load
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.control import composer as _c
 from omnirotor.control.admittance import AdmittanceParams, body_reference_from_ee
-from omnirotor.control.allocation import BEGIN_HELD, AllocationParams, Allocator
+from omnirotor.control.allocation import BEGIN_SOLVE, BEGIN_SOLVE_NEW_MAP, AllocationParams
 from omnirotor.control.estimator import BypassEstimator, EstimatorParams, UKFEstimator, make_estimator, ukf_capacity
-from omnirotor.control.maps import MAP_MODES, MapParams, MapScheduler, schedule_sizes
+from omnirotor.control.maps import MAP_MODES, MapParams, schedule_sizes
 from omnirotor.control.observer import ObserverParams
 from omnirotor.control.pose import PoseControlParams
-from omnirotor.control.supervisor import CAUSES, SupervisorParams, reset_supervisor
+from omnirotor.control.supervisor import CAUSES, SupervisorParams
 from omnirotor.control.trajectory import (
     MIN_CAPACITY_WAYPOINTS,
     SEGMENT_DTYPE,
     PoseTrajectory,
     ReferenceSample,
-    packed_capacity,
     start_segment,
 )
 from omnirotor.errors import InputError
@@ -99,14 +98,26 @@ def LOG_GROUPS(n_rotors: int, params: ControllerParams | None = None) -> list[tu
     (:data:`omnirotor.control.supervisor.CAUSES`, 0 for a clean frame).
     """
     classes = _block_classes(params if params is not None else ControllerParams())
-    dtypes = [cls.state_dtype for cls in classes]
-    state_dtype = _c.controller_dtype(dtypes[0], _c.ControllerSizes(n_rotors, 1, 0, 0, 1), *dtypes[1:])
-    return [(g.name, g.labels) for g in _c.controller_log_groups(state_dtype, *classes)]
+    state_dtype = _controller_dtype(classes, _c.ControllerSizes(n_rotors, 1, 0, 0, 1))
+    return [(g.name, g.labels) for g in _c.controller_log_groups(state_dtype, classes)]
 
 
-def _block_classes(params: ControllerParams) -> tuple[type, type, type]:
-    """The observer, admittance and pose classes ``params`` name (the kinds reached through the registry)."""
-    return tuple(block_class(kind, getattr(params, f"{kind}_kind")) for kind in ("observer", "admittance", "pose"))
+_CHOSEN_KINDS = ("supervisor", "maps", "observer", "trajectory", "admittance", "pose", "allocation")
+"""The kinds :class:`ControllerParams` chooses by name (``<kind>_kind``; the estimator by ``estimator.kind``)."""
+
+
+def _block_classes(params: ControllerParams) -> dict[str, type]:
+    """The class of each kind ``params`` name (every one is reached through the registry)."""
+    return {kind: block_class(kind, getattr(params, f"{kind}_kind")) for kind in _CHOSEN_KINDS}
+
+
+def _controller_dtype(classes: dict[str, type], sizes: _c.ControllerSizes) -> np.dtype:
+    """The controller's record for blocks of these classes and these sizes (:func:`composer.controller_dtype`)."""
+    d = {kind: cls.state_dtype for kind, cls in classes.items()}
+    return _c.controller_dtype(
+        d["observer"], sizes, d["admittance"], d["pose"], d["supervisor"], d["maps"], d["trajectory"],
+        d["allocation"], classes["allocation"].arrays_dtype(sizes.n_rotors),
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,6 +142,17 @@ class ControllerParams:
             :class:`~omnirotor.control.admittance.AdmittanceFilter`), built from ``admittance``.
         pose_kind: the registered name of the pose controller (default "geometric-pid",
             :class:`~omnirotor.control.pose.PoseController`), built from ``pose``.
+        supervisor_kind: the registered name of the frame supervision (default "frame-checks",
+            :class:`~omnirotor.control.supervisor.FrameSupervisor`), built from ``supervisor``.
+        maps_kind: the registered name of the map scheduler (default "regions",
+            :class:`~omnirotor.control.maps.MapScheduler`), built from ``maps``.
+        allocation_kind: the registered name of the allocation (default "box-qp",
+            :class:`~omnirotor.control.allocation.Allocator`), built from ``allocation``.
+        trajectory_kind: the registered name of the trajectory block (default "min-jerk",
+            :class:`~omnirotor.control.trajectory.WaypointTrajectory`).
+        trajectory_waypoints: the most waypoints a trajectory given to :meth:`InteractionController.reset` may
+            have (the record's capacity, fixed when the controller is built: a longer one is refused with an
+            ``InputError``, never compiled for).
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -146,6 +168,11 @@ class ControllerParams:
     observer_kind: str = "momentum"
     admittance_kind: str = "mass-spring-damper"
     pose_kind: str = "geometric-pid"
+    supervisor_kind: str = "frame-checks"
+    maps_kind: str = "regions"
+    allocation_kind: str = "box-qp"
+    trajectory_kind: str = "min-jerk"
+    trajectory_waypoints: int = MIN_CAPACITY_WAYPOINTS
 
     def __post_init__(self) -> None:
         check_positive("controller dt", self.dt)
@@ -153,7 +180,10 @@ class ControllerParams:
             raise InputError(f"controller log_capacity must be an integer >= 0, got {self.log_capacity!r}")
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
-        for kind in ("observer", "admittance", "pose"):
+        n = self.trajectory_waypoints
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(f"controller trajectory_waypoints must be an integer >= 1, got {n!r}")
+        for kind in _CHOSEN_KINDS:
             name = getattr(self, f"{kind}_kind")
             if not isinstance(name, str) or name not in block_names(kind):
                 block_class(kind, str(name))  # raises, listing the registered blocks of that kind
@@ -216,7 +246,6 @@ class InteractionController:
         self._omega_hi = float(vehicle.omega_max_hz)
         self._n = n
         self._rotor_shape = (n,)
-        self._piecewise = self.params.maps.mode == "piecewise"  # the map depends on the attitude
         self._failed_mask: np.ndarray | None = None
         self._trajectory: PoseTrajectory | None = None
         self._t0 = 0.0
@@ -225,8 +254,8 @@ class InteractionController:
         self._kernel_estimator = None  # the estimator the compiled step runs on its field (set by reset)
         self._fast = False  # step() is one compiled call (set by reset)
         self.estimator = None
-        self._assemble(packed_capacity(MIN_CAPACITY_WAYPOINTS))
-        self.log_groups = _c.controller_log_groups(self.state.dtype, *_block_classes(p))
+        self._assemble()
+        self.log_groups = _c.controller_log_groups(self.state.dtype, _block_classes(p))
         self.log_dtype = log_dtype(self.log_groups)
         self.log = Recorder(
             p.log_capacity,
@@ -236,36 +265,34 @@ class InteractionController:
         )
         self._no_row = np.zeros(0, self.log_dtype)
 
-    def _assemble(self, trajectory_capacity: int) -> None:
-        """Build the controller's record and every block on its field (a trajectory of that many floats).
+    def _assemble(self) -> None:
+        """Build the controller's record and every block of the kinds :attr:`params` names on its field.
 
-        The blocks' parameters come from :attr:`params`; the failed-rotor mask is kept. An estimator that does
-        not live in the record (a stand-in given by the user) is kept.
+        The record's sizes (rotors, UKF ring, map partition, trajectory capacity) are fixed here, so its type,
+        and the compiled step, never change afterwards.
         """
         p, vehicle, n = self.params, self.vehicle, self._n
-        observer_cls, admittance_cls, pose_cls = _block_classes(p)
+        classes = _block_classes(p)
         n_regions, n_intervals = schedule_sizes(self._wrench_maps)
-        self.sizes = _c.ControllerSizes(n, ukf_capacity(p.estimator), n_regions, n_intervals, trajectory_capacity)
-        old = getattr(self, "state", None)
-        dtype = _c.controller_dtype(
-            observer_cls.state_dtype, self.sizes, admittance_cls.state_dtype, pose_cls.state_dtype
-        )
-        self.state = state = new_state(dtype)
+        traj_size = classes["trajectory"].data_size(p.trajectory_waypoints)
+        self.sizes = _c.ControllerSizes(n, ukf_capacity(p.estimator), n_regions, n_intervals, traj_size)
+        self.state = state = new_state(_controller_dtype(classes, self.sizes))
         self._own = own = state[0]["own"]
-        est = self.estimator
-        est_state = getattr(est, "state", None)
-        if est is None or (old is not None and isinstance(est_state, np.ndarray) and np.shares_memory(est_state, old)):
-            est = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind], memory=state["ukf_memory"])
-        self.estimator = est
-        self.scheduler = MapScheduler(
+        self.estimator = make_estimator(vehicle, p.estimator, state=state[p.estimator.kind], memory=state["ukf_memory"])
+        self.supervisor = classes["supervisor"](vehicle, p.supervisor, state=state["supervisor"])
+        self.scheduler = classes["maps"](
             vehicle, self._wrench_maps, p.maps, state=state["maps"], arrays=state["maps_arrays"]
         )
-        self.observer = observer_cls(vehicle, p.observer, state=state["observer"])
-        self.admittance = admittance_cls(p.admittance, state=state["admittance"])
-        self.pose = pose_cls(vehicle, p.pose, state=state["pose"])
-        self.allocator = Allocator(vehicle, p.allocation, state=state["allocation"], arrays=state["allocation_arrays"])
-        if self._failed_mask is not None:
-            self.allocator.set_failed_rotors(self._failed_mask)
+        self._piecewise = bool(self.scheduler.follows_attitude)  # the map depends on the attitude
+        self.observer = classes["observer"](vehicle, p.observer, state=state["observer"])
+        self.trajectory_block = classes["trajectory"](
+            p.trajectory_waypoints, state=state["trajectory"], data=state["trajectory_data"][0]
+        )
+        self.admittance = classes["admittance"](p.admittance, state=state["admittance"])
+        self.pose = classes["pose"](vehicle, p.pose, state=state["pose"])
+        self.allocator = classes["allocation"](
+            vehicle, p.allocation, state=state["allocation"], arrays=state["allocation_arrays"]
+        )
         self.desired_ee = ReferenceSample(state["desired_ee"])
         self.compliant_ee = ReferenceSample(state["compliant_ee"])
         self.body_ref = ReferenceSample(state["body_ref"])
@@ -275,12 +302,11 @@ class InteractionController:
         own["dt"] = self._dt
         own["measured"] = 1 if self._measured_input else 0
         own["piecewise"] = 1 if self._piecewise else 0
-        own["excluded"] = 1 if self._excluded else 0
+        own["excluded"] = 0
         rot = record_view(state["rotors"])
         self._u_obs, self._u_cmd, self._omega_cmd, self._omega_safe = (
             rot.u_obs_hz2, rot.u_cmd_hz2, rot.omega_cmd_hz, rot.omega_safe_hz
         )  # fmt: skip
-        self._trajectory_field = state["trajectory"][0]
         self._estimate = state["own"]["estimate"]  # (1,) view: the estimate of the last period
 
     # -- set-up -------------------------------------------------------------------------------------------
@@ -306,9 +332,9 @@ class InteractionController:
 
         None before :meth:`reset`, with a QP solver called from Python ("daqp", "proxsuite"), or while the
         estimator is not one the compiled step runs (not initialised, or replaced after :meth:`reset`).
-        Valid until the next :meth:`reset` (which may build a larger record for a longer trajectory).
+        Its type is fixed when the controller is built (:attr:`sizes`).
         """
-        if self._trajectory is None or self.allocator.kernel_backend is None or not self._estimator_compiled():
+        if self._trajectory is None or not self.allocator.solves_compiled or not self._estimator_compiled():
             return None
         return self.state
 
@@ -356,20 +382,21 @@ class InteractionController:
         self._own_estimator_kind = int(own["estimator"])
         # One compiled call when nothing runs from Python (after reset the estimator is initialised: its reset
         # raises otherwise).
-        compiled = self.allocator.kernel_backend is not None and self._own_estimator_kind != _c.EST_GIVEN
+        compiled = self.allocator.solves_compiled and self._own_estimator_kind != _c.EST_GIVEN
         self._fast = compiled and self._estimator_compiled()
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
 
         The held "last safe" command starts as the frame's measured rotor speeds (clipped), or the upright
-        hover speeds if those are not finite. The log is cleared. The trajectory is copied into the record's
-        field ``trajectory``; one with more waypoints than that field holds makes a new, larger record (every
-        block rebuilt on it, as this reset would leave it; the next step compiles once for the new record, and
-        arrays taken from the old one, such as :attr:`kernel_command`, are stale).
+        hover speeds if those are not finite. The log is cleared. The trajectory is loaded into the trajectory
+        block (the record's fields ``trajectory`` and ``trajectory_data``), whose capacity was fixed when the
+        controller was built (``ControllerParams.trajectory_waypoints``): the record, and so the compiled step,
+        stay the same.
 
         Raises:
-            InputError: not a :class:`PoseTrajectory`, or a frame whose rotor count is not the vehicle's.
+            InputError: not a :class:`PoseTrajectory`, one with more waypoints than the capacity, or a frame
+                whose rotor count is not the vehicle's.
         """
         if not isinstance(trajectory, PoseTrajectory):
             raise InputError(f"expected a PoseTrajectory, got {type(trajectory).__name__}")
@@ -377,11 +404,8 @@ class InteractionController:
         if hz.shape != (self._n,):
             raise InputError(f"frame.rotor_hz has shape {hz.shape}; the vehicle has {self._n} rotors")
         record = self._record(frame)
-        packed = trajectory.kernel_data
-        if packed.shape[0] > self.sizes.trajectory_capacity:
-            self._assemble(packed_capacity(len(trajectory.waypoints)))
-        self._trajectory_field[: packed.shape[0]] = packed
-        self._trajectory_field[packed.shape[0] :] = 0.0
+        self.trajectory_block.load(trajectory)  # refuses a trajectory beyond the capacity, before anything changes
+        self.trajectory_block.reset()
         self._trajectory = trajectory
         self._t0 = float(frame.t)
         self.estimator.reset(frame)
@@ -408,12 +432,10 @@ class InteractionController:
         self.state["segment"] = np.zeros(1, SEGMENT_DTYPE)  # the trajectory given here flies
         self._prepare_step()
         kind = int(self._own["estimator"])
-        reset_supervisor(
-            self.state["supervisor"], self.params.supervisor, record, dt=self._dt,
-            acc_range=self.params.estimator.acc_range, gyro_range=self.params.estimator.gyro_range,
-            omega_min_hz=self._omega_lo, omega_max_hz=self._omega_hi, check_state=kind == _c.EST_BYPASS,
-            check_mocap=kind == _c.EST_UKF, gravity=self.vehicle.gravity,
-            acc_physical=self.vehicle.n_rotors * self.vehicle.c_f * self.vehicle.omega_max_hz**2 / self.vehicle.mass,
+        self.supervisor.reset(
+            record, dt=self._dt, acc_range=self.params.estimator.acc_range,
+            gyro_range=self.params.estimator.gyro_range, check_state=kind == _c.EST_BYPASS,
+            check_mocap=kind == _c.EST_UKF,
         )  # fmt: skip
 
     def hold_command(self, t: float | None = None) -> RotorCommand:
@@ -487,7 +509,7 @@ class InteractionController:
         maps_params = dataclasses.replace(self.params.maps, mode=mode)
         saved = self.state["maps"].copy(), self.state["maps_arrays"].copy()
         try:
-            scheduler = MapScheduler(
+            scheduler = type(self.scheduler)(
                 self.vehicle, self._wrench_maps, maps_params, state=self.state["maps"], arrays=self.state["maps_arrays"]
             )
         except InputError:
@@ -495,7 +517,7 @@ class InteractionController:
             raise
         self.scheduler = scheduler
         self.params = dataclasses.replace(self.params, maps=maps_params)
-        self._piecewise = mode == "piecewise"
+        self._piecewise = bool(scheduler.follows_attitude)
         self._own["piecewise"] = 1 if self._piecewise else 0
         if self._trajectory is not None:
             self._prepare_step()
@@ -554,12 +576,12 @@ class InteractionController:
             self._give_estimate(frame)
         if kind != int(self._own["estimator"]):
             self._own["estimator"] = kind
-        if self.allocator.kernel_backend is not None:
+        if self.allocator.solves_compiled:
             return _c.controller_step(self.state, record, row)
         # A QP solver called from Python, between the composer's two halves.
         code = _c.step_begin(self.state, record, row)
         if code >= 0:
-            solved = code != BEGIN_HELD and self.allocator.solve_qp(code)
+            solved = (code == BEGIN_SOLVE or code == BEGIN_SOLVE_NEW_MAP) and self.allocator.solve_qp(code)
             return _c.step_end(self.state, solved, row)
         if code == _c.BEGIN_DONE:
             return int(self._own["status"])

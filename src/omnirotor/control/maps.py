@@ -171,6 +171,7 @@ class MapScheduler:
 
     state_dtype = _mk.STATE_DTYPE
     log_fields = ()
+    kernel = _mk.schedule_select  # the maps kind's step (omnirotor.blocks.KIND_STEPS)
 
     def __init__(
         self,
@@ -268,6 +269,11 @@ class MapScheduler:
         self._weights[:] = weights
         self.state[...] = state
         self.sync()
+
+    @property
+    def follows_attitude(self) -> bool:
+        """True in piecewise mode: the controller's step runs the kernel every period (else the map is constant)."""
+        return self._partition is not None
 
     @property
     def n_nonfinite(self) -> int:

@@ -104,15 +104,17 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit, jit_entry
+from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
 from omnirotor.errors import InputError
 from omnirotor.frame_kernels import clear_mocap, copy_head, copy_state, state_finite
-from omnirotor.messages import ESTIMATE_DTYPE, FRAME_HEAD_DTYPE
+from omnirotor.messages import ESTIMATE_DTYPE, FRAME_HEAD_DTYPE, frame_dtype
 
 __all__ = [
     "SupervisorParams",
+    "FrameSupervisor",
     "STATE_DTYPE",
     "CAUSES",
     "CAUSE_TIME",
@@ -344,6 +346,7 @@ STATE_DTYPE = np.dtype(
         ("dt_s", _F8),  # the interval this frame closes, the blocks integrate over it (module docstring) [s]
         ("counts", _I8, N_CAUSES),  # frames with each cause (CAUSES order)
         ("n_rejected", _I8),  # frames with a rejecting cause
+        ("n_nonfinite", _F8),  # frames with a non-finite or out-of-range value (an INVALID_VALUE cause)
         # parameters
         ("dt_nom", _F8),  # the control period [s]
         ("acc_range", _F8),  # [m/s²]
@@ -508,6 +511,8 @@ def _count(sv, cause: int) -> None:
             sv.counts[i] += 1
     if cause & REJECTING:
         sv.n_rejected += 1
+    if cause & INVALID_VALUE:
+        sv.n_nonfinite += 1
 
 
 @jit
@@ -930,3 +935,90 @@ def supervise(sv, frame, estimate) -> int:
     if code != 0:
         _count(sv, code)
     return cause
+
+
+@jit
+def supervisor_reference(sv, estimate, p_E_B, dt: float, ref) -> None:
+    """The supervisor kind's entry ``reference`` (:data:`omnirotor.blocks.KIND_STEPS`): :func:`failsafe_reference`."""
+    failsafe_reference(sv, estimate, p_E_B, dt, ref)
+
+
+@jit_entry
+def _supervise_entry(state, frame, estimate) -> int:
+    return supervise(state[0], frame[0], estimate[0])
+
+
+@register("supervisor", "frame-checks")
+class FrameSupervisor:
+    """The frame supervision of this module as a block of the supervisor kind (SPEC §4.5; module docstring).
+
+    Its record (:data:`STATE_DTYPE`) is a field of the controller's state, whose compiled step calls
+    :func:`supervise` (the kind's ``kernel``) first in every period and :func:`failsafe_reference` (its entry
+    ``reference``) while the failsafe is on. From Python, :meth:`step` checks one frame as that step does.
+
+    Args:
+        vehicle: the vehicle (rotor-speed limits, gravity, the largest specific force its rotors give).
+        params: the limits; default :class:`SupervisorParams()`.
+        state: optional ``(1,)`` array of :data:`STATE_DTYPE` to keep the state in (the controller's field).
+    """
+
+    state_dtype = STATE_DTYPE
+    log_fields = LOG_FIELDS
+    kernel = supervise
+    reference = supervisor_reference
+
+    def __init__(self, vehicle, params: SupervisorParams | None = None, *, state: np.ndarray | None = None):
+        self.vehicle = vehicle
+        self.params = params if params is not None else SupervisorParams()
+        self.state = state_array(STATE_DTYPE, state, "frame supervisor")
+        self._estimate = np.zeros(1, ESTIMATE_DTYPE)
+        self._frame: np.ndarray | None = None
+        self._reset_args: dict | None = None
+
+    def reset(
+        self,
+        frame: np.ndarray,
+        *,
+        dt: float,
+        acc_range: float,
+        gyro_range: float,
+        check_state: bool,
+        check_mocap: bool,
+    ) -> None:
+        """Set the parameters and start from the reset frame's record (:func:`reset_supervisor`).
+
+        Args:
+            frame: the reset frame, a ``(1,)`` frame record (:func:`omnirotor.messages.frame_dtype`).
+            dt: control period [s].
+            acc_range: accelerometer full scale [m/s²].
+            gyro_range: gyroscope full scale [rad/s].
+            check_state: the estimator reads the bypass state (check it).
+            check_mocap: the estimator reads motion capture (jump check, re-initialisation, failsafe).
+        """
+        v = self.vehicle
+        reset_supervisor(
+            self.state, self.params, frame, dt=dt, acc_range=acc_range, gyro_range=gyro_range,
+            omega_min_hz=float(v.omega_min_hz), omega_max_hz=float(v.omega_max_hz), check_state=check_state,
+            check_mocap=check_mocap, gravity=v.gravity, acc_physical=v.n_rotors * v.c_f * v.omega_max_hz**2 / v.mass,
+        )  # fmt: skip
+
+    def step(self, frame, estimate) -> int:
+        """Check one frame against the last period's estimate; the checked frame is ``state["clean"]``.
+
+        Args:
+            frame: a :class:`~omnirotor.messages.SensorFrame`.
+            estimate: a :class:`~omnirotor.messages.StateEstimate` (the prediction motion capture is checked
+                against).
+
+        Returns:
+            The cause bits (:data:`CAUSES`) plus ``ACT_REINIT`` (module docstring).
+        """
+        n = np.shape(frame.rotor_hz)[0]
+        if self._frame is None or self._frame.dtype != frame_dtype(n):
+            self._frame = np.zeros(1, frame_dtype(n))
+        frame.write_record(self._frame)
+        e = self._estimate
+        e["valid"] = 1.0
+        e["p_W"], e["v_W"], e["a_W"], e["omega_B"] = estimate.p_W, estimate.v_W, estimate.a_W, estimate.omega_B
+        e["R_WB"] = np.reshape(estimate.R_WB, (1, 3, 3))
+        return int(_supervise_entry(self.state, self._frame, e))

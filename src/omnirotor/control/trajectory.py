@@ -31,8 +31,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_inline
-from omnirotor.blocks import new_state
+from omnirotor._jit import jit, jit_entry, jit_inline
+from omnirotor.blocks import new_state, register, state_array
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
 
@@ -49,7 +49,10 @@ __all__ = [
     "start_segment",
     "packed_size",
     "reference_log_fields",
-    "packed_capacity",
+    "MIN_CAPACITY_WAYPOINTS",
+    "TRAJECTORY_DTYPE",
+    "WaypointTrajectory",
+    "min_jerk_step",
 ]
 
 ATTITUDE_PROFILES = ("quintic", "cubic")
@@ -182,21 +185,8 @@ def packed_size(n_waypoints: int) -> int:
 
 
 MIN_CAPACITY_WAYPOINTS = 32
-"""The controller's trajectory field holds at least this many waypoints (every shipped task's trajectory fits:
-the longest, the point contacts', has 17), so that one record, and one compiled step, serves them all: a larger
-record compiles the step again, which a flight node cannot afford between two frames."""
-
-
-def packed_capacity(n_waypoints: int) -> int:
-    """The trajectory field's capacity [floats] for ``n_waypoints`` (:func:`packed_size`).
-
-    For the next power of two of waypoints (at least :data:`MIN_CAPACITY_WAYPOINTS`), so that few distinct
-    controller records (and compiled steps) exist.
-    """
-    w = MIN_CAPACITY_WAYPOINTS
-    while w < n_waypoints:
-        w *= 2
-    return packed_size(w)
+"""The waypoints the controller's trajectory field holds by default (``ControllerParams.trajectory_waypoints``):
+every shipped task's trajectory fits (the longest, the point contacts', has 17)."""
 
 
 @jit
@@ -529,3 +519,115 @@ def start_segment(
     g["axis_W"] = phi_W / theta if theta > 0.0 else 0.0
     g["theta"] = theta
     g["active"] = 1
+
+
+# -- the trajectory block: the kind the controller's step samples (omnirotor.blocks.KIND_STEPS) ----------------
+
+TRAJECTORY_DTYPE = np.dtype(
+    [
+        ("n_waypoints", np.int64),  # waypoints of the trajectory loaded (0: none)
+        ("capacity", np.int64),  # the most waypoints its data holds (fixed when it is built)
+        ("t_s", _F8),  # the time of the last sample [s]
+        ("n_nonfinite", _F8),  # samples asked at a non-finite time (the reference was kept)
+    ]
+)
+"""The state of :class:`WaypointTrajectory` (its waypoints are packed in its ``data``, a field of its own)."""
+
+
+@jit
+def min_jerk_step(r, data, t: float, ref) -> None:
+    """The trajectory kind's step: the reference of the packed trajectory ``data`` at time ``t`` into ``ref``.
+
+    A non-finite ``t`` is counted and leaves ``ref`` as it was (:func:`trajectory_sample` otherwise).
+    """
+    if not math.isfinite(t):
+        r.n_nonfinite += 1.0
+        return
+    r.t_s = t
+    trajectory_sample(data, t, ref)
+
+
+@jit_entry
+def _min_jerk_entry(state, data, t: float, ref) -> None:
+    min_jerk_step(state[0], data, t, ref[0])
+
+
+@register("trajectory", "min-jerk")
+class WaypointTrajectory:
+    """The controller's desired EE trajectory: a :class:`PoseTrajectory` packed into a capacity fixed at build.
+
+    The capacity (waypoints) is fixed when the block, and so the controller's record, is built: the record's
+    type, hence its compiled step, never changes when a trajectory is loaded, and a flight node never waits for a
+    compilation between two frames. A trajectory with more waypoints than that is refused with one line
+    (:meth:`load`); raise ``ControllerParams.trajectory_waypoints`` for it.
+
+    Args:
+        capacity_waypoints: the most waypoints it holds (default :data:`MIN_CAPACITY_WAYPOINTS`).
+        state: optional ``(1,)`` array of :data:`TRAJECTORY_DTYPE` (the controller's field ``trajectory``).
+        data: optional ``(data_size(capacity_waypoints),)`` float array for the packed trajectory (the
+            controller's field ``trajectory_data``).
+
+    Raises:
+        InputError: a capacity that is not an integer >= 1, or ``data`` of the wrong size.
+    """
+
+    state_dtype = TRAJECTORY_DTYPE
+    log_fields = ()
+    kernel = min_jerk_step
+
+    @classmethod
+    def data_size(cls, capacity_waypoints: int) -> int:
+        """Floats of the packed data of ``capacity_waypoints`` waypoints (:func:`packed_size`)."""
+        return packed_size(capacity_waypoints)
+
+    def __init__(
+        self,
+        capacity_waypoints: int = MIN_CAPACITY_WAYPOINTS,
+        *,
+        state: np.ndarray | None = None,
+        data: np.ndarray | None = None,
+    ) -> None:
+        n = capacity_waypoints
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(f"trajectory capacity must be an integer >= 1 (waypoints), got {n!r}")
+        size = self.data_size(n)
+        if data is None:
+            data = np.zeros(size)
+        elif not (isinstance(data, np.ndarray) and data.shape == (size,) and data.dtype == np.float64):
+            raise InputError(f"trajectory data must be a ({size},) float64 array")
+        self.capacity_waypoints = n
+        self.data = data
+        self.data[:] = 0.0
+        self.state = state_array(TRAJECTORY_DTYPE, state, "waypoint trajectory")
+        self.state["capacity"] = n
+        self.trajectory: PoseTrajectory | None = None
+
+    def load(self, trajectory: PoseTrajectory) -> None:
+        """Fly ``trajectory`` from now on (its waypoints packed into :attr:`data`).
+
+        Raises:
+            InputError: not a :class:`PoseTrajectory`, or more waypoints than the capacity.
+        """
+        if not isinstance(trajectory, PoseTrajectory):
+            raise InputError(f"expected a PoseTrajectory, got {type(trajectory).__name__}")
+        n = len(trajectory.waypoints)
+        if n > self.capacity_waypoints:
+            raise InputError(
+                f"trajectory of {n} waypoints exceeds the controller's capacity of {self.capacity_waypoints} "
+                "(raise ControllerParams.trajectory_waypoints)"
+            )
+        packed = trajectory.kernel_data
+        self.data[: packed.shape[0]] = packed
+        self.data[packed.shape[0] :] = 0.0
+        self.state["n_waypoints"] = n
+        self.trajectory = trajectory
+
+    def reset(self) -> None:
+        """Clear the counter and the last sample's time (the trajectory loaded is kept)."""
+        self.state["t_s"] = 0.0
+        self.state["n_nonfinite"] = 0.0
+
+    def sample(self, t: float, out: ReferenceSample) -> ReferenceSample:
+        """The reference at time ``t`` [s] into ``out`` (the kind's step, as the controller's runs it)."""
+        _min_jerk_entry(self.state, self.data, float(t), out.state)
+        return out

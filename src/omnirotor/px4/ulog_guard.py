@@ -75,6 +75,7 @@ READ_FIELDS: dict[str, dict[str, tuple[tuple[str, ...], int | None, bool]]] = {
     "esc_status": {"esc": (("esc_report",), None, False)},
     "esc_report": {"esc_rpm": (_NUMBERS, 0, False)},
     "actuator_motors": {"control": (_FLOATS, None, True)},
+    "actuator_outputs": {"output": (_FLOATS, None, True)},  # PWM [µs] (px4/flight.py's fallback)
     "vehicle_local_position": {
         **{k: (_NUMBERS, 0, True) for k in ("x", "y", "z", "vx", "vy", "vz")},
         **{k: (_NUMBERS, 0, False) for k in ("ax", "ay", "az")},
