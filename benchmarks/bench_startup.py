@@ -1,14 +1,18 @@
 """Start-up benchmarks: the CLI's help (imports only) and the first run on a fresh machine (cold numba cache).
 
-``python benchmarks/bench_startup.py [--repeats N] [--no-compile]`` prints one JSON object. Each figure runs
-the CLI in a subprocess (the source tree of this checkout on ``PYTHONPATH``), so it measures what a user
-waits for, interpreter start-up included.
+``python benchmarks/bench_startup.py [--repeats N] [--no-compile] [--against SRC --rounds K]`` prints one JSON
+object. Each figure runs the CLI in a subprocess (the source tree of this checkout on ``PYTHONPATH``), so it
+measures what a user waits for, interpreter start-up included.
 
 * ``cli_help_s``: median wall time of ``omnirotor --help`` and of ``omnirotor identify --help`` (the larger;
   ``*_cpu_s_median``: their CPU times).
 * ``first_run_compile_s``: wall time of a short hover run with an empty numba cache (``NUMBA_CACHE_DIR`` set to
   a fresh temporary folder) minus the same run again with the cache it left behind: the compilation a fresh
   machine pays once (``first_run_compile_cpu_s``: the same in CPU time, steadier on a loaded machine).
+* ``--against SRC``: the first-run compilation of this checkout and of another source tree (``SRC``, e.g.
+  ``../main/src``: before a change) alternated ``--rounds`` times, each in its own empty cache
+  (``compile_vs``: every CPU and wall figure, the medians and the ratio new / old of the CPU medians). On a
+  shared machine only an interleaved comparison says what a change did; the CPU time of the child is the figure.
 """
 
 from __future__ import annotations
@@ -29,9 +33,9 @@ FIRST_RUN_ARGS = ("run", "hover", "--quick", "--duration", "0.2", "--json")
 """The first-run workload: the hover task with the default controller (UKF) and truth model, 0.2 s simulated."""
 
 
-def _env(**extra: str) -> dict[str, str]:
+def _env(src: Path = REPO / "src", **extra: str) -> dict[str, str]:
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO / "src") + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["PYTHONPATH"] = str(src) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     env.setdefault("MUJOCO_GL", "egl")
     env.update(extra)
     return env
@@ -78,10 +82,10 @@ def measure_cli_help(repeats: int) -> dict:
     return out
 
 
-def measure_first_run_compile() -> dict:
-    """Cold-cache and warm-cache wall times [s] of the first-run workload, and their difference."""
+def measure_first_run_compile(src: Path = REPO / "src") -> dict:
+    """Cold-cache and warm-cache wall times [s] of the first-run workload (sources ``src``), and their difference."""
     with tempfile.TemporaryDirectory(prefix="omnirotor-numba-cache-") as cache:
-        env = _env(NUMBA_CACHE_DIR=cache)
+        env = _env(src, NUMBA_CACHE_DIR=cache)
         cold, cold_cpu = _cli_times(FIRST_RUN_ARGS, env)
         warm, warm_cpu = _cli_times(FIRST_RUN_ARGS, env)
         files = sum(1 for _ in Path(cache).rglob("*.nbc"))
@@ -95,12 +99,39 @@ def measure_first_run_compile() -> dict:
     }
 
 
+def compare_first_run_compile(old_src: Path, rounds: int) -> dict:
+    """:func:`measure_first_run_compile` of this checkout and of ``old_src``, alternated ``rounds`` times."""
+    runs: dict[str, list[dict]] = {"new": [], "old": []}
+    pair = (("new", REPO / "src"), ("old", old_src))
+    for r in range(rounds):
+        for key, src in pair if r % 2 == 0 else pair[::-1]:  # each goes first in every other round
+            runs[key].append(measure_first_run_compile(src))
+            cpu = runs[key][-1]["first_run_compile_cpu_s"]
+            print(f"round {r + 1}/{rounds} {key}: {cpu:.1f} s CPU", file=sys.stderr)
+    out: dict = {"old_src": str(old_src), "new_src": str(REPO / "src"), "rounds": rounds, "load_avg": os.getloadavg()}
+    for key in runs:
+        out[f"{key}_cpu_s"] = [x["first_run_compile_cpu_s"] for x in runs[key]]
+        out[f"{key}_wall_s"] = [x["first_run_compile_s"] for x in runs[key]]
+        out[f"{key}_specialisations"] = runs[key][0]["compiled_specialisations"]
+        out[f"{key}_cpu_s_median"] = statistics.median(out[f"{key}_cpu_s"])
+    out["ratio_new_over_old_cpu"] = out["new_cpu_s_median"] / out["old_cpu_s_median"]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line (module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7, help="runs of each help command")
     ap.add_argument("--no-compile", action="store_true", help="skip the cold-cache first run")
+    ap.add_argument("--against", type=Path, help="another source tree: compare its first-run compilation")
+    ap.add_argument("--rounds", type=int, default=2, help="alternations with --against")
     args = ap.parse_args(argv)
+    if args.against is not None:
+        if not (args.against / "omnirotor").is_dir():
+            print(f"bench_startup: {args.against} holds no omnirotor package", file=sys.stderr)
+            return 2
+        print(json.dumps({"compile_vs": compare_first_run_compile(args.against.resolve(), args.rounds)}, indent=1))
+        return 0
     out = measure_cli_help(args.repeats)
     if not args.no_compile:
         out.update(measure_first_run_compile())

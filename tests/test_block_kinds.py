@@ -157,7 +157,8 @@ class FixedMaps:
 
     def __init__(self, vehicle, maps, params, *, state=None, arrays=None):
         self.state = state_array(FIXED_DTYPE, state, "fixed maps")
-        arrays[0]["out"][:] = vehicle.A_nom.reshape(-1)  # the controller's maps_arrays (6, n), row-major
+        out = arrays[0]["out"]  # the controller's maps_arrays: the (6, n) map the allocation reads
+        out[...] = vehicle.A_nom.reshape(out.shape)
 
     def reset(self):
         self.state["n_calls"] = 0.0

@@ -295,6 +295,26 @@ def test_a_growing_recorder_never_drops_and_keeps_every_row_in_order():
     assert rec.n == 9 and rec.column("a")[-1] == 8.0 and rec.capacity == 11
 
 
+def test_a_recorder_with_a_record_dtype_gives_each_row_as_a_record_of_the_same_memory():
+    dtype = np.dtype([("a", np.float64), ("b", np.float64, (2,))])
+    rec = Recorder(2, [("a", 1), ("b", ("x", "y"))], grow_rows=2, record_dtype=dtype)
+    for k in range(5):  # three chunks: the records follow each new chunk
+        row = rec.next_record()
+        assert row.shape == (1,) and row.dtype is dtype  # the dtype object itself: numba types it fast
+        row[0]["a"], row[0]["b"] = k, (10.0 * k, 100.0 * k)
+    rec.next_row()[:] = (5.0, 50.0, 500.0)  # the float rows and the records are one log
+    np.testing.assert_array_equal(rec.column("a"), np.arange(6.0))
+    np.testing.assert_array_equal(rec.group("b"), np.c_[10.0 * np.arange(6), 100.0 * np.arange(6)])
+    rec.next_record()[0]["a"] = 6.0  # after the chunks were joined (read)
+    assert rec.n == 7 and rec.column("a")[-1] == 6.0
+    full = Recorder(1, [("a", 1)], record_dtype=np.dtype([("a", np.float64)]))
+    assert full.next_record() is not None and full.next_record() is None and full.dropped == 1
+    with pytest.raises(InputError, match="record_dtype"):
+        Recorder(1, [("a", 1), ("b", 2)], record_dtype=np.dtype([("a", np.float64)]))
+    with pytest.raises(InputError, match="record_dtype"):
+        Recorder(1, [("a", 1), ("b", 2)], record_dtype=np.dtype([("a", np.float64), ("b", np.int64, (2,))]))
+
+
 def test_the_controller_log_has_no_cap():
     traj, first, frames = _frames(25)
     ctl = InteractionController(V, ControllerParams(estimator=EstimatorParams(kind="bypass"), log_capacity=10))

@@ -361,14 +361,17 @@ def _writer_source(groups: tuple[LogGroup, ...]) -> str:
     """Straight-line code copying each group's fields from ``src`` into ``dst`` (the log record), by name."""
     lines = ["def impl(dst, src):"]
     for g in groups:
-        if len(g.paths) == 1:
-            index = ", ".join(":" for _ in g.shape)
-            target = f"dst.{g.name}[{index}]" if g.shape else f"dst.{g.name}"
-            lines.append(f"    {target} = src.{g.paths[0]}")
+        if len(g.paths) == 1 and not g.shape:
+            lines.append(f"    dst.{g.name} = src.{g.paths[0]}")
+        elif len(g.paths) == 1:  # element by element: an array assigned to a slice compiles numba's error text
+            index = ", ".join(f"_i{d}" for d in range(len(g.shape)))
+            for d, size in enumerate(g.shape):
+                lines.append(f"    {'    ' * d}for _i{d} in range({size}):")
+            lines.append(f"    {'    ' * len(g.shape)}dst.{g.name}[{index}] = src.{g.paths[0]}[{index}]")
         else:
             lines.append("    _k = 0")
             for path in g.paths:
-                lines.append(f"    for _v in src.{path}.ravel():")
+                lines.append(f"    for _v in src.{path}.flat:")  # its entries, row-major
                 lines.append(f"        dst.{g.name}[_k] = _v")
                 lines.append("        _k += 1")
     lines.append("    return None")

@@ -52,17 +52,20 @@ def copy_state(src, dst) -> None:
 
 
 @jit
-def _finite3(x) -> bool:
-    return math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])
-
-
-@jit
 def state_finite(s) -> bool:
     """True if every entry of the state record ``s`` (position, velocity, acceleration, attitude, rate) is finite."""
-    ok = _finite3(s.p_W) and _finite3(s.v_W) and _finite3(s.a_W) and _finite3(s.omega_B)
     for i in range(3):
-        ok = ok and _finite3(s.R_WB[i])
-    return ok
+        if not (
+            math.isfinite(s.p_W[i])
+            and math.isfinite(s.v_W[i])
+            and math.isfinite(s.a_W[i])
+            and math.isfinite(s.omega_B[i])
+            and math.isfinite(s.R_WB[i, 0])
+            and math.isfinite(s.R_WB[i, 1])
+            and math.isfinite(s.R_WB[i, 2])
+        ):
+            return False
+    return True
 
 
 @jit

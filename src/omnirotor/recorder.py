@@ -11,7 +11,9 @@ Two ways to write a row:
   :meth:`Recorder.record_bound` then copies them all into the next row with a single
   ``np.concatenate(..., out=row)``;
 * a producer that computes the row itself (e.g. in a compiled kernel) takes :meth:`Recorder.next_row` and
-  fills it in place.
+  fills it in place; a recorder made with a ``record_dtype`` (a structured dtype of float64 fields, one row
+  each) also gives the next row as a ``(1,)`` record of that dtype (:meth:`Recorder.next_record`), the same
+  memory as the float row, so a kernel that writes records by field name writes the log without a copy.
 
 A full recorder drops further rows (it never raises inside a loop) and counts them in
 :attr:`Recorder.dropped`; :meth:`Recorder.ensure_capacity` grows it beforehand. A recorder made with
@@ -45,6 +47,7 @@ class Recorder:
         capacity: number of rows (steps) preallocated.
         groups: the column groups in row order, each ``(name, width)`` or ``(name, labels)``.
         grow_rows: rows of each further chunk once full (module docstring); 0: a full recorder drops rows.
+        record_dtype: the row as a record (module docstring): float64 fields only, as many floats as a row has.
 
     Attributes:
         data: (capacity, n_signals) the storage; rows ``[0, n)`` are valid (the chunks joined, module docstring).
@@ -54,7 +57,9 @@ class Recorder:
         column_names: every column name in order.
     """
 
-    def __init__(self, capacity: int, groups: Sequence[GroupSpec], *, grow_rows: int = 0) -> None:
+    def __init__(
+        self, capacity: int, groups: Sequence[GroupSpec], *, grow_rows: int = 0, record_dtype: np.dtype | None = None
+    ) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 0:
             raise InputError(f"recorder capacity must be an integer >= 0, got {capacity!r}")
         if isinstance(grow_rows, bool) or not isinstance(grow_rows, int) or grow_rows < 0:
@@ -86,7 +91,14 @@ class Recorder:
         self.group_names = list(self._slices)
         self._slice_list = list(self._slices.values())
         self.n_signals = start
-        self._data = np.zeros((capacity, start))
+        if record_dtype is not None and (
+            record_dtype.itemsize != 8 * start
+            or any(np.dtype(f[0]).base != np.float64 for f in record_dtype.fields.values())
+        ):
+            raise InputError(f"recorder: record_dtype is not {start} float64 values")
+        self.record_dtype = record_dtype
+        self._records: np.ndarray | None = None  # the current chunk as records (with a record_dtype)
+        self._data = self._storage(np.zeros((capacity, start)))
         self.n = 0
         self.dropped = 0
         self._bound: tuple[np.ndarray, ...] | None = None
@@ -95,7 +107,7 @@ class Recorder:
     def data(self) -> np.ndarray:
         """(capacity, n_signals) the storage; rows ``[0, n)`` are valid. Joins the chunks (once) if it grew."""
         if self._chunks:
-            self._data = np.concatenate([*self._chunks, self._data])
+            self._data = self._storage(np.concatenate([*self._chunks, self._data]))
             self._chunks = []
             self._base = 0
         return self._data
@@ -104,7 +116,13 @@ class Recorder:
     def data(self, value: np.ndarray) -> None:
         self._chunks = []
         self._base = 0
-        self._data = value
+        self._data = self._storage(value)
+
+    def _storage(self, data: np.ndarray) -> np.ndarray:
+        """``data`` as the current chunk (its records kept beside it when the recorder has a record dtype)."""
+        if self.record_dtype is not None:
+            self._records = data.view(self.record_dtype).reshape(-1)  # the same dtype object: typed fast by numba
+        return data
 
     @property
     def capacity(self) -> int:
@@ -135,7 +153,7 @@ class Recorder:
         if self._data.shape[0]:
             self._chunks.append(self._data)
             self._base += self._data.shape[0]
-        self._data = np.zeros((self.grow_rows, self.n_signals))
+        self._data = self._storage(np.zeros((self.grow_rows, self.n_signals)))
         return self._data[self.n - self._base]
 
     def record(self, *values: float | np.ndarray) -> bool:
@@ -197,6 +215,20 @@ class Recorder:
             return None
         self.n = n + 1
         return row
+
+    def next_record(self) -> np.ndarray | None:
+        """:meth:`next_row` as a ``(1,)`` record of :attr:`record_dtype` (the same memory; module docstring)."""
+        n = self.n
+        i = n - self._base
+        if i < self._data.shape[0]:  # the common case, inline (one call per control period)
+            self.n = n + 1
+            return self._records[i : i + 1]
+        if self._free_row() is None:
+            self.dropped += 1
+            return None
+        self.n = n + 1
+        i = n - self._base
+        return self._records[i : i + 1]
 
     def column(self, name: str) -> np.ndarray:
         """(n,) view of one column (a column name, or the name of a width-1 group)."""

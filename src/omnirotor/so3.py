@@ -294,7 +294,7 @@ def R9_from_quat_into(qw: float, qx: float, qy: float, qz: float, out, o: int) -
 @_kernel
 def R_from_quat_into(q, R) -> None:
     """``R`` (3, 3), C-contiguous, = the rotation of the unit quaternion ``q`` (4,), wxyz."""
-    R9_from_quat_into(q[0], q[1], q[2], q[3], R.reshape(9), 0)
+    R9_from_quat_into(q[0], q[1], q[2], q[3], R.flat, 0)  # R.flat: its row-major entries (no reshape)
 
 
 @_kernel
@@ -328,7 +328,7 @@ def exp_so3_at(p0: float, p1: float, p2: float, out, o: int) -> None:
 @_kernel
 def exp_so3_into(p0: float, p1: float, p2: float, R) -> None:
     """Rotation matrix of the rotation vector ``(p0, p1, p2)`` [rad] into C-contiguous R (3, 3); :func:`exp_so3_at`."""
-    exp_so3_at(p0, p1, p2, R.reshape(9), 0)
+    exp_so3_at(p0, p1, p2, R.flat, 0)
 
 
 @_kernel
@@ -346,4 +346,4 @@ def log_so3_at(R, oR: int, out, o: int) -> None:
 @_kernel
 def log_so3_into(R, out, o: int) -> None:
     """Rotation vector [rad] of a rotation R (3, 3), C-contiguous, into ``out[o:o+3]`` (:func:`log_so3_at`)."""
-    log_so3_at(R.reshape(9), 0, out, o)
+    log_so3_at(R.flat, 0, out, o)

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry
+from omnirotor._jit import jit, jit_entry, jit_inline
 from omnirotor.so3 import (
     R_from_quat_into,
     exp_so3_into,
@@ -340,7 +340,7 @@ def imu_step(u, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
     t = u.t + dt
     u.t = t
     u.dt = dt
-    if imu_valid(u, gyro, acc):
+    if imu_valid(u, gyro[:], acc[:]):  # [:]: as arrays, the types of the check called from Python
         for i in range(3):
             u.gyro_B[i] = gyro[i]
             u.acc_B[i] = acc[i]
@@ -501,17 +501,31 @@ def invert_in_place(a, out) -> bool:
     return True
 
 
-@jit
+@jit_inline
 def _copy2(src, dst) -> None:
-    """``dst[...] = src`` for 2-D arrays of one shape (an explicit loop compiles much faster than a slice copy)."""
+    """``dst[...] = src`` for 2-D arrays of one shape (an explicit loop compiles much faster than a slice copy).
+
+    Records' fields and arrays alike reach one compiled :func:`_copy2_arrays` (numba types a field by its shape;
+    ``[:]`` is an array), and so for :func:`_mul33`.
+    """
+    _copy2_arrays(src[:], dst[:])
+
+
+@jit
+def _copy2_arrays(src, dst) -> None:
     for i in range(src.shape[0]):
         for j in range(src.shape[1]):
             dst[i, j] = src[i, j]
 
 
-@jit
+@jit_inline
 def _mul33(A, B, out) -> None:
     """``out = A B`` for 3 x 3 matrices (out must not overlap A or B)."""
+    _mul33_arrays(A[:], B[:], out[:])
+
+
+@jit
+def _mul33_arrays(A, B, out) -> None:
     for i in range(3):
         a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
         for j in range(3):

@@ -77,8 +77,9 @@ def arrays_dtype(n_regions: int, n_intervals: int, n_rotors: int) -> np.dtype:
     Sizes of at least 1 (a nominal or global scheduler uses one map and no region). Fields: ``regions`` (K,)
     :data:`REGION_DTYPE`; ``az_lo_rad``, ``az_hi_rad`` (K, M) the hard test's azimuth bounds [rad];
     ``az_centre_rad``, ``az_half_rad`` (K, M) the merged circular intervals' centres and half-widths [rad];
-    ``maps`` (K, 6n) the region maps, (6, n) row-major each (one map outside piecewise mode); ``out`` (6n,) the
-    map in use; ``weights`` (K,) the blending weights (one-hot with hard blending).
+    ``maps`` (K, 6n) the region maps, (6, n) row-major each (one map outside piecewise mode); ``out`` (6, n) the
+    map in use (a 2-D field: compiled code reads it without a reshape); ``weights`` (K,) the blending weights
+    (one-hot with hard blending).
     """
     K, M, m = max(1, n_regions), max(1, n_intervals), 6 * n_rotors
     return np.dtype(
@@ -89,7 +90,7 @@ def arrays_dtype(n_regions: int, n_intervals: int, n_rotors: int) -> np.dtype:
             ("az_centre_rad", _F8, (K, M)),
             ("az_half_rad", _F8, (K, M)),
             ("maps", _F8, (K, m)),
-            ("out", _F8, (m,)),
+            ("out", _F8, (6, n_rotors)),
             ("weights", _F8, (K,)),
         ]
     )
@@ -127,7 +128,7 @@ def pack_schedule(
     K = len(regions)
     maps = np.asarray(maps, dtype=np.float64)
     cap_k, cap_m = arrays.az_lo_rad.shape
-    if K > cap_k or max_iv > cap_m or maps.shape[0] > arrays.maps.shape[0] or maps.shape[1] != arrays.out.shape[0]:
+    if K > cap_k or max_iv > cap_m or maps.shape[0] > arrays.maps.shape[0] or maps.shape[1] != arrays.out.size:
         raise ValueError(
             f"pack_schedule: {K} regions of {max_iv} intervals and {maps.shape} maps do not fit arrays for "
             f"{cap_k} regions of {cap_m} intervals and {arrays.maps.shape} maps"
@@ -158,7 +159,7 @@ def pack_schedule(
             az[2][j, i] = c
             az[3][j, i] = h
     arrays.maps[: maps.shape[0]] = maps
-    arrays.out[:] = maps[0]
+    arrays.out[:] = maps[0].reshape(arrays.out.shape)
 
 
 # -- CPython's math.hypot (Modules/mathmodule.c, 3.11) -----------------------------------------------------
@@ -364,7 +365,7 @@ def schedule_select(st, arrays, R) -> int:
         return current
     st.region = k
     half_band = st.half_band_rad
-    n_out = out.shape[0]
+    n_cols = out.shape[1]
     centres, halves = arrays.az_centre_rad, arrays.az_half_rad
     if st.smooth != 0 and _depth(regions[k], centres[k], halves[k], az, el) < half_band:
         inv_band = st.inv_band_per_rad
@@ -378,20 +379,23 @@ def schedule_select(st, arrays, R) -> int:
             weights[j] *= inv_total
         # sum_j w_j A_j over j in order; a zero weight adds +-0.0, which leaves every sum as it is (a sum
         # that starts at +0.0 is never -0.0), so those regions are skipped.
-        for i in range(n_out):
-            out[i] = 0.0
+        for r in range(6):
+            for c in range(n_cols):
+                out[r, c] = 0.0
         for j in range(n_regions):
             w = weights[j]
             if w != 0.0:
-                for i in range(n_out):
-                    out[i] += w * maps[j, i]
+                for r in range(6):
+                    for c in range(n_cols):
+                        out[r, c] += w * maps[j, r * n_cols + c]
         st.blended = 1
     elif st.blended != 0 or weights[k] != 1.0:
         for j in range(n_regions):
             weights[j] = 0.0
         weights[k] = 1.0
-        for i in range(n_out):
-            out[i] = maps[k, i]
+        for r in range(6):
+            for c in range(n_cols):
+                out[r, c] = maps[k, r * n_cols + c]
         st.blended = 0
     return k
 

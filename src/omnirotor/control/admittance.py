@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit, jit_inline
 from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite
 from omnirotor.control.trajectory import ReferenceSample
@@ -100,12 +100,19 @@ def ee_wrench(f_ext_W, m_ext_B, R, p_E_B, f_E_W, m_E_W) -> None:
     m_E_W[2] = r20 * mx + r21 * my + r22 * mz - (rx * fy - ry * fx)
 
 
-@jit
+@jit_inline
 def body_reference(e, p_E_B, d) -> None:
     """Body (CoM) reference record ``d`` from the EE reference record ``e``; ``d`` may be ``e``.
 
-    See :func:`body_reference_from_ee`.
+    See :func:`body_reference_from_ee`. ``p_E_B`` may be a record's field or an array: both reach one compiled
+    :func:`_body_reference` (numba types a field by its shape, ``p_E_B[:]`` as an array).
     """
+    _body_reference(e, p_E_B[:], d)
+
+
+@jit
+def _body_reference(e, p_E_B, d) -> None:
+    """:func:`body_reference` with ``p_E_B`` an array."""
     px, py, pz = e.p_W[0], e.p_W[1], e.p_W[2]
     vx, vy, vz = e.v_W[0], e.v_W[1], e.v_W[2]
     ax, ay, az = e.a_W[0], e.a_W[1], e.a_W[2]

@@ -384,7 +384,7 @@ def step_begin(state, frame, row) -> int:
             rot.u_obs_hz2[i] = abs(rotor_hz[i]) * rotor_hz[i]
         finite = finite and _all_finite(rot.u_obs_hz2)
     # 2. the wrench map of this attitude (it follows the attitude only while the estimate is finite)
-    A = st.maps_arrays.out.reshape(6, n)
+    A = st.maps_arrays.out
     c.region = -1.0
     if c.piecewise != 0:
         if finite:

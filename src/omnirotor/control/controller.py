@@ -257,10 +257,13 @@ class InteractionController:
         self._assemble()
         self.log_groups = _c.controller_log_groups(self.state.dtype, _block_classes(p))
         self.log_dtype = log_dtype(self.log_groups)
-        self.log = Recorder(p.log_capacity, [(g.name, g.labels) for g in self.log_groups], grow_rows=p.log_capacity)
+        self.log = Recorder(
+            p.log_capacity,
+            [(g.name, g.labels) for g in self.log_groups],
+            grow_rows=p.log_capacity,
+            record_dtype=self.log_dtype,  # the step writes the log's row itself, as a record (no copy)
+        )
         self._no_row = np.zeros(0, self.log_dtype)
-        self._row = new_records(self.log_dtype)  # the row the step writes (the log's row is its copy)
-        self._row_values = self._row.view(np.float64)
 
     def _assemble(self) -> None:
         """Build the controller's record and every block of the kinds :attr:`params` names on its field.
@@ -530,10 +533,9 @@ class InteractionController:
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
         record = self._record(frame)
-        data = self.log.next_row()
-        # The step writes the controller's own row record (one array object: numba types a new view of a
-        # structured dtype slowly), copied into the log's row below.
-        row = self._no_row if data is None else self._row
+        row = self.log.next_record()  # the log's next row as a (1,) record: the step writes it in place
+        if row is None:  # a full log that does not grow: nothing logged
+            row = self._no_row
         if self.estimator is self._kernel_estimator and self._fast:
             # A compiled estimator and QP: one compiled call.
             bits = _c.controller_step(self.state, record, row)
@@ -541,8 +543,6 @@ class InteractionController:
             bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
             raise InputError("the bypass estimator needs SensorFrame.state (ground truth); this plant gives none")
-        if data is not None:
-            data[:] = self._row_values
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])

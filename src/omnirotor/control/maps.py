@@ -249,7 +249,7 @@ class MapScheduler:
             _mk.pack_schedule(self.state[0], rec, regions, soft, smooth, band, self._maps.reshape(K, 6 * n))
         except ValueError as exc:
             raise InputError(f"map scheduler: {exc}") from None
-        self._out = rec.out.reshape(6, n)
+        self._out = rec.out
         self._view = self._out.view()
         self._view.flags.writeable = False
         self._weights = rec.weights[: len(regions)]

@@ -682,7 +682,7 @@ def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     tc = clean.t
     mt = m.t + sv.offset_s
     m.t = mt
-    valid = _ek.mocap_sample_valid(m.p_W, m.q_WB, sv.quat_norm_tol)
+    valid = _ek.mocap_sample_valid(m.p_W[:], m.q_WB[:], sv.quat_norm_tol)  # [:]: as arrays (one compiled check)
     if not (valid and mt <= tc + 0.5 * sv.dt_nom):  # False for a NaN time
         clear_mocap(m)
         sv.prev_ok = 0

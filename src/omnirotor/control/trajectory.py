@@ -31,7 +31,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry
+from omnirotor._jit import jit, jit_entry, jit_inline
 from omnirotor.blocks import new_state, register, state_array
 from omnirotor.errors import InputError
 from omnirotor.so3 import hat, log_so3
@@ -249,9 +249,19 @@ def _write_hold(pk, o: int, out) -> None:
         out.alpha_W[i] = pk[o + (21 + i) * nb]
 
 
-@jit_entry
+@jit_inline
 def trajectory_sample(pk, t: float, out) -> None:
-    """The reference at time ``t`` [s] of a packed trajectory (:meth:`PoseTrajectory.sample`) into record ``out``."""
+    """The reference at time ``t`` [s] of a packed trajectory (:meth:`PoseTrajectory.sample`) into record ``out``.
+
+    ``pk`` may be a record's field (the controller's ``trajectory``) or an array: both reach one compiled
+    :func:`_sample` (numba types a field by its shape, ``pk[:]`` as an array), not one version each.
+    """
+    _sample(pk[:], t, out)
+
+
+@jit
+def _sample(pk, t: float, out) -> None:
+    """:func:`trajectory_sample` of the packed trajectory array ``pk``."""
     n_wp = int(pk[0])
     cubic = pk[1] != 0.0
     times = pk[2 : 2 + n_wp]

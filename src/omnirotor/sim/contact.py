@@ -27,7 +27,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from omnirotor._jit import f64_at, jit
+from omnirotor._jit import f64_at, jit, jit_inline
 from omnirotor.blocks import register
 from omnirotor.sim.model import (
     EE_ROD_GEOM,
@@ -87,9 +87,12 @@ FRICTION_DTYPE = np.dtype(
 """The friction law's parameters, the MuJoCo addresses it reads and writes, and its per-contact state."""
 
 
-@jit
+@jit_inline
 def _add_force_at(f, fo: int, m, mo: int, fx, fy, fz, rx, ry, rz) -> None:
-    """Add the force ``(fx, fy, fz)`` into ``f[fo:fo+3]`` and its moment ``r x f`` (arm ``r``) into ``m[mo:mo+3]``."""
+    """Add the force ``(fx, fy, fz)`` into ``f[fo:fo+3]`` and its moment ``r x f`` (arm ``r``) into ``m[mo:mo+3]``.
+
+    Inlined: its callers pass constant offsets, for which numba would compile one version each.
+    """
     f[fo] += fx
     f[fo + 1] += fy
     f[fo + 2] += fz

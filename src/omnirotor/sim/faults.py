@@ -35,7 +35,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit, jit_inline
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
 from omnirotor.frame_kernels import clear_mocap, clear_state
@@ -127,8 +127,9 @@ STATE_DTYPE = np.dtype(
 """The schedule and what it has done."""
 
 
-@jit
+@jit_inline
 def _log(st, t: float, code: int, i: int) -> None:
+    """Log event ``code`` of fault ``i`` at ``t`` (inlined: callers pass constants, one version each otherwise)."""
     j = st["n_events"]
     if j < st["event_t"].shape[0]:
         st["event_t"][j] = t
@@ -231,12 +232,14 @@ def _corrupted(x: float, f, t: float) -> float:
 
 @jit
 def _bad(values, f, t: float, first: int = 0) -> None:
-    """Corrupt ``values`` (a signal of the frame) by fault ``f`` at ``t``: one component or all.
+    """Corrupt ``values`` (a signal of the frame: a 1-D array, or a matrix's ``.flat``) by fault ``f`` at ``t``.
+
+    One component or all.
 
     An absent component: nothing. A freeze holds the values from ``f.held[first]`` on (taken the first time it
     sees the signal).
     """
-    size = values.shape[0]
+    size = len(values)
     lo, hi = 0, size
     if f["component"] >= 0:
         if f["component"] >= size:
@@ -333,7 +336,7 @@ def faults_frame(st, frame) -> None:
             if sig == _SIG_STATE_V:
                 _bad(state.v_W, c, t)
             elif sig == _SIG_STATE_R:
-                _bad(state.R_WB.reshape(9), c, t)
+                _bad(state.R_WB.flat, c, t)  # its row-major entries (a reshape compiles numba's error text)
             else:
                 _bad(state.p_W, c, t)
 

@@ -392,7 +392,7 @@ def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
                 st.a_W[i] = acc[i] + e[6 + i]
                 st.omega_B[i] = vel[3 + i] + e[12 + i]
             # The perturbed quaternion goes through R's first entries (overwritten by its matrix right after).
-            r9 = R.reshape(9)
+            r9 = R.flat  # its row-major entries (a reshape would compile numba's error text)
             quat_perturb_into(pose[3:7], e[9:12], r9)
             R9_from_quat_into(r9[0], r9[1], r9[2], r9[3], r9, 0)
     moc = sens["mocap"]
