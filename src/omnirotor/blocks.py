@@ -95,7 +95,7 @@ KIND_STEPS = {
     "(FRAME_HEAD_DTYPE); memory: the controller's sized estimator memory (ukf_memory); code: STEP_* bits, or -1 "
     "when there is no estimate yet",
     "maps": "kernel(r, arrays, R_WB) -> region: the (6, n) wrench map of the attitude R_WB into arrays.out "
-    "(row-major; arrays: the controller's maps_arrays record), r.region the region index (-1: none)",
+    "(arrays: the controller's maps_arrays record), r.region the region index (-1: none)",
     "observer": "kernel(r, A, u_hz2, a_W, R_WB, omega_B, dt): r.f_ext_W, r.m_ext_B (interaction), r.f_filt_W, "
     "r.m_filt_B (compensated) from the (6, n) map A, the rotor inputs u_hz2 [Hz²] and the estimate",
     "trajectory": "kernel(r, data, t, ref): the desired EE reference record ref at trajectory time t [s]; data: the "
@@ -483,7 +483,9 @@ def compiled_step(kind: str, entry: str = "kernel", default: Callable[..., Any] 
     )
     step = namespace["step"]
     step.__name__ = step.__qualname__ = f"{kind}_{entry}"
-    overload(step)(namespace["typer"])
+    # Inlined where it is called (its body is the one call): no compiled wrapper of its own, whose machine code
+    # would hold the block's whole kernel once more (numba links each callee's code into its caller's).
+    overload(step, inline="always")(namespace["typer"])
 
     _STEPS[key] = step
     return step
