@@ -157,8 +157,7 @@ class FixedMaps:
 
     def __init__(self, vehicle, maps, params, *, state=None, arrays=None):
         self.state = state_array(FIXED_DTYPE, state, "fixed maps")
-        out = arrays[0]["out"]  # the controller's maps_arrays: the (6, n) map the allocation reads
-        out[...] = vehicle.A_nom.reshape(out.shape)
+        arrays[0]["out"][:] = vehicle.A_nom  # the controller's maps_arrays.out, (6, n)
 
     def reset(self):
         self.state["n_calls"] = 0.0

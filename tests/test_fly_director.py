@@ -486,6 +486,20 @@ def test_a_vehicle_outside_the_geofence_is_terminated(vehicle):
     assert not np.any(outs) and d.mode == M.DISARMED
 
 
+def test_a_mission_outside_the_workspace_box_is_flown_within_its_own_fence(vehicle):
+    """A mission's trajectory is not held to the box: the geofence spans its poses, and still fences beyond them."""
+    ctl = _controller(vehicle)
+    p_tip = np.array([3.5, 0.0, 1.0]) + np.asarray(vehicle.p_E_B)
+    traj = PoseTrajectory([Waypoint(0.0, p_tip, np.eye(3)), Waypoint(5.0, p_tip, np.eye(3))])
+    d = FlightDirector(ctl, FlyParams(), trajectory=traj)
+    s = Stream(vehicle, (3.5, 0.0, 1.0))
+    _run(d, ctl, s, 0.2)
+    assert d.mode == M.TRACK and d.armed
+    s.p = np.array([3.5 + 0.6, 0.0, 1.0])  # 0.6 m beyond every pose of the mission: outside its fence
+    assert _run(d, ctl, s, 0.05, until=lambda d: d.mode == M.DISARMED)
+    assert d.status().cause & Cause.GEOFENCE
+
+
 @pytest.mark.parametrize("offset_m, terminated", [(0.25, False), (0.5, True)])
 def test_an_estimate_that_leaves_motion_capture_terminates_the_flight(vehicle, offset_m, terminated):
     """Motion capture moves away from the estimate (the supervision rejects it as a jump: the estimate stays) by

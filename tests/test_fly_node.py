@@ -178,3 +178,99 @@ def test_a_motion_capture_sample_in_a_skipped_frame_is_not_lost():
     assert first[:2] == (0.001, False)
     assert newest == (0.004, True, (0.0015, (2.0, 2.0, 3.0)))  # frame 4, with frame 2's sample
     assert summary["mocap_carried"] == 1
+
+
+class _DisarmedButSpinning(_Director):
+    """A wrong director: disarmed, yet it outputs speeds."""
+
+    armed = False
+
+    def output(self, cmd) -> np.ndarray:
+        self._out[:] = 300.0
+        return self._out
+
+
+def test_a_disarmed_director_never_gets_speeds_published():
+    """The node's invariant: while the director is disarmed only zeros go out, flagged STATE_STOP."""
+    from omnirotor.rosmsg.convert import COMMAND_STOP
+
+    port = free_port()
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as wire,
+    ):
+        node = NodeLoop(wire, _Controller(), _DisarmedButSpinning(), NodeOptions(lockstep=True), say=lambda line: None)
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        stop = threading.Event()
+        summary: dict = {}
+        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
+        thread.start()
+        try:
+            w, record = WireMessages(N), new_frame(N)
+            answers, k = [], 0
+            deadline = time.monotonic() + 10
+            while len(answers) < 5 and time.monotonic() < deadline:
+                k += 1
+                record["t"] = 0.001 * k
+                frames.put(w.fill_frame(record, k))
+                answers += [m for m in iter(lambda: commands.take(0.02), None)]
+        finally:
+            stop.set()
+            thread.join(10)
+    assert len(answers) >= 5
+    assert all(not m.hz.any() and m.state == COMMAND_STOP for m in answers)
+    assert summary["disarmed_nonzero"] >= 5
+
+
+class _TellableDirector(_Director):
+    def __init__(self) -> None:
+        super().__init__()
+        self.told = []
+
+    def plant_failsafe(self, why: str) -> None:
+        self.told.append(why)
+
+
+def test_the_plant_s_failsafe_is_told_to_the_director():
+    """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
+    is told while it lasts, the node says it once."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    T = typestore().types
+    port = free_port()
+    said: list[str] = []
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/told") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/told") as wire,
+    ):
+        director = _TellableDirector()
+        node = NodeLoop(wire, _Controller(), director, NodeOptions(status_hz=200.0), say=said.append)
+        status = plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        stop = threading.Event()
+        thread = threading.Thread(target=lambda: node.run(stop))
+        thread.start()
+        msg = T[SIM_STATUS](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+            t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
+            finished=False,
+        )  # fmt: skip
+        try:
+            for _ in range(20):  # healthy: nothing told
+                status.put(msg)
+                time.sleep(0.01)
+            assert director.told == []
+            msg.failsafe, msg.cause = 1, "offboard loss"
+            deadline = time.monotonic() + 10
+            while len(director.told) < 3 and time.monotonic() < deadline:
+                status.put(msg)
+                time.sleep(0.01)
+        finally:
+            stop.set()
+            thread.join(10)
+    assert len(director.told) >= 3 and set(director.told) == {"offboard loss"}
+    assert [line for line in said if "stopped obeying" in line] == [
+        "the plant stopped obeying the commands: offboard loss"
+    ]

@@ -483,7 +483,9 @@ def compiled_step(kind: str, entry: str = "kernel", default: Callable[..., Any] 
     )
     step = namespace["step"]
     step.__name__ = step.__qualname__ = f"{kind}_{entry}"
-    overload(step)(namespace["typer"])
+    # Inlined where it is called (its body is the one call): no compiled wrapper of its own, whose machine code
+    # would hold the block's whole kernel once more (numba links each callee's code into its caller's).
+    overload(step, inline="always")(namespace["typer"])
 
     _STEPS[key] = step
     return step

@@ -154,6 +154,11 @@ class FlightDirector:
             last = trajectory.waypoints[-1]
             self._target = Setpoint(tuple(last.p_W), tuple(quat_wxyz_from_R(last.R_WB)))
             self.message = "mission: tracking the given trajectory"
+            # a mission's trajectory is not held to the workspace box: the geofence also spans its poses (tip, body)
+            for w in trajectory.waypoints:
+                for q in (np.asarray(w.p_W, dtype=float), w.p_W - np.asarray(w.R_WB) @ self._p_E_B):
+                    np.minimum(self._fence_lo, q - p.geofence_margin_m, out=self._fence_lo)
+                    np.maximum(self._fence_hi, q + p.geofence_margin_m, out=self._fence_hi)
 
     # -- the period ----------------------------------------------------------------------------------------
 
