@@ -52,7 +52,11 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
         env=env(), stdout=subprocess.PIPE, stderr=open(tmp_path / "bridge.err", "w"), text=True,  # noqa: SIM115
     )  # fmt: skip
     try:
-        with open_transport(connect=[bridge_ep], namespace=ns) as t:
+        with (
+            open_transport(connect=[bridge_ep], namespace=ns) as t,
+            open_transport(connect=[px4_ep], namespace=px4_ns) as px4_side,
+        ):
+            px4_status = px4_side.subscriber("/fmu/out/vehicle_status", "px4_msgs/msg/VehicleStatus", depth=64)
             status = t.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=64)
             pub = t.publisher(TOPICS["rotor_cmd"], COMMAND, block=True)
             ours, theirs = WireMessages(n).command, WireMessages(n).command
@@ -84,7 +88,14 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
             s = _until(lambda: (m := latest()) is not None and m.commands_obeyed > 300 and m, 120.0, tick)
             assert s is not None, (tmp_path / "bridge.err").read_text()
             assert s.paired_session_id == 0x1234 and s.foreign_sessions == 1 and s.failsafe == FAILSAFE_NONE
-            time.sleep(0.5)
+
+            def px4_flying():
+                m = px4_status.take_latest()
+                return m is not None and m.nav_state == 14 and m.arming_state == 2
+
+            assert _until(px4_flying, 60.0, tick)  # PX4 in offboard and armed for the node
+            for _ in range(60):  # PX4's status reaches the bridge too
+                tick()
             # PX4 leaves offboard (its failsafe, a pilot): the node is told; nothing more goes to the motors
             (tmp_path / "leave").touch()
             s = _until(lambda: (m := latest()) is not None and m.failsafe == FAILSAFE_ROBOT and m, 10.0, tick)

@@ -160,3 +160,18 @@ def test_a_trajectory_beyond_the_capacity_is_refused_and_the_record_kept():
     want = np.array([traj(t).p_W for t in times])
     np.testing.assert_array_equal(des[:, :3], want)  # the same compiled sampling on the whole packed trajectory
     assert des[-1, 0] - des[0, 0] > 0.02
+
+
+def test_a_trajectory_capacity_too_small_for_a_move_is_one_line_and_exit_2(tmp_path, capsys):
+    """The capacity is a controller parameter (``trajectory_waypoints``): one that cannot hold a move (two
+    waypoints, the flight node's take-off and set-points) is refused by the CLI in one line, nothing written."""
+    from omnirotor.cli import main
+
+    out = tmp_path / "run"
+    capsys.readouterr()
+    code = main(["run", "hover-validation", "--quick", "--set", "trajectory_waypoints=1", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == ["omnirotor: error: controller trajectory_waypoints must be an integer >= 2, got 1"]
+    assert not out.exists()
+    with pytest.raises(InputError, match="trajectory_waypoints must be an integer >= 2"):
+        ControllerParams(trajectory_waypoints=0)

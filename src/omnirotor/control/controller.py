@@ -152,7 +152,7 @@ class ControllerParams:
             :class:`~omnirotor.control.trajectory.WaypointTrajectory`).
         trajectory_waypoints: the most waypoints a trajectory given to :meth:`InteractionController.reset` may
             have (the record's capacity, fixed when the controller is built: a longer one is refused with an
-            ``InputError``, never compiled for).
+            ``InputError``, never compiled for); at least 2 (the flight node's moves have two).
     """
 
     pose: PoseControlParams = dataclasses.field(default_factory=PoseControlParams)
@@ -181,8 +181,8 @@ class ControllerParams:
         if self.observer_input not in OBSERVER_INPUTS:
             raise InputError(f"observer_input must be one of {OBSERVER_INPUTS}, got {self.observer_input!r}")
         n = self.trajectory_waypoints
-        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise InputError(f"controller trajectory_waypoints must be an integer >= 1, got {n!r}")
+        if isinstance(n, bool) or not isinstance(n, int) or n < 2:  # a move (retarget, take-off) has two
+            raise InputError(f"controller trajectory_waypoints must be an integer >= 2, got {n!r}")
         for kind in _CHOSEN_KINDS:
             name = getattr(self, f"{kind}_kind")
             if not isinstance(name, str) or name not in block_names(kind):
