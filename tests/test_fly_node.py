@@ -11,7 +11,7 @@ import pytest
 
 from omnirotor.fly.node import _LATENCY_WINDOW, LoopStats, NodeLoop, NodeOptions
 from omnirotor.messages import ControlStatus, RotorCommand, new_frame
-from omnirotor.rosmsg.convert import COMMAND, FRAME, WireMessages
+from omnirotor.rosmsg.convert import COMMAND, CONTROLLER_LOG, FRAME, WireMessages
 from omnirotor.transport import open_transport
 from sitl.procs import free_port
 
@@ -274,3 +274,57 @@ def test_the_plant_s_failsafe_is_told_to_the_director():
     assert [line for line in said if "stopped obeying" in line] == [
         "the plant stopped obeying the commands: offboard loss"
     ]
+
+
+class _LoggingController(_Controller):
+    """A controller with a log: each step writes the row (frame time, step count)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log = types.SimpleNamespace(data=np.zeros((100, 2)), n=0)
+
+    def step(self, frame) -> RotorCommand:
+        cmd = super().step(frame)
+        self.log.data[self.log.n] = (frame.t, self.steps)
+        self.log.n += 1
+        return cmd
+
+
+def test_a_lockstep_node_sends_its_last_rows_when_the_frames_pause():
+    """A mission's last partial batch of log rows goes when the plant stops sending frames, even when the plant's
+    "finished" status never arrives (it did not on a loaded machine: the simulator then filled 17 rows in)."""
+    port = free_port()
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/node") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/node") as wire,
+    ):
+        ctl = _LoggingController()
+        node = NodeLoop(wire, ctl, _Director(), NodeOptions(lockstep=True, log_rows=True), say=lambda line: None)
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        rows = plant.subscriber("/omnirotor/controller_log", CONTROLLER_LOG, depth=64)
+        stop = threading.Event()
+        thread = threading.Thread(target=node.run, args=(stop,))
+        thread.start()
+        got: dict[int, np.ndarray] = {}
+        try:
+            w, record = WireMessages(N), new_frame(N)
+            for seq in range(1, 8):  # each frame answered before the next, as a lockstep plant does
+                record["t"] = 0.001 * seq
+                answered = False
+                deadline = time.monotonic() + 10
+                while not answered and time.monotonic() < deadline:
+                    frames.put(w.fill_frame(record, seq))
+                    answered = any(int(m.frame_seq) == seq for m in iter(lambda: commands.take(0.05), None))
+                assert answered, seq
+            deadline = time.monotonic() + 5  # then no frame: a lockstep plant whose run ended
+            while len(got) < 7 and time.monotonic() < deadline:
+                if (m := rows.take(0.05)) is not None:
+                    k = int(m.n_columns)
+                    for seq, row in zip(m.frame_seq, np.asarray(m.rows).reshape(-1, k), strict=True):
+                        got[int(seq)] = row
+        finally:
+            stop.set()
+            thread.join(10)
+    assert sorted(got) == list(range(1, 8))
+    assert [float(got[s][0]) for s in range(1, 8)] == pytest.approx([0.001 * s for s in range(1, 8)])

@@ -16,7 +16,7 @@ the loop's own thread (the director is not thread-safe). Status: ``/omnirotor/st
 ``FlightStatus``) and ``/omnirotor/loop_status`` (``LoopStatus``, the deadline accounting below) about 50 times a
 second; ``/omnirotor/wrench_est`` (``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One
 message per period is on the hot path, the command; a mission's controller-log rows go to the simulator in batches
-of 20.
+of 20, and the rest as soon as frames pause (a lockstep plant at the end of its run, a lost link).
 
 Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
@@ -514,6 +514,10 @@ class NodeLoop:
                 if msg is None:
                     if self._idle(now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call):
                         next_gap_call = now + period
+                    if o.lockstep or self.link_lost:
+                        # frames paused (a lockstep plant at the end of its run, or a lost link): the rows kept
+                        # so far go now, not at the next frame's status time, which may never come
+                        self._flush_rows()
                     if now >= next_status:
                         next_status = now + status_every
                         self._poll_sim_status()
