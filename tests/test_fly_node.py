@@ -110,6 +110,20 @@ def test_the_status_p99_is_of_the_recent_periods_across_the_window_wrap():
     assert s.recent_p99_s() == pytest.approx(np.percentile([1e-4] * 999 + [5e-3], 99))
 
 
+def test_the_status_p99_is_the_nearest_rank_of_the_recent_periods():
+    """The ceil(0.99 n)-th smallest of the last n <= 1000 latencies, whatever their order; the window is untouched."""
+    rng = np.random.default_rng(7)
+    for n in (1, 7, 100, 999, 1000, 1500):
+        s = LoopStats(0.0005)
+        x = rng.permutation(np.arange(1, n + 1) * 1e-6)
+        for v in x:
+            s.period(float(v), 0.0, 0.0, 1e-3)
+        recent = x[-1000:]
+        expected = np.sort(recent)[int(np.ceil(0.99 * recent.size)) - 1]
+        assert s.recent_p99_s() == expected
+        assert np.array_equal(s._latency[: min(n, _LATENCY_WINDOW)], x[: min(n, _LATENCY_WINDOW)])  # order kept
+
+
 class _SlowDirector(_Director):
     """Records each frame's motion capture; on the first frame it holds the loop until told (frames queue up)."""
 
