@@ -163,7 +163,7 @@ class FixedMaps:
         self.state["n_calls"] = 0.0
 
     def sync(self):
-        pass  # no region name to follow
+        """No region name to follow."""
 
 
 CONSTANT_DTYPE = np.dtype([("p_W", F8, 3), ("R_WB", F8, (3, 3)), ("n_samples", F8), ("n_nonfinite", F8)])

@@ -32,6 +32,7 @@ robot without time sync should use PX4's ``timesync_status``).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import sys
@@ -232,11 +233,9 @@ class Px4Bridge:
     def run(self, stop: threading.Event | None = None) -> dict:
         """Bridge until ``stop`` or Ctrl-C; at the end NaN to every motor and PX4 disarmed if the node had it armed."""
         stop = stop if stop is not None else threading.Event()
-        try:
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the bridging; the motors are stopped below
             while not stop.is_set():
                 self.poll(0.02)
-        except KeyboardInterrupt:
-            pass
         if self.armed and self.failsafe == FAILSAFE_NONE:
             self.controls.fill(np.nan)
             self._send("actuator_motors", actuator_motors_msg(self.controls, self._now_us(), self.flags))
