@@ -72,7 +72,9 @@ from omnirotor.rosmsg.convert import (
     LOOP_STATUS,
     SIM_STATUS,
     WRENCH,
+    CommandWire,
     FrameCodec,
+    FrameWire,
     WireMessages,
     frame_check,
     set_stamp,
@@ -290,7 +292,9 @@ class NodeLoop:
                 return True
             return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
 
-        self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
+        self._frames = transport.subscriber(
+            TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok, decoder=FrameWire(n).decode
+        )
         self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
         self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND, block=o.lockstep)
         self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
@@ -319,6 +323,9 @@ class NodeLoop:
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
         self._zeros = np.zeros(n)
+        self._cmd_wire = CommandWire(n)
+        self._cmd_t = math.nan  # the last command's time and state (its repetition: _republish_command)
+        self._cmd_state = 0
         self.cmd_seq = 0
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
@@ -370,18 +377,16 @@ class NodeLoop:
 
     # -- publishing -------------------------------------------------------------------------------------------
     def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int, armed: bool) -> None:
-        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then)."""
-        m = self.msgs.command
+        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then).
+
+        The payload is written in place (:class:`~omnirotor.rosmsg.convert.CommandWire`: rosbags' bytes, tested).
+        """
         self.cmd_seq += 1
-        m.hz[:] = hz
-        m.t = t
-        set_stamp(m.header, t)
-        m.control_status = control_status
-        m.state = COMMAND_ARMED if armed else COMMAND_STOP
-        m.session_id = self.session_id
-        m.seq = self.cmd_seq
-        m.frame_seq = frame_seq
-        self._pub_cmd.put(m)
+        self._cmd_t = t
+        self._cmd_state = state = COMMAND_ARMED if armed else COMMAND_STOP
+        self._pub_cmd.put_raw(
+            self._cmd_wire.fill(hz, t, control_status, state, self.session_id, self.cmd_seq, frame_seq)
+        )
 
     def _publish_status(self) -> None:
         s, m = self.stats, self._loop_msg
@@ -407,14 +412,12 @@ class NodeLoop:
 
     def _republish_command(self, t: float) -> None:
         """The last command again (a new sequence number, the same frame it answers)."""
-        m = self.msgs.command
-        if self.cmd_seq == 0 or m.t != t:
+        if self.cmd_seq == 0 or self._cmd_t != t:
             return
-        if m.state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since: not again
+        if self._cmd_state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since
             return
         self.cmd_seq += 1
-        m.seq = self.cmd_seq
-        self._pub_cmd.put(m)
+        self._pub_cmd.put_raw(self._cmd_wire.with_seq(self.cmd_seq))
         self.start_answers += 1
 
     def _publish_wrench(self, t: float) -> None:
