@@ -48,7 +48,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                            env=env(), stderr=open(tmp_path / "px4.err", "w"))  # noqa: SIM115  # fmt: skip
     bridge = subprocess.Popen(
         [sys.executable, "-c", CLI, "px4-bridge", "--listen", bridge_ep, "--connect", px4_ep, "--namespace", ns,
-         "--px4-namespace", px4_ns, "--json"],
+         "--px4-namespace", px4_ns, "--json", "--no-frames"],
         env=env(), stdout=subprocess.PIPE, stderr=open(tmp_path / "bridge.err", "w"), text=True,  # noqa: SIM115
     )  # fmt: skip
     try:
