@@ -79,6 +79,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from omnirotor.config import check_positive
 from omnirotor.errors import InputError
 from omnirotor.fly.px4 import (
     NUM_CONTROLS,
@@ -166,9 +167,7 @@ class BridgeOptions:
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+            check_positive(name, getattr(self, name))
 
 
 MOCAP_SOURCES = ("pose", "odometry")
@@ -202,9 +201,7 @@ class FrameOptions:
         if self.mocap not in MOCAP_SOURCES:
             raise InputError(f"the motion capture source must be one of {', '.join(MOCAP_SOURCES)}, got {self.mocap!r}")
         for name in ("rate_hz", "rate_tolerance", "rate_window_s", "esc_timeout_s", "clock_window_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+            check_positive(name, getattr(self, name))
         if not self.mocap_topic.startswith("/"):
             raise InputError(f"the motion capture topic must be absolute (start with /), got {self.mocap_topic!r}")
 

@@ -23,6 +23,16 @@ D_FLIP = np.diag([1.0, -1.0, -1.0])
 """Rotation by π about x: NED → NWU (world) and FRD → FLU (body); ``D_FLIP @ D_FLIP = I``."""
 
 
+def _flip_last(v: np.ndarray, k: int, out: np.ndarray | None) -> np.ndarray:
+    """``v`` (float64, into ``out`` when given) with its last ``k`` entries on the last axis negated: ``D``'s action."""
+    if out is None:
+        out = np.array(v, dtype=float, copy=True)
+    else:
+        out[...] = v
+    out[..., -k:] *= -1.0
+    return out
+
+
 def vec_from_px4(v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """(..., 3) vectors from NED (world) or FRD (body) to our z-up world or FLU body; also the inverse.
 
@@ -30,26 +40,17 @@ def vec_from_px4(v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         v: the vectors (any float type: PX4's messages carry float32).
         out: optional float64 array of the same shape to write into (a 1 kHz path allocates nothing).
     """
-    if out is None:
-        out = np.array(v, dtype=float, copy=True)
-    else:
-        out[...] = v
-    out[..., 1:] *= -1.0
-    return out
+    return _flip_last(v, 2, out)
 
 
 def quat_from_px4(q_wxyz: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """(..., 4) quaternions ``q_WB`` (w, x, y, z) of PX4's (FRD body -> NED world); also the inverse.
 
     ``R_WB = D R_NF D`` is the rotation conjugated by ``D`` (a rotation by π about x), which turns the quaternion's
-    vector part by ``D``: (w, x, y, z) -> (w, x, -y, -z). Not normalised (a consumer judges the norm).
+    vector part by ``D``: (w, x, y, z) -> (w, x, -y, -z). Not normalised (a consumer judges the norm). ``out`` as
+    in :func:`vec_from_px4`.
     """
-    if out is None:
-        out = np.array(q_wxyz, dtype=float, copy=True)
-    else:
-        out[...] = q_wxyz
-    out[..., 2:] *= -1.0
-    return out
+    return _flip_last(q_wxyz, 2, out)
 
 
 def R_WB_from_px4_quat(q_wxyz: np.ndarray) -> np.ndarray:
