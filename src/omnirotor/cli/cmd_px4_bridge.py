@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import signal
 import sys
 from typing import Annotated
@@ -119,6 +120,7 @@ def px4_bridge(
     f = summary["frames"]
     if f is not None:
         print(
-            f"frames {f['frames']} (IMU {f['imu_rate_hz']:.1f} Hz), rotor speeds NaN in {f['esc_nan_frames']}, "
+            f"frames {f['frames']} (IMU {f['imu_rate_hz'] or math.nan:.1f} Hz), "
+            f"rotor speeds NaN in {f['esc_nan_frames']}, "
             f"motion capture samples {f['mocap_samples']}; bad payloads {f['bad_payloads']}"
         )

@@ -494,7 +494,7 @@ class Px4FrameSource:
         a = self.assembler
         return {
             "frames": a.frames,
-            "imu_rate_hz": self.rate_hz,
+            "imu_rate_hz": None if math.isnan(self.rate_hz) else self.rate_hz,  # None: not measured (stopped first)
             "esc_nan_frames": a.esc_nan_frames,
             "mocap_samples": a.mocap_samples,
             "mocap_replaced": a.mocap_replaced,
