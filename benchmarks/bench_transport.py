@@ -10,9 +10,10 @@
   frame-to-command latency inside the node, and its CPU time per frame (the process's, Zenoh's threads included,
   and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core;
 * real-time SITL under a flood (issue 26 item 5): a third process, connected to both, publishes at ten times the
-  loop's rate (10 kHz on each key) well-formed rotor commands of a foreign session with full speeds on the command
-  key, and bogus frames (random bytes, truncated frames, well-formed frames with forged numbers) on the frame key;
-  the node's periods late beside the quiet figure, and what each side counted and dropped.
+  loop's rate (10 kHz on each key), from when the simulator has paired with the node to the end, well-formed rotor
+  commands of a foreign session with full speeds on the command key, and bogus frames (random bytes, truncated
+  frames, well-formed frames with forged numbers) on the frame key; the node's periods late beside the quiet
+  figure, and what each side counted and dropped.
 
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.
@@ -75,7 +76,11 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: floa
         for seq in (10**9, 2**62, 5):
             forged.append(bytes(frame.serialize(w.fill_frame(new_frame(8), seq))))
         frames = bogus + forged
-        time.sleep(1.0)  # the peers' declarations
+        # during the hover: from when the simulator has paired with the node (a flood before the node's first
+        # command would pair the simulator with the flood's session: first come, first paired; docs/transport.md)
+        status = t.subscriber(TOPICS["sim_status"], "omnirotor_msgs/msg/SimStatus", depth=4)
+        while (m := status.take_latest(0.1)) is None or m.paired_session_id == 0:
+            pass
         burst = max(1, int(round(rate_hz / 1000)))
         sent = 0
         t0 = time.monotonic()
@@ -105,21 +110,26 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
                 "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
-    sim = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
-    node = subprocess.Popen(node_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
+    pipe = subprocess.PIPE
+    sim = subprocess.Popen(sim_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
+    node = subprocess.Popen(node_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
     flooder = None
     if flooded:  # for the whole run: from before the first frame to after the last
         flood_cmd = [sys.executable, __file__, "--flood-peer", f"tcp/127.0.0.1:{port},tcp/127.0.0.1:{node_port}", ns,
                      str(duration_s + 600)]  # fmt: skip
         flooder = subprocess.Popen(flood_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
     try:
-        sim_out, _ = sim.communicate(timeout=1800)
-        node_out, _ = node.communicate(timeout=120)
+        sim_out, sim_err = sim.communicate(timeout=1800)
+        node_out, node_err = node.communicate(timeout=120)
     finally:
         for p in (sim, node, flooder):
             if p is not None and p.poll() is None:
                 p.kill()
-    return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
+    try:
+        return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
+    except (ValueError, KeyError, IndexError):
+        raise RuntimeError(f"the pair did not finish: simulator said {sim_err[-800:]!r}; node said "
+                           f"{node_err[-800:]!r}") from None  # fmt: skip
 
 
 @contextlib.contextmanager

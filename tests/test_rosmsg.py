@@ -314,3 +314,52 @@ def test_frame_encoder_writes_rosbags_bytes_of_the_record():
             x[16] = float((k // 2) % 2)  # state.valid
             seq = int(rng.integers(0, 2**63))
             assert enc.encode(record, seq) == bytes(store.serialize_cdr(msgs.fill_frame(record, seq), FRAME)), (n, k)
+
+
+def test_command_wire_decode_reads_what_rosbags_reads_and_never_accepts_what_it_refuses():
+    """The simulator's in-place command decoding: rosbags' values for any frame_id; over truncations, extensions,
+    bit flips and random bytes, nothing accepted that rosbags refuses."""
+    from omnirotor.rosmsg.convert import COMMAND, CommandWire
+
+    store = typestore()
+    T = store.types
+    rng = np.random.default_rng(21)
+    fields = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
+
+    def command(n: int, frame_id: str):
+        bits = rng.integers(0, 2**63, n + 1, dtype=np.int64).view(np.float64)
+        header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=4), frame_id=frame_id)
+        return T[COMMAND](header=header, t=float(bits[0]), hz=bits[1:].copy(),
+                          control_status=int(rng.integers(0, 2**32)), state=int(rng.integers(0, 256)),
+                          session_id=int(rng.integers(0, 2**63)), seq=int(rng.integers(0, 2**63)),
+                          frame_seq=int(rng.integers(0, 2**63)))  # fmt: skip
+
+    for n in (4, 8):
+        wire = CommandWire(n)
+        for frame_id in ("", "base_link", "é" * 3, "x" * 20):
+            payload = bytes(store.serialize_cdr(command(n, frame_id), COMMAND))
+            fast, ref = wire.decode(payload), store.deserialize_cdr(payload, COMMAND)
+            assert fast is not None
+            for f in fields:
+                assert _same_bits(getattr(fast, f), getattr(ref, f)), (n, frame_id, f)
+        assert wire.decode(bytes(store.serialize_cdr(command(n + 1, "b"), COMMAND))) is None
+    wire = CommandWire(8)
+    valid = bytes(store.serialize_cdr(command(8, "base_link"), COMMAND))
+    corpus = [valid[:k] for k in range(len(valid))] + [valid + b"\x00" * k for k in range(1, 9)]
+    for _ in range(2000):
+        b = bytearray(valid)
+        for i in rng.integers(0, len(b), int(rng.integers(1, 4))):
+            b[i] ^= 1 << int(rng.integers(0, 8))
+        corpus.append(bytes(b))
+    corpus += [rng.bytes(int(k)) for k in rng.integers(0, 300, 200)]
+    accepted = 0
+    for payload in corpus:
+        fast = wire.decode(payload)
+        if fast is None:
+            continue
+        accepted += 1
+        ref, end = store.get_msgdef(COMMAND).deserialize_cdr_le(memoryview(payload)[4:], 0, T[COMMAND], store)
+        assert end + 4 + 3 >= len(payload)
+        for f in fields:
+            assert _same_bits(getattr(fast, f), getattr(ref, f)), f
+    assert accepted > 1000

@@ -122,6 +122,11 @@ class NodeOptions:
             every period, from a writer process, in bounded memory), or None.
         foxglove_port: serve the live view (:class:`~omnirotor.fly.live.LiveView`) on this loopback port (0: any
             free one), or None.
+        frame_guard_s: real time: after answering a frame the loop sleeps on the clock until this long before the
+            next frame is expected (the earliest arrivals, one period apart), then waits in the channel; so a flood
+            on the frame key wakes it only within this guard instead of at every payload [s]; 0: wait in the
+            channel at once. Frames come on the plant's clock, so a real one is not due before the guard; the
+            default leaves 0.3 ms for the sleep's own overshoot (about 0.1 ms here) and the frame's jitter.
     """
 
     period_s: float = 0.001
@@ -136,6 +141,7 @@ class NodeOptions:
     max_frames: int | None = None
     record: str | None = None
     foxglove_port: int | None = None
+    frame_guard_s: float = 0.0003
 
 
 class LoopStats:
@@ -498,6 +504,9 @@ class NodeLoop:
         frames = self._frames
         last_seq = -1
         last_arrival = math.nan
+        grid = math.nan  # the earliest arrival consistent with one frame per period (frame_guard_s)
+        guard = o.frame_guard_s if not o.lockstep and o.frame_guard_s > 0 else 0.0
+        sleep = time.sleep
         last_seen = math.nan
         last_frame: SensorFrame | None = None
         last_mocap_t = -math.inf
@@ -512,6 +521,13 @@ class NodeLoop:
             while not stop.is_set() and not self.finished:
                 # asleep until a frame arrives or the next thing is due (the director's gap call, the status)
                 now = mono()
+                if guard and last_frame is not None and not self.link_lost:
+                    # asleep on the clock until shortly before the next frame is due: a flood of bogus frames
+                    # does not wake the loop meanwhile (NodeOptions.frame_guard_s)
+                    wake = min(grid + period - guard, next_gap_call, next_status)
+                    if wake > now:
+                        sleep(wake - now)
+                        now = mono()
                 if o.lockstep or last_frame is None or self.link_lost:
                     timeout = min(_LOCKSTEP_WAIT_S, max(next_status - now, 0.0))
                 else:
@@ -546,9 +562,12 @@ class NodeLoop:
                     continue
                 # a new frame
                 arrival = now
+                # the start frame (0) repeats until answered: the plant's clock starts with frame 1
+                advance = period * (msg.seq - last_seq) if last_seq > 0 else math.nan
                 if self.link_lost:
                     self.link_lost = False
                     self._say("frames are back")
+                    advance = math.nan  # a new grid
                 elif last_seq >= 0 and msg.seq > last_seq + 1:
                     stats.skipped(int(msg.seq - last_seq - 1))
                 arrival_late = 0.0
@@ -587,6 +606,9 @@ class NodeLoop:
                         self._publish_wrench(frame.t)
                 stats.period(sent - arrival, sent - arrival, arrival_late, period)
                 last_arrival = arrival
+                due = grid + advance  # the grid moves by the frames' numbers (skipped ones too); NaN at first
+                # the earliest arrivals: a late one leaves the grid; 10 periods late is the plant's new phase
+                grid = due if arrival - 10 * period < due < arrival else arrival
                 last_seen = sent  # the link's age counts from when this loop could see a frame again
                 last_frame = frame
                 next_gap_call = arrival + 2 * period

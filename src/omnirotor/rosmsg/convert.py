@@ -44,6 +44,7 @@ __all__ = [
     "FrameWire",
     "FrameEncoder",
     "CommandWire",
+    "WireCommand",
 ]
 
 FRAME = "omnirotor_msgs/msg/SensorFrame"
@@ -397,6 +398,12 @@ class FrameEncoder:
         return bytes(buf)
 
 
+class WireCommand:
+    """A ``RotorCommand`` read in place from its CDR payload (:meth:`CommandWire.decode`); ``hz`` views it."""
+
+    __slots__ = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
+
+
 class CommandWire:
     """A ``RotorCommand`` payload of ``n_rotors`` speeds kept as bytes and updated in place, field by field.
 
@@ -446,6 +453,36 @@ class CommandWire:
         self._status.pack_into(buf, self._status_at, control_status, state)
         self._ids.pack_into(buf, self._ids_at, session_id, seq, frame_seq)
         return bytes(buf)
+
+    def decode(self, payload: bytes) -> WireCommand | None:
+        """The command in ``payload`` if it has this object's layout, else None (then rosbags decides).
+
+        The layout: this machine's byte order, ``n_rotors`` speeds, any ``frame_id``. The simulator's fast path, as
+        :meth:`FrameWire.decode` is the node's: it never accepts what rosbags refuses, and reads the same numbers.
+        """
+        size = len(payload)
+        if size < 16 or payload[0] != 0 or payload[1] != 1 or not np.little_endian:
+            return None
+        length = int.from_bytes(payload[12:16], "little")
+        if length < 1 or 16 + length > size or payload[15 + length] != 0:
+            return None
+        a = 4 + _align8(12 + length)  # t's offset
+        n = self.n
+        tail = a + 16 + 8 * n
+        ids = _align8(tail + 5 - 4) + 4
+        if not ids + 24 <= size <= ids + 27 or int.from_bytes(payload[a + 8 : a + 12], "little") != n:
+            return None
+        try:
+            payload[16 : 15 + length].decode()
+        except UnicodeDecodeError:
+            return None
+        m = WireCommand()
+        f = np.frombuffer(payload, np.float64, 2 + n, a)
+        m.t = float(f[0])
+        m.hz = f[2:]
+        m.control_status, m.state = self._status.unpack_from(payload, tail)
+        m.session_id, m.seq, m.frame_seq = self._ids.unpack_from(payload, ids)
+        return m
 
     def with_seq(self, seq: int) -> bytes:
         """The last payload again with another ``seq``."""

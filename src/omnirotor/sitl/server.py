@@ -59,6 +59,7 @@ from omnirotor.rosmsg.convert import (
     SIM_STATUS,
     SPEEDS,
     STRING,
+    CommandWire,
     FrameCodec,
     FrameEncoder,
     WireMessages,
@@ -186,8 +187,9 @@ class SimLink:
         )  # fmt: skip
         self._pub_status = transport.publisher(TOPICS["sim_status"], SIM_STATUS)
         self._sub_cmd = transport.subscriber(
-            TOPICS["rotor_cmd"], COMMAND, depth=_COMMAND_DEPTH, check=command_check(n_rotors)
-        )
+            TOPICS["rotor_cmd"], COMMAND, depth=_COMMAND_DEPTH, check=command_check(n_rotors),
+            decoder=CommandWire(n_rotors).decode,
+        )  # fmt: skip
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
         self.gate = CommandGate()
         self.rows_malformed = 0
