@@ -358,6 +358,7 @@ class Px4FrameSource:
         self._msgs = WireMessages(n_rotors)
         self._clock = _ClockOffset(o.clock_window_s)
         self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
+        self.esc_where = ros_topic(px4.namespace, PX4_TOPICS["esc_status"])
         self.mocap_where = (
             ros_topic(px4.namespace, PX4_TOPICS["vehicle_odometry"])
             if o.mocap == "odometry"
@@ -476,7 +477,7 @@ class Px4FrameSource:
         if t - self._t0 < 1.0:
             return
         if a.esc_t == -math.inf:
-            self._once("no-esc", f"no ESC telemetry on {PX4_TOPICS['esc_status']} after 1 s: the frames' rotor speeds "
+            self._once("no-esc", f"no ESC telemetry on {self.esc_where} after 1 s: the frames' rotor speeds "
                                  "are NaN (the controller then takes its commands for the speeds)")  # fmt: skip
         elif not a.esc_fresh():
             self._once("stale-esc", f"ESC telemetry {1000 * (t - a.esc_t):.0f} ms old: the frames' rotor speeds are "
