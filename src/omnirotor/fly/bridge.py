@@ -382,21 +382,23 @@ class Px4FrameSource:
     def measure_rate(self, stop: threading.Event | None = None) -> float:
         """Measure PX4's IMU rate over ``rate_window_s`` of its time before any frame goes out (module docstring).
 
-        Waits for the first sample (said after 2 s) until ``stop``; returns the rate [Hz] (NaN when stopped first).
+        Waits for the samples (said once when none came for 2 s) until ``stop``; returns the rate [Hz] (NaN when
+        stopped first).
 
         Raises:
             InputError: the rate is more than ``rate_tolerance`` away from ``rate_hz`` (the node's control rate).
         """
         o = self.options
         stamps: list[int] = []
-        waited = time.monotonic()
+        last = time.monotonic()  # of the last sample (or the start)
         while stop is None or not stop.is_set():
             msg = self._imu.take(0.05)
             if msg is None:
-                if not stamps and time.monotonic() - waited > 2.0:
+                if time.monotonic() - last > 2.0:
                     self._once("no-imu", f"waiting for PX4's IMU on {self.imu_where} (no frame goes to the node "
                                          "before its rate is measured)")  # fmt: skip
                 continue
+            last = time.monotonic()
             stamps.append(int(msg.timestamp))
             self._clock.imu(1e-6 * stamps[-1], time.time())
             if stamps[-1] - stamps[0] >= 1e6 * o.rate_window_s:
