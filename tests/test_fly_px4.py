@@ -170,3 +170,137 @@ def test_offboard_gives_up_a_command_px4_never_confirms_and_says_so():
     assert sent == 3 and px4.gave_up == ["mode switch to offboard"]
     with pytest.raises(InputError, match="2 Hz"):
         Px4Offboard(heartbeat_hz=1.0)
+
+
+# --- the bridge's frame direction, sample by sample (omnirotor.fly.bridge; on real Zenoh in test_px4_bridge) ---
+
+
+def _imu_msg(t_us: int, gyro=(0.1, 0.2, 0.3), acc=(0.0, 0.0, -9.81)):
+    return msg_type("px4_msgs/msg/SensorCombined")(
+        timestamp=t_us, gyro_rad=np.array(gyro, dtype=np.float32), gyro_integral_dt=0,
+        accelerometer_timestamp_relative=0, accelerometer_m_s2=np.array(acc, dtype=np.float32),
+        accelerometer_integral_dt=0, accelerometer_clipping=0, gyro_clipping=0, accel_calibration_count=0,
+        gyro_calibration_count=0,
+    )  # fmt: skip
+
+
+def _esc_msg(t_us: int, rpm_by_motor: dict[int, int]):
+    report = msg_type("px4_msgs/msg/EscReport")
+    reports = [report(timestamp=0, esc_errorcount=0, esc_rpm=0, esc_voltage=0.0, esc_current=0.0, esc_temperature=0.0,
+                      motor_temperature=0, esc_state=0, actuator_function=0, failures=0, esc_power=0)
+               for _ in range(12)]  # fmt: skip
+    for k, (motor, rpm) in enumerate(rpm_by_motor.items()):
+        reports[k].actuator_function, reports[k].esc_rpm = 101 + motor, rpm
+    return msg_type("px4_msgs/msg/EscStatus")(
+        timestamp=t_us, counter=1, esc_count=len(rpm_by_motor), esc_connectiontype=5,
+        esc_online_flags=(1 << len(rpm_by_motor)) - 1, esc_armed_flags=0, esc=reports,
+    )  # fmt: skip
+
+
+def _odometry_msg(t_us: int, position_ned, q_frd_ned):
+    z3 = np.zeros(3, dtype=np.float32)
+    return msg_type("px4_msgs/msg/VehicleOdometry")(
+        timestamp=t_us + 3000, timestamp_sample=t_us, pose_frame=1, position=np.array(position_ned, np.float32),
+        q=np.array(q_frd_ned, np.float32), velocity_frame=1, velocity=z3, angular_velocity=z3,
+        position_variance=z3, orientation_variance=z3, velocity_variance=z3, reset_counter=0, quality=0,
+    )  # fmt: skip
+
+
+def test_odometry_ned_frd_to_our_world_and_body():
+    from omnirotor.fly.px4 import pose_from_vehicle_odometry
+    from omnirotor.so3 import R_from_quat_wxyz
+
+    s = math.sqrt(0.5)
+    # 1 m north, 2 m east, 3 m up; facing west: -90° about NED's down axis
+    msg = _odometry_msg(2_500_000, (1.0, 2.0, -3.0), (s, 0.0, 0.0, -s))
+    p, q = np.zeros(3), np.zeros(4)
+    assert pose_from_vehicle_odometry(msg, p, q) == 2.5  # timestamp_sample [s], not timestamp
+    np.testing.assert_allclose(p, [1.0, -2.0, 3.0])  # NWU: north, west, up
+    R_WB = R_from_quat_wxyz(q)
+    np.testing.assert_allclose(R_WB @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-7)  # the nose points west (NWU's +y)
+    np.testing.assert_allclose(R_WB @ [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], atol=1e-7)  # level: body z up
+
+
+def test_frame_assembler_fills_the_frame_record_from_px4s_samples():
+    from omnirotor.fly.bridge import FrameAssembler
+    from omnirotor.messages import SensorFrame, frame_dtype
+
+    a = FrameAssembler(4, esc_timeout_s=0.1)
+    assert a.record.dtype == frame_dtype(4)  # the node's frame record, no second format
+    # no ESC report yet: NaN speeds; no motion capture: the record's convention (new 0, entries 0)
+    a.imu(_imu_msg(1_000_000))
+    r = a.frame()[0]
+    assert r["t"] == 1.0 and np.isnan(r["rotor_hz"]).all() and a.esc_nan_frames == 1
+    np.testing.assert_allclose(r["imu"]["acc_B"], [0.0, 0.0, 9.81], rtol=1e-6)
+    np.testing.assert_allclose(r["imu"]["gyro_B"], [0.1, -0.2, -0.3], rtol=1e-6)
+    assert r["mocap"]["new"] == 0.0 and not r["mocap"]["p_W"].any() and r["state"]["valid"] == 0.0
+    # ESC by motor number, rpm / 60; two odometry samples before the next frame: the newer one goes
+    a.esc(_esc_msg(1_000_500, {2: 6000, 0: -3000, 3: 60, 1: 120}))
+    a.mocap_odometry(_odometry_msg(995_000, (9.0, 9.0, 9.0), (1.0, 0.0, 0.0, 0.0)))
+    a.mocap_odometry(_odometry_msg(996_000, (1.0, 2.0, -3.0), (1.0, 0.0, 0.0, 0.0)))
+    a.imu(_imu_msg(1_001_000, gyro=(math.nan, 0.0, 0.0)))
+    r = a.frame()[0]
+    np.testing.assert_array_equal(r["rotor_hz"], [-50.0, 2.0, 100.0, 1.0])
+    assert r["mocap"]["new"] == 1.0 and r["mocap"]["t"] == 0.996 and a.mocap_replaced == 1
+    np.testing.assert_allclose(r["mocap"]["p_W"], [1.0, -2.0, 3.0])
+    assert np.isnan(r["imu"]["gyro_B"][0])  # passed as it is: the node's supervision judges it
+    f = SensorFrame.from_record(a.record)
+    assert f.mocap_new and f.mocap_t == 0.996 and f.state is None
+    # the sample is carried once; the ESC report goes stale past its timeout (PX4's time)
+    a.imu(_imu_msg(1_100_400))
+    r = a.frame()[0]
+    assert r["mocap"]["new"] == 0.0 and r["rotor_hz"][2] == 100.0
+    a.imu(_imu_msg(1_100_600))
+    assert np.isnan(a.frame()[0]["rotor_hz"]).all() and a.esc_nan_frames == 2
+    # a pose (PoseStamped: our frames) is taken as it is
+    pose = msg_type("geometry_msgs/msg/PoseStamped")(
+        header=msg_type("std_msgs/msg/Header")(stamp=msg_type("builtin_interfaces/msg/Time")(sec=0, nanosec=0),
+                                               frame_id="world"),
+        pose=msg_type("geometry_msgs/msg/Pose")(
+            position=msg_type("geometry_msgs/msg/Point")(x=0.3, y=-0.2, z=0.12),
+            orientation=msg_type("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.5, w=math.sqrt(0.75)),
+        ),
+    )  # fmt: skip
+    a.mocap_pose(pose, 1.1)
+    a.imu(_imu_msg(1_101_000))
+    r = a.frame()[0]
+    np.testing.assert_array_equal(r["mocap"]["p_W"], [0.3, -0.2, 0.12])
+    np.testing.assert_array_equal(r["mocap"]["q_WB"], [math.sqrt(0.75), 0.0, 0.0, 0.5])
+    assert r["mocap"]["t"] == 1.1 and a.frames == 5 and a.mocap_samples == 2
+
+
+def test_imu_rate_is_the_median_interval_of_px4s_stamps():
+    from omnirotor.fly.bridge import imu_rate_hz
+
+    t = np.arange(0, 1_000_001, 1000)
+    assert imu_rate_hz(t) == 1000.0
+    assert imu_rate_hz(np.delete(t, np.s_[100:400:3])) == 1000.0  # samples lost on the way do not change it
+    assert imu_rate_hz(np.arange(0, 1_000_001, 4000)) == 250.0
+    assert math.isnan(imu_rate_hz(np.array([5]))) and math.isnan(imu_rate_hz(np.array([5, 5])))
+
+
+def test_px4s_clock_is_mapped_by_the_smallest_delay_of_its_imu_samples():
+    from omnirotor.fly.bridge import _ClockOffset
+
+    c = _ClockOffset(window_s=2.0)
+    offset = 100.0  # PX4's clock minus the host's
+    rng = np.random.default_rng(3)
+    for k in range(3000):
+        t_px4 = 5.0 + 1e-3 * k
+        c.imu(t_px4, t_px4 - offset + 2e-4 + rng.uniform(0.0, 3e-3))  # each arrives 0.2-3.2 ms later
+    assert offset - 2.2e-4 <= c.offset_s <= offset - 2e-4  # the offset minus (about) the smallest delay
+    for k in range(3000, 6000):  # the host's clock steps 1 s back (NTP): followed within the window
+        t_px4 = 5.0 + 1e-3 * k
+        c.imu(t_px4, t_px4 - offset - 1.0 + 2e-4)
+    assert c.offset_s == pytest.approx(offset + 1.0 - 2e-4, abs=1e-9)
+
+
+def test_frame_options_refuse_what_cannot_work():
+    from omnirotor.fly.bridge import FrameOptions
+
+    with pytest.raises(InputError, match="one of pose, odometry"):
+        FrameOptions(mocap="vicon")
+    with pytest.raises(InputError, match="rate_hz"):
+        FrameOptions(rate_hz=0.0)
+    with pytest.raises(InputError, match="absolute"):
+        FrameOptions(mocap_topic="mocap")

@@ -1,27 +1,35 @@
 """``omnirotor px4-bridge`` against a stand-in PX4 *process* on real Zenoh (loopback): what PX4 receives, decoded
-with the typestore (PX4's field lists), and what the node is told (issue 24 item 6; issue 26 item 5).
+with the typestore (PX4's field lists), what the node is told (issue 24 item 6; issue 26 item 5), and the frames
+the bridge makes of PX4's sensors (:mod:`sitl.fake_px4` publishes known IMU, ESC and odometry values).
 
-The test is the flight node: it publishes RotorCommands of its session (and of a second one, never obeyed), reads
-the plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a pilot would).
+In the command tests the test is the flight node: it publishes RotorCommands of its session (and of a second one,
+never obeyed), reads the plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a
+pilot would). In the frame tests it listens to the node's frames as an independent subscriber, is the motion-capture
+driver (a PoseStamped publisher), and runs a real ``omnirotor fly`` node on the bridge's frames.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from omnirotor.cli import main
 from omnirotor.fly.bridge import FAILSAFE_COMMAND_LOSS, FAILSAFE_NONE, FAILSAFE_ROBOT
-from omnirotor.rosmsg.convert import COMMAND, COMMAND_ARMED, COMMAND_STOP, SIM_STATUS, WireMessages
+from omnirotor.rosmsg.convert import COMMAND, COMMAND_ARMED, COMMAND_STOP, FRAME, POSE, SIM_STATUS, WireMessages
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import open_transport
 from omnirotor.vehicle import load_vehicle
-from sitl.procs import CLI, env, free_port
+from sitl import fake_px4
+from sitl.procs import CLI, env, free_port, wait_until
 
 pytest.importorskip("zenoh")
 
@@ -48,7 +56,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                            env=env(), stderr=open(tmp_path / "px4.err", "w"))  # noqa: SIM115  # fmt: skip
     bridge = subprocess.Popen(
         [sys.executable, "-c", CLI, "px4-bridge", "--listen", bridge_ep, "--connect", px4_ep, "--namespace", ns,
-         "--px4-namespace", px4_ns, "--json"],
+         "--px4-namespace", px4_ns, "--json", "--no-frames"],
         env=env(), stdout=subprocess.PIPE, stderr=open(tmp_path / "bridge.err", "w"), text=True,  # noqa: SIM115
     )  # fmt: skip
     try:
@@ -140,3 +148,191 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
     stop = next(i for i in stopped if i > left)  # the node's STOP after it was told
     assert stop - left <= 5  # at most those already on their way when PX4 left; the 100 armed commands since: none
     assert len(motors) > 300
+
+
+class _Px4Rig:
+    """The fake PX4 and the bridge as processes; the test's own session listens (the bridge connects to it too,
+    so that its subscribers exist before the bridge's first frame)."""
+
+    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str]) -> None:
+        self.tmp = tmp
+        self.px4_ep, self.test_ep, self.px4_side_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+        self.ns, self.px4_ns = "/b", "/px4"
+        self.px4 = subprocess.Popen(
+            [sys.executable, str(HERE / "sitl" / "fake_px4.py"), self.px4_ep, self.px4_ns, str(tmp), *px4_args],
+            env=env(), stderr=open(tmp / "px4.err", "w"),  # noqa: SIM115
+        )  # fmt: skip
+        self.t = open_transport(listen=[self.test_ep], namespace=self.ns)
+        self.px4_side = open_transport(listen=[self.px4_side_ep], namespace=self.px4_ns)  # as PX4 (the garbage)
+        self.frames = self.t.subscriber(TOPICS["frame"], FRAME, depth=1 << 14)
+        self.bridge_err = tmp / "bridge.err"
+        self.bridge = subprocess.Popen(
+            [sys.executable, "-c", CLI, "px4-bridge", "--connect", self.px4_ep, "--connect", self.test_ep,
+             "--connect", self.px4_side_ep,
+             "--namespace", self.ns, "--px4-namespace", self.px4_ns, "--json", *bridge_args],
+            env=env(), stdout=subprocess.PIPE, stderr=open(self.bridge_err, "w"), text=True,  # noqa: SIM115
+        )  # fmt: skip
+        self.procs = [self.bridge, self.px4]
+
+    def collect(self, n: int, timeout_s: float, tick=None) -> list:
+        """At least ``n`` frames as the node receives them (copies), or what came within ``timeout_s``."""
+        got = []
+        end = time.monotonic() + timeout_s
+        while len(got) < n and time.monotonic() < end and self.bridge.poll() is None:
+            m = self.frames.take(0.05)
+            if m is not None:
+                got.append((int(m.seq), float(m.t), m.imu_acc_b.copy(), m.imu_gyro_b.copy(), m.rotor_hz.copy(),
+                            bool(m.mocap_new), float(m.mocap_t), m.mocap_p_w.copy(), m.mocap_q_wb.copy()))  # fmt: skip
+            if tick is not None:
+                tick()
+        return got
+
+    def stop(self) -> tuple[dict, dict]:
+        """SIGTERM both; the bridge's summary and what the fake PX4 received."""
+        self.bridge.send_signal(signal.SIGTERM)
+        summary = json.loads(self.bridge.communicate(timeout=60)[0])
+        self.px4.send_signal(signal.SIGTERM)
+        self.px4.wait(timeout=60)
+        return summary, json.loads((self.tmp / "px4.json").read_text())
+
+    def close(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        for t in (self.t, self.px4_side):
+            t.close()
+
+
+@pytest.mark.slow
+def test_the_bridge_makes_the_nodes_frames_of_px4s_imu_esc_telemetry_and_odometry(tmp_path):
+    """Known values through the whole path: PX4's FRD/NED samples in, the node's FLU/NWU frame messages out."""
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc", "--odometry", "--nan-every", "200"],
+                  ["--mocap", "odometry"])  # fmt: skip
+    try:
+        first = rig.collect(1, 120.0)
+        assert first, rig.bridge_err.read_text()
+        garbage = [rig.px4_side.publisher(f"/fmu/out/{k}", f"px4_msgs/msg/{m}") for k, m in
+                   (("sensor_combined", "SensorCombined"), ("esc_status", "EscStatus"),
+                    ("vehicle_odometry", "VehicleOdometry"))]  # fmt: skip
+        for k in range(30):  # malformed payloads on every topic the frames come from: counted, never a crash
+            for g in garbage:
+                g.put_raw(bytes([0, 1, 0, 0]) + bytes(range(k % 7)))
+        frames = first + rig.collect(1500, 120.0)
+        summary, px4 = rig.stop()
+    finally:
+        rig.close()
+    assert rig.bridge.returncode == 0 and len(frames) >= 1500, rig.bridge_err.read_text()
+    seq = np.array([f[0] for f in frames])
+    assert seq[0] == 0 and (np.diff(seq) > 0).all()  # numbered from 0, increasing
+    f = summary["frames"]
+    assert f["frames"] >= seq[-1] + 1 and f["errors"] == 0 and f["imu_rate_hz"] == 1000.0
+    assert all(v >= 30 for v in f["bad_payloads"].values()), f["bad_payloads"]
+    # one clock: PX4's IMU stamps (t0 + k ms exactly, in µs) in seconds
+    t_us = np.array([fr[1] for fr in frames]) * 1e6
+    assert np.abs(t_us - np.round(t_us)).max() < 1e-3 and (np.diff(np.round(t_us)) % 1000 == 0).all()
+    # IMU: FRD -> FLU, the broken samples passed as they are
+    frd_acc, frd_gyro = fake_px4.IMU_FRD["accelerometer_m_s2"], fake_px4.IMU_FRD["gyro_rad"]
+    flu = np.array([1.0, -1.0, -1.0])
+    nan_gyro = 0
+    for fr in frames:
+        np.testing.assert_array_equal(fr[2], flu * frd_acc)
+        if math.isnan(fr[3][0]):
+            nan_gyro += 1
+            np.testing.assert_array_equal(fr[3][1:], (flu * frd_gyro)[1:])
+        else:
+            np.testing.assert_array_equal(fr[3], flu * frd_gyro)
+    assert nan_gyro >= 5
+    # rotor speeds: rpm / 60 by motor number (the reports come in another order), NaN only for want of a report
+    want_hz = np.array([fake_px4.esc_rpm(m) / 60.0 for m in range(8)])
+    with_speeds = [fr for fr in frames if not np.isnan(fr[4]).all()]
+    assert len(with_speeds) >= 0.9 * len(frames) and f["esc_nan_frames"] < f["frames"]
+    for fr in with_speeds:
+        np.testing.assert_array_equal(fr[4], want_hz)
+    # motion capture: PX4's odometry NED/FRD -> NWU/FLU, in the frame after its sample, each sample once
+    s = math.sqrt(0.5)
+    sent = set(px4["odometry_sent"])
+    new = [fr for fr in frames if fr[5]]
+    assert len(new) >= 0.8 * len(frames) / 10
+    for fr in new:
+        np.testing.assert_allclose(fr[7], [0.5, -0.25, 0.125], rtol=1e-7)
+        np.testing.assert_allclose(fr[8], [s, 0.0, 0.0, s], rtol=1e-7, atol=1e-7)  # yawed west: +90° about up
+        assert round(fr[6] * 1e6) in sent and fr[6] <= fr[1]
+    assert len({fr[6] for fr in new}) == len(new)
+    assert all(fr[6] == 0.0 and not fr[7].any() and not fr[8].any() for fr in frames if not fr[5])  # no sample
+
+
+@pytest.mark.slow
+def test_px4s_imu_at_another_rate_than_the_nodes_is_refused_before_any_frame(tmp_path):
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "250", "--esc"], [])
+    try:
+        code = rig.bridge.wait(timeout=120)
+        frames = rig.collect(1, 0.5)
+        rig.px4.send_signal(signal.SIGTERM)
+        rig.px4.wait(timeout=60)
+    finally:
+        rig.close()
+    err = rig.bridge_err.read_text()
+    assert code == 2 and not frames, err
+    errors = [line for line in err.splitlines() if line.startswith("omnirotor: error:")]
+    assert len(errors) == 1 and "Traceback" not in err
+    assert "publishes at 250.0 Hz, the node's controller runs at 1000 Hz" in errors[0]
+    assert "IMU_GYRO_RATEMAX" in errors[0]
+
+
+@pytest.mark.slow
+def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetry(tmp_path, capsys):
+    """The real node on PX4's IMU and a mocap driver's PoseStamped: it arms where the motion capture puts it."""
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "1000"], [])  # no ESC telemetry
+    node_ep = f"tcp/127.0.0.1:{free_port()}"
+    node_err = open(tmp_path / "node.err", "w")  # noqa: SIM115
+    node = subprocess.Popen(
+        [sys.executable, "-c", CLI, "fly", "--connect", rig.test_ep, "--listen", node_ep, "--namespace", rig.ns,
+         "--fifo-priority", "0"], env=env(), stdout=subprocess.DEVNULL, stderr=node_err,
+    )  # fmt: skip
+    rig.procs.append(node)
+    # the motion capture driver: our frames (z-up world, FLU body), stamped 4 ms before it publishes
+    pose_pub = rig.t.publisher("/omnirotor/mocap", POSE)
+    pose = WireMessages(8).pose
+    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = 0.3, -0.2, 0.12
+    q = pose.pose.orientation
+    q.w, q.x, q.y, q.z = math.cos(0.25), 0.0, 0.0, math.sin(0.25)  # yawed 0.5 rad
+    stop = threading.Event()
+
+    def mocap() -> None:
+        while not stop.wait(0.01):
+            stamp = time.time() - 0.004
+            pose.header.stamp.sec, pose.header.stamp.nanosec = int(stamp), int((stamp % 1.0) * 1e9)
+            pose_pub.put(pose)
+
+    driver = threading.Thread(target=mocap, daemon=True)
+    driver.start()
+    base = ["ctl", "--connect", node_ep, "--namespace", rig.ns, "--timeout", "2"]
+    try:
+        frames = rig.collect(300, 120.0)
+
+        def answered():
+            code = main([*base, "status"])
+            return capsys.readouterr().out if code == 0 else None
+
+        assert wait_until(answered, timeout_s=300.0, step_s=0.5), (tmp_path / "node.err").read_text()[-2000:]
+        assert main([*base, "arm"]) == 0
+        assert "accepted: arm: disarmed -> armed (ground at (0.300, -0.200, 0.120))" in capsys.readouterr().out
+        frames += rig.collect(200, 60.0)
+        stop.set()
+        driver.join(5)
+        summary, _ = rig.stop()
+    finally:
+        stop.set()
+        rig.close()
+        node_err.close()
+    err = rig.bridge_err.read_text()
+    assert err.count("no ESC telemetry on /fmu/out/esc_status") == 1, err  # said once
+    assert summary["commands_obeyed"] > 0  # the node's commands, answering the bridge's frames
+    assert all(np.isnan(fr[4]).all() for fr in frames)  # no telemetry: NaN rotor speeds (the node rejects them)
+    new = [fr for fr in frames if fr[5]]
+    assert new and len(new) <= len(frames) / 5  # a 100 Hz sample in the 1 kHz frame after it, once
+    for fr in new:
+        np.testing.assert_array_equal(fr[7], [0.3, -0.2, 0.12])  # as the driver gave it
+        np.testing.assert_array_equal(fr[8], [math.cos(0.25), 0.0, 0.0, math.sin(0.25)])
+        assert fr[1] - 0.5 <= fr[6] <= fr[1]  # its stamp on PX4's clock, before the frame's IMU sample

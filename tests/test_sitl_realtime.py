@@ -33,8 +33,9 @@ def flying(pair: Pair, t, frames: int) -> None:
 
 @pytest.mark.slow
 def test_real_time_hover_tracks_like_the_in_process_run(tmp_path):
+    # the in-process reference first: run beside the pair it took one of the two cores from a real-time flight
+    ref = run_task("hover", ExperimentOptions(seed=5, quick=True)).summary()
     with Pair(tmp_path, "hover", ["--seed", "5", "--quick"], lockstep=False) as pair:
-        ref = run_task("hover", ExperimentOptions(seed=5, quick=True)).summary()
         sitl, node = pair.wait(timeout_s=600)
     assert not sitl["sitl"]["failsafe"] and not sitl["sitl"]["lockstep"]
     # the node flew it: its commands were obeyed, and each period without a fresh one held the last. What share of

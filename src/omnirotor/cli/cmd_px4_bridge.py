@@ -1,14 +1,19 @@
-"""``omnirotor px4-bridge``: the flight node's rotor commands to a PX4 vehicle over PX4's Zenoh bridge (docs/fly.md).
+"""``omnirotor px4-bridge``: the flight node and a PX4 vehicle over PX4's Zenoh bridge (docs/fly.md).
 
 :class:`omnirotor.fly.bridge.Px4Bridge` between the node's topics (``--namespace``) and PX4's (``--px4-namespace``),
-in one Zenoh session when the two namespaces are equal. Ctrl-C (or SIGTERM) stops the motors, disarms PX4 if the
-node had it armed, and prints what the bridge counted.
+in one Zenoh session when the two namespaces are equal: the node's rotor commands to PX4, and (unless
+``--no-frames``) PX4's IMU, ESC telemetry and the motion capture into the node's sensor frames. Frames are on by
+default because a node on a PX4 robot has no other source of them; ``--no-frames`` is for a robot whose own driver
+publishes ``/omnirotor/frame`` (two frame publishers would interleave their numbers). Ctrl-C (or SIGTERM) stops the
+motors, disarms PX4 if the node had it armed, and prints what the bridge counted. PX4's IMU at another rate than
+the node's (``--rate-hz``): one line on stderr and exit status 2, before any frame or command is bridged.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import signal
 import sys
 from typing import Annotated
@@ -34,14 +39,52 @@ def px4_bridge(
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
+    frames: Annotated[
+        bool,
+        typer.Option(
+            "--frames/--no-frames",
+            help="Assemble the node's sensor frames from PX4 (one per IMU sample); --no-frames when another driver "
+            "publishes /omnirotor/frame.",
+        ),
+    ] = True,
+    mocap: Annotated[
+        str,
+        typer.Option(
+            help="Motion capture of the frames: 'pose' (geometry_msgs/msg/PoseStamped on --mocap-topic, the mocap "
+            "driver's: z-up world = the node's W, FLU body, stamps on a clock synchronised with this host) or "
+            "'odometry' (PX4's /fmu/out/vehicle_odometry: NED world, FRD body, converted to NWU/FLU).",
+        ),
+    ] = "pose",
+    mocap_topic: Annotated[
+        str, typer.Option(help="The PoseStamped topic of --mocap pose, in the node's namespace.")
+    ] = "/omnirotor/mocap",
+    rate_hz: Annotated[
+        float,
+        typer.Option(
+            help="The node's control rate [Hz] (its controller's 1/dt): PX4's IMU (sensor_combined), measured over "
+            "its first second, must publish within 5 % of it, else exit 2."
+        ),
+    ] = 1000.0,
+    esc_timeout: Annotated[
+        float, typer.Option(help="ESC telemetry older than this reads NaN in the frames [s of PX4's time].")
+    ] = 0.1,
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
-    """Bridge the flight node's rotor commands to PX4 (ActuatorMotors in offboard direct actuator control)."""
-    from omnirotor.fly.bridge import BridgeOptions, Px4Bridge
+    """Bridge the flight node and PX4: commands to ActuatorMotors, PX4's sensors to the node's frames.
+
+    The node's rotor commands go to PX4 in offboard direct actuator control; PX4's IMU, ESC telemetry and the
+    motion capture come back as the node's sensor frames (docs/fly.md, "PX4").
+    """
+    from omnirotor.fly.bridge import BridgeOptions, FrameOptions, Px4Bridge
     from omnirotor.transport import open_transport
     from omnirotor.vehicle import load_vehicle
 
     options = BridgeOptions(command_loss_s=command_loss)
+    frame_options = (
+        FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
+        if frames
+        else None
+    )
     veh = load_vehicle(vehicle)
     if veh.n_rotors > 12:
         raise InputError(f"PX4 drives at most 12 motors, the vehicle has {veh.n_rotors}")
@@ -59,8 +102,11 @@ def px4_bridge(
                 open_transport(namespace=px4_namespace, connect=endpoints, node="omnirotor_px4_bridge_px4",
                                **{**common, "listen": []})
             )  # fmt: skip
-        bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options)
-        print(f"omnirotor px4-bridge: up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}", file=sys.stderr)
+        bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
+                           frames=frame_options)  # fmt: skip
+        what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
+        print(f"omnirotor px4-bridge: up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}",
+              file=sys.stderr)  # fmt: skip
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:
@@ -71,3 +117,10 @@ def px4_bridge(
         f"({summary['foreign_sessions']} other sessions); sent {summary['sent']}; "
         f"failsafe: {summary['cause'] or 'none'}"
     )
+    f = summary["frames"]
+    if f is not None:
+        print(
+            f"frames {f['frames']} (IMU {f['imu_rate_hz'] or math.nan:.1f} Hz), "
+            f"rotor speeds NaN in {f['esc_nan_frames']}, "
+            f"motion capture samples {f['mocap_samples']}; bad payloads {f['bad_payloads']}"
+        )

@@ -28,10 +28,47 @@ Failsafes, each said on stderr and in the plant status the node reads (the node'
 
 Time stamps to PX4 are this process's monotonic clock in microseconds (PX4's bridge time-syncs; a bridge on a
 robot without time sync should use PX4's ``timesync_status``).
+
+**The frame direction** (:class:`Px4FrameSource`, on unless ``--no-frames``): the node's ``/omnirotor/frame``
+(``omnirotor_msgs/msg/SensorFrame``, the record of :func:`omnirotor.messages.frame_dtype` through
+:class:`omnirotor.rosmsg.convert.WireMessages`: no second frame format), one per IMU sample, so that PX4's IMU
+drives the node's period as a robot's IMU does:
+
+    /fmu/out/sensor_combined    px4_msgs/msg/SensorCombined   the frame's IMU, FRD -> FLU; its ``timestamp`` [µs
+                                                              since PX4's boot] / 1e6 is the frame's ``t`` [s]
+    /fmu/out/esc_status         px4_msgs/msg/EscStatus        the newest rotor speeds, ``esc_rpm / 60`` [Hz] by
+                                                              motor number; none, or older than ``esc_timeout_s``
+                                                              of PX4's time: NaN (the controller's frame
+                                                              supervision rejects them and its wrench observer
+                                                              takes the last command), said once
+    motion capture, when a sample arrived since the last frame (``FrameOptions.mocap``):
+      "pose"      MOCAP_TOPIC   geometry_msgs/msg/PoseStamped  in the node's namespace, taken as it is: our z-up
+                                                              world W and FLU body (the mocap driver's frames);
+                                                              its stamp mapped onto PX4's clock (below)
+      "odometry"  /fmu/out/vehicle_odometry  VehicleOdometry  PX4's estimate, NED/FRD -> NWU/FLU
+                                                              (:func:`omnirotor.fly.px4.pose_from_vehicle_odometry`),
+                                                              ``timestamp_sample`` on PX4's clock
+
+One clock: every time in the frames is PX4's (its ``timestamp``, µs since boot, monotonic) in seconds. A
+``PoseStamped``'s stamp (the mocap driver's capture time, ROS time: the system clock) is moved onto it by the
+offset between PX4's IMU time stamps and this host's system clock at their arrival (the largest ``t_px4 -
+t_arrival`` over the last seconds: the offset minus the smallest transport delay); a stamp that then lies in the
+future of PX4's present (this host's clock plus the offset) or more than 0.5 s behind it is not on a synchronised
+clock: its arrival time is used instead (mapped the same way), said once. A frame carries only ESC reports and
+motion-capture samples taken at or before its IMU sample (later ones wait for a later frame), so that a frame
+never holds a sample from its future when the IMU's queue lags behind; IMU samples lost on the way are counted
+(``imu_gaps``; the node counts the frames it missed).
+
+The node's controller assumes its period (``rate_hz``, 1 kHz): before any frame is published the IMU's rate is
+measured over ``rate_window_s`` (the median interval of PX4's time stamps, not of their arrivals), and a rate more
+than ``rate_tolerance`` away refuses to bridge (one line, exit status 2): a controller run at another rate than it
+was tuned for is unsafe. Values are passed as they are (NaN included: the node's supervision judges them);
+malformed payloads on any of these topics are counted (``bad_payloads`` in the summary), never raised.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import math
@@ -42,27 +79,55 @@ from collections.abc import Callable
 
 import numpy as np
 
+from omnirotor.config import check_positive
 from omnirotor.errors import InputError
 from omnirotor.fly.px4 import (
     NUM_CONTROLS,
     Px4Offboard,
     actuator_motors_msg,
     controls_from_speeds,
+    imu_from_sensor_combined,
+    pose_from_vehicle_odometry,
     reversible_flags,
+    rotor_hz_from_esc_status,
 )
+from omnirotor.messages import new_frame
 from omnirotor.rosmsg import typestore
-from omnirotor.rosmsg.convert import COMMAND, COMMAND_ARMED, SIM_STATUS, command_check, set_stamp
+from omnirotor.rosmsg.convert import (
+    COMMAND,
+    COMMAND_ARMED,
+    FRAME,
+    POSE,
+    SIM_STATUS,
+    WireMessages,
+    command_check,
+    set_stamp,
+)
 from omnirotor.sitl.gate import CommandGate
 from omnirotor.sitl.server import TOPICS
-from omnirotor.transport import Transport
+from omnirotor.transport import Transport, ros_topic
 
-__all__ = ["BridgeOptions", "Px4Bridge", "PX4_TOPICS", "NAV_OFFBOARD", "ARMING_ARMED"]
+__all__ = [
+    "BridgeOptions",
+    "FrameOptions",
+    "FrameAssembler",
+    "Px4FrameSource",
+    "Px4Bridge",
+    "PX4_TOPICS",
+    "MOCAP_SOURCES",
+    "NAV_OFFBOARD",
+    "ARMING_ARMED",
+    "imu_rate_hz",
+]
 
 PX4_TOPICS = {
     "actuator_motors": "/fmu/in/actuator_motors",
     "offboard_control_mode": "/fmu/in/offboard_control_mode",
     "vehicle_command": "/fmu/in/vehicle_command",
     "vehicle_status": "/fmu/out/vehicle_status",
+    "sensor_combined": "/fmu/out/sensor_combined",
+    "esc_status": "/fmu/out/esc_status",
+    "vehicle_odometry": "/fmu/out/vehicle_odometry",
 }
 """PX4's topics over its Zenoh bridge (:data:`omnirotor.fly.px4.PX4_PROFILE`), before PX4's namespace."""
 _PX4_TYPES = {
@@ -70,7 +135,12 @@ _PX4_TYPES = {
     "offboard_control_mode": "px4_msgs/msg/OffboardControlMode",
     "vehicle_command": "px4_msgs/msg/VehicleCommand",
     "vehicle_status": "px4_msgs/msg/VehicleStatus",
+    "sensor_combined": "px4_msgs/msg/SensorCombined",
+    "esc_status": "px4_msgs/msg/EscStatus",
+    "vehicle_odometry": "px4_msgs/msg/VehicleOdometry",
 }
+_PX4_OUT = ("vehicle_status", "sensor_combined", "esc_status", "vehicle_odometry")
+"""The topics PX4 publishes (the bridge subscribes)."""
 NAV_OFFBOARD = 14
 """``VehicleStatus.nav_state`` of PX4's offboard mode."""
 ARMING_ARMED = 2
@@ -97,9 +167,346 @@ class BridgeOptions:
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+            check_positive(name, getattr(self, name))
+
+
+MOCAP_SOURCES = ("pose", "odometry")
+"""Where the frames' motion capture comes from (module docstring): a ``PoseStamped`` topic, or PX4's odometry."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameOptions:
+    """The frame direction (module docstring).
+
+    Attributes:
+        mocap: ``"pose"`` (``geometry_msgs/msg/PoseStamped`` on ``mocap_topic``, z-up world, FLU body) or
+            ``"odometry"`` (PX4's ``/fmu/out/vehicle_odometry``, NED/FRD).
+        mocap_topic: the ``PoseStamped`` topic, in the node's namespace.
+        rate_hz: the node's control rate [Hz] (its controller's ``1 / dt``): PX4's IMU must publish at it.
+        rate_tolerance: the largest relative difference of the measured IMU rate from ``rate_hz``.
+        rate_window_s: the IMU rate is measured over this much of PX4's time before any frame is published [s].
+        esc_timeout_s: ESC telemetry older than this (PX4's time) reads NaN [s].
+        clock_window_s: the span of the running offset between PX4's clock and this host's [s] (``"pose"``).
+    """
+
+    mocap: str = "pose"
+    mocap_topic: str = "/omnirotor/mocap"
+    rate_hz: float = 1000.0
+    rate_tolerance: float = 0.05
+    rate_window_s: float = 1.0
+    esc_timeout_s: float = 0.1
+    clock_window_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.mocap not in MOCAP_SOURCES:
+            raise InputError(f"the motion capture source must be one of {', '.join(MOCAP_SOURCES)}, got {self.mocap!r}")
+        for name in ("rate_hz", "rate_tolerance", "rate_window_s", "esc_timeout_s", "clock_window_s"):
+            check_positive(name, getattr(self, name))
+        if not self.mocap_topic.startswith("/"):
+            raise InputError(f"the motion capture topic must be absolute (start with /), got {self.mocap_topic!r}")
+
+
+def imu_rate_hz(timestamps_us: np.ndarray) -> float:
+    """An IMU's publication rate [Hz] from its samples' time stamps [µs]: one over their median interval.
+
+    The median of PX4's own time stamps, so that neither the transport's jitter nor a sample lost on the way changes
+    it; NaN with fewer than two samples or no positive interval.
+    """
+    d = np.diff(np.asarray(timestamps_us, dtype=np.float64))
+    d = d[d > 0]
+    return 1e6 / float(np.median(d)) if d.size else math.nan
+
+
+class FrameAssembler:
+    """One vehicle's frame record, filled from PX4's messages: the sample-by-sample part of :class:`Px4FrameSource`.
+
+    :meth:`imu` starts a frame (its time and IMU), :meth:`esc` and :meth:`mocap_pose` / :meth:`mocap_odometry` keep
+    the newest rotor speeds and motion-capture sample, :meth:`frame` completes the record: rotor speeds NaN when
+    the ESC telemetry is missing or older than ``esc_timeout_s``, the motion capture only when a sample arrived
+    since the last frame, no state (``valid`` 0). Nothing allocates per sample.
+
+    Args:
+        n_rotors: the vehicle's rotors.
+        esc_timeout_s: ESC telemetry older than this [s of PX4's time] reads NaN.
+
+    Attributes:
+        record: the ``(1,)`` frame record (:func:`omnirotor.messages.frame_dtype`) rewritten for every frame.
+        frames: frames completed; ``esc_nan_frames``: of them, with NaN speeds for want of telemetry;
+        mocap_samples: motion-capture samples taken into a frame; ``mocap_replaced``: samples that arrived after
+            another not yet taken (the newer wins).
+    """
+
+    def __init__(self, n_rotors: int, esc_timeout_s: float = 0.1) -> None:
+        self.n = n_rotors
+        self.esc_timeout_s = esc_timeout_s
+        self.record = r = new_frame(n_rotors)
+        self._t = r["t"]
+        self._acc, self._gyro = r["imu"]["acc_B"][0], r["imu"]["gyro_B"][0]
+        self._hz = r["rotor_hz"][0]
+        self._mocap = r["mocap"]
+        self._m_p, self._m_q = r["mocap"]["p_W"][0], r["mocap"]["q_WB"][0]
+        self._esc_hz = np.full(n_rotors, np.nan)
+        self.esc_t = -math.inf  # PX4's time of the newest ESC report [s]
+        self._p, self._q = np.zeros(3), np.zeros(4)
+        self._sample_t = 0.0
+        self._pending = False
+        self.t = math.nan  # the time of the frame being assembled [s]
+        self.frames = self.esc_nan_frames = self.mocap_samples = self.mocap_replaced = 0
+
+    def imu(self, msg) -> float:
+        """Start a frame from a ``px4_msgs/msg/SensorCombined``; returns its time [s] (PX4's ``timestamp``)."""
+        self.t = 1e-6 * int(msg.timestamp)
+        self._t[0] = self.t
+        imu_from_sensor_combined(msg, self._acc, self._gyro)
+        return self.t
+
+    def esc(self, msg) -> None:
+        """The newest ``px4_msgs/msg/EscStatus``: its speeds [Hz] by motor number, NaN for a motor not reported."""
+        rotor_hz_from_esc_status(msg, self.n, self._esc_hz)
+        self.esc_t = 1e-6 * int(msg.timestamp)
+
+    def _sample(self) -> None:
+        if self._pending:
+            self.mocap_replaced += 1
+        self._pending = True
+
+    def mocap_pose(self, msg, t_s: float) -> None:
+        """A ``geometry_msgs/msg/PoseStamped`` in our frames (z-up world, FLU body), taken at ``t_s`` (PX4's clock)."""
+        p, q = msg.pose.position, msg.pose.orientation
+        self._p[0], self._p[1], self._p[2] = p.x, p.y, p.z
+        self._q[0], self._q[1], self._q[2], self._q[3] = q.w, q.x, q.y, q.z
+        self._sample_t = t_s
+        self._sample()
+
+    def mocap_odometry(self, msg) -> None:
+        """A ``px4_msgs/msg/VehicleOdometry`` (NED/FRD), converted; its time is PX4's ``timestamp_sample``."""
+        self._sample_t = pose_from_vehicle_odometry(msg, self._p, self._q)
+        self._sample()
+
+    def esc_fresh(self) -> bool:
+        """True when the newest ESC report is within ``esc_timeout_s`` of the frame's time (either side)."""
+        return abs(self.t - self.esc_t) <= self.esc_timeout_s
+
+    def frame(self) -> np.ndarray:
+        """Complete the frame started by :meth:`imu`; returns :attr:`record`."""
+        if self.esc_fresh():
+            self._hz[:] = self._esc_hz
+        else:
+            self._hz.fill(np.nan)
+            self.esc_nan_frames += 1
+        m = self._mocap
+        if self._pending:
+            m["new"], m["t"] = 1.0, self._sample_t
+            self._m_p[:] = self._p
+            self._m_q[:] = self._q
+            self._pending = False
+            self.mocap_samples += 1
+        else:
+            m[...] = 0.0  # the record's convention: no sample, its entries zero
+        self.frames += 1
+        return self.record
+
+
+class _ClockOffset:
+    """PX4's clock minus this host's system clock [s]: the largest ``t_px4 - t_arrival`` over the last window.
+
+    Each IMU sample arrives after PX4 stamped it, so ``t_px4 - t_arrival`` is the offset minus that sample's delay;
+    its largest value over a window is the offset minus the smallest delay. Two half-windows keep it following a
+    slow drift of either clock.
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.half_s = 0.5 * window_s
+        self._cur = self._prev = -math.inf
+        self._block_end = -math.inf
+
+    def imu(self, t_px4: float, t_arrival: float) -> None:
+        if t_px4 >= self._block_end:
+            self._prev, self._cur = self._cur, -math.inf
+            self._block_end = t_px4 + self.half_s
+        self._cur = max(self._cur, t_px4 - t_arrival)
+
+    @property
+    def offset_s(self) -> float:
+        """The offset [s]; -inf before the first IMU sample."""
+        return max(self._cur, self._prev)
+
+
+class Px4FrameSource:
+    """The frame direction of the bridge (module docstring): PX4's sensors into the node's ``SensorFrame``s.
+
+    Args:
+        node: a transport session in the node's namespace (frames out; the ``PoseStamped`` motion capture in).
+        px4: a transport session in PX4's namespace.
+        n_rotors: the vehicle's rotors.
+        options: the frame options.
+        say: where one-line notices go.
+    """
+
+    def __init__(self, node: Transport, px4: Transport, n_rotors: int, options: FrameOptions,
+                 say: Callable[[str], None]) -> None:  # fmt: skip
+        self.options = o = options
+        self._say = say
+        self.assembler = FrameAssembler(n_rotors, o.esc_timeout_s)
+        self._imu = px4.subscriber(PX4_TOPICS["sensor_combined"], _PX4_TYPES["sensor_combined"], depth=256)
+        self._esc = px4.subscriber(PX4_TOPICS["esc_status"], _PX4_TYPES["esc_status"], depth=16)
+        if o.mocap == "odometry":
+            self._mocap = px4.subscriber(PX4_TOPICS["vehicle_odometry"], _PX4_TYPES["vehicle_odometry"], depth=64)
+        else:
+            self._mocap = node.subscriber(o.mocap_topic, POSE, depth=64)
+        self._pub = node.publisher(TOPICS["frame"], FRAME)
+        self._msgs = WireMessages(n_rotors)
+        self._clock = _ClockOffset(o.clock_window_s)
+        self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
+        self.mocap_where = (
+            ros_topic(px4.namespace, PX4_TOPICS["vehicle_odometry"])
+            if o.mocap == "odometry"
+            else ros_topic(node.namespace, o.mocap_topic)
+        )
+        self.seq = 0
+        self.rate_hz = math.nan
+        self.stamps_unsynced = 0
+        self.errors = 0
+        self.imu_gaps = 0
+        self._esc_q: collections.deque = collections.deque(maxlen=64)
+        self._mocap_q: collections.deque = collections.deque(maxlen=64)
+        self._said: set[str] = set()
+        self._t0 = math.nan  # PX4's time of the first frame [s]
+
+    def _once(self, key: str, line: str) -> None:
+        if key not in self._said:
+            self._said.add(key)
+            self._say(line)
+
+    def measure_rate(self, stop: threading.Event | None = None) -> float:
+        """Measure PX4's IMU rate over ``rate_window_s`` of its time before any frame goes out (module docstring).
+
+        Waits for the first sample (said after 2 s) until ``stop``; returns the rate [Hz] (NaN when stopped first).
+
+        Raises:
+            InputError: the rate is more than ``rate_tolerance`` away from ``rate_hz`` (the node's control rate).
+        """
+        o = self.options
+        stamps: list[int] = []
+        waited = time.monotonic()
+        while stop is None or not stop.is_set():
+            msg = self._imu.take(0.05)
+            if msg is None:
+                if not stamps and time.monotonic() - waited > 2.0:
+                    self._once("no-imu", f"waiting for PX4's IMU on {self.imu_where} (no frame goes to the node "
+                                         "before its rate is measured)")  # fmt: skip
+                continue
+            stamps.append(int(msg.timestamp))
+            self._clock.imu(1e-6 * stamps[-1], time.time())
+            if stamps[-1] - stamps[0] >= 1e6 * o.rate_window_s:
+                break
+        else:
+            return math.nan
+        self.rate_hz = rate = imu_rate_hz(np.array(stamps))
+        if not (abs(rate / o.rate_hz - 1.0) <= o.rate_tolerance):
+            raise InputError(
+                f"PX4's IMU ({self.imu_where}) publishes at {rate:.1f} Hz, the node's controller runs at "
+                f"{o.rate_hz:g} Hz (tolerance {100 * o.rate_tolerance:g} %): refusing to bridge frames, a controller "
+                "run at another rate is unsafe; set PX4's IMU_GYRO_RATEMAX and IMU_INTEG_RATE (docs/fly.md)"
+            )
+        self._mocap.take_latest()  # samples queued while measuring are old by now: the first frame takes a new one
+        self._say(f"PX4's IMU at {rate:.1f} Hz ({len(stamps)} samples in {o.rate_window_s:g} s): frames to the node")
+        return rate
+
+    def poll(self, timeout_s: float = 0.05) -> int:
+        """Wait up to ``timeout_s`` for IMU samples; one frame published per sample; returns how many."""
+        msg = self._imu.take(timeout_s)
+        n = 0
+        while msg is not None:
+            try:
+                self._one(msg)
+                n += 1
+            except Exception as exc:  # noqa: BLE001  (a message that decodes but cannot be used: counted, said once)
+                self.errors += 1
+                self._once("error", f"a PX4 sample could not be made into a frame ({type(exc).__name__}: {exc}); "
+                                    "counted, the bridge goes on")  # fmt: skip
+            msg = self._imu.take()
+        return n
+
+    def _one(self, msg) -> None:
+        a = self.assembler
+        arrival = time.time()
+        t_prev = a.t
+        t = a.imu(msg)
+        self._clock.imu(t, arrival)
+        if t - t_prev > 1.5 / self.options.rate_hz:
+            self.imu_gaps += 1  # samples lost on the way (the node counts the frames it missed)
+        # ESC reports and motion-capture samples wait until the frame's time reaches theirs (a frame never carries
+        # a sample taken after its IMU sample, even when the IMU's queue lags behind theirs)
+        while (m := self._esc.take()) is not None:
+            self._esc_q.append((1e-6 * int(m.timestamp), m))
+        while (m := self._mocap.take()) is not None:
+            self._mocap_q.append((self._mocap_time(m), m))
+        while self._esc_q and self._esc_q[0][0] <= t:
+            a.esc(self._esc_q.popleft()[1])
+        while self._mocap_q and self._mocap_q[0][0] <= t:
+            t_m, m = self._mocap_q.popleft()
+            if self.options.mocap == "odometry":
+                a.mocap_odometry(m)
+            else:
+                a.mocap_pose(m, t_m)
+        if math.isnan(self._t0):
+            self._t0 = t
+        self._notices(t)
+        self._pub.put(self._msgs.fill_frame(a.frame(), self.seq))
+        self.seq += 1
+
+    def _mocap_time(self, msg) -> float:
+        """A motion-capture sample's time on PX4's clock [s] (module docstring: one clock)."""
+        if self.options.mocap == "odometry":
+            return 1e-6 * int(msg.timestamp_sample or msg.timestamp)
+        off = self._clock.offset_s
+        px4_now = time.time() + off
+        st = msg.header.stamp
+        t = st.sec + 1e-9 * st.nanosec + off
+        if px4_now - 0.5 <= t <= px4_now + 0.005:
+            return t
+        self.stamps_unsynced += 1
+        self._once("unsynced", f"the motion capture's stamps ({self.mocap_where}) are {t - px4_now:+.3f} s from "
+                               "PX4's clock: not synchronised with this host; arrival times used")  # fmt: skip
+        return px4_now
+
+    def _notices(self, t: float) -> None:
+        a = self.assembler
+        if t - self._t0 < 1.0:
+            return
+        if a.esc_t == -math.inf:
+            self._once("no-esc", f"no ESC telemetry on {PX4_TOPICS['esc_status']} after 1 s: the frames' rotor speeds "
+                                 "are NaN (the controller then takes its commands for the speeds)")  # fmt: skip
+        elif not a.esc_fresh():
+            self._once("stale-esc", f"ESC telemetry {1000 * (t - a.esc_t):.0f} ms old: the frames' rotor speeds are "
+                                    "NaN while it is older than the timeout")  # fmt: skip
+        if a.mocap_samples == 0:
+            self._once("no-mocap", f"no motion capture on {self.mocap_where} after 1 s of frames")
+
+    def run(self, stop: threading.Event) -> None:
+        """Frames until ``stop`` (the bridge's frame thread)."""
+        while not stop.is_set():
+            self.poll(0.05)
+
+    def summary(self) -> dict:
+        """What the frame direction counted."""
+        a = self.assembler
+        return {
+            "frames": a.frames,
+            "imu_rate_hz": None if math.isnan(self.rate_hz) else self.rate_hz,  # None: not measured (stopped first)
+            "esc_nan_frames": a.esc_nan_frames,
+            "mocap_samples": a.mocap_samples,
+            "mocap_replaced": a.mocap_replaced,
+            "mocap_stamps_unsynced": self.stamps_unsynced,
+            "errors": self.errors,
+            "imu_gaps": self.imu_gaps,
+            "bad_payloads": {
+                "sensor_combined": self._imu.n_bad,
+                "esc_status": self._esc.n_bad,
+                "mocap": self._mocap.n_bad,
+            },
+        }
 
 
 class Px4Bridge:
@@ -113,10 +520,13 @@ class Px4Bridge:
         omega_max_hz: its largest speed [Hz] (the full scale of a control).
         options: timing.
         say: where one-line notices go (stderr).
+        frames: the frame direction's options (:class:`Px4FrameSource`); None: no frames (the node's frames come
+            from another driver).
     """
 
     def __init__(self, node: Transport, px4: Transport, n_rotors: int, omega_min_hz: float, omega_max_hz: float,
-                 options: BridgeOptions | None = None, say: Callable[[str], None] | None = None) -> None:  # fmt: skip
+                 options: BridgeOptions | None = None, say: Callable[[str], None] | None = None,
+                 frames: FrameOptions | None = None) -> None:  # fmt: skip
         if not 0 < n_rotors <= NUM_CONTROLS:
             raise InputError(f"PX4 drives at most {NUM_CONTROLS} motors, the vehicle has {n_rotors}")
         self.options = o = options if options is not None else BridgeOptions()
@@ -126,7 +536,7 @@ class Px4Bridge:
         self.flags = reversible_flags(omega_min_hz, n_rotors)
         self._cmd = node.subscriber(TOPICS["rotor_cmd"], COMMAND, depth=64, check=command_check(n_rotors))
         self._pub_status = node.publisher(TOPICS["sim_status"], SIM_STATUS)
-        self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k != "vehicle_status"}
+        self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k not in _PX4_OUT}
         self._vstatus = px4.subscriber(PX4_TOPICS["vehicle_status"], _PX4_TYPES["vehicle_status"], depth=4)
         self.gate = CommandGate("omnirotor px4-bridge")
         self.offboard = Px4Offboard(heartbeat_hz=o.heartbeat_hz, lead_s=o.lead_s)
@@ -146,6 +556,7 @@ class Px4Bridge:
             finished=False,
         )  # fmt: skip
         self._status_next = 0.0
+        self.frames = None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say)
 
     @staticmethod
     def _now_us() -> int:
@@ -231,11 +642,26 @@ class Px4Bridge:
         self._pub_status.put(s)
 
     def run(self, stop: threading.Event | None = None) -> dict:
-        """Bridge until ``stop`` or Ctrl-C; at the end NaN to every motor and PX4 disarmed if the node had it armed."""
+        """Bridge until ``stop`` or Ctrl-C; at the end NaN to every motor and PX4 disarmed if the node had it armed.
+
+        With frames, PX4's IMU rate is measured first (nothing is bridged before), then the frames go out from
+        their own thread while this one obeys the commands.
+
+        Raises:
+            InputError: PX4's IMU rate is not the node's control rate (:meth:`Px4FrameSource.measure_rate`).
+        """
         stop = stop if stop is not None else threading.Event()
+        thread = None
         with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the bridging; the motors are stopped below
+            if self.frames is not None:
+                self.frames.measure_rate(stop)
+                thread = threading.Thread(target=self.frames.run, args=(stop,), name="px4-frames", daemon=True)
+                thread.start()
             while not stop.is_set():
                 self.poll(0.02)
+        stop.set()
+        if thread is not None:
+            thread.join(5.0)
         if self.armed and self.failsafe == FAILSAFE_NONE:
             self.controls.fill(np.nan)
             self._send("actuator_motors", actuator_motors_msg(self.controls, self._now_us(), self.flags))
@@ -256,4 +682,5 @@ class Px4Bridge:
             "failsafe": self.failsafe,
             "cause": self.cause,
             "px4_gave_up": list(self.offboard.gave_up),
+            "frames": None if self.frames is None else self.frames.summary(),
         }

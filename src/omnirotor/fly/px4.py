@@ -45,6 +45,7 @@ __all__ = [
     "reversible_flags",
     "rotor_hz_from_esc_status",
     "imu_from_sensor_combined",
+    "pose_from_vehicle_odometry",
     "actuator_motors_msg",
     "offboard_control_mode_msg",
     "vehicle_command_msg",
@@ -99,9 +100,9 @@ PX4_PROFILE: tuple[Px4Route, ...] = (
     Px4Route("", "/fmu/in/vehicle_command", "px4_msgs/msg/VehicleCommand", True,
              "the switch to offboard mode (DO_SET_MODE 1, 6), then arm; disarm (COMPONENT_ARM_DISARM; Px4Offboard)"),
     Px4Route("/omnirotor/mocap", "/fmu/in/vehicle_mocap_odometry", "px4_msgs/msg/VehicleOdometry", True,
-             "motion capture forwarded to PX4 (NWU -> NED), so that its estimator and failsafes see it too"),
+             "motion capture for PX4's own estimator and failsafes (NWU -> NED): the mocap driver's, to PX4"),
     Px4Route("", "/fmu/out/vehicle_odometry", "px4_msgs/msg/VehicleOdometry", False,
-             "PX4's own estimate: logged beside the node's, not used by the controller"),
+             "PX4's own estimate; the frames' motion capture with px4-bridge --mocap odometry (NED -> NWU)"),
     Px4Route("", "/fmu/out/vehicle_status", "px4_msgs/msg/VehicleStatus", False,
              "PX4's arming and navigation state: outside offboard PX4 ignores actuator_motors"),
 )  # fmt: skip
@@ -183,13 +184,40 @@ def rotor_hz_from_esc_status(msg: Any, n_rotors: int, out: np.ndarray | None = N
     return out
 
 
-def imu_from_sensor_combined(msg: Any) -> tuple[np.ndarray, np.ndarray]:
-    """``(acc_B [m/s²], gyro_B [rad/s])`` in our FLU body frame from a ``px4_msgs/msg/SensorCombined`` (FRD)."""
+def imu_from_sensor_combined(
+    msg: Any, acc_out: np.ndarray | None = None, gyro_out: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(acc_B [m/s²], gyro_B [rad/s])`` in our FLU body frame from a ``px4_msgs/msg/SensorCombined`` (FRD).
+
+    Values are passed as they are (NaN included: the controller's frame supervision judges them).
+
+    Args:
+        msg: the message.
+        acc_out: optional (3,) float64 array to write the specific force into.
+        gyro_out: optional (3,) float64 array to write the angular rate into.
+    """
     from omnirotor.px4.frames import vec_from_px4
 
-    return vec_from_px4(np.asarray(msg.accelerometer_m_s2, dtype=float)), vec_from_px4(
-        np.asarray(msg.gyro_rad, dtype=float)
-    )
+    return vec_from_px4(msg.accelerometer_m_s2, acc_out), vec_from_px4(msg.gyro_rad, gyro_out)
+
+
+def pose_from_vehicle_odometry(msg: Any, p_out: np.ndarray, q_out: np.ndarray) -> float:
+    """The pose of a ``px4_msgs/msg/VehicleOdometry`` in our frames; returns its sample time [s] on PX4's clock.
+
+    ``position`` (NED, or PX4's FRD world: z down either way) -> ``p_W`` (z up), ``q`` (FRD body -> that world,
+    wxyz) -> ``q_WB`` (FLU body -> z-up world) by :mod:`omnirotor.px4.frames`. The time is ``timestamp_sample``
+    (``timestamp`` when PX4 leaves it 0) in µs since PX4's boot. NaN (PX4: "not valid") passes as it is.
+
+    Args:
+        msg: the message.
+        p_out: (3,) float64 array the position [m] is written into.
+        q_out: (4,) float64 array the attitude (wxyz) is written into.
+    """
+    from omnirotor.px4.frames import quat_from_px4, vec_from_px4
+
+    vec_from_px4(msg.position, p_out)
+    quat_from_px4(msg.q, q_out)
+    return 1e-6 * int(msg.timestamp_sample or msg.timestamp)
 
 
 def actuator_motors_msg(control: np.ndarray, timestamp_us: int, flags: int, timestamp_sample_us: int = 0) -> Any:
