@@ -304,3 +304,19 @@ def test_frame_options_refuse_what_cannot_work():
         FrameOptions(rate_hz=0.0)
     with pytest.raises(InputError, match="absolute"):
         FrameOptions(mocap_topic="mocap")
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--mocap", "vicon"], "one of pose, odometry"),
+        (["--rate-hz", "-5"], "rate_hz"),
+        (["--mocap-topic", "m"], "absolute"),
+    ],
+)
+def test_px4_bridge_refuses_bad_frame_options_in_one_line_before_connecting(args, words, capsys):
+    from omnirotor.cli import main
+
+    assert main(["px4-bridge", "--connect", "tcp/127.0.0.1:1", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err

@@ -327,7 +327,7 @@ def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetr
         rig.close()
         node_err.close()
     err = rig.bridge_err.read_text()
-    assert err.count("no ESC telemetry on /fmu/out/esc_status") == 1, err  # said once
+    assert err.count("no ESC telemetry on /px4/fmu/out/esc_status after 1 s") == 1, err  # said once, PX4's name
     assert summary["commands_obeyed"] > 0  # the node's commands, answering the bridge's frames
     assert all(np.isnan(fr[4]).all() for fr in frames)  # no telemetry: NaN rotor speeds (the node rejects them)
     new = [fr for fr in frames if fr[5]]
@@ -336,3 +336,15 @@ def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetr
         np.testing.assert_array_equal(fr[7], [0.3, -0.2, 0.12])  # as the driver gave it
         np.testing.assert_array_equal(fr[8], [math.cos(0.25), 0.0, 0.0, math.sin(0.25)])
         assert fr[1] - 0.5 <= fr[6] <= fr[1]  # its stamp on PX4's clock, before the frame's IMU sample
+
+
+def test_the_bridge_imports_neither_the_controller_nor_the_simulator():
+    """The bridge stands where the simulator stands: it meets the node through the messages only (a fresh process)."""
+    code = (
+        "import sys, omnirotor.fly.bridge, omnirotor.fly.px4, omnirotor.px4.frames\n"
+        "bad = sorted(m for m in sys.modules if m.split('.')[:2] in (['omnirotor', 'control'], ['omnirotor', 'sim'])"
+        " or m == 'mujoco')\n"
+        "print(','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], env=env(), capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "", out.stdout + out.stderr

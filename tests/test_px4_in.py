@@ -225,20 +225,11 @@ def test_log_without_rotor_geometry_says_to_pass_vehicle(capsys):
 
 def test_pwm_mapping_follows_px4s_thrust_model(tmp_path, capsys):
     from omnirotor.px4.flight import read_flight
-    from omnirotor.px4.ulog_writer import ULogWriter
+    from omnirotor.px4.ulog_writer import write_pwm_log
 
-    n, ts = 400, np.arange(400, dtype=np.uint64) * 10_000
-    w = ULogWriter()
-    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
-    att["timestamp"], att["q"][:, 0] = ts, 1.0
-    w.add_topic("vehicle_attitude", att)
-    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
-    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, [1500.0, 1500.0, 1100.0, 2100.0]
-    w.add_topic("actuator_outputs", out)
-    for k, v in {"PWM_MIN": 1000, "PWM_MAX": 2000, "THR_MDL_FAC": 0.5, "PWM_MAIN_MIN3": 1100}.items():
-        w.add_param(k, v)
     path = tmp_path / "pwm.ulg"
-    w.write(path)
+    write_pwm_log(path, [1500.0, 1500.0, 1100.0, 2100.0],
+                  params={"PWM_MIN": 1000, "PWM_MAX": 2000, "THR_MDL_FAC": 0.5, "PWM_MAIN_MIN3": 1100})  # fmt: skip
     flight = read_flight(path, 4, omega_max_hz=200.0)
     assert flight.speed_source == "actuator_outputs"
     # x = 0.5: thrust = 0.5 x² + 0.5 x = 0.375; output 3 sits at its own minimum (PWM_MAIN_MIN3), 4 above max
@@ -469,25 +460,11 @@ def test_every_criterion_is_an_option_of_both_commands(capsys):
 
 def test_pwm_mapping_ignores_corrupt_parameters(tmp_path):
     from omnirotor.px4.flight import read_flight
-    from omnirotor.px4.ulog_writer import ULogWriter
+    from omnirotor.px4.ulog_writer import write_pwm_log
 
-    n, ts = 50, np.arange(50, dtype=np.uint64) * 10_000
-    w = ULogWriter()
-    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
-    att["timestamp"], att["q"][:, 0] = ts, 1.0
-    w.add_topic("vehicle_attitude", att)
-    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
-    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, 1500.0
-    w.add_topic("actuator_outputs", out)
-    for k, v in {
-        "PWM_MIN": math.nan,
-        "PWM_MAX": math.inf,
-        "PWM_MAIN_FUNC1": math.inf,
-        "PWM_MAIN_MIN2": math.nan,
-    }.items():
-        w.add_param(k, v)
     path = tmp_path / "bad_params.ulg"
-    w.write(path)
+    corrupt = {"PWM_MIN": math.nan, "PWM_MAX": math.inf, "PWM_MAIN_FUNC1": math.inf, "PWM_MAIN_MIN2": math.nan}
+    write_pwm_log(path, 1500.0, seconds=0.5, params=corrupt)
     flight = read_flight(path, 4, omega_max_hz=200.0)  # no traceback: the corrupt values count as unset
     np.testing.assert_allclose(flight.omega_hz.x[0], np.sqrt(0.5) * 200.0, rtol=1e-6)  # PX4's 1000-2000 µs
     assert "PWM_MIN, PWM_MAX, THR_MDL_FAC: PX4's default, absent or invalid" in flight.notes[0]

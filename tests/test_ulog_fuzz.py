@@ -233,19 +233,10 @@ def test_fields_renamed_retyped_resized(base, tmp_path, capsys, case):
 
 def pwm_log_bytes(tmp_path) -> bytes:
     """A level 4 s hover whose rotor speeds are only PX4's ``actuator_outputs`` PWM (no ESC telemetry)."""
-    from omnirotor.px4.ulog_writer import ULogWriter
+    from omnirotor.px4.ulog_writer import write_pwm_log
 
-    n = 400
-    ts = np.arange(n, dtype=np.uint64) * 10_000
-    w = ULogWriter()
-    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
-    att["timestamp"], att["q"][:, 0] = ts, 1.0
-    w.add_topic("vehicle_attitude", att)
-    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
-    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, 1500.0
-    w.add_topic("actuator_outputs", out)
     path = tmp_path / f"pwm-{uuid.uuid4().hex}.ulg"
-    w.write(path)
+    write_pwm_log(path)
     return path.read_bytes()
 
 

@@ -41,7 +41,9 @@ import warnings  # noqa: E402
 
 import typer  # noqa: E402
 
-# typer 0.29 vendors click; its exception classes are needed to print usage errors on one line.
+# typer 0.29 vendors click; its exception classes are needed to print usage errors on one line, its line wrapper
+# to keep hyphenated names whole in the help (_HelpWrapper).
+from typer._click import _textwrap  # noqa: E402
 from typer._click import exceptions as click_exc  # noqa: E402
 from typer.core import TyperGroup  # noqa: E402
 
@@ -51,6 +53,22 @@ __all__ = ["app", "main", "number_option", "Interrupted", "EXIT_BAD_INPUT", "EXI
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+
+
+class _HelpWrapper(_textwrap.TextWrapper):
+    """The help's line wrapper, which never breaks a word at its hyphens.
+
+    The help names tasks, options and files with hyphens (``identify-dynamic-cells``, ``--mocap-topic``); broken at
+    a hyphen across two lines ("identify-dynamic-" / "cells") such a name can no longer be read or copied as it
+    is typed. A word longer than the line is still broken (textwrap's ``break_long_words``).
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("break_on_hyphens", False)
+        super().__init__(*args, **kwargs)
+
+
+_textwrap.TextWrapper = _HelpWrapper  # the help formatter (typer's click) looks it up each time it wraps
 
 
 class CommandGroup(TyperGroup):

@@ -17,11 +17,23 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli.connection_options import (
+    DomainId,
+    Namespace,
+    ZenohConfig,
+    connect_option,
+    listen_option,
+    transport_args,
+)
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file
 
 DEFAULT_NODE_ENDPOINT = "tcp/127.0.0.1:7448"
 """Where the node listens by default (loopback), for ``omnirotor ctl``."""
+DEFAULT_PLANT_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where the node connects by default: the plant's (``omnirotor sim --serve``, ``omnirotor px4-bridge``)."""
+_Connect = connect_option(DEFAULT_PLANT_ENDPOINT)
+_Listen = listen_option(DEFAULT_NODE_ENDPOINT)
 
 
 def _director_factory(flight: str | None, overrides: list[str]):
@@ -40,17 +52,11 @@ def fly(
     mission_from_sim: Annotated[
         bool, typer.Option(help="Fly the task `omnirotor sim --serve --task` serves (its options and clock).")
     ] = False,
-    connect: Annotated[
-        list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable); tcp/127.0.0.1:7447.")
-    ] = None,
-    listen: Annotated[
-        list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_NODE_ENDPOINT}.")
-    ] = None,
-    zenoh_config: Annotated[
-        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
-    ] = None,
-    domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
-    namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
+    connect: _Connect = None,
+    listen: _Listen = None,
+    zenoh_config: ZenohConfig = None,
+    domain_id: DomainId = 0,
+    namespace: Namespace = "",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
     flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
@@ -95,17 +101,11 @@ def fly(
         set_realtime(cpu if cpu is not None else n_cpus - 1, fifo_priority or None, say)
 
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-    from_file = zenoh_config is not None  # the file's endpoints stand unless given here
-    endpoints = list(connect) if connect else ([] if from_file else ["tcp/127.0.0.1:7447"])
-    listening = list(listen) if listen else ([] if from_file else [DEFAULT_NODE_ENDPOINT])
-    with open_transport(
-        domain_id=domain_id,
-        namespace=namespace,
-        listen=listening,
-        connect=endpoints,
-        config_file=zenoh_config,
-        node="omnirotor_fly",
-    ) as t:
+    args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
+                          namespace=namespace, default_listen=[DEFAULT_NODE_ENDPOINT],
+                          default_connect=[DEFAULT_PLANT_ENDPOINT])  # fmt: skip
+    listening = args["listen"]
+    with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")

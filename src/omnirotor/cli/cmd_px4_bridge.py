@@ -21,20 +21,19 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
+from omnirotor.cli.connection_options import DomainId, ZenohConfig, connect_option, listen_option, transport_args
 from omnirotor.errors import InputError
+
+_Connect = connect_option("tcp/127.0.0.1:7448", "the node's and PX4's")
+_Listen = listen_option()
 
 
 @app.command("px4-bridge")
 def px4_bridge(
-    connect: Annotated[
-        list[str] | None,
-        typer.Option(help="Zenoh endpoint to connect to (repeatable): the node's and PX4's; tcp/127.0.0.1:7448."),
-    ] = None,
-    listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on (repeatable).")] = None,
-    zenoh_config: Annotated[
-        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
-    ] = None,
-    domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232) of both sides.")] = 0,
+    connect: _Connect = None,
+    listen: _Listen = None,
+    zenoh_config: ZenohConfig = None,
+    domain_id: DomainId = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
@@ -88,20 +87,15 @@ def px4_bridge(
     veh = load_vehicle(vehicle)
     if veh.n_rotors > 12:
         raise InputError(f"PX4 drives at most 12 motors, the vehicle has {veh.n_rotors}")
-    from_file = zenoh_config is not None
-    endpoints = list(connect) if connect else ([] if from_file else ["tcp/127.0.0.1:7448"])
-    common = {"domain_id": domain_id, "listen": list(listen or ()), "config_file": zenoh_config}
+    args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
+                          namespace=namespace, default_connect=["tcp/127.0.0.1:7448"])  # fmt: skip
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     with contextlib.ExitStack() as stack:
-        node = stack.enter_context(
-            open_transport(namespace=namespace, connect=endpoints, node="omnirotor_px4_bridge", **common)
-        )
+        node = stack.enter_context(open_transport(**args, node="omnirotor_px4_bridge"))
         px4 = node
         if px4_namespace != namespace:
-            px4 = stack.enter_context(
-                open_transport(namespace=px4_namespace, connect=endpoints, node="omnirotor_px4_bridge_px4",
-                               **{**common, "listen": []})
-            )  # fmt: skip
+            px4 = stack.enter_context(open_transport(**{**args, "namespace": px4_namespace, "listen": []},
+                                                     node="omnirotor_px4_bridge_px4"))  # fmt: skip
         bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
                            frames=frame_options)  # fmt: skip
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"

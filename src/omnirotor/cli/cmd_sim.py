@@ -16,11 +16,21 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app, number_option
+from omnirotor.cli.connection_options import (
+    DomainId,
+    Namespace,
+    ZenohConfig,
+    connect_option,
+    listen_option,
+    transport_args,
+)
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file, check_output_dir, dumps_json, note
 
 DEFAULT_SIM_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the simulator listens by default (loopback)."""
+_Listen = listen_option(DEFAULT_SIM_ENDPOINT)
+_Connect = connect_option()
 
 
 @app.command()
@@ -35,15 +45,11 @@ def sim(
     lockstep: Annotated[
         bool, typer.Option(help="Step k+1 only when command k arrived (deterministic); default: the wall clock.")
     ] = False,
-    listen: Annotated[
-        list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable); {DEFAULT_SIM_ENDPOINT}.")
-    ] = None,
-    connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to (repeatable).")] = None,
-    zenoh_config: Annotated[
-        str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
-    ] = None,
-    domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")] = 0,
-    namespace: Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")] = "",
+    listen: _Listen = None,
+    connect: _Connect = None,
+    zenoh_config: ZenohConfig = None,
+    domain_id: DomainId = 0,
+    namespace: Namespace = "",
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
@@ -108,17 +114,10 @@ def sim(
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views, **outputs
     )
-    endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
-    if zenoh_config is not None:
-        check_input_file(Path(zenoh_config), "--zenoh-config")
-    with open_transport(
-        domain_id=domain_id,
-        namespace=namespace,
-        listen=endpoints,
-        connect=list(connect or ()),
-        config_file=zenoh_config,
-        node="omnirotor_sim",
-    ) as t:
+    args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
+                          namespace=namespace, default_listen=[DEFAULT_SIM_ENDPOINT])  # fmt: skip
+    endpoints = args["listen"]
+    with open_transport(**args, node="omnirotor_sim") as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
         if fifo_priority and not lockstep:
@@ -187,19 +186,12 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         raise InputError(f"unknown scene {scene!r}; scenes: {', '.join(SCENES)}")
     if not 0 <= fifo_priority <= 99:
         raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
-    if zenoh_config is not None:
-        check_input_file(Path(zenoh_config), "--zenoh-config")
+    args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
+                          namespace=namespace, default_listen=[DEFAULT_SIM_ENDPOINT])  # fmt: skip
     sim = Simulator(load_vehicle(vehicle), scene=scene, params=task_sim_params(truth, disturbances), seed=seed)
-    endpoints = list(listen) if listen else ([] if zenoh_config is not None else [DEFAULT_SIM_ENDPOINT])
+    endpoints = args["listen"]
     serve_opts = ServeOptions(offboard_loss_s=offboard_loss, ros_views=ros_views, **outputs)
-    with open_transport(
-        domain_id=domain_id,
-        namespace=namespace,
-        listen=endpoints,
-        connect=list(connect or ()),
-        config_file=zenoh_config,
-        node="omnirotor_sim",
-    ) as t:
+    with open_transport(**args, node="omnirotor_sim") as t:
         if fifo_priority:
             from omnirotor.fly.node import set_realtime
 

@@ -358,6 +358,7 @@ class Px4FrameSource:
         self._msgs = WireMessages(n_rotors)
         self._clock = _ClockOffset(o.clock_window_s)
         self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
+        self.esc_where = ros_topic(px4.namespace, PX4_TOPICS["esc_status"])
         self.mocap_where = (
             ros_topic(px4.namespace, PX4_TOPICS["vehicle_odometry"])
             if o.mocap == "odometry"
@@ -381,21 +382,23 @@ class Px4FrameSource:
     def measure_rate(self, stop: threading.Event | None = None) -> float:
         """Measure PX4's IMU rate over ``rate_window_s`` of its time before any frame goes out (module docstring).
 
-        Waits for the first sample (said after 2 s) until ``stop``; returns the rate [Hz] (NaN when stopped first).
+        Waits for the samples (said once when none came for 2 s) until ``stop``; returns the rate [Hz] (NaN when
+        stopped first).
 
         Raises:
             InputError: the rate is more than ``rate_tolerance`` away from ``rate_hz`` (the node's control rate).
         """
         o = self.options
         stamps: list[int] = []
-        waited = time.monotonic()
+        last = time.monotonic()  # of the last sample (or the start)
         while stop is None or not stop.is_set():
             msg = self._imu.take(0.05)
             if msg is None:
-                if not stamps and time.monotonic() - waited > 2.0:
+                if time.monotonic() - last > 2.0:
                     self._once("no-imu", f"waiting for PX4's IMU on {self.imu_where} (no frame goes to the node "
                                          "before its rate is measured)")  # fmt: skip
                 continue
+            last = time.monotonic()
             stamps.append(int(msg.timestamp))
             self._clock.imu(1e-6 * stamps[-1], time.time())
             if stamps[-1] - stamps[0] >= 1e6 * o.rate_window_s:
@@ -476,7 +479,7 @@ class Px4FrameSource:
         if t - self._t0 < 1.0:
             return
         if a.esc_t == -math.inf:
-            self._once("no-esc", f"no ESC telemetry on {PX4_TOPICS['esc_status']} after 1 s: the frames' rotor speeds "
+            self._once("no-esc", f"no ESC telemetry on {self.esc_where} after 1 s: the frames' rotor speeds "
                                  "are NaN (the controller then takes its commands for the speeds)")  # fmt: skip
         elif not a.esc_fresh():
             self._once("stale-esc", f"ESC telemetry {1000 * (t - a.esc_t):.0f} ms old: the frames' rotor speeds are "

@@ -14,13 +14,14 @@ topics are written in timestamp order. pyulog reads the result back (tests/test_
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from omnirotor.errors import InputError
 
-__all__ = ["ULogWriter", "write_hover_log", "patch_format"]
+__all__ = ["ULogWriter", "write_hover_log", "write_pwm_log", "patch_format"]
 
 _MAGIC = b"ULog\x01\x12\x35"
 _C_TYPES = {
@@ -170,6 +171,29 @@ def write_hover_log(path: str | Path, rotor_count: float = 4, seconds: float = 6
     for i, (x, y, km) in enumerate([(0.2, 0.2, 0.05), (-0.2, -0.2, 0.05), (0.2, -0.2, -0.05), (-0.2, 0.2, -0.05)]):
         for key, v in (("PX", x), ("PY", y), ("PZ", 0.0), ("KM", km), ("AX", 0.0), ("AY", 0.0), ("AZ", -1.0)):
             w.add_param(f"CA_ROTOR{i}_{key}", v)
+    w.write(path)
+
+
+def write_pwm_log(
+    path: str | Path, pwm_us: float | Sequence[float] = 1500.0, seconds: float = 4.0, params: dict | None = None
+) -> None:
+    """Write a level hover of a quadrotor at 100 Hz whose rotor speeds are only PX4's PWM outputs (no ESC telemetry).
+
+    ``vehicle_attitude`` (level) and ``actuator_outputs`` (4 outputs at ``pwm_us`` [µs]: one value, or one per
+    output), time stamps from 0, and the parameters ``params`` (e.g. ``PWM_MIN``, ``THR_MDL_FAC``). The base of the
+    PWM tests (tests/test_px4_in.py, tests/test_ulog_fuzz.py).
+    """
+    n = int(round(seconds * 100))
+    ts = np.arange(n, dtype=np.uint64) * 10_000
+    w = ULogWriter()
+    att = np.zeros(n, dtype=[("timestamp", "<u8"), ("q", "<f4", (4,))])
+    att["timestamp"], att["q"][:, 0] = ts, 1.0
+    w.add_topic("vehicle_attitude", att)
+    out = np.zeros(n, dtype=[("timestamp", "<u8"), ("noutputs", "<u4"), ("output", "<f4", (16,))])
+    out["timestamp"], out["noutputs"], out["output"][:, :4] = ts, 4, pwm_us
+    w.add_topic("actuator_outputs", out)
+    for key, v in (params or {}).items():
+        w.add_param(key, v)
     w.write(path)
 
 

@@ -1,0 +1,67 @@
+"""The Zenoh connection options of the commands on the flight topics: ``fly``, ``sim --serve``, ``px4-bridge``.
+
+Each command declares ``--listen``, ``--connect``, ``--zenoh-config``, ``--domain-id`` and ``--namespace`` with
+these types (its own default endpoints named in their help) and opens its session with the keyword arguments of
+:func:`transport_args` (docs/transport.md). ``omnirotor ctl`` has its own (a client: connect only, a timeout).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from omnirotor.safe_io import check_input_file
+
+
+def listen_option(default: str | None = None) -> type:
+    """``--listen``: Zenoh endpoints to listen on; ``default`` is said in the help (the command's own)."""
+    where = f"; {default}" if default else ""
+    return Annotated[list[str] | None, typer.Option(help=f"Zenoh endpoint to listen on (repeatable){where}.")]
+
+
+def connect_option(default: str | None = None, what: str = "") -> type:
+    """``--connect``: Zenoh endpoints to connect to (``what`` they are, ``default`` the command's own)."""
+    text = (
+        "Zenoh endpoint to connect to (repeatable)"
+        + (f": {what}" if what else "")
+        + (f"; {default}" if default else "")
+    )
+    return Annotated[list[str] | None, typer.Option(help=text + ".")]
+
+
+ZenohConfig = Annotated[
+    str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+]
+DomainId = Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")]
+Namespace = Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")]
+
+
+def transport_args(
+    *,
+    listen: Sequence[str] | None,
+    connect: Sequence[str] | None,
+    zenoh_config: str | None,
+    domain_id: int,
+    namespace: str,
+    default_listen: Sequence[str] = (),
+    default_connect: Sequence[str] = (),
+) -> dict:
+    """:func:`omnirotor.transport.open_transport`'s keyword arguments of the options (without ``node``).
+
+    Endpoints given on the command line stand; otherwise the command's defaults, unless a Zenoh configuration
+    file is given (its own endpoints then stand). The file is checked first (one line and exit 2 when it is not
+    a readable file).
+    """
+    if zenoh_config is not None:
+        check_input_file(Path(zenoh_config), "--zenoh-config")
+    from_file = zenoh_config is not None
+    return {
+        "domain_id": domain_id,
+        "namespace": namespace,
+        "listen": list(listen) if listen else ([] if from_file else list(default_listen)),
+        "connect": list(connect) if connect else ([] if from_file else list(default_connect)),
+        "config_file": zenoh_config,
+    }
