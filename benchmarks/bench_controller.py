@@ -4,8 +4,9 @@ Frames are first recorded from a closed-loop simulator run (a hover with a small
 does real work); the controller is then timed alone on those frames, one ``time.perf_counter`` pair per
 step. Goal: <= 30 µs per step.
 
-Run: ``python benchmarks/bench_controller.py [--n 3000] [--profile]`` (``--profile`` prints the cProfile
-of the UKF and bypass steps, sorted by own time).
+Run: ``python benchmarks/bench_controller.py [--n 3000] [--profile] [--parts]`` (``--profile`` prints the
+cProfile of the UKF and bypass steps, sorted by own time; ``--parts`` times the step's parts instead,
+:func:`step_parts`).
 """
 
 from __future__ import annotations
@@ -86,6 +87,75 @@ def bench_controller_step(n: int = 3000) -> dict:
     return out
 
 
+def _dispatch_probe():
+    """A compiled function of the step's three record arrays that does nothing: numba's call cost alone."""
+    from omnirotor._jit import jit
+
+    @jit
+    def _noop(state, frame, row) -> int:
+        return 0
+
+    return _noop
+
+
+def step_parts(n: int = 3000, passes: int = 3) -> dict:
+    """Where ``InteractionController.step`` from Python goes, part by part [µs, median over the frames].
+
+    The method's body is replayed with a ``time.perf_counter_ns`` between its parts (the frame's record, the
+    log's next record, the compiled call, the command message; private attributes, as the method does), best
+    of ``passes`` passes over the same frames on a fresh controller. ``dispatch_us``: a compiled function of
+    the same three record arrays that does nothing (numba's dispatch: typing the three arguments and unboxing
+    them); the compiled call minus that is the step's own work, to be compared with the step inside the
+    compiled loop (``bench_run.py``'s ``controller_step_us_in_loop``).
+    """
+    from omnirotor.control import composer as _c
+    from omnirotor.control.controller import _STATUS_BY_BITS
+    from omnirotor.messages import RotorCommand
+
+    vehicle, traj, first, frames = _setup(n)
+    clock = time.perf_counter_ns
+    noop = _dispatch_probe()
+    out: dict = {"n": n, "passes": passes}
+    for kind in ("bypass", "ukf"):
+        best: dict[str, float] = {}
+        for _ in range(passes):
+            ctl = _controller(vehicle, kind, n)
+            ctl.reset(first, traj)
+            t = np.empty((n, 5))
+            for k, f in enumerate(frames):
+                t0 = clock()
+                record = ctl._record(f)
+                t1 = clock()
+                row = ctl.log.next_record()
+                t2 = clock()
+                bits = _c.controller_step(ctl.state, record, row)
+                t3 = clock()
+                RotorCommand(f.t, ctl._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+                t4 = clock()
+                noop(ctl.state, record, row)
+                t5 = clock()
+                t[k] = (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)
+            med = np.median(t, axis=0) / 1e3
+            for name, v in zip(
+                ("frame_record", "next_record", "compiled_call", "command", "dispatch"), med, strict=True
+            ):
+                best[name] = min(best.get(name, np.inf), float(v))
+            whole = np.empty(n)
+            ctl = _controller(vehicle, kind, n)
+            ctl.reset(first, traj)
+            for k, f in enumerate(frames):
+                t0 = clock()
+                ctl.step(f)
+                whole[k] = clock() - t0
+            best["step"] = min(best.get("step", np.inf), float(np.median(whole)) / 1e3)
+        best["compiled_call_minus_dispatch"] = best["compiled_call"] - best["dispatch"]
+        best["rest_of_method"] = best["step"] - sum(
+            best[p] for p in ("frame_record", "next_record", "compiled_call", "command")
+        )
+        out[kind] = {f"{name}_us": round(v, 3) for name, v in best.items()}
+    return out
+
+
 def profile_controller_step(n: int = 3000, top: int = 20) -> None:
     """Print the cProfile of n controller steps for each estimator."""
     vehicle, traj, first, frames = _setup(n)
@@ -105,7 +175,11 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=3000)
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--parts", action="store_true", help="where the step from Python goes, part by part")
     args = ap.parse_args()
     if args.profile:
         profile_controller_step(args.n)
+    if args.parts:
+        print(json.dumps(step_parts(args.n), indent=1))
+        raise SystemExit(0)
     print(json.dumps(bench_controller_step(args.n), indent=1))

@@ -8,7 +8,12 @@
   views (Imu, PoseStamped, RotorSpeeds published beside the frame every period);
 * real-time SITL (the same hover on the wall clock): the node's periods late by more than 0.5 ms per 10^5, its
   frame-to-command latency inside the node, and its CPU time per frame (the process's, Zenoh's threads included,
-  and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core.
+  and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core;
+* real-time SITL under a flood (issue 26 item 5): a third process, connected to both, publishes at ten times the
+  loop's rate (10 kHz on each key), from when the simulator has paired with the node to the end, well-formed rotor
+  commands of a foreign session with full speeds on the command key, and bogus frames (random bytes, truncated
+  frames, well-formed frames with forged numbers) on the frame key; the node's periods late beside the quiet
+  figure, and what each side counted and dropped.
 
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.
@@ -45,8 +50,57 @@ def _env() -> dict:
     return env
 
 
-def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool) -> dict:
-    """One SITL hover: the simulator's ``sitl`` report and the node's summary."""
+FLOOD_HZ = 10_000
+"""The flood's rate on each key [messages/s]: ten times the loop's."""
+
+
+def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: float = FLOOD_HZ) -> dict:
+    """Publish foreign commands and bogus frames at ``rate_hz`` each for ``duration_s`` (module docstring)."""
+    import time
+
+    import numpy as np
+
+    from omnirotor.messages import new_frame
+    from omnirotor.rosmsg.convert import COMMAND, FRAME, WireMessages
+    from omnirotor.sitl.server import TOPICS
+    from omnirotor.transport import open_transport
+
+    rng = np.random.default_rng(11)
+    with open_transport(namespace=namespace, listen=[], connect=endpoints) as t:
+        cmd, frame = t.publisher(TOPICS["rotor_cmd"], COMMAND), t.publisher(TOPICS["frame"], FRAME)
+        w = WireMessages(8)
+        w.command.session_id, w.command.hz[:], w.command.state = 0x5EED, 400.0, 1
+        valid = bytes(frame.serialize(w.fill_frame(new_frame(8), 1)))
+        bogus = [rng.bytes(int(n)) for n in rng.integers(1, 600, 8)] + [valid[: len(valid) // 2], valid[:40]]
+        forged = []
+        for seq in (10**9, 2**62, 5):
+            forged.append(bytes(frame.serialize(w.fill_frame(new_frame(8), seq))))
+        frames = bogus + forged
+        # during the hover: from when the simulator has paired with the node (a flood before the node's first
+        # command would pair the simulator with the flood's session: first come, first paired; docs/transport.md)
+        status = t.subscriber(TOPICS["sim_status"], "omnirotor_msgs/msg/SimStatus", depth=4)
+        while (m := status.take_latest(0.1)) is None or m.paired_session_id == 0:
+            pass
+        burst = max(1, int(round(rate_hz / 1000)))
+        sent = 0
+        t0 = time.monotonic()
+        end = t0 + duration_s
+        k = 0
+        while time.monotonic() < end:
+            for _ in range(burst):
+                w.command.seq = sent + 1
+                cmd.put(w.command)
+                frame.put_raw(frames[sent % len(frames)])
+                sent += 1
+            k += 1
+            left = t0 + k * 0.001 - time.monotonic()
+            if left > 0:
+                time.sleep(left)
+        return {"sent_per_key": sent, "rate_hz": sent / max(time.monotonic() - t0, 1e-9)}
+
+
+def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flooded: bool = False) -> dict:
+    """One SITL hover: the simulator's ``sitl`` report and the node's summary (and the flood's, ``flooded``)."""
     port, node_port = _port(), _port()
     ns = f"/bench{port}"
     sim_cmd = [sys.executable, "-c", CLI, "sim", "--serve", "--task", "hover", "--duration", str(duration_s),
@@ -56,16 +110,26 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool) -> 
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
                 "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
-    sim = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
-    node = subprocess.Popen(node_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
+    pipe = subprocess.PIPE
+    sim = subprocess.Popen(sim_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
+    node = subprocess.Popen(node_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
+    flooder = None
+    if flooded:  # for the whole run: from before the first frame to after the last
+        flood_cmd = [sys.executable, __file__, "--flood-peer", f"tcp/127.0.0.1:{port},tcp/127.0.0.1:{node_port}", ns,
+                     str(duration_s + 600)]  # fmt: skip
+        flooder = subprocess.Popen(flood_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
     try:
-        sim_out, _ = sim.communicate(timeout=1800)
-        node_out, _ = node.communicate(timeout=120)
+        sim_out, sim_err = sim.communicate(timeout=1800)
+        node_out, node_err = node.communicate(timeout=120)
     finally:
-        for p in (sim, node):
-            if p.poll() is None:
+        for p in (sim, node, flooder):
+            if p is not None and p.poll() is None:
                 p.kill()
-    return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
+    try:
+        return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
+    except (ValueError, KeyError, IndexError):
+        raise RuntimeError(f"the pair did not finish: simulator said {sim_err[-800:]!r}; node said "
+                           f"{node_err[-800:]!r}") from None  # fmt: skip
 
 
 @contextlib.contextmanager
@@ -114,6 +178,24 @@ def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
             "sim_late_steps": r["sim"]["late_steps"],
             "sim_round_trip_us": r["sim"]["round_trip_us"],
         }
+    note(f"real-time hover {rt_s:g} s under a flood ({FLOOD_HZ} foreign commands and bogus frames per second)")
+    r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flooded=True)
+    node = r["node"]
+    out["real_time_flood"] = {
+        "periods": node["periods"],
+        "late": node["periods_late"],
+        "late_per_1e5": node["late_per_1e5"],
+        "missed": node["missed"],
+        "worst_late_ms": node["worst_late_ms"],
+        "frame_to_command_us": node["frame_to_command_us"],
+        "node_cpu_per_frame_us": node["cpu_per_frame_us"],
+        "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
+        "node_frames_bad": node["frames_bad"],
+        "sim_foreign_sessions": r["sim"]["foreign_sessions"],
+        "sim_commands_refused": r["sim"]["commands_refused"],
+        "sim_commands_held": r["sim"]["commands_held"],
+        "sim_failsafe": r["sim"]["failsafe"],
+    }
     out["load_after"] = os.getloadavg()
     return out
 
@@ -133,7 +215,9 @@ def render(r: dict) -> str:
             f"| {label} [µs] | {rt['p50']:.0f} | {rt['p99']:.0f} | {rt['max']:.0f} | {d['rtf']:.2f}x real time; "
             f"node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame ({_loop(d)} in its loop) |"
         )
-    for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0")):
+    flood_label = f"real time, flood ({FLOOD_HZ // 1000} kHz foreign commands + bogus frames)"
+    for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0"),
+                       ("real_time_flood", flood_label)):  # fmt: skip
         if key not in r:
             continue
         d = r[key]
@@ -142,7 +226,14 @@ def render(r: dict) -> str:
             f"| {label}: node frame to command [µs] | {f['p50']:.0f} | {f['p99']:.0f} | {f['max']:.0f} | "
             f"late > 0.5 ms: {d['late']} of {d['periods']} ({d['late_per_1e5']:.0f} per 1e5), worst "
             f"{d['worst_late_ms']:.1f} ms; node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame ({_loop(d)} in its "
-            "loop) |"
+            "loop)"
+            + (
+                f"; dropped: {d['node_frames_bad']} bogus frames (node), {d['sim_commands_refused']} foreign "
+                "commands (sim)"
+                if "node_frames_bad" in d
+                else ""
+            )
+            + " |"
         )
     return "\n".join(lines)
 
@@ -157,7 +248,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter runs (2 s lockstep, 10 s real time)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--flood-peer", nargs=3, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.flood_peer:
+        endpoints, ns, seconds = args.flood_peer
+        print(json.dumps(flood(endpoints.split(","), ns, float(seconds))))
+        return 0
     result = collect(args.quick)
     print(json.dumps(result, indent=1) if args.json else render(result))
     return 0

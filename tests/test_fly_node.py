@@ -342,3 +342,97 @@ def test_a_lockstep_node_sends_its_last_rows_when_the_frames_pause():
             thread.join(10)
     assert sorted(got) == list(range(1, 8))
     assert [float(got[s][0]) for s in range(1, 8)] == pytest.approx([0.001 * s for s in range(1, 8)])
+
+
+class _ThreadRecordingDirector(_Director):
+    """Records the thread of every call; answers requests (``omnirotor ctl``) with a dict of FlightReply's fields."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: set[int] = set()
+        self.requests = 0
+        self.gap_calls = 0
+
+    def on_frame(self, frame, ages) -> None:
+        self.threads.add(threading.get_ident())
+        if not ages.frames_stopped and ages.imu_age_s > 0.0:
+            self.gap_calls += 1
+        super().on_frame(frame, ages)
+
+    def wants_step(self) -> bool:
+        self.threads.add(threading.get_ident())
+        return True
+
+    def output(self, cmd) -> np.ndarray:
+        self.threads.add(threading.get_ident())
+        return super().output(cmd)
+
+    def request(self, req):
+        self.threads.add(threading.get_ident())
+        self.requests += 1
+        return {"accepted": True, "kind": int(req.kind), "mode_from": 0, "mode": 0, "message": "ok"}
+
+
+def test_the_director_is_only_ever_called_from_the_loop_s_thread():
+    """Frames, the gap calls when they stop, the link loss and ``ctl`` requests (answered over Zenoh): every call
+    of the director on the loop's one thread (it is not thread-safe), whatever thread the transport receives on."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.sitl.server import TOPICS
+
+    port = free_port()
+    T = typestore().types
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/thr") as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/thr") as wire,
+    ):
+        director = _ThreadRecordingDirector()
+        node = NodeLoop(wire, _Controller(), director, NodeOptions(wrench_every=10**9), say=lambda line: None)
+        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        stop = threading.Event()
+        summary: dict = {}
+        loop_thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
+        loop_thread.start()
+        replies = []
+        try:
+            w, record = WireMessages(N), new_frame(N)
+            answers, k = [], 0
+            deadline = time.monotonic() + 20
+            while len(answers) < 50 and time.monotonic() < deadline:
+                k += 1
+                record["t"] = 0.001 * k
+                frames.put(w.fill_frame(record, k))
+                answers += [m for m in iter(lambda: commands.take(0.005), None)]
+                if k % 10 == 0:  # a request from a client while frames flow
+                    req = T["omnirotor_msgs/msg/FlightRequest"](
+                        kind=0, height_m=0.0, depth_m=0.0, name="", force=False,
+                        setpoint=T["omnirotor_msgs/msg/Setpoint"](
+                            p_w=np.zeros(3), q_wb=np.zeros(4), roll_deg=0.0, pitch_deg=0.0, yaw_deg=0.0, duration_s=0.0
+                        ),
+                    )  # fmt: skip
+                    replies.append(
+                        plant.request(
+                            TOPICS["ctl"],
+                            "omnirotor_msgs/msg/FlightRequest",
+                            req,
+                            "omnirotor_msgs/msg/FlightReply",
+                            2.0,
+                        )  # fmt: skip
+                    )
+            # frames stop: gap calls, then the link loss
+            assert wait_until_true(lambda: director.stopped, 10.0)
+        finally:
+            stop.set()
+            loop_thread.join(10)
+    assert len(answers) >= 50 and director.gap_calls > 0 and director.stopped and director.requests > 0
+    assert any(r is not None and r.accepted for r in replies)
+    assert director.threads == {loop_thread.ident}
+
+
+def wait_until_true(fn, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if fn():
+            return True
+        time.sleep(0.005)
+    return False

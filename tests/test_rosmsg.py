@@ -185,3 +185,181 @@ def test_frame_codec_decodes_exactly_into_its_record():
         assert (frame.state is None) == (ref.state is None)
         if ref.state is not None:
             assert np.array_equal(frame.state.R_WB, ref.state.R_WB)
+
+
+def _random_frame(store, rng, n: int, frame_id: str):
+    T = store.types
+    bits = rng.integers(0, 2**63, 64, dtype=np.int64).view(np.float64)  # any float64 bits, NaN and inf included
+    return T["omnirotor_msgs/msg/SensorFrame"](
+        header=T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=int(rng.integers(0, 2**31)), nanosec=7), frame_id=frame_id
+        ),
+        seq=int(rng.integers(0, 2**63)), t=float(bits[0]), imu_acc_b=bits[1:4].copy(), imu_gyro_b=bits[4:7].copy(),
+        mocap_new=bool(rng.integers(0, 2)), mocap_t=float(bits[7]), mocap_p_w=bits[8:11].copy(),
+        mocap_q_wb=bits[11:15].copy(), has_state=bool(rng.integers(0, 2)), state=bits[15:36].copy(),
+        rotor_hz=bits[36 : 36 + n].copy(),
+    )  # fmt: skip
+
+
+_FRAME_FIELDS = ("seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
+                 "has_state", "state", "rotor_hz")  # fmt: skip
+
+
+def _same_bits(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind == "f":
+        return a.shape == b.shape and a.tobytes() == b.astype(a.dtype).tobytes()
+    return a.shape == b.shape and bool(np.all(a == b))
+
+
+def test_frame_wire_reads_what_rosbags_reads_for_any_frame_id_and_values():
+    """The node's in-place frame decoding gives rosbags' values, bit for bit (NaN and inf too), for any frame_id."""
+    from omnirotor.rosmsg.convert import FrameWire
+
+    store = typestore()
+    rng = np.random.default_rng(3)
+    for n in (4, 6, 8, 12):
+        wire = FrameWire(n)
+        for frame_id in ("", "b", "base_link", "world_12345", "é" * 5, "x" * 37):
+            for _ in range(5):
+                msg = _random_frame(store, rng, n, frame_id)
+                payload = bytes(store.serialize_cdr(msg, "omnirotor_msgs/msg/SensorFrame"))
+                fast = wire.decode(payload)
+                ref = store.deserialize_cdr(payload, "omnirotor_msgs/msg/SensorFrame")
+                assert fast is not None
+                for f in _FRAME_FIELDS:
+                    assert _same_bits(getattr(fast, f), getattr(ref, f)), (n, frame_id, f)
+        # another rotor count, or big-endian CDR: left to rosbags
+        other = bytes(store.serialize_cdr(_random_frame(store, rng, n + 1, "b"), "omnirotor_msgs/msg/SensorFrame"))
+        assert wire.decode(other) is None
+        big = store.serialize_cdr(
+            _random_frame(store, rng, n, "b"), "omnirotor_msgs/msg/SensorFrame", little_endian=False
+        )
+        assert wire.decode(bytes(big)) is None
+
+
+def test_frame_wire_never_accepts_what_rosbags_refuses():
+    """Over truncations, extensions, bit flips and random bytes: whatever the fast path accepts, rosbags accepts too
+    (with the subscriber's rule on trailing bytes) and reads the same numbers; the rest it leaves to rosbags."""
+    from omnirotor.rosmsg.convert import FrameWire
+
+    store = typestore()
+    rng = np.random.default_rng(5)
+    wire = FrameWire(8)
+    valid = bytes(store.serialize_cdr(_random_frame(store, rng, 8, "base_link"), "omnirotor_msgs/msg/SensorFrame"))
+    corpus = [valid[:k] for k in range(len(valid))] + [valid + b"\x00" * k for k in range(1, 9)]
+    for _ in range(2000):
+        b = bytearray(valid)
+        for i in rng.integers(0, len(b), int(rng.integers(1, 4))):
+            b[i] ^= 1 << int(rng.integers(0, 8))
+        corpus.append(bytes(b))
+    corpus += [rng.bytes(int(k)) for k in rng.integers(0, 600, 200)]
+    accepted = 0
+    for payload in corpus:
+        fast = wire.decode(payload)
+        if fast is None:
+            continue
+        accepted += 1
+        ref, end = store.get_msgdef("omnirotor_msgs/msg/SensorFrame").deserialize_cdr_le(
+            memoryview(payload)[4:], 0, store.types["omnirotor_msgs/msg/SensorFrame"], store
+        )
+        assert end + 4 + 3 >= len(payload)
+        for f in _FRAME_FIELDS:
+            assert _same_bits(getattr(fast, f), getattr(ref, f)), f
+    assert accepted > 1000  # flips in the numbers are frames too; flips in the lengths are not
+
+
+def test_command_wire_writes_rosbags_bytes():
+    """The node's command payload, updated in place, is rosbags' serialisation of the same fields, byte for byte."""
+    from omnirotor.rosmsg.convert import COMMAND, CommandWire, set_stamp
+
+    store = typestore()
+    T = store.types
+    rng = np.random.default_rng(9)
+    for n in (4, 8, 12):
+        for frame_id in ("base_link", "", "robot_7"):
+            wire = CommandWire(n, frame_id)
+            for t in (0.0, 1.2345678912345, 12345.000000001, -1.0, float("nan"), float("inf"), 3e9):
+                hz = rng.normal(0.0, 300.0, n)
+                fields = dict(control_status=int(rng.integers(0, 2**32)), state=int(rng.integers(0, 3)),
+                              session_id=int(rng.integers(1, 2**63)), seq=int(rng.integers(0, 2**63)),
+                              frame_seq=int(rng.integers(0, 2**63)))  # fmt: skip
+                got = wire.fill(hz, t, **fields)
+                header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
+                                                  frame_id=frame_id)  # fmt: skip
+                set_stamp(header, t)
+                ref = T[COMMAND](header=header, t=t, hz=hz.copy(), **fields)
+                assert got == bytes(store.serialize_cdr(ref, COMMAND)), (n, frame_id, t)
+                ref.seq = 77
+                assert wire.with_seq(77) == bytes(store.serialize_cdr(ref, COMMAND))
+
+
+def test_frame_encoder_writes_rosbags_bytes_of_the_record():
+    """The simulator's frame payload, written in place from its record, is rosbags' serialisation of the message
+    :meth:`WireMessages.fill_frame` builds from the same record, byte for byte (with and without a sample or a
+    state, any float64 bits)."""
+    from omnirotor.messages import new_frame
+    from omnirotor.rosmsg.convert import FRAME, FrameEncoder, WireMessages, flat_view
+
+    store = typestore()
+    rng = np.random.default_rng(13)
+    for n in (4, 8):
+        enc, msgs = FrameEncoder(n), WireMessages(n)
+        record = new_frame(n)
+        x = flat_view(record)
+        for k in range(40):
+            x[:] = rng.integers(0, 2**63, x.size, dtype=np.int64).view(np.float64)
+            x[0] = abs(rng.normal(100.0, 100.0)) if k % 3 else x[0]  # a plain time, or any bits
+            x[7] = float(k % 2)  # mocap.new
+            x[16] = float((k // 2) % 2)  # state.valid
+            seq = int(rng.integers(0, 2**63))
+            assert enc.encode(record, seq) == bytes(store.serialize_cdr(msgs.fill_frame(record, seq), FRAME)), (n, k)
+
+
+def test_command_wire_decode_reads_what_rosbags_reads_and_never_accepts_what_it_refuses():
+    """The simulator's in-place command decoding: rosbags' values for any frame_id; over truncations, extensions,
+    bit flips and random bytes, nothing accepted that rosbags refuses."""
+    from omnirotor.rosmsg.convert import COMMAND, CommandWire
+
+    store = typestore()
+    T = store.types
+    rng = np.random.default_rng(21)
+    fields = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
+
+    def command(n: int, frame_id: str):
+        bits = rng.integers(0, 2**63, n + 1, dtype=np.int64).view(np.float64)
+        header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=4), frame_id=frame_id)
+        return T[COMMAND](header=header, t=float(bits[0]), hz=bits[1:].copy(),
+                          control_status=int(rng.integers(0, 2**32)), state=int(rng.integers(0, 256)),
+                          session_id=int(rng.integers(0, 2**63)), seq=int(rng.integers(0, 2**63)),
+                          frame_seq=int(rng.integers(0, 2**63)))  # fmt: skip
+
+    for n in (4, 8):
+        wire = CommandWire(n)
+        for frame_id in ("", "base_link", "é" * 3, "x" * 20):
+            payload = bytes(store.serialize_cdr(command(n, frame_id), COMMAND))
+            fast, ref = wire.decode(payload), store.deserialize_cdr(payload, COMMAND)
+            assert fast is not None
+            for f in fields:
+                assert _same_bits(getattr(fast, f), getattr(ref, f)), (n, frame_id, f)
+        assert wire.decode(bytes(store.serialize_cdr(command(n + 1, "b"), COMMAND))) is None
+    wire = CommandWire(8)
+    valid = bytes(store.serialize_cdr(command(8, "base_link"), COMMAND))
+    corpus = [valid[:k] for k in range(len(valid))] + [valid + b"\x00" * k for k in range(1, 9)]
+    for _ in range(2000):
+        b = bytearray(valid)
+        for i in rng.integers(0, len(b), int(rng.integers(1, 4))):
+            b[i] ^= 1 << int(rng.integers(0, 8))
+        corpus.append(bytes(b))
+    corpus += [rng.bytes(int(k)) for k in rng.integers(0, 300, 200)]
+    accepted = 0
+    for payload in corpus:
+        fast = wire.decode(payload)
+        if fast is None:
+            continue
+        accepted += 1
+        ref, end = store.get_msgdef(COMMAND).deserialize_cdr_le(memoryview(payload)[4:], 0, T[COMMAND], store)
+        assert end + 4 + 3 >= len(payload)
+        for f in fields:
+            assert _same_bits(getattr(fast, f), getattr(ref, f)), f
+    assert accepted > 1000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import numpy as np
@@ -317,3 +318,50 @@ def test_a_session_without_a_node_name_declares_no_token_and_a_bad_name_is_refus
         sub.undeclare()
     with pytest.raises(InputError, match="node name"):
         open_transport(listen=[], node="bad name")
+
+
+def test_a_timed_out_wait_is_not_a_bad_payload_and_a_second_subscriber_ignores_the_wake(pair):
+    """A wait's time-out ends with the waker's marked empty sample (delivered to this session only): it is neither
+    a message nor a bad payload, for the waiting subscriber or another one on the same key; the peer never sees it;
+    a real empty payload is still counted bad."""
+    a, b = pair
+    sub = b.subscriber("/w", SPEEDS, depth=8)
+    other = b.subscriber("/w", SPEEDS, depth=8)
+    remote = a.subscriber("/w", SPEEDS, depth=8)
+    pub = a.publisher("/w", SPEEDS, block=True)
+    connected(pub, sub)
+    while other.take() is not None or remote.take() is not None:
+        pass
+    n_ok = sub.n_ok
+    for _ in range(20):
+        assert sub.take(timeout_s=0.003) is None
+    assert sub.take_latest(timeout_s=0.003) is None
+    assert sub.take_latest_keeping(0.003, lambda m: True) == (None, None)
+    assert other.take() is None and remote.take(timeout_s=0.05) is None
+    assert sub.n_bad == other.n_bad == remote.n_bad == 0 and sub.n_ok == n_ok
+    pub.put_raw(b"")  # an empty payload from the wire: bad
+    assert wait_for(lambda: sub.take() or (sub.n_bad or None)) == 1
+    pub.put(speeds(3.0))
+    assert sub.take(timeout_s=5.0).t == 3.0
+
+
+def test_a_wait_ends_at_a_payload_before_its_time_out_and_a_stale_wake_is_skipped(pair):
+    """A message that comes during a long wait ends it with that message; the waker's late wake of an earlier wait
+    (the sample came first) is skipped by the next take, not returned or counted."""
+    a, b = pair
+    sub = b.subscriber("/v", SPEEDS, depth=8)
+    pub = a.publisher("/v", SPEEDS, block=True)
+    connected(pub, sub)
+    timer = threading.Timer(0.05, lambda: pub.put(speeds(5.0)))
+    timer.start()
+    msg = sub.take(timeout_s=30.0)
+    timer.join()
+    assert msg is not None and msg.t == 5.0
+    for k in range(50):  # waits that a payload ends just around their deadline, then instant takes
+        pub.put(speeds(float(k)))
+        got = sub.take(timeout_s=0.002)
+        while got is None:
+            got = sub.take(timeout_s=0.5)
+        assert got.t == float(k)
+    time.sleep(0.02)
+    assert sub.take() is None and sub.n_bad == 0

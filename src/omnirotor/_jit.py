@@ -7,6 +7,10 @@ float reference it replaces to the last bit or within a rounding) and NumPy's er
 gives inf or NaN as in NumPy; it never raises inside the loop). Kernels are compiled lazily, on their first
 call. Small helpers called with constant arguments (which numba compiles once per constant value) and a few
 large functions that take many arrays are inlined into their compiled callers instead (:func:`jit_inline`).
+Kernels get numba's wrapper for calls from Python but not its C-pointer wrapper (``no_cfunc_wrapper``), which
+only :func:`jit_entry` kernels need: the ones a compiled loop calls through a pointer (:class:`PointerCaller`,
+numba's first-class function types, so that the loop does not compile the controller and the simulator into
+its own machine code a second time).
 
 Set ``NUMBA_DISABLE_JIT=1`` to run every kernel as plain Python (debugging, coverage).
 
@@ -54,6 +58,7 @@ __all__ = [
     "jit",
     "jit_inline",
     "jit_entry",
+    "PointerCaller",
     "DependencyCache",
     "DependencyLocator",
     "source_closure",
@@ -209,8 +214,13 @@ class DependencyCache(FunctionCache):
     _impl_class = _DependencyCacheImpl
 
 
-_njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
-_njit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+_OPTIONS = {"cache": True, "fastmath": False, "error_model": "numpy"}
+_njit_entry = numba.njit(**_OPTIONS)
+# Kernels are called from Python and from compiled code, never through a C function pointer: numba's C wrapper of
+# each (``no_cfunc_wrapper``, a documented option of its jit) would be one more function per specialisation to
+# optimise and emit, and is emitted again in every kernel that links it.
+_njit = numba.njit(**_OPTIONS, no_cfunc_wrapper=True)
+_njit_inline = numba.njit(**_OPTIONS, no_cfunc_wrapper=True, inline="always")
 
 
 def _leaf(signature: str):
@@ -233,8 +243,13 @@ def jit(fn):
     return _with_dependency_cache(_njit(fn))
 
 
-jit_entry = jit
-"""The same as :func:`jit` (kept as the name of the kernels Python calls every period)."""
+def jit_entry(fn):
+    """:func:`jit`, with numba's C wrapper too (the kernels a compiled loop calls through a pointer).
+
+    For the kernels Python calls every period and those :class:`PointerCaller` is given (it takes a kernel's
+    address from that wrapper).
+    """
+    return _with_dependency_cache(_njit_entry(fn))
 
 
 def jit_inline(fn):
@@ -247,6 +262,73 @@ def jit_inline(fn):
     only where a benchmark shows the gain.
     """
     return _with_dependency_cache(_njit_inline(fn))
+
+
+def _quick_type_key(a):
+    """What numba's type of a value depends on, for arrays and scalars (a dict key, no numba typing)."""
+    if isinstance(a, np.ndarray):
+        f = a.flags
+        return (a.dtype, a.ndim, f.c_contiguous, f.f_contiguous, f.writeable, f.aligned)
+    return type(a)
+
+
+class PointerCaller:
+    """A kernel that calls other kernels through pointers, so that their machine code is not linked into it.
+
+    numba links a callee's optimised module into its caller and optimises and emits it again there, so a kernel
+    that calls the whole controller (the compiled closed loop) compiles the controller a second time. Passed as
+    arguments of numba's first-class function type (``types.FunctionType``, documented in numba's "Types and
+    signatures"), callees are called through their address instead: each is compiled once, on its own
+    (and cached), the caller compiles only its own body, and a call costs an indirect jump.
+
+    ``PointerCaller(fn, n)`` wraps ``fn(f_1, ..., f_n, *args)``, whose first ``n`` parameters are the kernels it
+    calls; ``caller(kernels, *args)`` calls it with the given kernels (:func:`jit` dispatchers). The first call
+    with new argument types compiles (or loads from the cache) each kernel for the types it is called with,
+    as a call from Python would (the same specialisation, shared with Python callers), and ``fn`` with those
+    kernels' function types in an explicit signature (numba's only way to type an argument as a function
+    pointer; a kernel passed to a lazily compiled function would be typed as that one kernel and linked in).
+    Nothing else of numba is used; under ``NUMBA_DISABLE_JIT`` the kernels are called as Python.
+
+    Args:
+        fn: the Python function (not decorated).
+        callee_args: ``callee_args(*args)``: for each kernel, the tuple of the values (or values of the same
+            numba types) it is called with inside ``fn``, from the caller's arguments.
+    """
+
+    def __init__(self, fn, callee_args):
+        self.py_func = fn
+        self._callee_args = callee_args
+        self._dispatcher = jit(fn)
+        self._signatures: dict = {}
+        functools.update_wrapper(self, fn)
+
+    def _compiled(self, kernels, args):
+        quick = tuple(_quick_type_key(a) for a in args)  # per call: cheaper than numba.typeof of the records
+        if quick not in self._signatures:
+            key = tuple(numba.typeof(a) for a in args)
+            fn_types = []
+            for kernel, values in zip(kernels, self._callee_args(*args), strict=True):
+                arg_types = tuple(numba.typeof(v) for v in values)
+                kernel.compile(arg_types)  # as from Python: the one specialisation (cache key) of these types
+                fn_types.append(types.FunctionType(kernel.overloads[arg_types].signature))
+            d = self._dispatcher
+            d.disable_compile(False)
+            try:
+                d.compile(tuple(fn_types) + key)
+            finally:  # never compiled lazily: a kernel argument would be typed as itself (linked in)
+                d.disable_compile(True)
+            self._signatures[quick] = tuple(fn_types) + key
+        return self._dispatcher
+
+    @property
+    def signatures(self) -> list:
+        """The signatures compiled (numba's ``Dispatcher.signatures``)."""
+        return list(self._dispatcher.signatures) if not _PURE_PYTHON else []
+
+    def __call__(self, kernels: tuple, *args):
+        if _PURE_PYTHON:
+            return self.py_func(*kernels, *args)
+        return self._compiled(kernels, args)(*kernels, *args)
 
 
 @functools.cache

@@ -42,7 +42,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 import numba
 import numpy as np
 from numba import types
-from numba.extending import overload
+from numba.extending import lower_builtin, overload, type_callable
 
 from omnirotor.errors import InputError
 
@@ -460,30 +460,41 @@ def compiled_step(kind: str, entry: str = "kernel", default: Callable[..., Any] 
                 return fn
         raise InputError(f"no {kind} block has the state type of this record")
 
-    def implementation(record):
+    def kernel_of(record):
+        """The compiled function a call with this record type compiles to (None: not a block of the kind)."""
         if not isinstance(record, types.Record):
             return None
         cls = class_of_record(kind, record)
-        if cls is None:
-            return None
-        fn = getattr(cls, entry, default)
+        return None if cls is None else getattr(cls, entry, default)
+
+    def resolve(context, arg_types):
+        """The signature of the block's kernel for these argument types (compiling it), or None."""
+        fn = kernel_of(arg_types[0])
         if fn is None:
             return None
-        namespace = {"fn": fn}
-        exec(f"def impl({args}):\n    return fn({args})", namespace)  # noqa: S102 (the kind's parameter names)
-        return namespace["impl"]
+        return context.resolve_function_type(context.resolve_value_type(fn), arg_types, {})
 
-    # The step and its overload take the kind's parameters by name (numba cannot inline a callee, such as a
-    # jit_inline kernel, called with *args from a closure).
-    namespace = {"lookup": lookup, "implementation": implementation}
+    # The step and its typer take the kind's parameters by name (keyword arguments are folded by them).
+    namespace = {"lookup": lookup, "resolve": resolve}
     exec(  # noqa: S102 (generated from KIND_STEPS' parameter names)
         f"def step({args}):\n    return lookup({names[0]})({args})\n"
-        f"def typer({args}):\n    return implementation({names[0]})\n",
+        f"def typer_of(context):\n"
+        f"    def typer({args}):\n        return resolve(context, ({args},))\n"
+        f"    return typer\n",
         namespace,
     )
     step = namespace["step"]
     step.__name__ = step.__qualname__ = f"{kind}_{entry}"
-    overload(step)(namespace["typer"])
+    # In compiled code the call is the block's kernel itself, typed and lowered as a direct call of it (numba's
+    # low-level extension API), with no function of its own in between: a wrapper (an ``overload``'s
+    # implementation) would be one more compiled function, and one more module that links the block's
+    # machine code and optimises it again (13 wrappers: about 7 s of a first run's compilation).
+    type_callable(step)(namespace["typer_of"])
+
+    @lower_builtin(step, types.VarArg(types.Any))
+    def _lower(context, builder, sig, args):
+        fnty = context.typing_context.resolve_value_type(kernel_of(sig.args[0]))
+        return context.get_function(fnty, sig)(builder, args)
 
     _STEPS[key] = step
     return step

@@ -844,8 +844,9 @@ def match_noise(u, r) -> None:
     follows the noise however far it is raised, and the noise's fluctuations about its level do not repeat it.
     """
     u.noise_n += 1
-    u.noise_var_pos = _matched_variance(u, r, 0, u.noise_var_pos, u.var_pos_assumed)
-    u.noise_var_att = _matched_variance(u, r, 3, u.noise_var_att, u.var_att_assumed)
+    # np.int64(...): an int64, not a literal (numba compiles a callee once per literal value it is given)
+    u.noise_var_pos = _matched_variance(u, r, np.int64(0), u.noise_var_pos, u.var_pos_assumed)
+    u.noise_var_att = _matched_variance(u, r, np.int64(3), u.noise_var_att, u.var_att_assumed)
     sp, sa = math.sqrt(u.Rn[0, 0]), math.sqrt(u.Rn[3, 3])
     if noise_raised(u):
         u.n_noise_adapted += 1
@@ -1037,7 +1038,8 @@ def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_
     rejected = (code & STEP_REJECTED) != 0
     invalid = rejected  # an input not well-formed (as against a well-formed sample the filter did not fuse)
     if mocap_new:
-        if math.isfinite(mocap_t) and mocap_sample_valid(p_m, q_m, QUAT_NORM_TOL):
+        # [:]: as arrays, the types Python and the supervisor check with (one compiled check, not two)
+        if math.isfinite(mocap_t) and mocap_sample_valid(p_m[:], q_m[:], QUAT_NORM_TOL):
             t_m = mocap_t if u.compensate_latency != 0 else t
             k_m = fuse_at(u, buf, t_m)
             if k_m < 0:

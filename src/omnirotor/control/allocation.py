@@ -265,7 +265,7 @@ def alloc_begin(r, ar, f_ref_W, m_ref_B, R, A) -> int:
                 finite = finite and math.isfinite(A[i, j])
         code = 2
         if finite:
-            alloc_set_map(r, ar, A)
+            alloc_set_map(r, ar, A[:])  # [:]: an array, the type Python sets the map with (one compiled copy)
             new_map = True
             code = _prepare(r, ar, f_ref_W, m_ref_B, R, A)
     if code != 0:

@@ -16,7 +16,7 @@ and calls again.
 
 from __future__ import annotations
 
-from omnirotor._jit import jit_entry, monotonic_ns
+from omnirotor._jit import PointerCaller, monotonic_ns
 from omnirotor.control.composer import controller_step
 from omnirotor.sim.sensors import needs_refill
 from omnirotor.sim.step import sim_step
@@ -26,9 +26,43 @@ __all__ = ["run_steps"]
 _NS_PER_US = 1e3
 
 
-@jit_entry
+def _run_steps(
+    plant_step, control_step, sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts
+) -> int:
+    """:func:`run_steps`, with the simulator's and the controller's steps called through their addresses."""
+    sensors = sim[0]["sensors"]
+    timing = truth.shape[1] - 1
+    while k < stop:
+        if needs_refill(sensors):
+            break
+        row = truth[k]
+        tic0 = monotonic_ns(ts)
+        plant_step(sim, cmd_hz, k_sim0 + k, dt, frame, row)
+        tic = monotonic_ns(ts)
+        control_step(ctl_state, frame, log[k : k + 1])
+        toc = monotonic_ns(ts)
+        row[timing - 1] = (tic - tic0) / _NS_PER_US
+        row[timing] = (toc - tic) / _NS_PER_US
+        k += 1
+    return k
+
+
+def _callee_args(sim, ctl_state, cmd_hz, frame, k, stop, k_sim0, dt, truth, log, ts) -> tuple:
+    """The values :func:`_run_steps` calls the simulator's and the controller's steps with (their types)."""
+    return (sim, cmd_hz, k_sim0 + k, dt, frame, truth[0]), (ctl_state, frame, log[0:1])
+
+
+_run_steps_compiled = PointerCaller(_run_steps, _callee_args)
+
+
 def run_steps(sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt: float, truth, log, ts) -> int:
     """Steps ``k, k+1, ...`` of a closed-loop run, up to ``stop`` or the end of a noise block.
+
+    One compiled call. The simulator's step (:func:`~omnirotor.sim.step.sim_step`) and the controller's
+    (:func:`~omnirotor.control.composer.controller_step`) are compiled on their own, for the same types as
+    from Python (one specialisation each, shared with ``Simulator.step`` and ``InteractionController.step``),
+    and called through their addresses (:class:`omnirotor._jit.PointerCaller`): the loop does not compile the
+    controller and the simulator a second time into its own machine code.
 
     Args:
         sim: :attr:`omnirotor.sim.simulator.Simulator.kernel_state` (the simulator's record).
@@ -47,18 +81,6 @@ def run_steps(sim, ctl_state, cmd_hz, frame, k: int, stop: int, k_sim0: int, dt:
     Returns:
         The next step to run (== ``stop`` when done).
     """
-    sensors = sim[0]["sensors"]
-    timing = truth.shape[1] - 1
-    while k < stop:
-        if needs_refill(sensors):
-            break
-        row = truth[k]
-        tic0 = monotonic_ns(ts)
-        sim_step(sim, cmd_hz, k_sim0 + k, dt, frame, row)
-        tic = monotonic_ns(ts)
-        controller_step(ctl_state, frame, log[k : k + 1])
-        toc = monotonic_ns(ts)
-        row[timing - 1] = (tic - tic0) / _NS_PER_US
-        row[timing] = (toc - tic) / _NS_PER_US
-        k += 1
-    return k
+    return _run_steps_compiled(
+        (sim_step, controller_step), sim, ctl_state, cmd_hz, frame, k, stop, k_sim0, dt, truth, log, ts
+    )

@@ -72,7 +72,9 @@ from omnirotor.rosmsg.convert import (
     LOOP_STATUS,
     SIM_STATUS,
     WRENCH,
+    CommandWire,
     FrameCodec,
+    FrameWire,
     WireMessages,
     frame_check,
     set_stamp,
@@ -120,6 +122,11 @@ class NodeOptions:
             every period, from a writer process, in bounded memory), or None.
         foxglove_port: serve the live view (:class:`~omnirotor.fly.live.LiveView`) on this loopback port (0: any
             free one), or None.
+        frame_guard_s: real time: after answering a frame the loop sleeps on the clock until this long before the
+            next frame is expected (the earliest arrivals, one period apart), then waits in the channel; so a flood
+            on the frame key wakes it only within this guard instead of at every payload [s]; 0: wait in the
+            channel at once. Frames come on the plant's clock, so a real one is not due before the guard; the
+            default leaves 0.3 ms for the sleep's own overshoot (about 0.1 ms here) and the frame's jitter.
     """
 
     period_s: float = 0.001
@@ -134,6 +141,7 @@ class NodeOptions:
     max_frames: int | None = None
     record: str | None = None
     foxglove_port: int | None = None
+    frame_guard_s: float = 0.0003
 
 
 class LoopStats:
@@ -290,7 +298,9 @@ class NodeLoop:
                 return True
             return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
 
-        self._frames = transport.subscriber(TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok)
+        self._frames = transport.subscriber(
+            TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok, decoder=FrameWire(n).decode
+        )
         self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
         self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND, block=o.lockstep)
         self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
@@ -319,6 +329,9 @@ class NodeLoop:
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
         )  # fmt: skip
         self._zeros = np.zeros(n)
+        self._cmd_wire = CommandWire(n)
+        self._cmd_t = math.nan  # the last command's time and state (its repetition: _republish_command)
+        self._cmd_state = 0
         self.cmd_seq = 0
         self.start_answers = 0
         """Times the plant's repeated start frame was answered again (its first answer had not reached it)."""
@@ -370,18 +383,16 @@ class NodeLoop:
 
     # -- publishing -------------------------------------------------------------------------------------------
     def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int, armed: bool) -> None:
-        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then)."""
-        m = self.msgs.command
+        """Publish ``hz`` answering frame ``frame_seq``: ``STATE_ARMED`` if armed, else ``STATE_STOP`` (zeros then).
+
+        The payload is written in place (:class:`~omnirotor.rosmsg.convert.CommandWire`: rosbags' bytes, tested).
+        """
         self.cmd_seq += 1
-        m.hz[:] = hz
-        m.t = t
-        set_stamp(m.header, t)
-        m.control_status = control_status
-        m.state = COMMAND_ARMED if armed else COMMAND_STOP
-        m.session_id = self.session_id
-        m.seq = self.cmd_seq
-        m.frame_seq = frame_seq
-        self._pub_cmd.put(m)
+        self._cmd_t = t
+        self._cmd_state = state = COMMAND_ARMED if armed else COMMAND_STOP
+        self._pub_cmd.put_raw(
+            self._cmd_wire.fill(hz, t, control_status, state, self.session_id, self.cmd_seq, frame_seq)
+        )
 
     def _publish_status(self) -> None:
         s, m = self.stats, self._loop_msg
@@ -407,14 +418,12 @@ class NodeLoop:
 
     def _republish_command(self, t: float) -> None:
         """The last command again (a new sequence number, the same frame it answers)."""
-        m = self.msgs.command
-        if self.cmd_seq == 0 or m.t != t:
+        if self.cmd_seq == 0 or self._cmd_t != t:
             return
-        if m.state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since: not again
+        if self._cmd_state == COMMAND_ARMED and not getattr(self.director, "armed", True):  # disarmed since
             return
         self.cmd_seq += 1
-        m.seq = self.cmd_seq
-        self._pub_cmd.put(m)
+        self._pub_cmd.put_raw(self._cmd_wire.with_seq(self.cmd_seq))
         self.start_answers += 1
 
     def _publish_wrench(self, t: float) -> None:
@@ -495,6 +504,9 @@ class NodeLoop:
         frames = self._frames
         last_seq = -1
         last_arrival = math.nan
+        grid = math.nan  # the earliest arrival consistent with one frame per period (frame_guard_s)
+        guard = o.frame_guard_s if not o.lockstep and o.frame_guard_s > 0 else 0.0
+        sleep = time.sleep
         last_seen = math.nan
         last_frame: SensorFrame | None = None
         last_mocap_t = -math.inf
@@ -509,6 +521,13 @@ class NodeLoop:
             while not stop.is_set() and not self.finished:
                 # asleep until a frame arrives or the next thing is due (the director's gap call, the status)
                 now = mono()
+                if guard and last_frame is not None and not self.link_lost:
+                    # asleep on the clock until shortly before the next frame is due: a flood of bogus frames
+                    # does not wake the loop meanwhile (NodeOptions.frame_guard_s)
+                    wake = min(grid + period - guard, next_gap_call, next_status)
+                    if wake > now:
+                        sleep(wake - now)
+                        now = mono()
                 if o.lockstep or last_frame is None or self.link_lost:
                     timeout = min(_LOCKSTEP_WAIT_S, max(next_status - now, 0.0))
                 else:
@@ -543,9 +562,12 @@ class NodeLoop:
                     continue
                 # a new frame
                 arrival = now
+                # the start frame (0) repeats until answered: the plant's clock starts with frame 1
+                advance = period * (msg.seq - last_seq) if last_seq > 0 else math.nan
                 if self.link_lost:
                     self.link_lost = False
                     self._say("frames are back")
+                    advance = math.nan  # a new grid
                 elif last_seq >= 0 and msg.seq > last_seq + 1:
                     stats.skipped(int(msg.seq - last_seq - 1))
                 arrival_late = 0.0
@@ -584,6 +606,9 @@ class NodeLoop:
                         self._publish_wrench(frame.t)
                 stats.period(sent - arrival, sent - arrival, arrival_late, period)
                 last_arrival = arrival
+                due = grid + advance  # the grid moves by the frames' numbers (skipped ones too); NaN at first
+                # the earliest arrivals: a late one leaves the grid; 10 periods late is the plant's new phase
+                grid = due if arrival - 10 * period < due < arrival else arrival
                 last_seen = sent  # the link's age counts from when this loop could see a frame again
                 last_frame = frame
                 next_gap_call = arrival + 2 * period

@@ -13,6 +13,7 @@ Message objects are built once (:class:`WireMessages`) and refilled every period
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 
@@ -39,6 +40,11 @@ __all__ = [
     "unpack_frame",
     "FrameCodec",
     "flat_view",
+    "WireFrame",
+    "FrameWire",
+    "FrameEncoder",
+    "CommandWire",
+    "WireCommand",
 ]
 
 FRAME = "omnirotor_msgs/msg/SensorFrame"
@@ -274,3 +280,211 @@ def command_check(n_rotors: int):
         return hz.shape == (n_rotors,) and bool(np.isfinite(hz).all()) and msg.session_id != 0
 
     return check
+
+
+# -- the hot path's two messages without rosbags' objects (issue 24 item 5) -----------------------------------------
+#
+# CDR (plain, little-endian: the encapsulation header 00 01) aligns each number to its own size, counted from the
+# byte after the 4-byte header. ``std_msgs/Header`` is int32 sec, uint32 nanosec, then frame_id as a uint32 length
+# (the NUL included) and its bytes; everything after it is at fixed offsets from the first 8-aligned byte after the
+# string. The layouts below are those of the .msg files (tested against rosbags' serialiser, byte for byte).
+
+
+def _align8(i: int) -> int:
+    return (i + 7) & ~7
+
+
+class WireFrame:
+    """A ``SensorFrame`` read in place from its CDR payload: the fields :func:`_unpack` and the node read.
+
+    The arrays are views of the payload (float64, read-only): valid as long as the object is; the numbers are the
+    payload's bits, the same as rosbags' deserialiser gives (tested).
+    """
+
+    __slots__ = ("seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
+                 "has_state", "state", "rotor_hz")  # fmt: skip
+
+
+class FrameWire:
+    """Decodes ``SensorFrame`` payloads of ``n_rotors`` rotors without rosbags' objects (:class:`WireFrame`).
+
+    :meth:`decode` takes the payloads of this machine's byte order whose layout is exactly the message's with
+    ``n_rotors`` speeds (any ``frame_id``), and returns None for anything else, which the caller then gives to
+    rosbags' deserialiser (that decides whether it is malformed): a payload is never accepted here that rosbags
+    would refuse, and what is accepted reads the same numbers.
+    """
+
+    def __init__(self, n_rotors: int) -> None:
+        self.n = n_rotors
+        self._little = np.little_endian
+
+    def decode(self, payload: bytes) -> WireFrame | None:
+        """The frame in ``payload``, or None (not the fast layout: ask rosbags)."""
+        size = len(payload)
+        if size < 16 or payload[0] != 0 or payload[1] != 1 or not self._little:
+            return None
+        length = int.from_bytes(payload[12:16], "little")  # frame_id's, its NUL included (rosbags checks it)
+        if length < 1 or 16 + length > size or payload[15 + length] != 0:
+            return None
+        a = 4 + _align8(12 + length)  # seq's offset in the payload
+        n = self.n
+        end = a + 320 + 8 * n
+        if not end <= size <= end + 3 or int.from_bytes(payload[a + 312 : a + 316], "little") != n:
+            return None
+        try:
+            payload[16 : 15 + length].decode()
+        except UnicodeDecodeError:
+            return None
+        f = np.frombuffer(payload, np.float64, (end - a) // 8, a)
+        m = WireFrame()
+        m.seq = int.from_bytes(payload[a : a + 8], "little")
+        m.t = float(f[1])
+        m.imu_acc_b, m.imu_gyro_b = f[2:5], f[5:8]
+        m.mocap_new = payload[a + 64] != 0
+        m.mocap_t = float(f[9])
+        m.mocap_p_w, m.mocap_q_wb = f[10:13], f[13:17]
+        m.has_state = payload[a + 136] != 0
+        m.state = f[18:39]
+        m.rotor_hz = f[40:]
+        return m
+
+
+class FrameEncoder:
+    """``SensorFrame`` payloads of a frame record, written in place (the simulator's side of :class:`FrameWire`).
+
+    The payload is rosbags' serialisation of :meth:`WireMessages.fill_frame`'s message (``frame_id``
+    ``base_link``), its numbers then overwritten from the record's flat view at their offsets: the same bytes as
+    rosbags gives for the same frame (tested), without a message object per period.
+    """
+
+    def __init__(self, n_rotors: int, frame_id: str = "base_link") -> None:
+        store = typestore()
+        body = bytes(store.serialize_cdr(WireMessages(n_rotors, frame_id).frame, FRAME))
+        self.buf = bytearray(body)
+        a = 4 + _align8(12 + len(frame_id.encode()) + 1)  # seq's offset
+        if a + 320 + 8 * n_rotors != len(self.buf):
+            raise RuntimeError("SensorFrame's CDR layout is not the one FrameEncoder writes")
+        f = np.frombuffer(self.buf, np.float64, 40 + n_rotors, a)
+        self._t, self._imu, self._mocap, self._state, self._hz = f[1:2], f[2:8], f[9:17], f[18:39], f[40:]
+        self._new_at, self._valid_at, self._seq_at = a + 64, a + 136, a
+        order = "<" if np.little_endian else ">"
+        self._stamp = struct.Struct(order + "iI")
+        self._seq = struct.Struct(order + "Q")
+        self._record: np.ndarray | None = None
+        self._x = np.zeros(0)
+
+    def encode(self, record: np.ndarray, seq: int) -> bytes:
+        """The payload of the ``(1,)`` frame record ``record`` as frame number ``seq`` (as :meth:`fill_frame`)."""
+        if record is not self._record:
+            self._record, self._x = record, flat_view(record)
+        x, buf = self._x, self.buf
+        t = float(x[_T])
+        if not (t >= 0.0) or math.isinf(t):
+            sec = nanosec = 0
+        else:
+            sec = int(t)
+            nanosec = min(int((t - sec) * 1e9), 999_999_999)
+            sec = min(sec, 2**31 - 1)
+        self._stamp.pack_into(buf, 4, sec, nanosec)
+        self._seq.pack_into(buf, self._seq_at, seq)
+        self._t[0] = t
+        self._imu[:] = x[_ACC.start : _GYRO.stop]
+        new = x[_M_NEW] != 0.0
+        buf[self._new_at] = 1 if new else 0
+        self._mocap[:] = x[_M_T : _M_Q.stop]
+        buf[self._valid_at] = 1 if x[_S_VALID] != 0.0 else 0
+        self._state[:] = x[_S_STATE]
+        self._hz[:] = x[_HZ_START:]
+        return bytes(buf)
+
+
+class WireCommand:
+    """A ``RotorCommand`` read in place from its CDR payload (:meth:`CommandWire.decode`); ``hz`` views it."""
+
+    __slots__ = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
+
+
+class CommandWire:
+    """A ``RotorCommand`` payload of ``n_rotors`` speeds kept as bytes and updated in place, field by field.
+
+    The payload is rosbags' serialisation of a template command (so the layout is rosbags' own, and
+    ``frame_id`` stays), its numbers then overwritten at their offsets: the same bytes as rosbags' serialiser gives
+    for the same fields (tested), without building or walking a message object per period.
+    """
+
+    def __init__(self, n_rotors: int, frame_id: str = "base_link") -> None:
+        store = typestore()
+        T = store.types
+        stamp = T["builtin_interfaces/msg/Time"](sec=0, nanosec=0)
+        cmd = T[COMMAND](
+            header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id),
+            t=0.0, hz=np.zeros(n_rotors), control_status=0, state=0, session_id=0, seq=0, frame_seq=0,
+        )  # fmt: skip
+        body = bytes(store.serialize_cdr(cmd, COMMAND, little_endian=np.little_endian))
+        self.buf = bytearray(body)
+        a = 4 + _align8(12 + len(frame_id.encode()) + 1)  # t's offset
+        hz = a + 16
+        tail = hz + 8 * n_rotors
+        self._floats = np.frombuffer(self.buf, np.float64, 2 + n_rotors, a)  # t, (hz's length), hz
+        self._hz = self._floats[2:]
+        self.n = n_rotors
+        self._status_at, self._state_at, self._ids_at = tail, tail + 4, _align8(tail + 5 - 4) + 4
+        if self._ids_at + 24 != len(self.buf):
+            raise RuntimeError("RotorCommand's CDR layout is not the one CommandWire writes")
+        order = "<" if np.little_endian else ">"
+        self._stamp = struct.Struct(order + "iI")
+        self._status = struct.Struct(order + "IB")
+        self._ids = struct.Struct(order + "QQQ")
+        self._seq = struct.Struct(order + "Q")
+
+    def fill(self, hz: np.ndarray, t: float, control_status: int, state: int, session_id: int, seq: int,
+             frame_seq: int) -> bytes:  # fmt: skip
+        """The payload of these fields (header stamp from ``t``, as :func:`set_stamp`)."""
+        if not (t >= 0.0) or math.isinf(t):
+            sec, nanosec = 0, 0
+        else:
+            sec = int(t)
+            nanosec = min(int((t - sec) * 1e9), 999_999_999)
+            sec = min(sec, 2**31 - 1)
+        buf = self.buf
+        self._stamp.pack_into(buf, 4, sec, nanosec)
+        self._floats[0] = t
+        self._hz[:] = hz
+        self._status.pack_into(buf, self._status_at, control_status, state)
+        self._ids.pack_into(buf, self._ids_at, session_id, seq, frame_seq)
+        return bytes(buf)
+
+    def decode(self, payload: bytes) -> WireCommand | None:
+        """The command in ``payload`` if it has this object's layout, else None (then rosbags decides).
+
+        The layout: this machine's byte order, ``n_rotors`` speeds, any ``frame_id``. The simulator's fast path, as
+        :meth:`FrameWire.decode` is the node's: it never accepts what rosbags refuses, and reads the same numbers.
+        """
+        size = len(payload)
+        if size < 16 or payload[0] != 0 or payload[1] != 1 or not np.little_endian:
+            return None
+        length = int.from_bytes(payload[12:16], "little")
+        if length < 1 or 16 + length > size or payload[15 + length] != 0:
+            return None
+        a = 4 + _align8(12 + length)  # t's offset
+        n = self.n
+        tail = a + 16 + 8 * n
+        ids = _align8(tail + 5 - 4) + 4
+        if not ids + 24 <= size <= ids + 27 or int.from_bytes(payload[a + 8 : a + 12], "little") != n:
+            return None
+        try:
+            payload[16 : 15 + length].decode()
+        except UnicodeDecodeError:
+            return None
+        m = WireCommand()
+        f = np.frombuffer(payload, np.float64, 2 + n, a)
+        m.t = float(f[0])
+        m.hz = f[2:]
+        m.control_status, m.state = self._status.unpack_from(payload, tail)
+        m.session_id, m.seq, m.frame_seq = self._ids.unpack_from(payload, ids)
+        return m
+
+    def with_seq(self, seq: int) -> bytes:
+        """The last payload again with another ``seq``."""
+        self._seq.pack_into(self.buf, self._ids_at + 8, seq)
+        return bytes(self.buf)

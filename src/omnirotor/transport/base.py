@@ -118,7 +118,8 @@ class Subscriber:
     """Receives messages of one type on one topic; decoding errors are counted, never raised.
 
     :meth:`take` and :meth:`take_latest` return at once by default, or wait up to ``timeout_s`` for a payload
-    (the waiting thread sleeps in the transport's queue: no polling, the CPU stays free for the peer).
+    (the waiting thread sleeps in the transport's channel, no polling; a time-out may end a few ms late: see the
+    transport, e.g. :data:`omnirotor.transport.zenoh_transport.WAKE_TICK_S`).
 
     Attributes:
         n_ok: messages decoded and accepted.
@@ -133,8 +134,10 @@ class Subscriber:
         key: str,
         check: Callable[[Any], bool] | None = None,
         close: Callable[[], None] | None = None,
+        decoder: Callable[[bytes], Any | None] | None = None,
     ) -> None:
         store = typestore()
+        self._fast = decoder
         msgdef = store.get_msgdef(msgtype)
         self._poll = poll
         self._store = store
@@ -153,8 +156,11 @@ class Subscriber:
     def _decode(self, payload: bytes) -> Any | None:
         # rosbags' generated deserialiser of the type, with Typestore.deserialize_cdr's checks: the CDR
         # encapsulation (plain CDR, either byte order) and no bytes left over beyond the final alignment
-        msg = None
-        if len(payload) >= 4 and payload[0] == 0 and payload[1] <= 1:
+        msg = self._fast(payload) if self._fast is not None else None
+        if msg is not None:
+            if self._check is not None and not self._check(msg):
+                msg = None
+        elif len(payload) >= 4 and payload[0] == 0 and payload[1] <= 1:
             try:
                 msg, end = self._deserialize[payload[1]](memoryview(payload)[4:], 0, self._cls, self._store)
                 if end + 4 + 3 < len(payload) or (self._check is not None and not self._check(msg)):
@@ -268,7 +274,12 @@ class Transport(abc.ABC):
         return Publisher(send, msgtype, key)
 
     def subscriber(
-        self, topic: str, msgtype: str, depth: int = 8, check: Callable[[Any], bool] | None = None
+        self,
+        topic: str,
+        msgtype: str,
+        depth: int = 8,
+        check: Callable[[Any], bool] | None = None,
+        decoder: Callable[[bytes], Any | None] | None = None,
     ) -> Subscriber:
         """A polling subscriber keeping at most ``depth`` undelivered payloads (older ones are dropped).
 
@@ -277,13 +288,17 @@ class Transport(abc.ABC):
             msgtype: message type (``pkg/msg/Name``).
             depth: queue length [messages], >= 1.
             check: optional semantic check of a decoded message; False counts it bad and drops it.
+            decoder: optional fast path, ``decoder(payload) -> message | None``: a message object with the fields
+                the caller reads, or None to leave the payload to rosbags' deserialiser (which decides whether it
+                is malformed); it must never accept a payload rosbags refuses (the frame's:
+                :class:`omnirotor.rosmsg.convert.FrameWire`).
         """
         name = ros_topic(self.namespace, topic)
         _known(msgtype)
         if not isinstance(depth, int) or depth < 1:
             raise InputError(f"subscriber depth must be an integer >= 1, got {depth!r}")
         poll, close, key = self._subscriber(name, msgtype, depth)
-        return Subscriber(poll, msgtype, key, check=check, close=close)
+        return Subscriber(poll, msgtype, key, check=check, close=close, decoder=decoder)
 
     def serve(self, topic: str, reqtype: str, reptype: str, handler: Callable[[Any], Any]) -> None:
         """Answer requests of ``reqtype`` on ``topic`` with ``handler(request) -> reply`` (a ``reptype``).

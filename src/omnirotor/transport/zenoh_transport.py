@@ -14,13 +14,21 @@ Zenoh network hears these topics with their types:
 * a request/reply is a Zenoh queryable on the same kind of key (``ctl``'s ``FlightRequest``).
 
 The session is a Zenoh peer with multicast scouting off: it listens on the given endpoints (loopback by default) and
-connects to the given ones, and hears nothing else. Receiving: Zenoh's own thread puts each payload in a bounded
-queue (the newest ``depth`` are kept, older ones dropped, so a flood on a key costs its subscriber little more than
-the queue), and the caller takes from it at once or sleeps on it up to a time-out (measured: a blocking wait wakes
-faster and leaves the CPU to the peer, where polling competes with it on a busy machine). Publishers are ``express``
-(sent from the caller's thread: a starved send thread cannot hold them back) at real-time priority, and by default
-drop rather than block when the network is congested, so the 1 kHz loop never waits on a slow receiver
-(``block=True`` for what must all arrive: lockstep frames and commands, log rows).
+connects to the given ones, and hears nothing else. Receiving: each subscriber is a Zenoh ring channel (the
+newest ``depth`` samples are kept, older ones dropped, so a flood on a key costs its subscriber little more than the
+ring), filled by Zenoh's own threads without Python; the caller takes from it at once, or sleeps in the channel's
+``recv`` until a sample arrives: one wake-up of the caller per message, no Python callback and no queue hand-off in
+between (measured against that hand-off: ``benchmarks/bench_zenoh_floor.py``, BENCHMARKS.md). The channel's ``recv``
+has no time-out, so a wait with a time-out is ended by the session's *waker* thread (:class:`_Waker`): at the
+deadline it puts an empty sample marked by its attachment on the key, delivered to this session only; a waiting
+subscriber takes it as "time out", any other ignores it. The waker sleeps at least :data:`WAKE_TICK_S` between its
+rounds, so a time-out ends up to about that late (a frame that comes ends the wait at once); callers that need a
+precise time (the simulator's wall-clock step) sleep on the clock and take what arrived without waiting. Spinning
+on ``try_recv`` instead was measured slower on a busy 2-core machine (it takes the CPU the peer needs).
+
+Publishers are ``express`` (sent from the caller's thread: a starved send thread cannot hold them back) at
+real-time priority, and by default drop rather than block when the network is congested, so the 1 kHz loop never
+waits on a slow receiver (``block=True`` for what must all arrive: lockstep frames and commands, log rows).
 """
 
 from __future__ import annotations
@@ -28,10 +36,11 @@ from __future__ import annotations
 import hashlib
 import ipaddress
 import json
-import queue
+import math
 import re
 import struct
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 
@@ -47,6 +56,7 @@ __all__ = [
     "AttachmentWriter",
     "liveliness_key",
     "qos_key",
+    "WAKE_TICK_S",
 ]
 
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(.+)$")
@@ -171,6 +181,92 @@ def _is_loopback(address: str) -> bool:
         return False
 
 
+WAKE_TICK_S = 0.002
+"""The waker's shortest sleep [s]: a receive's time-out ends up to about this late (module docstring)."""
+_WAKE_IDLE_S = 0.05
+_WAKE = b"omnirotor/wake"
+"""The attachment that marks the waker's empty sample (never on the wire: it is delivered to its session only)."""
+
+
+def _is_wake(sample) -> bool:
+    attachment = sample.attachment
+    return attachment is not None and attachment.to_bytes() == _WAKE
+
+
+class _WakeSlot:
+    """One subscriber's pending time-out: its key and deadline (monotonic [s]; inf when it does not wait)."""
+
+    __slots__ = ("key", "deadline")
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+        self.deadline = math.inf
+
+
+class _Waker:
+    """Ends the blocking receives of a session at their time-outs (module docstring); one thread, started on use.
+
+    A waiting subscriber arms its slot with its deadline (:meth:`arm`: no wake-up of this thread unless the deadline
+    comes more than :data:`WAKE_TICK_S` before the thread's planned round); each round puts the marked empty sample
+    on the key of every slot whose deadline passed, then sleeps until the earliest armed deadline, at least
+    :data:`WAKE_TICK_S` and at most 50 ms. While frames flow the subscriber re-arms a later deadline every period
+    and this thread wakes about every :data:`WAKE_TICK_S`, off the frame's path.
+    """
+
+    def __init__(self, session, local) -> None:
+        self._session = session
+        self._local = local
+        self._slots: list[_WakeSlot] = []
+        self._cond = threading.Condition()
+        self._planned = math.inf  # the next round [monotonic s]; inf while a round runs (an arm then notifies)
+        self._thread: threading.Thread | None = None
+        self._closed = False
+
+    def slot(self, key: str) -> _WakeSlot:
+        """A new slot for a subscriber on ``key``."""
+        s = _WakeSlot(key)
+        self._slots.append(s)
+        return s
+
+    def arm(self, slot: _WakeSlot, deadline: float) -> None:
+        """``slot`` waits until ``deadline`` at the latest (ended up to :data:`WAKE_TICK_S` after it)."""
+        slot.deadline = deadline
+        if deadline + WAKE_TICK_S < self._planned or self._thread is None:  # else the planned round is soon enough
+            with self._cond:
+                if self._thread is None and not self._closed:
+                    self._thread = threading.Thread(target=self._run, name="omnirotor-zenoh-waker", daemon=True)
+                    self._thread.start()
+                self._cond.notify()
+
+    def _run(self) -> None:
+        mono, put, marked, local = time.monotonic, self._session.put, _WAKE, self._local
+        with self._cond:
+            while not self._closed:
+                self._planned = math.inf
+                now = mono()
+                planned = now + _WAKE_IDLE_S
+                for s in self._slots:
+                    d = s.deadline
+                    if d <= now:
+                        s.deadline = math.inf
+                        try:
+                            put(s.key, b"", attachment=marked, allowed_destination=local)
+                        except Exception:  # noqa: BLE001,S110  (a closing session: the wait ends with it)
+                            pass
+                    elif d < planned:
+                        planned = d
+                self._planned = planned = max(planned, now + WAKE_TICK_S)
+                self._cond.wait(planned - now)
+
+    def close(self) -> None:
+        """Stop the thread (idempotent)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
+
+
 class ZenohTransport(Transport):
     """A Zenoh peer session (module docstring).
 
@@ -231,6 +327,7 @@ class ZenohTransport(Transport):
             raise InputError(f"cannot open the Zenoh session: {str(exc).splitlines()[0]}") from None
         self._attachment = attachment
         self._express = bool(express)
+        self._waker = _Waker(self._session, zenoh.Locality.SESSION_LOCAL)
         self._zid = str(self._session.zid()).encode()
         self._entities: list = []
         self._closed = False
@@ -264,29 +361,35 @@ class ZenohTransport(Transport):
         self, name: str, msgtype: str, depth: int
     ) -> tuple[Callable[[float], bytes | None], Callable[[], None], str]:
         key = key_expression(self.domain_id, name, msgtype)
-        # Zenoh's thread hands each payload to a queue the caller sleeps on (no polling); beyond ``depth``
-        # queued payloads the oldest is dropped, as a ring would
-        q: queue.SimpleQueue = queue.SimpleQueue()
-        put, size, get_nowait, get = q.put, q.qsize, q.get_nowait, q.get
-        Empty = queue.Empty
-
-        def on_sample(sample) -> None:
-            put(sample.payload.to_bytes())
-            if size() > depth:
-                try:
-                    get_nowait()
-                except Empty:
-                    pass
-
-        sub = self._session.declare_subscriber(key, on_sample)
+        # Zenoh's threads fill a ring channel (the newest ``depth`` kept); the caller sleeps in its recv, woken by
+        # a sample or, at a time-out, by the waker's marked empty sample (module docstring)
+        sub = self._session.declare_subscriber(key, self._z.handlers.RingChannel(depth))
         self._entities.append(sub)
         self._token("MS", name, msgtype, qos_key(best_effort=True, depth=depth))
+        rx = sub.handler
+        try_recv, recv, mono = rx.try_recv, rx.recv, time.monotonic
+        slot = self._waker.slot(key)
+        arm = self._waker.arm
 
         def poll(timeout_s: float) -> bytes | None:
-            try:
-                return get(timeout=timeout_s) if timeout_s > 0 else get_nowait()
-            except Empty:
+            while (sample := try_recv()) is not None:
+                payload = sample.payload.to_bytes()
+                if payload or not _is_wake(sample):
+                    return payload
+            if not timeout_s > 0:
                 return None
+            deadline = mono() + timeout_s
+            try:
+                while True:
+                    arm(slot, deadline)
+                    sample = recv()
+                    payload = sample.payload.to_bytes()
+                    if payload or not _is_wake(sample):
+                        return payload
+                    if mono() >= deadline:
+                        return None
+            finally:
+                slot.deadline = math.inf
 
         return poll, sub.undeclare, key
 
@@ -329,6 +432,7 @@ class ZenohTransport(Transport):
         if self._closed:
             return
         self._closed = True
+        self._waker.close()
         for entity in reversed(self._entities):
             try:
                 entity.undeclare()
