@@ -181,3 +181,29 @@ def test_old_cache_folders_are_pruned(tmp_path: Path) -> None:
     _prune_cache_folders(str(tmp_path))
     kept = sorted(f.name for f in tmp_path.glob("deps-*"))
     assert kept == [f"deps-{i:02d}" for i in range(3, _KEEP_CACHE_FOLDERS + 3)]
+
+
+def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: Path) -> None:
+    """A package whose modules have more distinct closures than the folders kept: none of theirs is removed."""
+    from omnirotor._jit import _KEEP_CACHE_FOLDERS, _closure_hash, _prune_cache_folders
+
+    src = tmp_path / "pkg"
+    src.mkdir()
+    base = src / "__pycache__"
+    base.mkdir()
+    n_live = _KEEP_CACHE_FOLDERS + 2
+    live = []
+    for k in range(n_live):  # modules that import nothing of each other: one closure (and folder) each
+        f = src / f"m{k}.py"
+        f.write_text(f"X = {k}\n")
+        live.append("deps-" + _closure_hash(str(f))[:20])
+    stale = [f"deps-stale{i:02d}" for i in range(_KEEP_CACHE_FOLDERS + 2)]
+    for i, name in enumerate(live + stale):  # the live ones the oldest: they used to be removed first
+        d = base / name
+        d.mkdir()
+        (d / "k.nbi").write_bytes(b"x")
+        os.utime(d, ns=(i * 10**9, i * 10**9))
+    _prune_cache_folders(str(base), str(src))
+    kept = {f.name for f in base.glob("deps-*")}
+    assert set(live) <= kept  # every module's current cache stays
+    assert kept - set(live) == set(stale[-_KEEP_CACHE_FOLDERS:])  # of the others, the newest few

@@ -141,19 +141,31 @@ def _closure_hash(path: str) -> str:
 
 
 _KEEP_CACHE_FOLDERS = 4
-"""Cache folders (one per source hash) kept beside each module; older ones are removed when a new one is made."""
+"""Cache folders of other source versions (one per hash) kept beside each module's; older ones are removed."""
 
 
 @functools.cache
-def _prune_cache_folders(base: str) -> None:
-    """Remove all but the :data:`_KEEP_CACHE_FOLDERS` most recently written ``deps-*`` folders under ``base``.
+def _live_folders(source_dir: str) -> frozenset[str]:
+    """The cache folder names of the current sources of every module in ``source_dir`` (``deps-<hash>``)."""
+    return frozenset("deps-" + _closure_hash(str(f))[:20] for f in Path(source_dir).glob("*.py"))
 
-    Once per folder and process. A process still running older sources that loses its folder compiles again
-    (numba treats a missing file as a cache miss); nothing else is affected.
+
+@functools.cache
+def _prune_cache_folders(base: str, source_dir: str | None = None) -> None:
+    """Remove all but the :data:`_KEEP_CACHE_FOLDERS` most recently written stale ``deps-*`` folders under ``base``.
+
+    Once per folder and process. A folder is *live* when a module of ``source_dir`` (the kernels' package folder,
+    whose modules share ``base``) hashes to it now: live folders are never removed, whatever their number (the
+    modules of one package have closures of their own, eight in ``control``: keeping only the four newest folders
+    of all deleted half of the current caches at every process's start, and each run compiled them again). A
+    process still running older sources that loses its folder compiles again (numba treats a missing file as a
+    cache miss); nothing else is affected.
     """
     try:
+        live = _live_folders(source_dir) if source_dir is not None else frozenset()
         folders = sorted(Path(base).glob("deps-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
-        for old in folders[_KEEP_CACHE_FOLDERS:]:
+        stale = [f for f in folders if f.name not in live]
+        for old in stale[_KEEP_CACHE_FOLDERS:]:
             for f in old.iterdir():
                 f.unlink(missing_ok=True)
             old.rmdir()
@@ -181,7 +193,7 @@ class DependencyLocator:
 
     def ensure_cache_path(self):
         super().ensure_cache_path()
-        _prune_cache_folders(os.path.dirname(self.get_cache_path()))
+        _prune_cache_folders(os.path.dirname(self.get_cache_path()), os.path.dirname(os.path.abspath(self._py_file)))
 
 
 class _UserDirDependencyLocator(DependencyLocator, UserProvidedCacheLocator):
