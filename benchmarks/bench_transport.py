@@ -79,8 +79,12 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: floa
         # during the hover: from when the simulator has paired with the node (a flood before the node's first
         # command would pair the simulator with the flood's session: first come, first paired; docs/transport.md)
         status = t.subscriber(TOPICS["sim_status"], "omnirotor_msgs/msg/SimStatus", depth=4)
-        while (m := status.take_latest(0.1)) is None or m.paired_session_id == 0:
-            pass
+        paired_by = time.monotonic() + 600.0
+        m = None
+        while m is None or m.paired_session_id == 0:
+            if time.monotonic() > paired_by:
+                raise RuntimeError("the simulator did not pair with the node within 600 s")
+            m = status.take_latest(0.1)
         burst = max(1, int(round(rate_hz / 1000)))
         sent = 0
         t0 = time.monotonic()

@@ -33,6 +33,7 @@ waits on a slow receiver (``block=True`` for what must all arrive: lockstep fram
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import ipaddress
 import json
@@ -249,10 +250,8 @@ class _Waker:
                     d = s.deadline
                     if d <= now:
                         s.deadline = math.inf
-                        try:
+                        with contextlib.suppress(Exception):  # a closing session: the wait ends with it
                             put(s.key, b"", attachment=marked, allowed_destination=local)
-                        except Exception:  # noqa: BLE001,S110  (a closing session: the wait ends with it)
-                            pass
                     elif d < planned:
                         planned = d
                 self._planned = planned = max(planned, now + WAKE_TICK_S)
