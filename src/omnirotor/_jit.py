@@ -59,6 +59,7 @@ __all__ = [
     "jit_inline",
     "jit_entry",
     "PointerCaller",
+    "typed_entry",
     "DependencyCache",
     "DependencyLocator",
     "source_closure",
@@ -329,6 +330,29 @@ class PointerCaller:
         if _PURE_PYTHON:
             return self.py_func(*kernels, *args)
         return self._compiled(kernels, args)(*kernels, *args)
+
+
+def typed_entry(kernel, *args):
+    """``kernel``'s compiled specialisation for the types of ``args``, callable without numba's typing per call.
+
+    A call of a dispatcher from Python types every argument first (for a structured array, a lookup of its
+    dtype per argument and call) and then calls the compiled specialisation's entry point (numba's
+    ``Dispatcher.overloads[signature].entry_point``, the function that unboxes the arguments and calls the
+    machine code). For a caller that calls one kernel every period with arrays whose types cannot change (its
+    own records), this is that entry point, found once: compiled (or loaded from the cache) here, as a call
+    with ``args`` would. **Only arrays of exactly these numba types may be passed to it**: the entry point does
+    not check them (an array of another dtype, dimension or layout would be read as if it had these). Under
+    ``NUMBA_DISABLE_JIT`` it is the Python function.
+
+    Args:
+        kernel: a :func:`jit` / :func:`jit_entry` dispatcher.
+        args: values of the types it will be called with.
+    """
+    if _PURE_PYTHON:
+        return kernel
+    sig = tuple(numba.typeof(a) for a in args)
+    kernel.compile(sig)
+    return kernel.overloads[sig].entry_point
 
 
 @functools.cache
