@@ -314,7 +314,7 @@ def imu_valid(u, gyro, acc) -> bool:
     return max(abs(gyro[0]), abs(gyro[1]), abs(gyro[2])) <= gr and max(abs(acc[0]), abs(acc[1]), abs(acc[2])) <= ar
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def imu_step(u, buf, sbuf, gyro, acc, t_frame: float) -> tuple:
     """One IMU sample: period and sample validation, lever arm, buffering, mean propagation.
 
@@ -863,7 +863,7 @@ def match_noise(u, r) -> None:
     u.noise_att_std_max = max(u.noise_att_std_max, sa)
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
     """Update the delayed state (already predicted to the sample's time) with a pose, re-propagate to now.
 

@@ -34,9 +34,11 @@ Cost. Every block keeps its state, and its sized arrays, in a field of the contr
 (:attr:`state`, see :mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled)
 :meth:`step` is **one** compiled call, :func:`~omnirotor.control.composer.controller_step` ``(state, frame,
 row)``, on the frame's record (:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one
-is written into one first. A compiled closed loop calls the same function with
-:attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from Python) the
-composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
+is written into one first. The call skips numba's typing of its three records (the specialisation for this
+controller's own arrays, found once at :meth:`reset`: :func:`omnirotor._jit.typed_entry`), after a cheap check
+that the arrays are of those types; others go through numba's dispatch. A compiled closed loop calls the same
+function with :attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from
+Python) the composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
 (e.g. a stand-in) its estimate is given to the same composer. There is one implementation of every block's
 step.
 """

@@ -116,7 +116,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry, jit_inline
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import register, state_array
 from omnirotor.config import check_finite, check_positive
 from omnirotor.control import _estimator_kernels as _ek
@@ -670,7 +670,7 @@ def _jumped(sv, p_m, p_est, since: float) -> bool:
     return False
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def _check_mocap(sv, clean, estimate, time_bad: bool) -> int:
     """The motion-capture checks; a rejected sample is dropped from ``clean``. Cause bits, plus ``ACT_REINIT``."""
     m = clean.mocap
@@ -876,7 +876,7 @@ def _drift_position(sv, s, tc: float) -> int:
     return CAUSE_STATE_DRIFT
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def _check_state(sv, clean, time_bad: bool) -> int:
     """The bypass state's checks; a rejected state is replaced by the prediction (module docstring)."""
     s = clean.state

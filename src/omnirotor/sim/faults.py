@@ -279,7 +279,7 @@ def _hits(c, t: float) -> bool:
     return int(u / c["probability"] * c["members"]) == c["member"]
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def faults_frame(st, frame) -> None:
     """Dropouts and corruptions of the frame record due at its time (module docstring), in place."""
     if not st["has_frame_faults"]:

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit, jit_entry, jit_inline
+from omnirotor._jit import jit, jit_entry
 from omnirotor.blocks import register
 from omnirotor.errors import InputError
 from omnirotor.frame_kernels import clear_mocap, clear_state
@@ -334,7 +334,7 @@ def needs_refill(sens) -> bool:
     )
 
 
-@jit_inline  # into its one compiled caller: not optimised and emitted once more on its own
+@jit
 def sense(sens, pose, vel, acc, R9, omega_hz, k: int, t: float, frame) -> None:
     """The sensors at step ``k`` (time ``t``): the whole frame record (:mod:`omnirotor.messages`).
 
