@@ -354,10 +354,18 @@ def typed_entry(kernel, *args):
     """
     if _PURE_PYTHON:
         return kernel
-    sig = tuple(numba.typeof(a) for a in args)
-    kernel.compile(sig)
-    entry = getattr(kernel.overloads.get(sig), "entry_point", None)
-    return kernel if entry is None else entry
+    key = (kernel, *(_quick_type_key(a) for a in args))
+    entry = _TYPED_ENTRIES.get(key)
+    if entry is None:
+        sig = tuple(numba.typeof(a) for a in args)  # tens of ms for a large record type: once per process
+        kernel.compile(sig)
+        entry = getattr(kernel.overloads.get(sig), "entry_point", None) or kernel
+        _TYPED_ENTRIES[key] = entry
+    return entry
+
+
+_TYPED_ENTRIES: dict = {}
+""":func:`typed_entry`'s answers by kernel and the arguments' quick type keys (:func:`_quick_type_key`)."""
 
 
 @functools.cache

@@ -48,7 +48,6 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from omnirotor._jit import typed_entry
@@ -581,7 +580,8 @@ class InteractionController:
         base = row.base
         if base is self._typed_row_base:
             return True
-        if numba.typeof(row) != numba.typeof(self._no_row):
+        f = row.flags  # what numba's type of a 1-D array depends on besides its dtype (as self._no_row's)
+        if not (row.dtype == self.log_dtype and row.ndim == 1 and f.c_contiguous and f.writeable and f.aligned):
             return False
         self._typed_row_base = base
         return True
