@@ -94,6 +94,7 @@ def test_arrays_of_other_types_never_reach_the_typed_entry() -> None:
     vehicle, traj, first, frames = _frames(3)
     ctl = InteractionController(vehicle, ControllerParams(estimator=EstimatorParams(kind="bypass")))
     ctl.reset(first, traj)
+    assert ctl._typed_step is None  # found by the first step from Python (a compiled loop never needs it)
     frame_buf = ctl._frame_buf
     assert ctl._typed_arrays(frame_buf, ctl._no_row)
     readonly = np.zeros(2, ctl.log_dtype)
@@ -101,5 +102,7 @@ def test_arrays_of_other_types_never_reach_the_typed_entry() -> None:
     assert not ctl._typed_arrays(frame_buf, readonly[0:1])  # a read-only log row: numba's dispatch
     assert ctl._typed_arrays(frame_buf, np.zeros(2, ctl.log_dtype)[0:1])  # a writeable one: checked once
     assert not ctl._typed_arrays(np.zeros((1, 1), frame_buf.dtype), ctl._no_row)  # another dimension
-    ctl.state = ctl.state.copy()  # a state it was not made for
-    assert not ctl._typed_arrays(frame_buf, ctl._no_row)
+    old_state = ctl.state
+    ctl.state = ctl.state.copy()  # another state array: the entry is found again, for it
+    assert ctl._typed_arrays(frame_buf, ctl._no_row)
+    assert ctl._typed_state is ctl.state and ctl._typed_state is not old_state

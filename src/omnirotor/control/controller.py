@@ -35,7 +35,7 @@ Cost. Every block keeps its state, and its sized arrays, in a field of the contr
 :meth:`step` is **one** compiled call, :func:`~omnirotor.control.composer.controller_step` ``(state, frame,
 row)``, on the frame's record (:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one
 is written into one first. The call skips numba's typing of its three records (the specialisation for this
-controller's own arrays, found once at :meth:`reset`: :func:`omnirotor._jit.typed_entry`), after a cheap check
+controller's own arrays, found once by the first step: :func:`omnirotor._jit.typed_entry`), after a cheap check
 that the arrays are of those types; others go through numba's dispatch. A compiled closed loop calls the same
 function with :attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from
 Python) the composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
@@ -268,7 +268,8 @@ class InteractionController:
         )
         self._no_row = np.zeros(0, self.log_dtype)
         # The compiled step for the types of this controller's own arrays, called without numba's typing of the
-        # three records per call (set by reset: _prepare_step); the arrays its guard in step() has checked.
+        # three records per call (found by the first step from Python: _typed_arrays); the arrays it was found
+        # for, and the log memory whose rows were checked.
         self._typed_step = None
         self._typed_state: np.ndarray | None = None
         self._typed_row_base: np.ndarray | None = None
@@ -392,10 +393,6 @@ class InteractionController:
         # raises otherwise).
         compiled = self.allocator.solves_compiled and self._own_estimator_kind != _c.EST_GIVEN
         self._fast = compiled and self._estimator_compiled()
-        if self._fast and self._typed_state is not self.state:
-            self._typed_step = typed_entry(_c.controller_step, self.state, self._frame_buf, self._no_row)
-            self._typed_state = self.state
-            self._typed_row_base = None
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
@@ -566,13 +563,17 @@ class InteractionController:
         """Whether the step's arrays have the numba types :attr:`_typed_step` was compiled for.
 
         That entry point does not type its arguments (:func:`omnirotor._jit.typed_entry`), so this check
-        stands in for numba's, cheaply: the state is the one it was made for; the frame record is the
+        stands in for numba's, cheaply: the state is the one it was found for (on the first step from Python,
+        not at :meth:`reset`: a compiled closed loop never needs it, and typing the record the first time in a
+        process takes tens of milliseconds); the frame record is the
         controller's own buffer, or a frame's own copy (:meth:`SensorFrame.from_record`: a fresh, writeable,
         contiguous ``(1,)`` array) of the same dtype object; the log row is the empty one or a row of an array
         of the log (a row's ``base``) whose type was checked once (the log's memory changes only when it grows).
         """
         if self.state is not self._typed_state:
-            return False
+            self._typed_step = typed_entry(_c.controller_step, self.state, self._frame_buf, self._no_row)
+            self._typed_state = self.state
+            self._typed_row_base = None
         if not (record is self._frame_buf or (record.dtype is self._frame_dtype and record.ndim == 1)):
             return False
         if row is self._no_row:
