@@ -21,7 +21,15 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
-from omnirotor.cli.connection_options import DomainId, ZenohConfig, connect_option, listen_option, transport_args
+from omnirotor.cli.connection_options import (
+    DomainId,
+    PairSession,
+    ZenohConfig,
+    connect_option,
+    listen_option,
+    session_id_arg,
+    transport_args,
+)
 from omnirotor.errors import InputError
 
 _Connect = connect_option("tcp/127.0.0.1:7448", "the node's and PX4's")
@@ -36,6 +44,7 @@ def px4_bridge(
     domain_id: DomainId = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
+    pair_session: PairSession = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
     frames: Annotated[
@@ -78,7 +87,8 @@ def px4_bridge(
     from omnirotor.transport import open_transport
     from omnirotor.vehicle import load_vehicle
 
-    options = BridgeOptions(command_loss_s=command_loss)
+    pinned = session_id_arg(pair_session, "--pair-session")
+    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned)
     frame_options = (
         FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
         if frames
@@ -99,8 +109,9 @@ def px4_bridge(
         bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
                            frames=frame_options)  # fmt: skip
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
-        print(f"omnirotor px4-bridge: up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}",
-              file=sys.stderr)  # fmt: skip
+        who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"
+        print(f"omnirotor px4-bridge: up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}; "
+              f"obeying {who}", file=sys.stderr)  # fmt: skip
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:

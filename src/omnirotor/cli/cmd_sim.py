@@ -19,9 +19,11 @@ from omnirotor.cli import app, number_option
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    PairSession,
     ZenohConfig,
     connect_option,
     listen_option,
+    session_id_arg,
     transport_args,
 )
 from omnirotor.errors import InputError
@@ -50,6 +52,7 @@ def sim(
     zenoh_config: ZenohConfig = None,
     domain_id: DomainId = 0,
     namespace: Namespace = "",
+    pair_session: PairSession = None,
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
@@ -88,6 +91,9 @@ def sim(
     from omnirotor.fly.record import output_options
 
     outputs = output_options(record, foxglove, foxglove_port)
+    outputs["pair_session"] = pinned = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
+    if pinned is not None:
+        note(f"obeying the rotor commands of controller session {pinned:016x} only (--pair-session)")
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
                     ros_views, offboard_loss, fifo_priority, outputs)  # fmt: skip
