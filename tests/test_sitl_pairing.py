@@ -9,52 +9,13 @@ are refused.
 
 from __future__ import annotations
 
-import threading
-import time
-
 import pytest
 
-from omnirotor.rosmsg.convert import COMMAND, COMMAND_ARMED, SIM_STATUS, WireMessages
+from omnirotor.rosmsg.convert import SIM_STATUS
+from sitl.flood import FLOOD, Flood, status_until
 from sitl.procs import Pair, wait_until
 
 NODE = 0x1A2B3C4D5E6F7081
-FLOOD = 0x0BAD5E55105E0001
-
-
-class Flood:
-    """Foreign well-formed commands (full speeds, increasing numbers) on the command key, from a thread."""
-
-    def __init__(self, transport, answer_start_frame: bool) -> None:
-        self._pub = transport.publisher("/omnirotor/rotor_cmd", COMMAND)
-        w = WireMessages(8)
-        self._msg = m = w.command
-        m.session_id, m.state, m.hz[:] = FLOOD, COMMAND_ARMED, 400.0
-        self._start = answer_start_frame
-        self.sent = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        m = self._msg
-        while not self._stop.is_set():
-            m.seq += 1
-            # answering the start frame (number 0) would start the plant's run if it were obeyed
-            m.frame_seq = 0 if self._start else m.seq
-            self._pub.put(m)
-            self.sent += 1
-            time.sleep(0.0005)
-
-    def __enter__(self) -> Flood:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-
-def _status_until(sub, pred, timeout_s: float):
-    return wait_until(lambda: (m := sub.take_latest()) is not None and pred(m) and m, timeout_s)
 
 
 @pytest.mark.slow
@@ -66,9 +27,9 @@ def test_pinned_pairing_flies_the_node_through_a_flood_that_started_first(tmp_pa
         pair.plant_transport() as t,
     ):  # fmt: skip
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
-        assert _status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]  # the plant is up, waiting
+        assert status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]  # the plant is up, waiting
         with Flood(t, answer_start_frame=True) as flood:
-            before = _status_until(status, lambda m: m.commands_refused >= 200, 120)
+            before = status_until(status, lambda m: m.commands_refused >= 200, 120)
             assert before, pair.text("sim")[-2000:]
             assert before.paired_session_id == NODE and before.commands_obeyed == 0 and before.foreign_sessions == 1
             pair.start_node()  # the node starts into the flood
@@ -96,14 +57,14 @@ def test_first_come_pairs_with_a_flood_that_started_first_and_refuses_the_node(t
         pair.plant_transport() as t,
     ):  # fmt: skip
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
-        assert _status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]
+        assert status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]
         # the flood's commands answer frames the plant never sent: the plant pairs but does not start its run
         with Flood(t, answer_start_frame=False):
-            paired = _status_until(status, lambda m: m.paired_session_id != 0, 120)
+            paired = status_until(status, lambda m: m.paired_session_id != 0, 120)
             assert paired and paired.paired_session_id == FLOOD, pair.text("sim")[-2000:]
             pair.start_node()
             refused = f"refused rotor commands of session {NODE:016x}: paired with {FLOOD:016x}"
             assert wait_until(lambda: refused in pair.text("sim"), 600), pair.text("node")[-2000:]
-            after = _status_until(status, lambda m: m.commands_refused > 0, 60)
+            after = status_until(status, lambda m: m.commands_refused > 0, 60)
             assert after and after.paired_session_id == FLOOD and after.foreign_sessions == 1
             assert after.steps == 0  # nothing flown: the node's answers to the start frame are refused

@@ -43,6 +43,7 @@ class Pair:
         lockstep: bool,
         node_args: tuple[str, ...] = (),
         start_node: bool = True,
+        cwd: Path | None = None,
     ) -> None:
         self.port = free_port()
         self.namespace = f"/t{secrets.token_hex(4)}"
@@ -54,9 +55,11 @@ class Pair:
         args += sim_args
         self.sim_err = open(tmp / "sim.err", "w+")  # noqa: SIM115
         self.node_err = open(tmp / "node.err", "w+")  # noqa: SIM115
+        self.cwd = cwd
         self.sim = subprocess.Popen(
-            [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True
-        )
+            [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True,
+            cwd=None if cwd is None else str(cwd),
+        )  # fmt: skip
         self.node_endpoint = f"tcp/127.0.0.1:{free_port()}"
         self._node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
                           "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
@@ -68,8 +71,9 @@ class Pair:
     def start_node(self) -> None:
         """Start the node (at once unless the pair was made with ``start_node=False``)."""
         self.node = subprocess.Popen(
-            self._node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True, cwd=str(ROOT)
-        )
+            self._node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True,
+            cwd=str(self.cwd or ROOT),
+        )  # fmt: skip
 
     def plant_transport(self):
         """A session of the test's own, connected to the simulator only (the node may not be up yet)."""
