@@ -43,16 +43,18 @@ Namespace = Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.
 SessionId = Annotated[
     str | None,
     typer.Option(
+        metavar="HEX",
         help="The controller session id of this node's rotor commands (hex, as printed at its start); default: "
-        "random. Give the same to the plant's --pair-session."
+        "random. Give the same to the plant's --pair-session.",
     ),
 ]
 PairSession = Annotated[
     str | None,
     typer.Option(
+        metavar="HEX",
         help="Obey the rotor commands of this controller session only (hex, as `omnirotor fly` prints it, or its "
         "--session-id), from the first command on. Default: the first session that commands is paired (first "
-        "come: a foreign publisher that starts first takes the pairing)."
+        "come: a foreign publisher that starts first takes the pairing).",
     ),
 ]
 
