@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -154,7 +157,8 @@ class _Px4Rig:
     """The fake PX4 and the bridge as processes; the test's own session listens (the bridge connects to it too,
     so that its subscribers exist before the bridge's first frame)."""
 
-    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str]) -> None:
+    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str], prefix: tuple[str, ...] = (),
+                 preexec_fn=None) -> None:  # fmt: skip
         self.tmp = tmp
         self.px4_ep, self.test_ep, self.px4_side_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
         self.ns, self.px4_ns = "/b", "/px4"
@@ -167,10 +171,11 @@ class _Px4Rig:
         self.frames = self.t.subscriber(TOPICS["frame"], FRAME, depth=1 << 14)
         self.bridge_err = tmp / "bridge.err"
         self.bridge = subprocess.Popen(
-            [sys.executable, "-c", CLI, "px4-bridge", "--connect", self.px4_ep, "--connect", self.test_ep,
+            [*prefix, sys.executable, "-c", CLI, "px4-bridge", "--connect", self.px4_ep, "--connect", self.test_ep,
              "--connect", self.px4_side_ep,
              "--namespace", self.ns, "--px4-namespace", self.px4_ns, "--json", *bridge_args],
             env=env(), stdout=subprocess.PIPE, stderr=open(self.bridge_err, "w"), text=True,  # noqa: SIM115
+            preexec_fn=preexec_fn,
         )  # fmt: skip
         self.procs = [self.bridge, self.px4]
 
@@ -339,6 +344,71 @@ def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetr
         np.testing.assert_array_equal(fr[7], [0.3, -0.2, 0.12])  # as the driver gave it
         np.testing.assert_array_equal(fr[8], [math.cos(0.25), 0.0, 0.0, math.sin(0.25)])
         assert fr[1] - 0.5 <= fr[6] <= fr[1]  # its stamp on PX4's clock, before the frame's IMU sample
+
+
+def _unprivileged() -> tuple[tuple[str, ...], object]:
+    """A prefix and a pre-exec function under which a process may not use SCHED_FIFO: no rtprio limit, and as root
+    no CAP_SYS_NICE (util-linux's setpriv); skips when that cannot be arranged."""
+
+    def no_rtprio() -> None:
+        resource.setrlimit(resource.RLIMIT_RTPRIO, (0, resource.getrlimit(resource.RLIMIT_RTPRIO)[1]))
+
+    if os.geteuid() != 0:
+        return (), no_rtprio
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("running as root without setpriv: SCHED_FIFO cannot be refused to the bridge")
+    return (setpriv, "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"), no_rtprio
+
+
+def _move(tmp: Path, name: str, value: float) -> None:
+    """Tell the fake PX4 something through a file of its folder (written whole, then renamed into place)."""
+    (tmp / f"{name}.tmp").write_text(str(value))
+    (tmp / f"{name}.tmp").rename(tmp / name)
+
+
+@pytest.mark.slow
+def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo_is_refused(tmp_path):
+    """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
+    counted in the summary, the frames going on throughout (the node's controller integrates the real intervals);
+    the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and bridged all the same."""
+    prefix, preexec = _unprivileged()
+    cpu = (os.cpu_count() or 1) - 1
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
+                  prefix=prefix, preexec_fn=preexec)  # fmt: skip
+    try:
+        frames = rig.collect(1, 120.0)
+        assert frames, rig.bridge_err.read_text()
+        frames += rig.collect(500, 30.0)
+        _move(tmp_path, "imu-hz", 800)
+        end = time.monotonic() + 3.0
+        frames += rig.collect(10**6, 3.0)
+        _move(tmp_path, "imu-hz", 1000)
+        while time.monotonic() < end + 2.0:
+            frames += rig.collect(10**6, 0.5)
+        _move(tmp_path, "imu-gap", 150)
+        frames += rig.collect(10**6, 1.5)
+        summary, _ = rig.stop()
+    finally:
+        rig.close()
+    err = rig.bridge_err.read_text()
+    assert rig.bridge.returncode == 0, err
+    lines = err.splitlines()
+    refused = [line for line in lines if "SCHED_FIFO not permitted" in line]
+    assert len(refused) == 1 and refused[0].startswith("omnirotor px4-bridge: SCHED_FIFO not permitted"), err
+    assert not any("CPU affinity" in line for line in lines), err  # the CPU was granted
+    slow = [line for line in lines if "at 800.0 Hz for more than 1 s" in line]
+    back = [line for line in lines if "back at 1000.0 Hz after" in line]
+    gap = [line for line in lines if "no sample for" in line]
+    assert len(slow) == 1 and "frames go on" in slow[0] and len(back) == 1 and len(gap) == 1, err
+    w = summary["frames"]["imu_watch"]
+    assert w["off_episodes"] == 1 and 1.0 < w["off_s"] < 4.0 and w["worst_off_rate_hz"] == 800.0, w
+    assert w["gaps"] >= 1 and w["worst_gap_ms"] > 100.0 and w["rate_hz"] == 1000.0, w
+    # the frames went on: PX4's samples 1.25 ms apart carried into frames, and the 150 ms jump of its clock
+    t_us = np.round(np.array([fr[1] for fr in frames]) * 1e6)
+    seq = np.array([fr[0] for fr in frames])
+    step = np.diff(t_us)[np.diff(seq) == 1]  # consecutive frames
+    assert (step == 1250).sum() > 1500 and (step >= 150_000).sum() == 1, np.unique(step)
 
 
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():
