@@ -338,11 +338,26 @@ def test_the_imu_rate_watch_ignores_lost_samples_and_counts_gaps_with_the_worst(
     # arrivals bunched by the transport (PX4's stamps regular): a gap at the bridge all the same
     w.sample(round(t), arr + 0.03)
     assert w.gaps == 3 and w.episodes == 0
-    # NaN arrivals (the start's measurement) are never gaps; PX4's clock going back starts a new window
+    # NaN arrivals (the start's measurement) are never gaps; PX4's clock going back starts a new window, said
     w.sample(round(t + 1000), math.nan)
     assert w.gaps == 3
-    _feed(w, 1000.0, 1000.0, 0.5, 0.0)
+    _feed(w, 1000.0, 1000.0, 0.5, math.nan)
     assert w.span_s == pytest.approx(0.499) and w.window_us().size == 500
+    assert len(said) == 2 and said[1].startswith("IMU: time stamps went back ") and "judged afresh" in said[1]
+
+
+def test_an_imu_rate_episode_open_when_px4s_clock_goes_back_ends_there():
+    from omnirotor.fly.bridge import ImuRateWatch
+
+    said: list[str] = []
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0, name="IMU", say=said.append)
+    t, arr = _feed(w, 0.0, 800.0, 3.0, 0.0)
+    assert w.episodes == 1 and w._said
+    off = w.off_s
+    _feed(w, 0.0, 1000.0, 0.5, arr)  # PX4 restarted: its clock from 0 again
+    assert w.episodes == 1 and w.off_s == pytest.approx(off, abs=2e-3) and not any("back at" in x for x in said)
+    _feed(w, 5e5, 1000.0, 2.0, arr + 1.0)  # a healthy second: no new episode, the total unchanged
+    assert w.episodes == 1 and w.off_s == pytest.approx(off, abs=2e-3)
 
 
 def test_the_bridges_in_place_frames_are_rosbags_bytes_over_assembled_frames():

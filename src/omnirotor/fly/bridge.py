@@ -229,14 +229,15 @@ def imu_rate_hz(timestamps_us: np.ndarray) -> float:
 class ImuRateWatch:
     """PX4's IMU rate and its gaps over the whole flight (module docstring: the rate watch).
 
-    :meth:`sample` takes every IMU sample: its PX4 time stamp [µs] into a ring of the last ``window_s`` or more,
-    its arrival on this host's monotonic clock for the gaps. Every tenth of a window of PX4's time the rate of the
-    last ``window_s`` of samples is judged (:func:`imu_rate_hz`: the median interval, so a lost sample does not move
-    it), once the samples span a whole window. A rate more than ``tolerance`` away from ``rate_hz`` in every
-    judgement for longer than ``window_s`` is an *episode*: said once when it has lasted that long, and once more
-    when a judgement finds the rate back within the tolerance. A *gap* is an arrival more than ``gap_s`` after the
-    previous one (the first said, all counted, the worst kept). A time stamp that goes backwards (PX4 restarted)
-    starts the window afresh. Nothing allocates per sample; a judgement (ten a second) sorts one window.
+    :meth:`sample` takes every IMU sample: its PX4 time stamp [µs] into a ring of the last ``window_s`` or more, its
+    arrival on this host's monotonic clock for the gaps. Every tenth of a window of PX4's time the rate of the last
+    ``window_s`` of samples is judged (:func:`imu_rate_hz`: the median interval, so a lost sample does not move it),
+    once the samples span a whole window. A rate more than ``tolerance`` away from ``rate_hz`` in every judgement
+    for longer than ``window_s`` is an *episode*: said once when it has lasted that long, and once more when a
+    judgement finds the rate back within the tolerance. A *gap* is an arrival more than ``gap_s`` after the previous
+    one (the first said, all counted, the worst kept). A time stamp that goes backwards (PX4 restarted) is said and
+    starts the window afresh (an open episode ends there). Nothing allocates per sample; a judgement (ten a second)
+    sorts one window.
 
     Args:
         rate_hz: the node's control rate [Hz].
@@ -288,6 +289,13 @@ class ImuRateWatch:
                           "node's stale-IMU failsafe acts on it); gaps are counted in the summary")  # fmt: skip
         t = float(t_us)
         if not t >= self._last_us:  # the first sample, or PX4's clock went back: a new window
+            if self._n:
+                self._say(f"{self.name}: time stamps went back {1e-6 * (self._last_us - t):.3f} s (PX4 restarted?); "
+                          "its rate is judged afresh")  # fmt: skip
+            if self._said:  # an open episode ends with the old clock
+                self._off_closed_s += 1e-6 * (self._last_us - self._off_since_us)
+            self._said = False
+            self._off_since_us = math.nan
             self._n = 0
             self._first_us = t
             self._next_check_us = t + self._window_us
