@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import resource
 import shutil
 import signal
 import subprocess
@@ -157,8 +156,7 @@ class _Px4Rig:
     """The fake PX4 and the bridge as processes; the test's own session listens (the bridge connects to it too,
     so that its subscribers exist before the bridge's first frame)."""
 
-    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str], prefix: tuple[str, ...] = (),
-                 preexec_fn=None) -> None:  # fmt: skip
+    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str], prefix: tuple[str, ...] = ()) -> None:
         self.tmp = tmp
         self.px4_ep, self.test_ep, self.px4_side_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
         self.ns, self.px4_ns = "/b", "/px4"
@@ -175,7 +173,6 @@ class _Px4Rig:
              "--connect", self.px4_side_ep,
              "--namespace", self.ns, "--px4-namespace", self.px4_ns, "--json", *bridge_args],
             env=env(), stdout=subprocess.PIPE, stderr=open(self.bridge_err, "w"), text=True,  # noqa: SIM115
-            preexec_fn=preexec_fn,
         )  # fmt: skip
         self.procs = [self.bridge, self.px4]
 
@@ -346,19 +343,16 @@ def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetr
         assert fr[1] - 0.5 <= fr[6] <= fr[1]  # its stamp on PX4's clock, before the frame's IMU sample
 
 
-def _unprivileged() -> tuple[tuple[str, ...], object]:
-    """A prefix and a pre-exec function under which a process may not use SCHED_FIFO: no rtprio limit, and as root
-    no CAP_SYS_NICE (util-linux's setpriv); skips when that cannot be arranged."""
-
-    def no_rtprio() -> None:
-        resource.setrlimit(resource.RLIMIT_RTPRIO, (0, resource.getrlimit(resource.RLIMIT_RTPRIO)[1]))
-
-    if os.geteuid() != 0:
-        return (), no_rtprio
-    setpriv = shutil.which("setpriv")
-    if setpriv is None:
-        pytest.skip("running as root without setpriv: SCHED_FIFO cannot be refused to the bridge")
-    return (setpriv, "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"), no_rtprio
+def _unprivileged() -> tuple[str, ...]:
+    """A command prefix under which a process may not use SCHED_FIFO: an rtprio limit of 0 (util-linux's prlimit)
+    and, as root, no CAP_SYS_NICE (setpriv); skips when the tools are missing."""
+    prlimit, setpriv = shutil.which("prlimit"), shutil.which("setpriv")
+    if prlimit is None or (os.geteuid() == 0 and setpriv is None):
+        pytest.skip("prlimit (and, as root, setpriv) needed to refuse SCHED_FIFO to the bridge")
+    prefix = (prlimit, "--rtprio=0")
+    if os.geteuid() == 0:
+        prefix += (setpriv, "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice")
+    return prefix
 
 
 def _move(tmp: Path, name: str, value: float) -> None:
@@ -372,10 +366,9 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
     """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
     counted in the summary, the frames going on throughout (the node's controller integrates the real intervals);
     the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and bridged all the same."""
-    prefix, preexec = _unprivileged()
     cpu = (os.cpu_count() or 1) - 1
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
-                  prefix=prefix, preexec_fn=preexec)  # fmt: skip
+                  prefix=_unprivileged())  # fmt: skip
     try:
         frames = rig.collect(1, 120.0)
         assert frames, rig.bridge_err.read_text()
