@@ -346,6 +346,26 @@ def test_the_imu_rate_watch_ignores_lost_samples_and_counts_gaps_with_the_worst(
     assert len(said) == 2 and said[1].startswith("IMU: time stamps went back ") and "judged afresh" in said[1]
 
 
+def test_the_imu_rate_watchs_diagnostic_level_follows_the_rate_and_the_gaps():
+    from omnirotor.fly.bridge import ImuRateWatch
+    from omnirotor.rosmsg import msg_type
+
+    S = msg_type("diagnostic_msgs/msg/DiagnosticStatus")  # noqa: N806
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0)
+    assert w.diagnostic(0.0) == (S.STALE, "no sample yet")
+    t, arr = _feed(w, 0.0, 1000.0, 2.0, 0.0)
+    assert w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+    assert w.diagnostic(arr + 0.6) == (S.STALE, "no sample for 0.6 s")
+    t, arr = _feed(w, t + 50_000, 1000.0, 0.5, arr + 0.05)  # a 51 ms gap: WARN once, at the next report
+    level, message = w.diagnostic(arr)
+    assert level == S.WARN and "1 gap(s) over 20 ms" in message and w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+    t, arr = _feed(w, t, 800.0, 2.0, arr)  # an episode: WARN while it lasts
+    level, message = w.diagnostic(arr)
+    assert level == S.WARN and message.startswith("800.0 Hz, off --rate-hz 1000 for ")
+    t, arr = _feed(w, t, 1000.0, 1.0, arr)
+    assert w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+
+
 def test_an_imu_rate_episode_open_when_px4s_clock_goes_back_ends_there():
     from omnirotor.fly.bridge import ImuRateWatch
 

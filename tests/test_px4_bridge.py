@@ -364,23 +364,33 @@ def _move(tmp: Path, name: str, value: float) -> None:
 @pytest.mark.slow
 def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo_is_refused(tmp_path):
     """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
-    counted in the summary, the frames going on throughout (the node's controller integrates the real intervals);
-    the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and bridged all the same."""
+    counted in the summary and shown on /diagnostics, the frames going on throughout (the node's controller
+    integrates the real intervals); the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and
+    bridged all the same."""
+    from omnirotor.fly.bridge import DIAGNOSTIC_ARRAY, DIAGNOSTICS_TOPIC
+
     cpu = (os.cpu_count() or 1) - 1
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
                   prefix=_unprivileged())  # fmt: skip
+    diag_sub = rig.t.subscriber(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY, depth=64)
+    diags: list[tuple[int, str]] = []
+
+    def tick() -> None:
+        while (m := diag_sub.take()) is not None:
+            diags.extend((int(st.level), st.message) for st in m.status)
+
     try:
         frames = rig.collect(1, 120.0)
         assert frames, rig.bridge_err.read_text()
-        frames += rig.collect(500, 30.0)
+        frames += rig.collect(1500, 30.0, tick)
         _move(tmp_path, "imu-hz", 800)
         end = time.monotonic() + 3.0
-        frames += rig.collect(10**6, 3.0)
+        frames += rig.collect(10**6, 3.0, tick)
         _move(tmp_path, "imu-hz", 1000)
         while time.monotonic() < end + 2.0:
-            frames += rig.collect(10**6, 0.5)
+            frames += rig.collect(10**6, 0.5, tick)
         _move(tmp_path, "imu-gap", 150)
-        frames += rig.collect(10**6, 1.5)
+        frames += rig.collect(10**6, 1.5, tick)
         summary, _ = rig.stop()
     finally:
         rig.close()
@@ -402,6 +412,10 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
     seq = np.array([fr[0] for fr in frames])
     step = np.diff(t_us)[np.diff(seq) == 1]  # consecutive frames
     assert (step == 1250).sum() > 1500 and (step >= 150_000).sum() == 1, np.unique(step)
+    # /diagnostics once a second: OK at the rate, WARN while it was off and after the gap
+    assert (0, "1000.0 Hz") in diags, diags
+    assert any(lv == 1 and m.startswith("800.0 Hz, off --rate-hz 1000 for ") for lv, m in diags), diags
+    assert any(lv == 1 and "gap(s) over 20 ms" in m for lv, m in diags), diags
 
 
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():

@@ -65,7 +65,9 @@ than ``rate_tolerance`` away refuses to bridge (one line, exit status 2): a cont
 was tuned for is unsafe. After it, the rate is watched for the whole flight (:class:`ImuRateWatch`: the rate of
 the last ``rate_window_s`` of samples, judged ten times a window): a rate off the tolerance for longer than the
 window is said once and its recovery once more, and gaps (no sample arriving for ``gap_s``, 20 ms) are counted
-with the worst; both in the summary (``imu_watch``). The frames go on meanwhile: the controller integrates the
+with the worst; both in the summary (``imu_watch``) and, once a second, on ``/diagnostics`` in the node's namespace
+(``diagnostic_msgs/msg/DiagnosticArray``, ROS's standard: WARN while the rate is off or after a gap, STALE when
+no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`). The frames go on meanwhile: the controller integrates the
 real intervals between frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
 are passed as they are (NaN included: the node's supervision judges them); malformed payloads on any of these
 topics are counted (``bad_payloads`` in the summary), never raised.
@@ -154,6 +156,9 @@ ARMING_ARMED = 2
 """``VehicleStatus.arming_state`` armed."""
 FAILSAFE_NONE, FAILSAFE_COMMAND_LOSS, FAILSAFE_ROBOT = 0, 1, 2
 """``SimStatus.failsafe`` values the bridge reports (the plant status the node reads)."""
+DIAGNOSTICS_TOPIC = "/diagnostics"
+"""ROS's diagnostics topic (in the node's namespace): the frame direction's state once a second."""
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -275,6 +280,7 @@ class ImuRateWatch:
         self.worst_hz = math.nan
         self.gaps = 0
         self.worst_gap_s = 0.0
+        self._gaps_told = 0  # gaps counted at the previous :meth:`diagnostic`
 
     def sample(self, t_us: int, arrival_s: float) -> None:
         """One IMU sample: PX4's ``timestamp`` [µs], its arrival [s, monotonic; NaN: not counted for gaps]."""
@@ -353,6 +359,24 @@ class ImuRateWatch:
         """The episodes' total length [s of PX4's time], an open one up to the newest sample."""
         open_s = 1e-6 * (self._last_us - self._off_since_us) if self._said else 0.0
         return self._off_closed_s + open_s
+
+    def diagnostic(self, now_s: float, stale_s: float = 0.5) -> tuple[int, str]:
+        """The IMU's state now (``now_s`` on the arrivals' clock) as a ROS diagnostic level and message.
+
+        ``diagnostic_msgs/msg/DiagnosticStatus``' levels: STALE (3) with no sample arrived yet or none for
+        ``stale_s``; WARN (1) while an episode is open, or when gaps came since the previous call; else OK (0).
+        """
+        rate = "rate not judged yet" if math.isnan(self.rate_hz) else f"{self.rate_hz:.1f} Hz"
+        new_gaps, self._gaps_told = self.gaps - self._gaps_told, self.gaps
+        age = now_s - self._last_arrival
+        if not age <= stale_s:
+            return 3, "no sample yet" if math.isnan(age) else f"no sample for {age:.1f} s"
+        if self._said:
+            off_s = 1e-6 * (self._last_us - self._off_since_us)
+            return 1, f"{rate}, off --rate-hz {self.nominal_hz:g} for {off_s:.1f} s"
+        if new_gaps:
+            return 1, f"{rate}; {new_gaps} gap(s) over {1000 * self.gap_s:g} ms since the last report"
+        return 0, rate
 
     def summary(self) -> dict:
         """What the watch counted (JSON-ready: None for a rate not judged)."""
@@ -645,6 +669,35 @@ class Px4FrameSource:
         while not stop.is_set():
             self.poll(0.05)
 
+    def diagnostics(self, wall_s: float) -> object:
+        """A ``diagnostic_msgs/msg/DiagnosticArray`` of the frame direction now, stamped ``wall_s``.
+
+        ``wall_s`` is this host's system clock, as ROS's diagnostics tools expect. One status, ``omnirotor
+        px4-bridge: PX4's IMU``, with :meth:`ImuRateWatch.diagnostic`'s level and message and the counts of the
+        summary as key-values.
+        """
+        T = typestore().types
+        w, a = self.watch, self.assembler
+        level, message = w.diagnostic(time.monotonic())
+        values = {
+            "topic": self.imu_where, "rate_hz": f"{w.rate_hz:.1f}", "rate_expected_hz": f"{w.nominal_hz:g}",
+            "off_episodes": str(w.episodes), "off_s": f"{w.off_s:.1f}", "gaps": str(w.gaps),
+            "worst_gap_ms": f"{1000 * w.worst_gap_s:.0f}", "frames": str(a.frames),
+            "frames_esc_nan": str(a.esc_nan_frames), "mocap_samples": str(a.mocap_samples),
+            "imu_samples_lost": str(self.imu_gaps),
+        }  # fmt: skip
+        status = T["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=level,
+            name="omnirotor px4-bridge: PX4's IMU", message=message, hardware_id="px4",
+            values=[T["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()],
+        )  # fmt: skip
+        msg = T[DIAGNOSTIC_ARRAY](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+            status=[status],
+        )
+        set_stamp(msg.header, wall_s)
+        return msg
+
     def summary(self) -> dict:
         """What the frame direction counted."""
         a = self.assembler
@@ -714,6 +767,8 @@ class Px4Bridge:
         )  # fmt: skip
         self._status_next = 0.0
         self.frames = None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say)
+        self._pub_diag = None if frames is None else node.publisher(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY)
+        self._diag_next = 0.0
 
     @staticmethod
     def _now_us() -> int:
@@ -734,6 +789,9 @@ class Px4Bridge:
             self._command_loss(now - self.cmd_wall_s)
         self._offboard(self._now_us())
         self._publish_status(now)
+        if self._pub_diag is not None and now >= self._diag_next:
+            self._diag_next = now + 1.0
+            self._pub_diag.put(self.frames.diagnostics(time.time()))
 
     def _obey(self, msg) -> None:
         armed = int(msg.state) == COMMAND_ARMED
