@@ -419,9 +419,11 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
 
 
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():
-    """The bridge stands where the simulator stands: it meets the node through the messages only (a fresh process)."""
+    """The bridge stands where the simulator stands: it meets the node through the messages only (a fresh process);
+    its command and the real-time module it shares with the node neither."""
     code = (
-        "import sys, omnirotor.fly.bridge, omnirotor.fly.px4, omnirotor.px4.frames\n"
+        "import sys, omnirotor.fly.bridge, omnirotor.fly.px4, omnirotor.px4.frames, omnirotor.realtime\n"
+        "import omnirotor.cli.cmd_px4_bridge, omnirotor.cli.realtime_options\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[:2] in (['omnirotor', 'control'], ['omnirotor', 'sim'])"
         " or m == 'mujoco')\n"
         "print(','.join(bad))\n"
