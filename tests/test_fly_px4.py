@@ -250,6 +250,7 @@ def test_frame_assembler_fills_the_frame_record_from_px4s_samples():
     a.imu(_imu_msg(1_100_400))
     r = a.frame()[0]
     assert r["mocap"]["new"] == 0.0 and r["rotor_hz"][2] == 100.0
+    assert r["mocap"]["t"] == 0.0 and not r["mocap"]["p_W"].any() and not r["mocap"]["q_WB"].any()  # zeroed
     a.imu(_imu_msg(1_100_600))
     assert np.isnan(a.frame()[0]["rotor_hz"]).all() and a.esc_nan_frames == 2
     # a pose (PoseStamped: our frames) is taken as it is

@@ -423,6 +423,7 @@ class FrameAssembler:
         self._p, self._q = np.zeros(3), np.zeros(4)
         self._sample_t = 0.0
         self._pending = False
+        self._m_written = False  # the record's motion capture holds a sample (zeroed at the next frame without)
         self.t = math.nan  # the time of the frame being assembled [s]
         self.frames = self.esc_nan_frames = self.mocap_samples = self.mocap_replaced = 0
 
@@ -473,9 +474,11 @@ class FrameAssembler:
             self._m_p[:] = self._p
             self._m_q[:] = self._q
             self._pending = False
+            self._m_written = True
             self.mocap_samples += 1
-        else:
-            m[...] = 0.0  # the record's convention: no sample, its entries zero
+        elif self._m_written:  # the record's convention: no sample, its entries zero (they stay so until one)
+            m[...] = 0.0
+            self._m_written = False
         self.frames += 1
         return self.record
 
