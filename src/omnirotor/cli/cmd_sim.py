@@ -123,7 +123,7 @@ def sim(
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
         from omnirotor.realtime import set_realtime
 
-        if lockstep and fifo_priority:  # lockstep polls for each command: a real-time class would starve the rest
+        if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
             note("--fifo-priority is for real time: the lockstep plant runs at normal priority")
         set_realtime(cpu, None if lockstep else (fifo_priority or None), note)
         result, report = _serve(t, task, options, serve_opts)
