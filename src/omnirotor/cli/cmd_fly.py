@@ -27,6 +27,7 @@ from omnirotor.cli.connection_options import (
     session_id_arg,
     transport_args,
 )
+from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option, n_cpus
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file
 
@@ -36,6 +37,8 @@ DEFAULT_PLANT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the node connects by default: the plant's (``omnirotor sim --serve``, ``omnirotor px4-bridge``)."""
 _Connect = connect_option(DEFAULT_PLANT_ENDPOINT)
 _Listen = listen_option(DEFAULT_NODE_ENDPOINT)
+_Cpu = cpu_option("the last one")
+_FifoPriority = fifo_priority_option()
 
 
 def _director_factory(flight: str | None, overrides: list[str]):
@@ -64,8 +67,8 @@ def fly(
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
     flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", help="Flight parameter override key=value.")] = None,
-    cpu: Annotated[int | None, typer.Option(help="Pin the loop to this CPU (default: the last one).")] = None,
-    fifo_priority: Annotated[int, typer.Option(help="SCHED_FIFO priority of the loop (0: do not ask).")] = 50,
+    cpu: _Cpu = None,
+    fifo_priority: _FifoPriority = 50,
     maps: Annotated[
         Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify` (for `ctl map global|piecewise`).")
     ] = None,
@@ -77,18 +80,13 @@ def fly(
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
-    import os
-
-    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, set_realtime, warm_up
+    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, warm_up
     from omnirotor.fly.node import mission_from_sim as ask
+    from omnirotor.realtime import set_realtime
     from omnirotor.sitl.gate import new_session_id
     from omnirotor.transport import open_transport
 
-    if not 0 <= fifo_priority <= 99:
-        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
-    n_cpus = os.cpu_count() or 1
-    if cpu is not None and not 0 <= cpu < n_cpus:
-        raise InputError(f"--cpu must be in 0..{n_cpus - 1}, got {cpu}")
+    check_realtime_options(cpu, fifo_priority)
     session = session_id_arg(session_id, "--session-id")
     factory = _director_factory(flight, list(set_ or ()))
     if maps is not None:
@@ -103,7 +101,7 @@ def fly(
         print(f"omnirotor fly: {line}", file=sys.stderr)
 
     def realtime() -> None:
-        set_realtime(cpu if cpu is not None else n_cpus - 1, fifo_priority or None, say)
+        set_realtime(cpu if cpu is not None else n_cpus() - 1, fifo_priority or None, say)
 
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,

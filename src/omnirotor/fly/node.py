@@ -21,13 +21,13 @@ of 20, and the rest as soon as frames pause (a lockstep plant at the end of its 
 Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
 is frozen and disabled in the loop; the loop's thread asks for CPU affinity and ``SCHED_FIFO`` (said on stderr where
-the OS refuses). A period with no frame calls the director with the growing link ages (its failsafes); no frame for
-``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the director told (``frames_stopped``),
-and no command is published until frames come back. Deadline accounting: a period is *late* when its command left
-more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the wire, when its frame came that much later
-than one period after the previous one, or when its frame was missed; an *overrun* is a period whose work took
-longer than the period. Counts, the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in
-the summary on exit.
+the OS refuses; both in :mod:`omnirotor.realtime`). A period with no frame calls the director with the growing link
+ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the
+director told (``frames_stopped``), and no command is published until frames come back. Deadline accounting: a
+period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the
+wire, when its frame came that much later than one period after the previous one, or when its frame was missed; an
+*overrun* is a period whose work took longer than the period. Counts, the worst lateness and the frame-to-command
+percentiles are in ``LoopStatus`` and in the summary on exit.
 
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
@@ -46,9 +46,7 @@ output without a step; Ctrl-C (or ``stop``) ends it with the summary.
 from __future__ import annotations
 
 import dataclasses
-import gc
 import math
-import os
 import queue
 import sys
 import threading
@@ -61,6 +59,7 @@ import numpy as np
 from omnirotor.errors import InputError
 from omnirotor.fly.failsafe import LinkAges
 from omnirotor.messages import SensorFrame
+from omnirotor.realtime import freeze_gc, thaw_gc
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -86,7 +85,6 @@ __all__ = [
     "NodeOptions",
     "NodeLoop",
     "LoopStats",
-    "set_realtime",
     "LinkAges",
     "warm_up",
     "mission_from_sim",
@@ -244,24 +242,6 @@ def _percentiles(x: np.ndarray) -> dict:
         return {}
     p50, p99 = np.percentile(x, [50, 99])
     return {"p50": 1e6 * float(p50), "p99": 1e6 * float(p99), "max": 1e6 * float(x.max()), "n": int(x.size)}
-
-
-def set_realtime(cpu: int | None, priority: int | None, say: Callable[[str], None]) -> None:
-    """Ask for CPU affinity (``cpu``) and ``SCHED_FIFO`` at ``priority`` for the calling thread; refusals are said.
-
-    Call it after the transport is open, so the transport's own threads keep their CPUs.
-    """
-    if cpu is not None:
-        try:
-            os.sched_setaffinity(0, {cpu})
-        except (OSError, AttributeError, ValueError) as exc:
-            say(f"CPU affinity to CPU {cpu} not permitted ({exc.__class__.__name__}): the OS schedules the loop")
-    if priority is not None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError) as exc:
-            why = "needs CAP_SYS_NICE or an rtprio limit" if isinstance(exc, PermissionError) else str(exc)
-            say(f"SCHED_FIFO not permitted ({why}): the loop runs at normal priority")
 
 
 class NodeLoop:
@@ -517,9 +497,7 @@ class NodeLoop:
         next_gap_call = math.inf
         steps = 0
         cpu0, thread0 = time.process_time(), time.thread_time()
-        gc.collect()
-        gc.freeze()
-        gc.disable()
+        freeze_gc()
         try:
             while not stop.is_set() and not self.finished:
                 # asleep until a frame arrives or the next thing is due (the director's gap call, the status)
@@ -626,8 +604,7 @@ class NodeLoop:
         except KeyboardInterrupt:
             pass
         finally:
-            gc.enable()
-            gc.unfreeze()
+            thaw_gc()
         self._flush_rows()
         self._publish_status()
         out = stats.summary()

@@ -35,7 +35,6 @@ zeros), and held as zeros; a robot bridge does the same (:mod:`omnirotor.fly.px4
 from __future__ import annotations
 
 import dataclasses
-import gc
 import json
 import math
 import sys
@@ -47,6 +46,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand
+from omnirotor.realtime import freeze_gc, thaw_gc
 from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -409,9 +409,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     zeros = np.zeros(link.n)
     lockstep = opts.lockstep
     held = 0
-    gc.collect()  # now, not between the first command and the first step
-    gc.freeze()
-    gc.disable()
+    freeze_gc()  # now, not between the first command and the first step
     # wait for the node: the start frame goes out every 10 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
@@ -479,8 +477,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                 progress((k + 1) / n_steps)
         wall = time.monotonic() - wall0
     finally:
-        gc.enable()
-        gc.unfreeze()
+        thaw_gc()
     report.lockstep = lockstep
     report.steps = n_steps
     report.commands_obeyed = link.gate.obeyed
@@ -635,9 +632,7 @@ def serve_free(
     seq = 0
     held = 0
     released = failsafe = False
-    gc.collect()
-    gc.freeze()
-    gc.disable()
+    freeze_gc()
     wall0 = time.monotonic()
     k = 0
     try:
@@ -669,8 +664,7 @@ def serve_free(
     except KeyboardInterrupt:
         pass  # Ctrl-C or SIGTERM ends the run here; the summary below is still written
     finally:
-        gc.enable()
-        gc.unfreeze()
+        thaw_gc()
         report.recording = outputs.close()
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held
