@@ -36,7 +36,10 @@ def connect_option(default: str | None = None, what: str = "") -> type:
 
 
 ZenohConfig = Annotated[
-    str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+    str | None,
+    typer.Option(
+        help="Zenoh configuration file (JSON5): login, access control (examples/zenoh-auth/, docs/transport.md)."
+    ),
 ]
 DomainId = Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")]
 Namespace = Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")]

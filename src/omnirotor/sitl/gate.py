@@ -19,7 +19,7 @@ release) sets where the numbers start.
 
 The session identity is a number on the wire, so this guards against a second node or a stale process, not
 against a hostile one that copies it: on a shared network use Zenoh's authentication and access control
-(docs/transport.md, ``examples/zenoh/``).
+(docs/transport.md, ``examples/zenoh-auth/``).
 """
 
 from __future__ import annotations
