@@ -1,0 +1,344 @@
+"""The README and docs/ name only what exists: commands and options, links and images, files and modules.
+
+What the users read must stay true when the code moves on. These checks are cheap (no subprocess, no compiled
+kernel): the command line is the typer app's own tree, files and modules are looked up in the checkout.
+
+- every ``omnirotor <cmd> [--option]`` written in a code span or a code block names a command of the app (or a
+  sub-command of a group, e.g. ``ctl arm``) and options that command has;
+- every relative link and image resolves to a file of the checkout (``../shared`` beside it is not checked);
+- every ``src/...``, ``tests/...`` or package-relative path (``px4/windows.py``), every bare ``*.py`` file name,
+  every ``tests/test_x.py::test_name`` and every dotted ``omnirotor.module.Name`` exists.
+
+Each checker is also run on a made-up page that names something gone, to show that it would fail.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "src" / "omnirotor"
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+# --- reading a page: code spans and code blocks ----------------------------------------------------------------
+
+
+def code_texts(text: str) -> list[str]:
+    """The code of a Markdown page: each inline code span, and each line of a fenced or indented code block.
+
+    A code block's lines continued with a backslash are joined; an inline span may run over a line break.
+    """
+    out: list[str] = []
+    prose: list[str] = []
+    lines = text.splitlines()
+    fenced = False
+    pending = ""
+    for line in lines:
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+            continue
+        indented = line.startswith("    ") and line.lstrip().startswith("omnirotor")
+        if fenced or indented or pending:
+            joined = pending + " " + line.strip() if pending else line.strip()
+            if joined.endswith("\\"):
+                pending = joined[:-1]
+                continue
+            pending = ""
+            out.append(joined)
+            prose.append("")
+        else:
+            prose.append(line)
+    out += [m.group(1) for m in re.finditer(r"`([^`\n]+(?:\n[^`\n]+)?)`", "\n".join(prose))]
+    return [" ".join(t.split()) for t in out]
+
+
+# --- the command line -------------------------------------------------------------------------------------------
+
+
+@cache
+def cli_tree():
+    """The click command of ``omnirotor`` with every command module registered."""
+    import typer.main
+
+    from omnirotor.cli import _register, app
+
+    _register()
+    return typer.main.get_command(app)
+
+
+def _options(command) -> dict[str, bool]:
+    """Option name -> whether it takes a value, for ``command`` (``--help`` included)."""
+    opts = {"--help": False}
+    for p in command.params:
+        if p.param_type_name != "option":
+            continue
+        for name in [*p.opts, *p.secondary_opts]:
+            opts[name] = not p.is_flag
+    return opts
+
+
+_INVOCATION = re.compile(r"(?<![\w./-])omnirotor\s+(--?[a-z][\w-]*|[a-z][a-z0-9-]*)(?![\w:.-])")
+
+
+def invocations(code: str) -> list[str]:
+    """The ``omnirotor ...`` invocations in one piece of code, each up to a comment, ``&&``, ``;`` or the next.
+
+    A span that starts with a command's name and an option (``run --ulog``, the pages' short form) counts as one.
+    """
+    code = re.sub(r"\s#\s.*$", "", code)  # a shell comment
+    short = re.match(r"([a-z][a-z0-9-]*) --", code)
+    if short and short.group(1) in cli_tree().commands:
+        code = "omnirotor " + code
+    python = re.compile(r"\b(?:from|import)\s+$")  # `from omnirotor import ...` is Python, not the command
+    starts = [m.start() for m in _INVOCATION.finditer(code) if not python.search(code[: m.start()])]
+    out = []
+    for i, s in enumerate(starts):
+        end = starts[i + 1] if i + 1 < len(starts) else len(code)
+        out.append(re.split(r"&&|;|\|\|", code[s:end])[0].strip())
+    return out
+
+
+def cli_problems(code: str) -> list[str]:
+    """What an ``omnirotor ...`` invocation names that the app does not have (empty: all of it exists)."""
+    root = cli_tree()
+    problems = []
+    for inv in invocations(code):
+        tokens = re.sub(r"[][`,()]", " ", inv.replace("\\|", "|")).split()[1:]
+        command, path = root, ["omnirotor"]
+        if not tokens[0].startswith("-"):
+            if tokens[0] not in root.commands:
+                problems.append(f"{inv!r}: no command {tokens[0]!r}")
+                continue
+            command, path = root.commands[tokens[0]], ["omnirotor", tokens[0]]
+            tokens = tokens[1:]
+        subs = dict(getattr(command, "commands", {}))
+        allowed = _options(command)
+        for sub in subs.values():
+            allowed.update(_options(sub))
+        expect_sub = bool(subs)
+        skip_value = False
+        for tok in tokens:
+            if skip_value:
+                skip_value = False
+                continue
+            for word in tok.split("|"):
+                opt = re.match(r"--?[a-z][\w-]*", word)
+                if word.startswith("-") and opt:
+                    name = opt.group(0).split("/")[0]
+                    if name not in allowed:
+                        problems.append(f"{inv!r}: {' '.join(path)} has no option {name}")
+                    elif allowed[name] and "=" not in word and tok == word:
+                        skip_value = True
+                elif expect_sub and re.fullmatch(r"[a-z][a-z0-9-]*", word):
+                    if word not in subs:
+                        problems.append(f"{inv!r}: {' '.join(path)} has no sub-command {word!r}")
+            if expect_sub and not tok.startswith("-"):
+                expect_sub = False
+    return problems
+
+
+# --- links and images ---------------------------------------------------------------------------------------------
+
+
+def link_problems(text: str, page: Path) -> list[str]:
+    """Relative links and images of ``page`` that resolve to no file or folder of the checkout."""
+    problems = []
+    for m in re.finditer(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", text):
+        target = m.group(1).split("#")[0]
+        if not target or re.match(r"[a-z][a-z0-9+.-]*:", target):  # an anchor, http:, mailto:
+            continue
+        path = (page.parent / target).resolve()
+        if not path.is_relative_to(ROOT):  # ../shared beside the checkout (not part of it)
+            continue
+        if not path.exists():
+            problems.append(f"{page.name}: {m.group(0)} -> {target} does not exist")
+    return problems
+
+
+# --- files and modules -------------------------------------------------------------------------------------------
+
+
+@cache
+def tracked_files() -> tuple[str, ...]:
+    """Every file of the checkout (git's list, untracked but not ignored ones included)."""
+    out = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    return tuple(out.split())
+
+
+@cache
+def _top_folders() -> frozenset[str]:
+    roots = {p.split("/")[0] for p in tracked_files() if "/" in p}
+    packages = {p.name for p in PACKAGE.iterdir() if p.is_dir() and not p.name.startswith("__")}
+    return frozenset(roots | packages)
+
+
+NOT_OURS = {"numpy.py", "queue.py", "my_observer.py"}
+"""Bare file names the pages use for what is not the project's: a user's module, the files a working folder must
+not run (docs/architecture.md)."""
+
+_PATH = re.compile(r"(?<![\w./-])([\w.-]+(?:/[\w.-]+)*\.(?:py|toml|md|json|json5|msg|txt|png|csv)(?:::\w+)?)")
+_DOTTED = re.compile(r"(?<![\w./-])omnirotor((?:\.\w+)+)")
+
+
+def _resolve(rel: str, page: Path) -> Path | None:
+    for base in (ROOT, ROOT / "src", PACKAGE, page.parent):
+        if (base / rel).exists():
+            return base / rel
+    return None
+
+
+def path_problems(code: str, page: Path) -> list[str]:
+    """Files, tests and modules that ``code`` names and the checkout does not have."""
+    problems = []
+    basenames = {p.rsplit("/", 1)[-1] for p in tracked_files()}
+    for m in _PATH.finditer(code):
+        name, _, test = m.group(1).partition("::")
+        if "/" in name:
+            if name.split("/")[0] not in _top_folders():
+                continue  # a file the user names (flight/flight.csv)
+            found = _resolve(name, page)
+            if found is None:
+                problems.append(f"{page.name}: {name} does not exist")
+            elif test and not re.search(rf"^\s*def {test}\(", found.read_text(), re.M):
+                problems.append(f"{page.name}: {name} has no test {test}")
+        elif name.endswith(".py") and name not in basenames | NOT_OURS:
+            problems.append(f"{page.name}: no file {name} in the checkout")
+    for m in _DOTTED.finditer(code):
+        problems += _dotted_problems("omnirotor" + m.group(1), page)
+    return problems
+
+
+def _dotted_problems(dotted: str, page: Path) -> list[str]:
+    """``omnirotor.a.b.Name``: the longest module prefix must exist and define the next name (statically)."""
+    parts = dotted.split(".")
+    module = None
+    i = len(parts)
+    while i > 0:
+        base = ROOT / "src" / Path(*parts[:i])
+        for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+            if candidate.is_file():
+                module = candidate
+                break
+        if module:
+            break
+        i -= 1
+    if module is None:
+        return [f"{page.name}: {dotted}: no such module"]
+    if i == len(parts):
+        return []
+    name = parts[i]
+    source = module.read_text()
+    defined = rf"^\s*(?:def|class|async def)\s+{name}\b|^\s*{name}\s*[:=]|\bimport\b[^\n]*\b{name}\b|^\s+{name},?$"
+    if not re.search(defined, source, re.M):
+        return [f"{page.name}: {dotted}: {module.relative_to(ROOT)} defines no {name}"]
+    return []
+
+
+# --- the tests -----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_command_and_option_written_exists(page):
+    problems = [p for code in code_texts(page.read_text()) for p in cli_problems(code)]
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_relative_link_and_image_resolves(page):
+    problems = link_problems(page.read_text(), page)
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_file_and_module_named_exists(page):
+    problems = [p for code in code_texts(page.read_text()) for p in path_problems(code, page)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_pages_name_commands_at_all():
+    """The checks above see the invocations: the README's table alone names every command of the app."""
+    named = {inv.split()[1] for page in DOCS for c in code_texts(page.read_text()) for inv in invocations(c)}
+    assert set(cli_tree().commands) <= named, set(cli_tree().commands) - named
+
+
+# --- each checker fails on a page that names something gone -------------------------------------------------------
+
+MADE_UP = """
+Fly with `omnirotor fly --mission-from-sim --warp-drive` and `omnirotor teleport --to mars`.
+`omnirotor ctl [--connect EP] arm\\|somersault` and `omnirotor run sliding --quick --seed 3` (this one is right).
+
+    omnirotor sim --serve --task hover \\
+        --no-such-flag
+
+See [the gone page](docs/gone.md), ![a gone figure](docs/img/gone.png) and [the paper](../shared/SPEC.md).
+`src/omnirotor/gone.py`, `px4/gone.py`, `gone_module.py`, `tests/test_transport.py::test_that_never_was`,
+`omnirotor.fly.bridge.NoSuchClass`, `omnirotor.no_such_module`; `flight/flight.csv` is the user's own file.
+"""
+
+
+def test_the_checkers_find_what_is_gone():
+    page = ROOT / "MADE-UP.md"
+    codes = code_texts(MADE_UP)
+    cli = [p for c in codes for p in cli_problems(c)]
+    assert len(cli) == 4, cli
+    assert any("no option --warp-drive" in p for p in cli)
+    assert any("no command 'teleport'" in p for p in cli)
+    assert any("no sub-command 'somersault'" in p for p in cli)
+    assert any("no option --no-such-flag" in p for p in cli)  # on a line continued with a backslash
+
+    links = link_problems(MADE_UP, page)
+    assert [p.split("-> ")[1] for p in links] == ["docs/gone.md does not exist", "docs/img/gone.png does not exist"]
+
+    paths = [p for c in codes for p in path_problems(c, page)]
+    assert len(paths) == 6, paths
+    for gone in ("src/omnirotor/gone.py", "px4/gone.py", "gone_module.py", "test_that_never_was", "NoSuchClass"):
+        assert any(gone in p for p in paths), gone
+    assert any("omnirotor.no_such_module: src/omnirotor/__init__.py defines no no_such_module" in p for p in paths)
+
+
+def test_the_checkers_accept_what_exists():
+    page = ROOT / "README.md"
+    right = (
+        "`omnirotor ctl [--connect EP] arm\\|takeoff [--height H]\\|goto X Y Z [--yaw D]` "
+        "`omnirotor study partitions\\|points-per-region\\|torque-rows --out DIR` `omnirotor --version` "
+        "`omnirotor run hover --zero/--no-zero --set pose.kp=1` `src/omnirotor/limits.py` `px4/ulog_guard.py` "
+        "`tests/test_docs.py::test_the_checkers_accept_what_exists` `omnirotor.fly.bridge.ImuRateWatch` `_jit.py` "
+        "[docs](docs/fly.md)"
+    )
+    codes = code_texts(right)
+    assert [p for c in codes for p in cli_problems(c)] == []
+    assert [p for c in codes for p in path_problems(c, page)] == []
+    assert link_problems(right, page) == []
+
+
+def command_table_rows(text: str) -> list[str]:
+    """The command names of the README's "Command line" table, one per row (``--version`` for the version's)."""
+    section = text.split("\n## Command line\n", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `omnirotor ")]
+    return [row.split("`")[1].split()[1] for row in rows]
+
+
+def test_the_readme_command_table_has_one_row_per_command():
+    rows = command_table_rows((ROOT / "README.md").read_text())
+    assert sorted(rows) == sorted({*cli_tree().commands, "--version"}), rows
+
+
+def test_the_command_table_check_sees_a_missing_or_doubled_row():
+    text = (
+        "\n## Command line\n\n| command | what |\n|---|---|\n| `omnirotor run TASK` | x |\n| `omnirotor run X` | y |\n"
+    )
+    text += "\n## Next section\n\n| `omnirotor info` | not the table |\n"
+    assert command_table_rows(text) == ["run", "run"]
+    assert sorted(command_table_rows(text)) != sorted({*cli_tree().commands, "--version"})
