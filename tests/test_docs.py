@@ -342,3 +342,25 @@ def test_the_command_table_check_sees_a_missing_or_doubled_row():
     text += "\n## Next section\n\n| `omnirotor info` | not the table |\n"
     assert command_table_rows(text) == ["run", "run"]
     assert sorted(command_table_rows(text)) != sorted({*cli_tree().commands, "--version"})
+
+
+_MSG_TYPE = re.compile(r"\b([a-z]\w*_msgs|builtin_interfaces)/msg/([A-Z]\w*)\b")
+
+
+def message_type_problems(text: str) -> list[str]:
+    """ROS 2 message types (``pkg/msg/Name``) the text names that neither ship here nor are ROS 2's standard ones."""
+    from omnirotor.rosmsg import typestore
+
+    known = typestore().fielddefs
+    return [f"{m.group(0)} is not a known type" for m in _MSG_TYPE.finditer(text) if m.group(0) not in known]
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_message_type_named_exists(page):
+    problems = message_type_problems(page.read_text())
+    assert not problems, "\n".join(problems)
+
+
+def test_the_message_check_finds_a_gone_type():
+    text = "`omnirotor_msgs/msg/SensorFrame`, `px4_msgs/msg/EscStatus`, `sensor_msgs/msg/Imu`; `px4_msgs/msg/Gone`"
+    assert message_type_problems(text) == ["px4_msgs/msg/Gone is not a known type"]
