@@ -364,3 +364,59 @@ def test_every_message_type_named_exists(page):
 def test_the_message_check_finds_a_gone_type():
     text = "`omnirotor_msgs/msg/SensorFrame`, `px4_msgs/msg/EscStatus`, `sensor_msgs/msg/Imu`; `px4_msgs/msg/Gone`"
     assert message_type_problems(text) == ["px4_msgs/msg/Gone is not a known type"]
+
+
+def strict_xfails(sources: dict[str, str]) -> set[str]:
+    """The tests marked ``pytest.mark.xfail(strict=True, ...)`` in ``sources`` (file name -> Python source).
+
+    A decorated function counts, and so does a parametrised case of ``test_sustained_faults.py``'s ``KNOWN`` table
+    (scenario name -> reason), written as ``test_each_sustained_fault_ends_within_its_bound[NAME]``.
+    """
+    import ast
+
+    found = set()
+    for source in sources.values():
+        tree = ast.parse(source)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef):
+                for deco in node.decorator_list:
+                    if (
+                        isinstance(deco, ast.Call)
+                        and ast.unparse(deco.func).endswith("mark.xfail")
+                        and any(k.arg == "strict" and ast.unparse(k.value) == "True" for k in deco.keywords)
+                    ):
+                        found.add(node.name)
+            elif isinstance(node, ast.AnnAssign | ast.Assign):
+                targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
+                if any(isinstance(t, ast.Name) and t.id == "KNOWN" for t in targets) and node.value is not None:
+                    found |= {
+                        f"test_each_sustained_fault_ends_within_its_bound[{k}]" for k in ast.literal_eval(node.value)
+                    }
+    return found
+
+
+def disagreements_listed(text: str) -> list[str]:
+    """The tests the README's "Where the simulation still disagrees with the paper" names, in its order."""
+    section = text.split("\n### Where the simulation still disagrees with the paper\n", 1)[1].split("\n#", 1)[0]
+    return re.findall(r"`(test_[\w\[\]-]+)`", section)
+
+
+def test_the_readme_lists_every_strict_xfail_as_a_disagreement():
+    sources = {p.name: p.read_text() for p in (ROOT / "tests").glob("test_*.py")}
+    listed = disagreements_listed((ROOT / "README.md").read_text())
+    assert len(listed) == len(set(listed))
+    assert set(listed) == strict_xfails(sources)
+
+
+def test_the_disagreement_check_sees_a_new_or_a_fixed_xfail():
+    source = (
+        "import pytest\nKNOWN: dict[str, str] = {'frozen-mocap': 'measured 6 cm'}\n"
+        "@pytest.mark.xfail(strict=True, reason='0.8 N')\ndef test_a():\n    pass\n"
+        "@pytest.mark.xfail(reason='flaky')\ndef test_b():\n    pass\n"
+    )
+    assert strict_xfails({"t.py": source}) == {
+        "test_a",
+        "test_each_sustained_fault_ends_within_its_bound[frozen-mocap]",
+    }
+    readme = "\n### Where the simulation still disagrees with the paper\n\n- one (`test_a`)\n\n## Next\n`test_c`\n"
+    assert disagreements_listed(readme) == ["test_a"]  # the new KNOWN case is missing: the test above would fail
