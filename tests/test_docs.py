@@ -420,3 +420,23 @@ def test_the_disagreement_check_sees_a_new_or_a_fixed_xfail():
     }
     readme = "\n### Where the simulation still disagrees with the paper\n\n- one (`test_a`)\n\n## Next\n`test_c`\n"
     assert disagreements_listed(readme) == ["test_a"]  # the new KNOWN case is missing: the test above would fail
+
+
+def make_problems(code: str, makefile: str) -> list[str]:
+    """``make TARGET`` in a piece of code whose target the Makefile does not define."""
+    targets = set(re.findall(r"^([a-z][\w-]*)\s*:(?!=)", makefile, re.M))
+    return [f"make {t}: no such target" for t in re.findall(r"(?<![\w-])make ([a-z][\w-]*)", code) if t not in targets]
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_make_target_named_exists(page):
+    makefile = (ROOT / "Makefile").read_text()
+    problems = [p for code in code_texts(page.read_text()) for p in make_problems(code, makefile)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_make_check_finds_a_gone_target():
+    makefile = "demo: $(STAMP)\n\techo\nBENCH_ARGS ?=\ntest: x\n"
+    assert make_problems("make demo\nmake test\nmake deploy BENCH_ARGS=--quick", makefile) == [
+        "make deploy: no such target"
+    ]
