@@ -440,3 +440,49 @@ def test_the_make_check_finds_a_gone_target():
     assert make_problems("make demo\nmake test\nmake deploy BENCH_ARGS=--quick", makefile) == [
         "make deploy: no such target"
     ]
+
+
+def dependency_problems(pyproject: str, table: str) -> list[str]:
+    """Pinned dependencies (main and extras) without a row in docs/dependencies.md's table, or with another version.
+
+    A row names one or more packages in its first cell and their versions, in the same order, in its second (a
+    cell with no digits, such as "dev extra", names no version).
+    """
+    import tomllib
+
+    project = tomllib.loads(pyproject)["project"]
+    specs = [*project["dependencies"], *(r for extra in project["optional-dependencies"].values() for r in extra)]
+    rows = {}
+    for line in table.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 2 and line.startswith("| "):
+            names = [n.strip() for n in cells[0].split(",")]
+            versions = [v.strip() for v in cells[1].split(";")] if ">=" in cells[1] else cells[1].split(", ")
+            for i, name in enumerate(names):
+                rows[name] = versions[i] if i < len(versions) and re.search(r"\d", cells[1]) else None
+    problems = []
+    for spec in specs:
+        name, version = re.match(r"([A-Za-z0-9_.-]+)\s*(\S*)", spec).groups()
+        version = version.removeprefix("==")
+        if name not in rows:
+            problems.append(f"{name}: no row")
+        elif rows[name] is not None and not rows[name].startswith(version):
+            problems.append(f"{name}: pinned {version}, the table says {rows[name]}")
+    return problems
+
+
+def test_every_pinned_dependency_is_in_the_table_with_its_version():
+    problems = dependency_problems((ROOT / "pyproject.toml").read_text(), (ROOT / "docs/dependencies.md").read_text())
+    assert not problems, problems
+
+
+def test_the_dependency_check_finds_a_missing_or_stale_row():
+    pyproject = (
+        '[project]\ndependencies = ["numpy==2.4.6", "numba>=0.68.1,<0.70", "zenoh==1.0"]\n'
+        '[project.optional-dependencies]\ndev = ["pytest==9.2.0"]\n'
+    )
+    table = (
+        "| package | version | why |\n|---|---|---|\n| numpy | 2.4.5 | arrays |\n"
+        "| numba, llvmlite | >=0.68.1,<0.70; >=0.50.0,<0.52 | kernels |\n| pytest, ruff | dev extra | tests |\n"
+    )
+    assert dependency_problems(pyproject, table) == ["numpy: pinned 2.4.6, the table says 2.4.5", "zenoh: no row"]
