@@ -486,3 +486,42 @@ def test_the_dependency_check_finds_a_missing_or_stale_row():
         "| numba, llvmlite | >=0.68.1,<0.70; >=0.50.0,<0.52 | kernels |\n| pytest, ruff | dev extra | tests |\n"
     )
     assert dependency_problems(pyproject, table) == ["numpy: pinned 2.4.6, the table says 2.4.5", "zenoh: no row"]
+
+
+def python_block_problems(text: str, page: Path) -> list[str]:
+    """The ``python`` code blocks of a page: each must parse, and each name it imports from omnirotor must exist."""
+    import ast
+
+    problems = []
+    for block in re.findall(r"^```python\n(.*?)^```", text, re.M | re.S):
+        try:
+            tree = ast.parse(block)
+        except SyntaxError as exc:
+            problems.append(f"{page.name}: a python block does not parse: {exc}")
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "omnirotor":
+                problems += [p for a in node.names for p in _dotted_problems(f"{node.module}.{a.name}", page)]
+            elif isinstance(node, ast.Import):
+                problems += [
+                    p for a in node.names if a.name.startswith("omnirotor") for p in _dotted_problems(a.name, page)
+                ]
+    return problems
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_python_example_parses_and_imports_what_exists(page):
+    problems = python_block_problems(page.read_text(), page)
+    assert not problems, "\n".join(problems)
+
+
+def test_the_python_check_finds_a_gone_import_and_broken_code():
+    page = ROOT / "MADE-UP.md"
+    text = (
+        "```python\nfrom omnirotor.control.controller import InteractionController, GoneController\n"
+        "import omnirotor.gone_package\n```\n\n```python\ncontroller.step(frame\n```\n"
+    )
+    problems = python_block_problems(text, page)
+    assert len(problems) == 3, problems
+    for expected in ("defines no GoneController", "defines no gone_package", "does not parse"):
+        assert any(expected in p for p in problems), expected
