@@ -525,3 +525,38 @@ def test_the_python_check_finds_a_gone_import_and_broken_code():
     assert len(problems) == 3, problems
     for expected in ("defines no GoneController", "defines no gone_package", "does not parse"):
         assert any(expected in p for p in problems), expected
+
+
+@cache
+def known_options() -> frozenset[str]:
+    """Every option of every command of the app, and of the scripts in benchmarks/ and tools/ (argparse's)."""
+    found: set[str] = set()
+
+    def walk(command) -> None:
+        found.update(_options(command))
+        for sub in getattr(command, "commands", {}).values():
+            walk(sub)
+
+    walk(cli_tree())
+    for script in [*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "tools").glob("*.py")]:
+        found.update(re.findall(r"[\"'](--[a-z][\w-]*)[\"']", script.read_text()))
+    return frozenset(found)
+
+
+def bare_option_problems(code: str) -> list[str]:
+    """A code span that is an option alone (``--blend smooth``): some command or script must have it."""
+    m = re.match(r"(--[a-z][\w-]*)", code)
+    if m and m.group(1).split("/")[0] not in known_options():
+        return [f"{code!r}: no command or script has {m.group(1)}"]
+    return []
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_option_written_alone_exists_somewhere(page):
+    problems = [p for code in code_texts(page.read_text()) for p in bare_option_problems(code)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_bare_option_check_finds_a_gone_option():
+    codes = code_texts("More options of `run`: `--quick`, `--blend smooth`, `--warp 9`; `bench.py --placements`.")
+    assert [p for c in codes for p in bare_option_problems(c)] == ["'--warp 9': no command or script has --warp"]
