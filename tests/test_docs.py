@@ -560,3 +560,40 @@ def test_every_option_written_alone_exists_somewhere(page):
 def test_the_bare_option_check_finds_a_gone_option():
     codes = code_texts("More options of `run`: `--quick`, `--blend smooth`, `--warp 9`; `bench.py --placements`.")
     assert [p for c in codes for p in bare_option_problems(c)] == ["'--warp 9': no command or script has --warp"]
+
+
+@cache
+def source_words() -> frozenset[str]:
+    """Every identifier-like word of the package's Python, TOML and .msg files, lower-cased."""
+    words: set[str] = set()
+    for path in PACKAGE.rglob("*"):
+        if path.suffix in (".py", ".toml", ".msg") and path.is_file():
+            words.update(w.lower() for w in re.findall(r"[A-Za-z_][A-Za-z0-9_]*", path.read_text()))
+    return frozenset(words)
+
+
+def format_key_problems(text: str) -> list[str]:
+    """Keys and field names in the code spans of the README's "File formats" section that no source file has.
+
+    A file format's key (`reversal_delay_s`, `ee_rms_error_true`, a ULog topic) is read or written by the code
+    under that name, so a name the sources no longer contain is a format that changed under the page.
+    """
+    section = text.split("\n## File formats\n", 1)[1].split("\n## ", 1)[0]
+    names = {
+        name
+        for code in code_texts(section)
+        for name in re.findall(r"(?<![\w./-])([a-z][a-z0-9_]*[a-z0-9])(?![\w/(.-])", code)
+    }
+    return [f"`{name}` is in no source file" for name in sorted(names) if name not in source_words()]
+
+
+def test_every_file_format_key_named_is_in_the_sources():
+    problems = format_key_problems((ROOT / "README.md").read_text())
+    assert not problems, problems
+
+
+def test_the_format_key_check_finds_a_renamed_key():
+    text = (
+        "\n## File formats\n\n- **Simulator** `[rotors] reversal_delay_s`, `tau_motor_s`; `frame_rejected`\n\n## Next\n"
+    )
+    assert format_key_problems(text) == ["`tau_motor_s` is in no source file"]
