@@ -240,7 +240,10 @@ def _dotted_problems(dotted: str, page: Path) -> list[str]:
         return []
     name = parts[i]
     source = module.read_text()
-    defined = rf"^\s*(?:def|class|async def)\s+{name}\b|^\s*{name}\s*[:=]|\bimport\b[^\n]*\b{name}\b|^\s+{name},?$"
+    defined = (  # defined, assigned, imported, or listed by name (``__all__``, a lazy table)
+        rf"^\s*(?:def|class|async def)\s+{name}\b|^\s*{name}\s*[:=]|\bimport\b[^\n]*\b{name}\b|^\s+{name},?$"
+        rf"|[\"']{name}[\"']"
+    )
     if not re.search(defined, source, re.M):
         return [f"{page.name}: {dotted}: {module.relative_to(ROOT)} defines no {name}"]
     return []
@@ -597,3 +600,27 @@ def test_the_format_key_check_finds_a_renamed_key():
         "\n## File formats\n\n- **Simulator** `[rotors] reversal_delay_s`, `tau_motor_s`; `frame_rejected`\n\n## Next\n"
     )
     assert format_key_problems(text) == ["`tau_motor_s` is in no source file"]
+
+
+_ROLE = re.compile(r":(?:func|class|mod|data|meth|attr|obj|exc):`~?(omnirotor(?:\.\w+)+)`")
+
+
+def docstring_problems(source: str, path: Path) -> list[str]:
+    """Cross-references (``:func:`omnirotor.x.f```, ``:class:`~omnirotor.y.C```) in a module that point nowhere."""
+    return [p for m in _ROLE.finditer(source) for p in _dotted_problems(m.group(1), path)]
+
+
+def test_every_cross_reference_in_the_docstrings_exists():
+    problems = [
+        p
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for p in docstring_problems(path.read_text(), path.relative_to(ROOT))
+    ]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_cross_reference_check_finds_a_moved_function():
+    source = '"""Flies it (:func:`omnirotor.experiments.loop.run_task`, :class:`~omnirotor.sim.VideoRecorder`)."""'
+    assert docstring_problems(source, Path("x.py")) == [
+        "x.py: omnirotor.experiments.loop.run_task: src/omnirotor/experiments/loop.py defines no run_task"
+    ]
