@@ -624,3 +624,29 @@ def test_the_cross_reference_check_finds_a_moved_function():
     assert docstring_problems(source, Path("x.py")) == [
         "x.py: omnirotor.experiments.loop.run_task: src/omnirotor/experiments/loop.py defines no run_task"
     ]
+
+
+SPEC = ROOT.parent / "shared" / "SPEC.md"
+
+
+def spec_problems(text: str, spec: str) -> list[str]:
+    """``SPEC §N.M`` citations in ``text`` whose section ``spec`` (the SPEC's Markdown) does not have."""
+    sections = set(re.findall(r"^#+ (\d+(?:\.\d+)*)[. ]", spec, re.M))
+    return [m.group(0) for m in re.finditer(r"SPEC\s*§\s*(\d+(?:\.\d+)*)", text) if m.group(1) not in sections]
+
+
+def test_every_spec_section_cited_exists():
+    if not SPEC.is_file():
+        pytest.skip(f"{SPEC} not found (../shared is not beside the checkout)")
+    spec = SPEC.read_text()
+    problems = [
+        f"{path.name}: {p}"
+        for path in [*DOCS, *sorted(PACKAGE.rglob("*.py"))]
+        for p in spec_problems(path.read_text(), spec)
+    ]
+    assert not problems, problems
+
+
+def test_the_spec_check_finds_a_section_that_is_not_there():
+    spec = "# SPEC\n## 1. Geometry\n### 1.1 Frames\n## 4. Control\n### 4.5 Other facts\n"
+    assert spec_problems("frames (SPEC §1.1), supervision (SPEC §4.5), the lost one (SPEC §4.9)", spec) == ["SPEC §4.9"]
