@@ -1,13 +1,22 @@
-"""The README and docs/ name only what exists: commands and options, links and images, files and modules.
+"""The README and docs/ name only what exists, and say what the code says.
 
-What the users read must stay true when the code moves on. These checks are cheap (no subprocess, no compiled
-kernel): the command line is the typer app's own tree, files and modules are looked up in the checkout.
+What the users read must stay true when the code moves on. These checks are cheap (no subprocess but ``git
+ls-files``, no compiled kernel): the command line is the typer app's own tree, files and modules are looked up in
+the checkout, the rest is read from the sources as text.
 
-- every ``omnirotor <cmd> [--option]`` written in a code span or a code block names a command of the app (or a
-  sub-command of a group, e.g. ``ctl arm``) and options that command has;
+- every ``omnirotor <cmd> [--option]`` written in a code span or a code block (also ``run --ulog``, a span that
+  starts with a command) names a command of the app, a sub-command of a group (``ctl arm``) and options that
+  command has; an option written alone (``--blend smooth``) is an option of some command or script;
+- the README's command table has one row per command;
 - every relative link and image resolves to a file of the checkout (``../shared`` beside it is not checked);
 - every ``src/...``, ``tests/...`` or package-relative path (``px4/windows.py``), every bare ``*.py`` file name,
-  every ``tests/test_x.py::test_name`` and every dotted ``omnirotor.module.Name`` exists.
+  every ``tests/test_x.py::test_name`` and every dotted ``omnirotor.module.Name`` exists; so does every
+  ``:func:``/``:class:`` cross-reference to ``omnirotor`` in the package's docstrings;
+- every ``python`` example parses and imports only what exists;
+- every ROS 2 message type named ships here or is ROS 2's; every key the README's file formats name is in the
+  sources; every ``make`` target exists; every pinned dependency has its row in docs/dependencies.md;
+- the README's list of disagreements with the paper names exactly the strict xfails;
+- every ``SPEC §N.M`` cited is a section of ``../shared/SPEC.md``.
 
 Each checker is also run on a made-up page that names something gone, to show that it would fail.
 """
