@@ -175,14 +175,19 @@ def link_problems(text: str, page: Path) -> list[str]:
 
 @cache
 def tracked_files() -> tuple[str, ...]:
-    """Every file of the checkout (git's list, untracked but not ignored ones included)."""
-    out = subprocess.run(
-        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
+    """Every file of the checkout (git's list, untracked but not ignored ones included; without git, the tree's)."""
+    try:
+        out = subprocess.run(
+            ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):  # not a git checkout (an unpacked archive)
+        skip = {".git", ".venv", "out", "__pycache__", ".pytest_cache"}
+        files = (p.relative_to(ROOT) for p in ROOT.rglob("*") if p.is_file())
+        return tuple(str(p) for p in files if not skip & set(p.parts))
     return tuple(out.split())
 
 
