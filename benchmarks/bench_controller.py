@@ -98,6 +98,13 @@ def _dispatch_probe():
     return _noop
 
 
+def _typed_probe(noop, ctl):
+    """The same no-op's specialisation for the controller's arrays, called as the step calls its own (typed once)."""
+    from omnirotor._jit import typed_entry
+
+    return typed_entry(noop, ctl.state, ctl._frame_buf, ctl._no_row)
+
+
 def step_parts(n: int = 3000, passes: int = 3) -> dict:
     """Where ``InteractionController.step`` from Python goes, part by part [µs, median over the frames].
 
@@ -105,8 +112,11 @@ def step_parts(n: int = 3000, passes: int = 3) -> dict:
     log's next record, the compiled call, the command message; private attributes, as the method does), best
     of ``passes`` passes over the same frames on a fresh controller. ``dispatch_us``: a compiled function of
     the same three record arrays that does nothing (numba's dispatch: typing the three arguments and unboxing
-    them); the compiled call minus that is the step's own work, to be compared with the step inside the
-    compiled loop (``bench_run.py``'s ``controller_step_us_in_loop``).
+    them); ``typed_dispatch_us``: that no-op called as the step calls its compiled step
+    (:func:`omnirotor._jit.typed_entry`: no typing per call, only the arguments' unboxing). ``compiled_call``
+    is the step's call as the method makes it (its check of the arrays' types and the typed call); minus
+    ``typed_dispatch_us`` it is the step's own work, to be compared with the step inside the compiled loop
+    (``bench_run.py``'s ``controller_step_us_in_loop``).
     """
     from omnirotor.control import composer as _c
     from omnirotor.control.controller import _STATUS_BY_BITS
@@ -121,24 +131,29 @@ def step_parts(n: int = 3000, passes: int = 3) -> dict:
         for _ in range(passes):
             ctl = _controller(vehicle, kind, n)
             ctl.reset(first, traj)
-            t = np.empty((n, 5))
+            typed_noop = _typed_probe(noop, ctl)
+            t = np.empty((n, 6))
             for k, f in enumerate(frames):
                 t0 = clock()
                 record = ctl._record(f)
                 t1 = clock()
                 row = ctl.log.next_record()
                 t2 = clock()
-                bits = _c.controller_step(ctl.state, record, row)
+                if ctl._typed_arrays(record, row):
+                    bits = ctl._typed_step(ctl.state, record, row)
+                else:
+                    bits = _c.controller_step(ctl.state, record, row)
                 t3 = clock()
                 RotorCommand(f.t, ctl._omega_cmd.copy(), _STATUS_BY_BITS[bits])
                 t4 = clock()
                 noop(ctl.state, record, row)
                 t5 = clock()
-                t[k] = (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)
+                typed_noop(ctl.state, record, row)
+                t6 = clock()
+                t[k] = (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)
             med = np.median(t, axis=0) / 1e3
-            for name, v in zip(
-                ("frame_record", "next_record", "compiled_call", "command", "dispatch"), med, strict=True
-            ):
+            names = ("frame_record", "next_record", "compiled_call", "command", "dispatch", "typed_dispatch")
+            for name, v in zip(names, med, strict=True):
                 best[name] = min(best.get(name, np.inf), float(v))
             whole = np.empty(n)
             ctl = _controller(vehicle, kind, n)
@@ -148,7 +163,7 @@ def step_parts(n: int = 3000, passes: int = 3) -> dict:
                 ctl.step(f)
                 whole[k] = clock() - t0
             best["step"] = min(best.get("step", np.inf), float(np.median(whole)) / 1e3)
-        best["compiled_call_minus_dispatch"] = best["compiled_call"] - best["dispatch"]
+        best["compiled_call_minus_dispatch"] = best["compiled_call"] - best["typed_dispatch"]
         best["rest_of_method"] = best["step"] - sum(
             best[p] for p in ("frame_record", "next_record", "compiled_call", "command")
         )

@@ -4,10 +4,11 @@
 ``bench_startup.py`` (``omnirotor run hover --quick --duration 0.2``) in this process with ``NUMBA_CACHE_DIR``
 set to a new empty folder, and prints a table (JSON with ``--out``):
 
-* per compiled function (module-qualified name; ``entry`` = compiled with numba's Python wrapper, ``kernel``
-  = ``_jit.jit``'s wrapperless, link-only version): how many specialisations, the CPU time of their compiles
-  without the compiles they started (``excl_s``: typing, lowering, LLVM of its own module) and with them
-  (``incl_s``), from numba's ``numba:compile`` events;
+* per compiled function (module-qualified name; ``inline`` = ``_jit.jit_inline``, ``jit`` = the others): how
+  many specialisations, the CPU time of their compiles without the compiles they started (``excl_s``: typing,
+  lowering, LLVM of its own module with its linked callees) and with them (``incl_s``), of it the LLVM phases
+  below (``llvm_s``: the rest of ``excl_s`` is numba's front end), and who asked for each compile
+  (``callers``: the function whose compile started it, or ``(Python)``), from numba's ``numba:compile`` events;
 * the CPU time of numba's LLVM phases over all functions: per-function optimisation while adding IR
   (``add_ir_module``, parsing included), the module-level optimisation of a library with its linked
   callees (``optimize_module``) and the emission of machine code (``emit_machine_code``), with their counts.
@@ -35,8 +36,11 @@ _PHASES = (
 )
 
 
-def _time_phases(phase_s: dict, phase_n: collections.Counter) -> None:
-    """Wrap numba's LLVM phase methods to add their CPU time to ``phase_s`` (and count calls)."""
+def _time_phases(phase_s: dict, phase_n: collections.Counter, stack: list) -> None:
+    """Wrap numba's LLVM phase methods to add their CPU time to ``phase_s`` (and count calls).
+
+    The time of a phase is also added to the compile on top of ``stack`` (its last item, a dict by phase).
+    """
     from numba.core import codegen
 
     for cls_name, method, key in _PHASES:
@@ -48,8 +52,11 @@ def _time_phases(phase_s: dict, phase_n: collections.Counter) -> None:
             try:
                 return _orig(self, *args, **kwargs)
             finally:
-                phase_s[_key] += time.process_time() - t0
+                dt = time.process_time() - t0
+                phase_s[_key] += dt
                 phase_n[_key] += 1
+                if stack:
+                    stack[-1][3][_key] += dt
 
         setattr(cls, method, timed)
 
@@ -60,26 +67,31 @@ def profile(args: tuple[str, ...]) -> dict:
 
     phase_s: dict[str, float] = collections.defaultdict(float)
     phase_n: collections.Counter = collections.Counter()
-    _time_phases(phase_s, phase_n)
     funcs: dict[tuple[str, str], dict] = {}
     stack: list[list] = []
+    _time_phases(phase_s, phase_n, stack)
+
+    def name_of(d) -> str:
+        return f"{d.py_func.__module__}.{d.py_func.__qualname__}"
 
     class Listener(event.Listener):
         def on_start(self, ev):
-            stack.append([ev.data["dispatcher"], time.process_time(), 0.0])
+            stack.append([ev.data["dispatcher"], time.process_time(), 0.0, collections.defaultdict(float)])
 
         def on_end(self, ev):
-            d, t0, children = stack.pop()
+            d, t0, children, phases = stack.pop()
             incl = time.process_time() - t0
             if stack:
                 stack[-1][2] += incl
             kind = "inline" if d.targetoptions.get("inline") == "always" else "jit"
             row = funcs.setdefault(
-                (f"{d.py_func.__module__}.{d.py_func.__qualname__}", kind), {"n": 0, "excl_s": 0.0, "incl_s": 0.0}
+                (name_of(d), kind), {"n": 0, "excl_s": 0.0, "incl_s": 0.0, "llvm_s": 0.0, "callers": []}
             )
             row["n"] += 1
             row["excl_s"] += incl - children
             row["incl_s"] += incl
+            row["llvm_s"] += sum(phases.values())
+            row["callers"].append(name_of(stack[-1][0]) if stack else "(Python)")
 
     event.register("numba:compile", Listener())
     from omnirotor.cli import main
@@ -128,9 +140,13 @@ def main(argv: list[str] | None = None) -> int:
         "phases [s CPU]: "
         + ", ".join(f"{k} {v:.1f} ({result['phases_count'][k]})" for k, v in result["phases_cpu_s"].items())
     )
-    print("| function | kind | n | excl [s] | incl [s] |\n|---|---|---|---|---|")
+    print("| function | kind | n | excl [s] | of it LLVM [s] | incl [s] | asked by |\n|---|---|---|---|---|---|---|")
     for r in result["functions"][: a.top]:
-        print(f"| `{r['name']}` | {r['kind']} | {r['n']} | {r['excl_s']:.2f} | {r['incl_s']:.2f} |")
+        callers = ", ".join(sorted({c.rsplit(".", 1)[-1] for c in r["callers"]}))
+        print(
+            f"| `{r['name']}` | {r['kind']} | {r['n']} | {r['excl_s']:.2f} | {r['llvm_s']:.2f} | {r['incl_s']:.2f} "
+            f"| {callers} |"
+        )
     return 0
 
 

@@ -3,9 +3,10 @@ with the typestore (PX4's field lists), what the node is told (issue 24 item 6; 
 the bridge makes of PX4's sensors (:mod:`sitl.fake_px4` publishes known IMU, ESC and odometry values).
 
 In the command tests the test is the flight node: it publishes RotorCommands of its session (and of a second one,
-never obeyed), reads the plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a
-pilot would). In the frame tests it listens to the node's frames as an independent subscriber, is the motion-capture
-driver (a PoseStamped publisher), and runs a real ``omnirotor fly`` node on the bridge's frames.
+never obeyed, which starts first: the bridge is pinned to the node's session with ``--pair-session``), reads the
+plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a pilot would). In the
+frame tests it listens to the node's frames as an independent subscriber, is the motion-capture driver (a
+PoseStamped publisher), and runs a real ``omnirotor fly`` node on the bridge's frames.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                            env=env(), stderr=open(tmp_path / "px4.err", "w"))  # noqa: SIM115  # fmt: skip
     bridge = subprocess.Popen(
         [sys.executable, "-c", CLI, "px4-bridge", "--listen", bridge_ep, "--connect", px4_ep, "--namespace", ns,
-         "--px4-namespace", px4_ns, "--json", "--no-frames"],
+         "--px4-namespace", px4_ns, "--json", "--no-frames", "--pair-session", "1234"],
         env=env(), stdout=subprocess.PIPE, stderr=open(tmp_path / "bridge.err", "w"), text=True,  # noqa: SIM115
     )  # fmt: skip
     try:
@@ -94,6 +95,16 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                 send()
                 time.sleep(0.005)
 
+            def foreign_first():
+                seq["theirs"] += 1
+                theirs.seq, theirs.state, theirs.hz[:] = seq["theirs"], COMMAND_ARMED, wmax
+                pub.put(theirs)
+                time.sleep(0.002)
+
+            # a foreign commander first: the bridge is pinned to the node's session (--pair-session), never to it
+            s = _until(lambda: (m := latest()) is not None and m.commands_refused >= 50 and m, 120.0, foreign_first)
+            assert s is not None, (tmp_path / "bridge.err").read_text()
+            assert s.commands_obeyed == 0 and s.paired_session_id == 0x1234
             # armed commands stream: heartbeat, then (after 1 s) offboard, then arming; the foreign session refused
             s = _until(lambda: (m := latest()) is not None and m.commands_obeyed > 300 and m, 120.0, tick)
             assert s is not None, (tmp_path / "bridge.err").read_text()
@@ -131,7 +142,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                 p.kill()
                 p.wait()
     got = json.loads((tmp_path / "px4.json").read_text())
-    assert summary["commands_refused"] >= 300 and summary["foreign_sessions"] == 1
+    assert summary["commands_refused"] >= 350 and summary["foreign_sessions"] == 1
     assert got["heartbeats"] > 10 and got["direct_actuator"]
     commands = [(c[0], c[1], c[2]) for c in got["vehicle_commands"]]
     assert (176, 1.0, 6.0) in commands and (400, 1.0, 0.0) in commands  # offboard, then arm

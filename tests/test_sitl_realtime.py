@@ -57,13 +57,14 @@ def test_killing_the_simulator_loses_the_link_and_stops_the_commands(tmp_path):
             pass
         killed_at = time.monotonic()
         os.kill(pair.sim.pid, signal.SIGKILL)
-        late, lost = [], False
+        late, lost, sessions = [], False, set()
         while time.monotonic() < killed_at + 0.5:  # poll every millisecond: a take's time is its arrival's
             while (m := commands.take()) is not None:
                 if time.monotonic() > killed_at + 0.06:
                     late.append(m.seq)
             while (m := loop.take()) is not None:
                 lost = lost or m.link_lost
+                sessions.add(m.session_id)
             time.sleep(0.001)
         assert lost, pair.text("node")[-2000:]
         _, node = pair.wait(timeout_s=60, sim_ok=False)
@@ -71,6 +72,7 @@ def test_killing_the_simulator_loses_the_link_and_stops_the_commands(tmp_path):
     assert node["link_lost_after_ms"] <= 50 + 25  # the 50 ms limit plus one loop pause on a loaded machine
     assert late == []  # nothing commanded once the link was lost
     assert "link lost" in pair.text("node")
+    assert sessions == {int(node["session_id"], 16)}  # the node's status carries its session (a plant's --pair-session)
 
 
 @pytest.mark.slow

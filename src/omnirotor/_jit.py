@@ -24,7 +24,10 @@ only (:class:`DependencyLocator`: the locators numba ships, with another ``get_s
 locator exists to provide), through a :class:`DependencyCache` that is numba's ``FunctionCache`` with that
 locator first; the one private detail is the dispatcher's ``_cache`` attribute, which numba's own
 ``enable_caching`` sets the same way. Nothing else of numba's internals is touched, so numba is pinned to a
-range (``pyproject.toml``), not one release.
+range (``pyproject.toml``), not one release. Two attributes without an underscore that numba's user manual does
+not list are read: a dispatcher's ``overloads`` (its compiled specialisations by signature, for
+:class:`PointerCaller`'s function types) and a specialisation's ``entry_point`` (:func:`typed_entry`, which
+falls back to the dispatcher if it is absent).
 
 C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
 the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
@@ -59,6 +62,7 @@ __all__ = [
     "jit_inline",
     "jit_entry",
     "PointerCaller",
+    "typed_entry",
     "DependencyCache",
     "DependencyLocator",
     "source_closure",
@@ -329,6 +333,31 @@ class PointerCaller:
         if _PURE_PYTHON:
             return self.py_func(*kernels, *args)
         return self._compiled(kernels, args)(*kernels, *args)
+
+
+def typed_entry(kernel, *args):
+    """``kernel``'s compiled specialisation for the types of ``args``, callable without numba's typing per call.
+
+    A call of a dispatcher from Python types every argument first (for a structured array, a lookup of its
+    dtype per argument and call) and then calls the compiled specialisation's entry point (numba's
+    ``Dispatcher.overloads[signature].entry_point``, the function that unboxes the arguments and calls the
+    machine code). For a caller that calls one kernel every period with arrays whose types cannot change (its
+    own records), this is that entry point, found once: compiled (or loaded from the cache) here, as a call
+    with ``args`` would. **Only arrays of exactly these numba types may be passed to it**: the entry point does
+    not check them (an array of another dtype, dimension or layout would be read as if it had these). Under
+    ``NUMBA_DISABLE_JIT`` it is the Python function; should a numba release not expose the entry point, the
+    dispatcher itself (typed per call, as before).
+
+    Args:
+        kernel: a :func:`jit` / :func:`jit_entry` dispatcher.
+        args: values of the types it will be called with.
+    """
+    if _PURE_PYTHON:
+        return kernel
+    sig = tuple(numba.typeof(a) for a in args)
+    kernel.compile(sig)
+    entry = getattr(kernel.overloads.get(sig), "entry_point", None)
+    return kernel if entry is None else entry
 
 
 @functools.cache

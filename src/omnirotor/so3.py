@@ -250,7 +250,7 @@ def quat_integrate_world_into(q, wx: float, wy: float, wz: float, dt: float) -> 
     return True
 
 
-@_kernel
+@_inline  # into its two callers (the simulator's motion capture): one compile, not one per caller's types
 def quat_perturb_into(q, dtheta, out) -> None:
     """``q ⊗ [1, dtheta/2]`` normalised into ``out`` (4,): ``q`` (wxyz) turned by the small body rotation ``dtheta``.
 

@@ -20,9 +20,11 @@ from omnirotor.cli import app
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    SessionId,
     ZenohConfig,
     connect_option,
     listen_option,
+    session_id_arg,
     transport_args,
 )
 from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option, n_cpus
@@ -60,6 +62,7 @@ def fly(
     zenoh_config: ZenohConfig = None,
     domain_id: DomainId = 0,
     namespace: Namespace = "",
+    session_id: SessionId = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
     flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
@@ -80,9 +83,11 @@ def fly(
     from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, warm_up
     from omnirotor.fly.node import mission_from_sim as ask
     from omnirotor.realtime import set_realtime
+    from omnirotor.sitl.gate import new_session_id
     from omnirotor.transport import open_transport
 
     check_realtime_options(cpu, fifo_priority)
+    session = session_id_arg(session_id, "--session-id")
     factory = _director_factory(flight, list(set_ or ()))
     if maps is not None:
         if mission_from_sim:
@@ -103,11 +108,16 @@ def fly(
                           namespace=namespace, default_listen=[DEFAULT_NODE_ENDPOINT],
                           default_connect=[DEFAULT_PLANT_ENDPOINT])  # fmt: skip
     listening = args["listen"]
+    if session is None:
+        session = new_session_id()
+    say(f"controller session {session:016x} (a plant's --pair-session {session:016x} obeys this node only)")
     with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
-            summary = fly_mission(t, task, options, NodeOptions(lockstep=lockstep, **outputs), factory, realtime)
+            summary = fly_mission(
+                t, task, options, NodeOptions(lockstep=lockstep, session_id=session, **outputs), factory, realtime
+            )
         else:
             from omnirotor.control.controller import InteractionController, load_controller_params
             from omnirotor.vehicle import load_vehicle
@@ -118,9 +128,9 @@ def fly(
             wrench_maps = load_wrench_maps(str(maps), n_rotors=veh.n_rotors) if maps is not None else None
             controller = InteractionController(veh, params, wrench_maps)
             warm_up(controller)
-            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(**outputs))
+            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(session_id=session, **outputs))
             realtime()
-            say(f"flight node up (session {node.session_id:016x}); `omnirotor ctl` on {', '.join(listening)}")
+            say(f"flight node up; `omnirotor ctl` on {', '.join(listening)}")
             summary = node.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     if as_json:

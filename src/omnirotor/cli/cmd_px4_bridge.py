@@ -24,7 +24,15 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
-from omnirotor.cli.connection_options import DomainId, ZenohConfig, connect_option, listen_option, transport_args
+from omnirotor.cli.connection_options import (
+    DomainId,
+    PairSession,
+    ZenohConfig,
+    connect_option,
+    listen_option,
+    session_id_arg,
+    transport_args,
+)
 from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
 from omnirotor.errors import InputError
 
@@ -42,6 +50,7 @@ def px4_bridge(
     domain_id: DomainId = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
+    pair_session: PairSession = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
     frames: Annotated[
@@ -89,11 +98,12 @@ def px4_bridge(
     from omnirotor.vehicle import load_vehicle
 
     check_realtime_options(cpu, fifo_priority)
+    pinned = session_id_arg(pair_session, "--pair-session")
 
     def say(line: str) -> None:
         print(f"omnirotor px4-bridge: {line}", file=sys.stderr)
 
-    options = BridgeOptions(command_loss_s=command_loss)
+    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned)
     frame_options = (
         FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
         if frames
@@ -115,7 +125,8 @@ def px4_bridge(
                            say=say, frames=frame_options)  # fmt: skip
         set_realtime(cpu, fifo_priority or None, say)  # after the transport's threads started: they keep theirs
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
-        say(f"up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}")
+        who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"
+        say(f"up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}; obeying {who}")
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:

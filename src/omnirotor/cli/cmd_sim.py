@@ -19,9 +19,11 @@ from omnirotor.cli import app, number_option
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    PairSession,
     ZenohConfig,
     connect_option,
     listen_option,
+    session_id_arg,
     transport_args,
 )
 from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
@@ -53,6 +55,7 @@ def sim(
     zenoh_config: ZenohConfig = None,
     domain_id: DomainId = 0,
     namespace: Namespace = "",
+    pair_session: PairSession = None,
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
@@ -90,6 +93,7 @@ def sim(
     from omnirotor.fly.record import output_options
 
     outputs = output_options(record, foxglove, foxglove_port)
+    outputs["pair_session"] = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
                     ros_views, offboard_loss, cpu, fifo_priority, outputs)  # fmt: skip
@@ -121,6 +125,7 @@ def sim(
     with open_transport(**args, node="omnirotor_sim") as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
+        _say_pairing(serve_opts.pair_session)
         from omnirotor.realtime import set_realtime
 
         if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
@@ -161,6 +166,14 @@ def sim(
     )
 
 
+def _say_pairing(pinned: int | None) -> None:
+    """Whom the plant obeys, said at its start."""
+    if pinned is not None:
+        note(f"obeying the rotor commands of controller session {pinned:016x} only (--pair-session)")
+    else:
+        note("obeying the first controller session that commands (first come; --pair-session pins one)")
+
+
 def _serve(transport, task, options, serve_opts):
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -198,6 +211,7 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         set_realtime(cpu, fifo_priority or None, note)
         note(f"serving the {scene} scene on {', '.join(endpoints)}, the vehicle on its stand until `omnirotor fly` "
              "takes off (`omnirotor ctl arm`, `takeoff`); Ctrl-C ends")  # fmt: skip
+        _say_pairing(serve_opts.pair_session)
         report = serve_free(t, sim, serve_opts)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     print(

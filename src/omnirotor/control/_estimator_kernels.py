@@ -999,9 +999,13 @@ def fuse(u, buf, sbuf, w, p_m, q_m) -> int:
 # -- the whole step ----------------------------------------------------------------------------------------------
 
 
-@jit
+@jit_inline
 def ukf_step(u, buf, sbuf, w, gyro, acc, t_frame: float, mocap_new: bool, mocap_t: float, p_m, q_m, out) -> tuple:
     """The estimator's 1 kHz step once initialised (SPEC §4.5): IMU sample, motion-capture fusion, outputs.
+
+    Inlined into its two callers, the estimator kind's step (:func:`ukf_block_step`, inside the controller's)
+    and :func:`ukf_step_entry` (Python's): as a kernel of its own, its machine code (with the prediction and the
+    fusion it calls) was optimised and emitted once more for the level it added between them.
 
     In order: :func:`imu_step`; without a motion-capture sample :func:`finish`; with one, its checks (finite
     ``mocap_t``, finite pose, quaternion norm within ``QUAT_NORM_TOL`` of 1), :func:`fuse_at` at ``mocap_t``

@@ -297,9 +297,14 @@ write_log = log_writer("write_log", _log_groups_of_types)
 """``write_log(row, st)``: the controller's log record ``row`` from its record ``st`` (generated, by name)."""
 
 
-@jit
+@jit_inline
 def _finish_held(st, bits: int, row) -> None:
-    """Hold the last safe command (nothing else updated), flagged; write the head and the log row."""
+    """Hold the last safe command (nothing else updated), flagged; write the head and the log row.
+
+    Inlined into the step (:func:`step_begin`): numba compiles an ``overload`` such as :data:`write_log` once
+    per set of compile flags of its callers, and a kernel of its own here (``jit``, without the C wrapper)
+    would compile the generated writer a second time beside the one of :func:`controller_step` (``jit_entry``).
+    """
     c = st.own
     rot = st.rotors
     for i in range(rot.omega_cmd_hz.shape[0]):

@@ -34,9 +34,11 @@ Cost. Every block keeps its state, and its sized arrays, in a field of the contr
 (:attr:`state`, see :mod:`omnirotor.control.composer`). With the default QP solver ("active-set", compiled)
 :meth:`step` is **one** compiled call, :func:`~omnirotor.control.composer.controller_step` ``(state, frame,
 row)``, on the frame's record (:mod:`omnirotor.messages`): a frame made by the simulator carries it, another one
-is written into one first. A compiled closed loop calls the same function with
-:attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from Python) the
-composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
+is written into one first. The call skips numba's typing of its three records (the specialisation for this
+controller's own arrays, found once at :meth:`reset`: :func:`omnirotor._jit.typed_entry`), after a cheap check
+that the arrays are of those types; others go through numba's dispatch. A compiled closed loop calls the same
+function with :attr:`InteractionController.kernel_state`. With the "daqp" or "proxsuite" solvers (called from
+Python) the composer's two halves run as two compiled calls around that solver; with an estimator that is not compiled
 (e.g. a stand-in) its estimate is given to the same composer. There is one implementation of every block's
 step.
 """
@@ -46,8 +48,10 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numba
 import numpy as np
 
+from omnirotor._jit import typed_entry
 from omnirotor.blocks import block_class, block_names, log_dtype, new_records, new_state, record_view
 from omnirotor.config import apply_overrides, check_positive, from_mapping, load_toml
 from omnirotor.control import _estimator_kernels as _ek
@@ -264,6 +268,11 @@ class InteractionController:
             record_dtype=self.log_dtype,  # the step writes the log's row itself, as a record (no copy)
         )
         self._no_row = np.zeros(0, self.log_dtype)
+        # The compiled step for the types of this controller's own arrays, called without numba's typing of the
+        # three records per call (set by reset: _prepare_step); the arrays its guard in step() has checked.
+        self._typed_step = None
+        self._typed_state: np.ndarray | None = None
+        self._typed_row_base: np.ndarray | None = None
 
     def _assemble(self) -> None:
         """Build the controller's record and every block of the kinds :attr:`params` names on its field.
@@ -384,6 +393,10 @@ class InteractionController:
         # raises otherwise).
         compiled = self.allocator.solves_compiled and self._own_estimator_kind != _c.EST_GIVEN
         self._fast = compiled and self._estimator_compiled()
+        if self._fast and self._typed_state is not self.state:
+            self._typed_step = typed_entry(_c.controller_step, self.state, self._frame_buf, self._no_row)
+            self._typed_state = self.state
+            self._typed_row_base = None
 
     def reset(self, frame: SensorFrame, trajectory: PoseTrajectory) -> None:
         """Start a run: reset every block on the first frame and fly ``trajectory`` from ``frame.t``.
@@ -537,8 +550,11 @@ class InteractionController:
         if row is None:  # a full log that does not grow: nothing logged
             row = self._no_row
         if self.estimator is self._kernel_estimator and self._fast:
-            # A compiled estimator and QP: one compiled call.
-            bits = _c.controller_step(self.state, record, row)
+            # A compiled estimator and QP: one compiled call, typed once (_typed_arrays) if its arrays are ours.
+            if self._typed_arrays(record, row):
+                bits = self._typed_step(self.state, record, row)
+            else:
+                bits = _c.controller_step(self.state, record, row)
         else:
             bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
@@ -546,6 +562,29 @@ class InteractionController:
         if self._piecewise:
             self.scheduler.sync()
         return RotorCommand(frame.t, self._omega_cmd.copy(), _STATUS_BY_BITS[bits])
+
+    def _typed_arrays(self, record: np.ndarray, row: np.ndarray) -> bool:
+        """Whether the step's arrays have the numba types :attr:`_typed_step` was compiled for.
+
+        That entry point does not type its arguments (:func:`omnirotor._jit.typed_entry`), so this check
+        stands in for numba's, cheaply: the state is the one it was made for; the frame record is the
+        controller's own buffer, or a frame's own copy (:meth:`SensorFrame.from_record`: a fresh, writeable,
+        contiguous ``(1,)`` array) of the same dtype object; the log row is the empty one or a row of an array
+        of the log (a row's ``base``) whose type was checked once (the log's memory changes only when it grows).
+        """
+        if self.state is not self._typed_state:
+            return False
+        if not (record is self._frame_buf or (record.dtype is self._frame_dtype and record.ndim == 1)):
+            return False
+        if row is self._no_row:
+            return True
+        base = row.base
+        if base is self._typed_row_base:
+            return True
+        if numba.typeof(row) != numba.typeof(self._no_row):
+            return False
+        self._typed_row_base = base
+        return True
 
     def _record(self, frame: SensorFrame) -> np.ndarray:
         """The frame's record (:mod:`omnirotor.messages`): its own, or the frame written into the controller's.

@@ -170,12 +170,15 @@ class BridgeOptions:
         heartbeat_hz: OffboardControlMode rate [Hz] (PX4 wants 2 Hz or more).
         lead_s: heartbeat time before the switch to offboard [s].
         status_hz: plant status rate [Hz].
+        pair_session: obey this controller session only, from the first command (``--pair-session``,
+            :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
     """
 
     command_loss_s: float = 0.5
     heartbeat_hz: float = 10.0
     lead_s: float = 1.0
     status_hz: float = 20.0
+    pair_session: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
@@ -751,7 +754,7 @@ class Px4Bridge:
         self._pub_status = node.publisher(TOPICS["sim_status"], SIM_STATUS)
         self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k not in _PX4_OUT}
         self._vstatus = px4.subscriber(PX4_TOPICS["vehicle_status"], _PX4_TYPES["vehicle_status"], depth=4)
-        self.gate = CommandGate("omnirotor px4-bridge")
+        self.gate = CommandGate("omnirotor px4-bridge", pinned=o.pair_session)
         self.offboard = Px4Offboard(heartbeat_hz=o.heartbeat_hz, lead_s=o.lead_s)
         self.armed = False  # the node's state, from its last obeyed command
         self.controls = np.full(NUM_CONTROLS, np.nan)

@@ -48,7 +48,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import queue
-import secrets
 import sys
 import threading
 import time
@@ -78,6 +77,7 @@ from omnirotor.rosmsg.convert import (
     frame_check,
     set_stamp,
 )
+from omnirotor.sitl.gate import new_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
 
@@ -125,6 +125,8 @@ class NodeOptions:
             on the frame key wakes it only within this guard instead of at every payload [s]; 0: wait in the
             channel at once. Frames come on the plant's clock, so a real one is not due before the guard; the
             default leaves 0.3 ms for the sleep's own overshoot (about 0.1 ms here) and the frame's jitter.
+        session_id: the controller session id its rotor commands carry (``omnirotor fly --session-id``; a plant
+            pinned to it with ``--pair-session`` obeys this node only: :mod:`omnirotor.sitl.gate`); None: random.
     """
 
     period_s: float = 0.001
@@ -140,6 +142,7 @@ class NodeOptions:
     record: str | None = None
     foxglove_port: int | None = None
     frame_guard_s: float = 0.0003
+    session_id: int | None = None
 
 
 class LoopStats:
@@ -266,7 +269,7 @@ class NodeLoop:
         self._say = say if say is not None else (lambda line: print(f"omnirotor fly: {line}", file=sys.stderr))
         n = controller.vehicle.n_rotors
         self.n = n
-        self.session_id = secrets.randbits(63) | 1
+        self.session_id = o.session_id if o.session_id is not None else new_session_id()
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
         self._codec = FrameCodec(n)
@@ -306,7 +309,7 @@ class NodeLoop:
         self._loop_msg = T[LOOP_STATUS](
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
-            frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
+            frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False, session_id=self.session_id,
         )  # fmt: skip
         self._zeros = np.zeros(n)
         self._cmd_wire = CommandWire(n)

@@ -311,22 +311,25 @@ def faults_frame(st, frame) -> None:
             _log(st, t, EV_CORR_ON if active else EV_CORR_OFF, i)
         if not active or not _hits(c, t):
             continue
+        # Every 1-D signal as an array ([:]) and the offset as an int64 (not a literal), so that _bad compiles
+        # once for them all (and once for the attitude matrix's entries), not once per field shape and offset.
+        zero = np.int64(0)
         sig = c["signal"]
         if sig == _SIG_ACC:
-            _bad(frame.imu.acc_B, c, t)
+            _bad(frame.imu.acc_B[:], c, t, zero)
         elif sig == _SIG_GYRO:
-            _bad(frame.imu.gyro_B, c, t)
+            _bad(frame.imu.gyro_B[:], c, t, zero)
         elif sig == _SIG_ROTOR:
-            _bad(frame.rotor_hz, c, t)
+            _bad(frame.rotor_hz[:], c, t, zero)
         elif sig == _SIG_MOCAP:
             if mocap.new != 0.0 and mocap_new:
-                _bad(mocap.p_W, c, t)
+                _bad(mocap.p_W[:], c, t, zero)
                 kind = c["corruption"]
                 if kind == _NAN or kind == _INF or kind == _FREEZE:  # a frozen sample: its pose, fresh stamps
-                    _bad(mocap.q_WB, c, t, 3)
+                    _bad(mocap.q_WB[:], c, t, np.int64(3))
         elif sig == _SIG_MOCAP_Q:
             if mocap.new != 0.0 and mocap_new:
-                _bad(mocap.q_WB, c, t)
+                _bad(mocap.q_WB[:], c, t, zero)
         elif sig == _SIG_TIME:  # a clock step (spike) moves the motion-capture stamp of the same clock too
             if c["component"] <= 0:
                 frame.t = _corrupted(frame.t, c, t)
@@ -334,11 +337,11 @@ def faults_frame(st, frame) -> None:
                 mocap.t += c["magnitude"]
         elif state.valid != 0.0:  # the bypass state's position, velocity or attitude
             if sig == _SIG_STATE_V:
-                _bad(state.v_W, c, t)
+                _bad(state.v_W[:], c, t, zero)
             elif sig == _SIG_STATE_R:
-                _bad(state.R_WB.flat, c, t)  # its row-major entries (a reshape compiles numba's error text)
+                _bad(state.R_WB.flat, c, t, zero)  # its row-major entries (a reshape compiles numba's error text)
             else:
-                _bad(state.p_W, c, t)
+                _bad(state.p_W[:], c, t, zero)
 
 
 @register("faults", "schedule")

@@ -7,6 +7,10 @@ hand-back to Python. Each block keeps one ``uint64`` state field (``rng``) in it
 simulator's seed through :class:`numpy.random.SeedSequence` (equal seeds, equal runs); :func:`next_uniform`
 and :func:`next_normal` advance it in place.
 
+The four draws are inlined into their compiled callers (:func:`omnirotor._jit.jit_inline`): each block's
+record is another type, and as kernels of their own they were compiled once per block (14 compiles of a few
+integer operations each on the first run), each with its own optimisation and machine code.
+
 The generator is SplitMix64 (Steele, Lea and Flood, OOPSLA 2014): a Weyl sequence through a 64-bit finaliser,
 statistically sound for simulation noise and a few integer operations per draw. Normals come from the
 Box-Muller transform of two uniforms.
@@ -18,7 +22,7 @@ import math
 
 import numpy as np
 
-from omnirotor._jit import jit
+from omnirotor._jit import jit_inline
 
 __all__ = ["seed_state", "next_u64", "next_uniform", "next_normal", "gauss_markov_coefficients", "gauss_markov_next"]
 
@@ -35,7 +39,7 @@ def seed_state(seed: int, stream: int) -> np.uint64:
     return np.random.SeedSequence([int(seed), int(stream)]).generate_state(1, np.uint64)[0]
 
 
-@jit
+@jit_inline
 def next_u64(rec):
     """The next 64-bit output of the generator whose state is ``rec["rng"]`` (advanced in place)."""
     z = rec["rng"] + _GOLDEN
@@ -45,13 +49,13 @@ def next_u64(rec):
     return z ^ (z >> _S31)
 
 
-@jit
+@jit_inline
 def next_uniform(rec) -> float:
     """A uniform draw in [0, 1) (53 random bits)."""
     return float(next_u64(rec) >> _S11) * _TWO_M53
 
 
-@jit
+@jit_inline
 def next_normal(rec) -> float:
     """A standard normal draw (Box-Muller; two uniforms per draw)."""
     u1 = 1.0 - next_uniform(rec)  # (0, 1]: log is finite
@@ -70,7 +74,7 @@ def gauss_markov_coefficients(std: float, corner_hz: float, dt: float) -> tuple[
     return decay, std * math.sqrt(1.0 - decay * decay)
 
 
-@jit
+@jit_inline
 def gauss_markov_next(x: float, decay: float, drive: float, rec) -> float:
     """The next sample ``decay x + drive n`` of a Gauss-Markov process, n drawn from ``rec["rng"]``."""
     return decay * x + drive * next_normal(rec)

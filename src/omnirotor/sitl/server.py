@@ -118,6 +118,8 @@ class ServeOptions:
             and its ground truth (``/omnirotor/pose`` is the true pose), streamed from a writer process; or None.
         foxglove_port: serve the simulator's live view (true pose, contact, rotors) on this loopback port (0: any
             free one), or None.
+        pair_session: obey this controller session only, from the first command (``--pair-session``: pinned
+            pairing, :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
     """
 
     lockstep: bool = False
@@ -129,6 +131,7 @@ class ServeOptions:
     row_wait_s: float = 2.0
     record: str | None = None
     foxglove_port: int | None = None
+    pair_session: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -191,7 +194,7 @@ class SimLink:
             decoder=CommandWire(n_rotors).decode,
         )  # fmt: skip
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
-        self.gate = CommandGate()
+        self.gate = CommandGate(pinned=options.pair_session)
         self.rows_malformed = 0
         self.stale_commands = 0
         self.stop_nonzero = 0
