@@ -7,7 +7,7 @@ the checkout, the rest is read from the sources as text.
 - every ``omnirotor <cmd> [--option]`` written in a code span or a code block (also ``run --ulog``, a span that
   starts with a command) names a command of the app, a sub-command of a group (``ctl arm``) and options that
   command has; an option written alone (``--blend smooth``) is an option of some command or script;
-- the README's command table has one row per command;
+- the README's command table has one row per command, and a number in a usage line's `[--option N]` is the default;
 - every relative link and image resolves to a file of the checkout (``../shared`` beside it is not checked);
 - every ``src/...``, ``tests/...`` or package-relative path (``px4/windows.py``), every bare ``*.py`` file name,
   every ``tests/test_x.py::test_name`` and every dotted ``omnirotor.module.Name`` exists; so does every
@@ -175,14 +175,19 @@ def link_problems(text: str, page: Path) -> list[str]:
 
 @cache
 def tracked_files() -> tuple[str, ...]:
-    """Every file of the checkout (git's list, untracked but not ignored ones included)."""
-    out = subprocess.run(
-        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
+    """Every file of the checkout (git's list, untracked but not ignored ones included; without git, the tree's)."""
+    try:
+        out = subprocess.run(
+            ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):  # not a git checkout (an unpacked archive)
+        skip = {".git", ".venv", "out", "__pycache__", ".pytest_cache"}
+        files = (p.relative_to(ROOT) for p in ROOT.rglob("*") if p.is_file())
+        return tuple(str(p) for p in files if not skip & set(p.parts))
     return tuple(out.split())
 
 
@@ -659,3 +664,36 @@ def test_every_spec_section_cited_exists():
 def test_the_spec_check_finds_a_section_that_is_not_there():
     spec = "# SPEC\n## 1. Geometry\n### 1.1 Frames\n## 4. Control\n### 4.5 Other facts\n"
     assert spec_problems("frames (SPEC §1.1), supervision (SPEC §4.5), the lost one (SPEC §4.9)", spec) == ["SPEC §4.9"]
+
+
+def default_problems(code: str) -> list[str]:
+    """``[--option NUMBER]`` in an ``omnirotor`` usage line names the option's default: it must be the app's."""
+    problems = []
+    for inv in invocations(code):
+        words = inv.split()
+        command = cli_tree().commands.get(words[1]) if len(words) > 1 else None
+        if command is None:
+            continue
+        params = {name: p for p in command.params for name in getattr(p, "opts", ())}
+        for opt, number in re.findall(r"\[(--[a-z][\w-]*) (-?[0-9][0-9.e+-]*)\]", inv):
+            default = params[opt].default if opt in params else None
+            try:
+                same = default is not None and float(default) == float(number)
+            except (TypeError, ValueError):
+                same = False
+            if not same:
+                problems.append(f"{inv!r}: {opt} defaults to {default!r}, not {number}")
+    return problems
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_every_default_written_in_a_usage_line_is_the_apps(page):
+    problems = [p for code in code_texts(page.read_text()) for p in default_problems(code)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_default_check_finds_a_changed_default():
+    assert default_problems("omnirotor regions --from-signs [--bands 4] [--min-area-frac 0.02]") == []
+    assert default_problems("omnirotor identify DATA [--delta 1e-4]") == [
+        "'omnirotor identify DATA [--delta 1e-4]': --delta defaults to '3e-5', not 1e-4"
+    ]
