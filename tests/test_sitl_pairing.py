@@ -44,6 +44,7 @@ def test_pinned_pairing_flies_the_node_through_a_flood_that_started_first(tmp_pa
     sim_err = pair.text("sim")
     assert f"refused rotor commands of session {FLOOD:016x}: paired with {NODE:016x} (--pair-session)" in sim_err
     assert "paired with controller session" not in sim_err  # never first come
+    assert "the plant obeys controller session" not in pair.text("node")
     # the node's commands reached the rotors: its hover holds
     assert sitl["success"] and max(sitl["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) < 5.0
 
@@ -68,3 +69,5 @@ def test_first_come_pairs_with_a_flood_that_started_first_and_refuses_the_node(t
             after = status_until(status, lambda m: m.commands_refused > 0, 60)
             assert after and after.paired_session_id == FLOOD and after.foreign_sessions == 1
             assert after.steps == 0  # nothing flown: the node's answers to the start frame are refused
+            told = f"the plant obeys controller session {FLOOD:016x}, not this node's {NODE:016x}"
+            assert wait_until(lambda: told in pair.text("node"), 60), pair.text("node")[-2000:]

@@ -44,10 +44,11 @@ class Pair:
         node_args: tuple[str, ...] = (),
         start_node: bool = True,
         cwd: Path | None = None,
+        link: str = "tcp",
     ) -> None:
         self.port = free_port()
         self.namespace = f"/t{secrets.token_hex(4)}"
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.endpoint = f"{link}/127.0.0.1:{self.port}"
         self.tmp = tmp
         self.out = tmp / "sim-out"
         args = ["sim", "--serve", "--task", task, "--listen", self.endpoint, "--namespace", self.namespace, "--json"]

@@ -38,7 +38,8 @@ def connect_option(default: str | None = None, what: str = "") -> type:
 ZenohConfig = Annotated[
     str | None,
     typer.Option(
-        help="Zenoh configuration file (JSON5): login, access control (examples/zenoh-auth/, docs/transport.md)."
+        help="Zenoh configuration file (JSON5): login or mutual TLS, access control (examples/zenoh-auth/, "
+        "examples/zenoh-tls/, docs/transport.md)."
     ),
 ]
 DomainId = Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")]

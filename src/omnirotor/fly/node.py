@@ -322,6 +322,7 @@ class NodeLoop:
         """Motion-capture samples of skipped frames carried into the newest frame (the loop had fallen behind)."""
         self.link_lost = False
         self._plant_failsafe = False
+        self._plant_paired_other = 0  # another session the plant said it obeys (said once per session)
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -650,7 +651,7 @@ class NodeLoop:
             self.stats.controller_errors += 1
 
     def _poll_sim_status(self) -> None:
-        """A mission ends when the simulator says its run finished."""
+        """The plant's status: its failsafe (the director disarms), another session it obeys (said), the end."""
         msg = self._sim_status.take_latest()
         if msg is not None and msg.failsafe:
             # the plant does not obey (its offboard-loss failsafe; PX4 out of offboard): the director disarms
@@ -666,6 +667,13 @@ class NodeLoop:
                     self.stats.controller_errors += 1
         elif msg is not None:
             self._plant_failsafe = False
+        if msg is not None and int(msg.paired_session_id) not in (0, self.session_id, self._plant_paired_other):
+            # first come: another publisher commanded first (sitl/gate.py); this node's commands are refused
+            self._plant_paired_other = other = int(msg.paired_session_id)
+            self._say(
+                f"the plant obeys controller session {other:016x}, not this node's {self.session_id:016x}: its "
+                f"commands are refused (pin the plant to this node: --pair-session {self.session_id:016x})"
+            )
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
