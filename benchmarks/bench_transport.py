@@ -10,10 +10,14 @@
   frame-to-command latency inside the node, and its CPU time per frame (the process's, Zenoh's threads included,
   and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core;
 * real-time SITL under a flood (issue 26 item 5): a third process, connected to both, publishes at ten times the
-  loop's rate (10 kHz on each key), from when the simulator has paired with the node to the end, well-formed rotor
-  commands of a foreign session with full speeds on the command key, and bogus frames (random bytes, truncated
-  frames, well-formed frames with forged numbers) on the frame key; the node's periods late beside the quiet
-  figure, and what each side counted and dropped.
+  loop's rate (10 kHz on each key) well-formed rotor commands of a foreign session with full speeds on the command
+  key, and bogus frames (random bytes, truncated frames, well-formed frames with forged numbers) on the frame key;
+  the node's periods late beside the quiet figure, and what each side counted and dropped. Two modes: *after*
+  pairing (the simulator first come, the flood from when it has paired with the node to the end) and *before*
+  the node (the flood from before the node starts, the simulator pinned to the node's session with
+  ``--pair-session``: first come, the flood would take the pairing; docs/transport.md).
+
+``--flood-only``: the flood cases alone (after a warm-up).
 
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.
@@ -54,8 +58,19 @@ FLOOD_HZ = 10_000
 """The flood's rate on each key [messages/s]: ten times the loop's."""
 
 
-def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: float = FLOOD_HZ) -> dict:
-    """Publish foreign commands and bogus frames at ``rate_hz`` each for ``duration_s`` (module docstring)."""
+FLOOD_MODES = ("after", "before")
+"""When the flood starts (module docstring): after the simulator paired with the node, or before the node."""
+BENCH_SESSION = "be4c4000000000a1"
+"""The node's session id in the flood's *before* mode (``fly --session-id``, ``sim --pair-session``)."""
+
+
+def flood(endpoints: list[str], namespace: str, duration_s: float, mode: str = "after",
+          rate_hz: float = FLOOD_HZ) -> dict:  # fmt: skip
+    """Publish foreign commands and bogus frames at ``rate_hz`` each for ``duration_s`` (module docstring).
+
+    ``mode`` "after": from when the simulator has paired; "before": at once (a line ``flooding`` on stdout when the
+    first burst is out, for the caller to start the node then).
+    """
     import time
 
     import numpy as np
@@ -76,12 +91,12 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: floa
         for seq in (10**9, 2**62, 5):
             forged.append(bytes(frame.serialize(w.fill_frame(new_frame(8), seq))))
         frames = bogus + forged
-        # during the hover: from when the simulator has paired with the node (a flood before the node's first
-        # command would pair the simulator with the flood's session: first come, first paired; docs/transport.md)
+        # "after": from when the simulator has paired with the node (a flood before the node's first command pairs a
+        # first-come simulator with the flood's session; docs/transport.md); "before": at once (a pinned simulator)
         status = t.subscriber(TOPICS["sim_status"], "omnirotor_msgs/msg/SimStatus", depth=4)
         paired_by = time.monotonic() + 600.0
         m = None
-        while m is None or m.paired_session_id == 0:
+        while mode == "after" and (m is None or m.paired_session_id == 0):
             if time.monotonic() > paired_by:
                 raise RuntimeError("the simulator did not pair with the node within 600 s")
             m = status.take_latest(0.1)
@@ -96,6 +111,8 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: floa
                 cmd.put(w.command)
                 frame.put_raw(frames[sent % len(frames)])
                 sent += 1
+            if k == 0 and mode == "before":
+                print("flooding", flush=True)
             k += 1
             left = t0 + k * 0.001 - time.monotonic()
             if left > 0:
@@ -103,8 +120,8 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, rate_hz: floa
         return {"sent_per_key": sent, "rate_hz": sent / max(time.monotonic() - t0, 1e-9)}
 
 
-def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flooded: bool = False) -> dict:
-    """One SITL hover: the simulator's ``sitl`` report and the node's summary (and the flood's, ``flooded``)."""
+def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flood_mode: str | None = None) -> dict:
+    """One SITL hover: the simulator's ``sitl`` report and the node's summary, under a flood in ``flood_mode``."""
     port, node_port = _port(), _port()
     ns = f"/bench{port}"
     sim_cmd = [sys.executable, "-c", CLI, "sim", "--serve", "--task", "hover", "--duration", str(duration_s),
@@ -114,18 +131,23 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
                 "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
+    if flood_mode == "before":  # pinned pairing: the flood that comes first must not take it
+        sim_cmd += ["--pair-session", BENCH_SESSION]
+        node_cmd += ["--session-id", BENCH_SESSION]
     pipe = subprocess.PIPE
     sim = subprocess.Popen(sim_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
-    node = subprocess.Popen(node_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
-    flooder = None
-    if flooded:  # for the whole run: from before the first frame to after the last
-        flood_cmd = [sys.executable, __file__, "--flood-peer", f"tcp/127.0.0.1:{port},tcp/127.0.0.1:{node_port}", ns,
-                     str(duration_s + 600)]  # fmt: skip
-        flooder = subprocess.Popen(flood_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=_env(), text=True)
+    node = flooder = None
     try:
+        if flood_mode is not None:  # the flooder's own wait ("after"), or the node started once it floods ("before")
+            flood_cmd = [sys.executable, __file__, "--flood-peer", f"tcp/127.0.0.1:{port},tcp/127.0.0.1:{node_port}",
+                         ns, str(duration_s + 600), flood_mode]  # fmt: skip
+            flooder = subprocess.Popen(flood_cmd, stdout=pipe, stderr=subprocess.DEVNULL, env=_env(), text=True)
+            if flood_mode == "before" and flooder.stdout.readline().strip() != "flooding":
+                raise RuntimeError("the flood did not start")
+        node = subprocess.Popen(node_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
         sim_out, sim_err = sim.communicate(timeout=1800)
         node_out, node_err = node.communicate(timeout=120)
-    finally:
+    finally:  # the flooder (its end is ours), and the pair when it did not finish
         for p in (sim, node, flooder):
             if p is not None and p.poll() is None:
                 p.kill()
@@ -147,14 +169,36 @@ def cpu_hog(cpu: int):
         hog.wait()
 
 
-def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
-    """Every figure of the module docstring."""
+def real_time_figures(r: dict) -> dict:
+    """A real-time run's figures (:func:`run_pair`'s result): the node's deadlines and CPU, what the sides dropped."""
+    node, sim = r["node"], r["sim"]
+    return {
+        "periods": node["periods"],
+        "late": node["periods_late"],
+        "late_per_1e5": node["late_per_1e5"],
+        "missed": node["missed"],
+        "worst_late_ms": node["worst_late_ms"],
+        "frame_to_command_us": node["frame_to_command_us"],
+        "node_cpu_per_frame_us": node["cpu_per_frame_us"],
+        "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
+        "node_frames_bad": node["frames_bad"],
+        "sim_late_steps": sim["late_steps"],
+        "sim_commands_obeyed": sim["commands_obeyed"],
+        "sim_commands_held": sim["commands_held"],
+        "sim_commands_refused": sim["commands_refused"],
+        "sim_foreign_sessions": sim["foreign_sessions"],
+        "sim_failsafe": sim["failsafe"],
+    }
+
+
+def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
+    """Every figure of the module docstring (``flood_only``: the flood cases alone)."""
     lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
     out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS,
                  "load_before": os.getloadavg(), "cpus": os.cpu_count()}  # fmt: skip
     note("warm-up (numba cache)")
     run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
-    for views in (False, True):
+    for views in () if flood_only else (False, True):
         note(f"lockstep hover {lock_s:g} s, ROS views {'on' if views else 'off'}")
         r = run_pair(lock_s, lockstep=True, ros_views=views, fifo=False)
         out[f"lockstep_views_{'on' if views else 'off'}"] = {
@@ -165,41 +209,18 @@ def collect(quick: bool, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
             "node_work_us": r["node"]["work_us"],
         }
     n_cpus = os.cpu_count() or 1
-    for hog in (False, True):
+    for hog in () if flood_only else (False, True):
         note(f"real-time hover {rt_s:g} s{' with a CPU hog on CPU 0' if hog else ''}")
         with cpu_hog(0) if hog and n_cpus > 1 else contextlib.nullcontext():
             r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True)
-        node = r["node"]
-        out[f"real_time{'_hog' if hog else ''}"] = {
-            "periods": node["periods"],
-            "late": node["periods_late"],
-            "late_per_1e5": node["late_per_1e5"],
-            "missed": node["missed"],
-            "worst_late_ms": node["worst_late_ms"],
-            "frame_to_command_us": node["frame_to_command_us"],
-            "node_cpu_per_frame_us": node["cpu_per_frame_us"],
-            "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
-            "sim_late_steps": r["sim"]["late_steps"],
-            "sim_round_trip_us": r["sim"]["round_trip_us"],
-        }
-    note(f"real-time hover {rt_s:g} s under a flood ({FLOOD_HZ} foreign commands and bogus frames per second)")
-    r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flooded=True)
-    node = r["node"]
-    out["real_time_flood"] = {
-        "periods": node["periods"],
-        "late": node["periods_late"],
-        "late_per_1e5": node["late_per_1e5"],
-        "missed": node["missed"],
-        "worst_late_ms": node["worst_late_ms"],
-        "frame_to_command_us": node["frame_to_command_us"],
-        "node_cpu_per_frame_us": node["cpu_per_frame_us"],
-        "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
-        "node_frames_bad": node["frames_bad"],
-        "sim_foreign_sessions": r["sim"]["foreign_sessions"],
-        "sim_commands_refused": r["sim"]["commands_refused"],
-        "sim_commands_held": r["sim"]["commands_held"],
-        "sim_failsafe": r["sim"]["failsafe"],
-    }
+        out[f"real_time{'_hog' if hog else ''}"] = real_time_figures(r)
+    for mode in FLOOD_MODES:
+        note(
+            f"real-time hover {rt_s:g} s under a flood ({FLOOD_HZ} foreign commands and bogus frames per second) "
+            + ("from the pairing on" if mode == "after" else "from before the node, the simulator pinned")
+        )
+        r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode)
+        out[f"real_time_flood_{mode}"] = real_time_figures(r)
     out["load_after"] = os.getloadavg()
     return out
 
@@ -213,6 +234,8 @@ def render(r: dict) -> str:
     lines += ["| measurement | p50 | p99 | max | other |", "|---|---|---|---|---|"]
     for key, label in (("lockstep_views_off", "lockstep round trip, frame only"),
                        ("lockstep_views_on", "lockstep round trip, frame + ROS views")):  # fmt: skip
+        if key not in r:  # --flood-only
+            continue
         d = r[key]
         rt = d["round_trip_us"]
         lines.append(
@@ -221,7 +244,8 @@ def render(r: dict) -> str:
         )
     flood_label = f"real time, flood ({FLOOD_HZ // 1000} kHz foreign commands + bogus frames)"
     for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0"),
-                       ("real_time_flood", flood_label)):  # fmt: skip
+                       ("real_time_flood_after", f"{flood_label} after the pairing"),
+                       ("real_time_flood_before", f"{flood_label} before the node, sim pinned")):  # fmt: skip
         if key not in r:
             continue
         d = r[key]
@@ -233,8 +257,8 @@ def render(r: dict) -> str:
             "loop)"
             + (
                 f"; dropped: {d['node_frames_bad']} bogus frames (node), {d['sim_commands_refused']} foreign "
-                "commands (sim)"
-                if "node_frames_bad" in d
+                f"commands (sim), {d['sim_commands_obeyed']} of the node's obeyed"
+                if key.startswith("real_time_flood")
                 else ""
             )
             + " |"
@@ -252,13 +276,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter runs (2 s lockstep, 10 s real time)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
-    ap.add_argument("--flood-peer", nargs=3, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS"), help=argparse.SUPPRESS)
+    ap.add_argument("--flood-only", action="store_true", help="the flood cases alone (both modes)")
+    ap.add_argument("--flood-peer", nargs=4, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS", "MODE"),
+                    help=argparse.SUPPRESS)  # fmt: skip
     args = ap.parse_args(argv)
     if args.flood_peer:
-        endpoints, ns, seconds = args.flood_peer
-        print(json.dumps(flood(endpoints.split(","), ns, float(seconds))))
+        endpoints, ns, seconds, mode = args.flood_peer
+        print(json.dumps(flood(endpoints.split(","), ns, float(seconds), mode)))
         return 0
-    result = collect(args.quick)
+    result = collect(args.quick, args.flood_only)
     print(json.dumps(result, indent=1) if args.json else render(result))
     return 0
 

@@ -34,6 +34,11 @@ def _taken_port():
         (["fly", "--record", "no/such/folder/bag"], "--record"),
         (["sim", "--serve", "--foxglove-port", "-1"], "--foxglove-port"),
         (["sim", "--serve", "--task", "hover", "--record", "no/such/folder/bag"], "--record"),
+        (["fly", "--session-id", "xyz"], "--session-id must be 1 to 16 hex digits"),
+        (["fly", "--mission-from-sim", "--session-id", "0"], "--session-id must not be 0"),
+        (["sim", "--serve", "--task", "hover", "--pair-session", "1ffffffffffffffff"], "--pair-session must be"),
+        (["sim", "--serve", "--pair-session", "0x0"], "--pair-session must not be 0"),
+        (["px4-bridge", "--pair-session", "12 34"], "--pair-session must be"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, says, capsys, tmp_path, monkeypatch):

@@ -124,8 +124,8 @@ def test_tilted_surface_normal_force_is_underestimated(point_contact_runs):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="calibrated rotor-wake truth: with no disturbance the observer errs by 0.94 N RMS against the true "
-    "contact force in straight point contact (quick, bypass; full protocol, UKF, seeds 0-3: 0.87-0.90 N): the "
+    reason="calibrated rotor-wake truth: with no disturbance the observer errs by 0.76 N RMS against the true "
+    "contact force in straight point contact (quick, bypass; full protocol, UKF, seeds 0-3: 0.74-0.76 N): the "
     "nominal map's error at the contact's rotor speeds, which the start-attitude zeroing cannot know "
     "(docs/fidelity.md); the goal 0.5 N",
 )

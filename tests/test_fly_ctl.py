@@ -1,6 +1,8 @@
 """``omnirotor ctl`` against a flight director served over real Zenoh on loopback (no mock transport)."""
 
+import shutil
 import socket
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -92,3 +94,31 @@ def test_connection_options_may_follow_the_request(served, capsys):
     assert capsys.readouterr().out.startswith("refused: goto: not flying")
     assert main(["ctl", "--connect", connect, "status", "--namespace", namespace]) == 0  # either side
     assert capsys.readouterr().out.startswith("accepted: status: mode")
+
+
+def test_ctl_logs_in_to_a_node_that_requires_it(served, capsys, tmp_path, monkeypatch):
+    """A node with ``examples/zenoh-auth/node.json5`` answers ``ctl --zenoh-config ctl.json5`` only (Zenoh refuses
+    the connection of a ctl without the login, or with a wrong password)."""
+    from omnirotor.transport import open_transport
+
+    d, _ = served
+    cfg = tmp_path / "zenoh"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "zenoh-auth", cfg)
+    monkeypatch.chdir(cfg)  # the dictionary file's relative path
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    (cfg / "wrong.json5").write_text(
+        (cfg / "ctl.json5").read_text().replace("change-me-ctl-password", "not-the-password")
+    )
+    with open_transport(listen=[endpoint], namespace="/ctlauth", config_file=str(cfg / "node.json5"),
+                        config={"connect/endpoints": []}) as t:  # fmt: skip
+        t.serve(CTL_TOPIC, "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply",
+                lambda req: d.request(req).to_msg())  # fmt: skip
+        base = ["ctl", "--connect", endpoint, "--namespace", "/ctlauth", "--timeout", "1"]
+        assert main([*base, "status", "--zenoh-config", str(cfg / "ctl.json5")]) == 0
+        assert capsys.readouterr().out.startswith("accepted: status: mode")
+        for refused in ([], ["--zenoh-config", str(cfg / "wrong.json5")]):
+            assert main([*base, *refused, "status"]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "no answer from a flight node" in err
+        assert main([*base, "--zenoh-config", "missing.json5", "status"]) == 2
+        assert "--zenoh-config" in capsys.readouterr().err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 import types
@@ -50,44 +51,84 @@ class _Director:
         return self._out
 
 
-def test_a_repeated_start_frame_is_answered_again_and_keeps_the_link():
-    """The simulator repeats its start frame every 10 ms until it obeys an answer: no link loss, nothing stepped."""
+class _Plant:
+    """The scripted plant's side: the test's Zenoh session (listening) with the frame publisher and the command
+    subscriber, one frame record and its message; the node's summary once its loop ended."""
+
+    def __init__(self, plant, node: NodeLoop) -> None:
+        self.plant, self.node = plant, node
+        self.frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
+        self.commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        self.record, self._msgs = new_frame(N), WireMessages(N)
+        self.summary: dict = {}
+        self.thread: threading.Thread | None = None
+
+    def send(self, seq: int, t: float | None = None) -> None:
+        """Publish the record as frame ``seq`` (its time set to ``t`` first, when given)."""
+        if t is not None:
+            self.record["t"] = t
+        self.frames.put(self._msgs.fill_frame(self.record, seq))
+
+    def answers(self, timeout_s: float) -> list:
+        """The commands that arrived, the first waited for up to ``timeout_s``."""
+        return list(iter(lambda: self.commands.take(timeout_s), None))
+
+    def stream(self, n_answers: int, wait_s: float, timeout_s: float, between=None) -> list:
+        """Frames 1, 2, ... (1 ms apart in time), each followed by up to ``wait_s`` for answers and ``between(k)``,
+        until ``n_answers`` commands came or ``timeout_s`` passed; the commands."""
+        got, k = [], 0
+        deadline = time.monotonic() + timeout_s
+        while len(got) < n_answers and time.monotonic() < deadline:
+            k += 1
+            self.send(k, 0.001 * k)
+            got += self.answers(wait_s)
+            if between is not None:
+                between(k)
+        return got
+
+
+@contextlib.contextmanager
+def _scripted_plant(namespace: str, controller, director, options: NodeOptions, say=None):
+    """A :class:`_Plant` on loopback Zenoh and the node's loop on its own session, run in a thread until the block
+    ends (then stopped and joined)."""
     port = free_port()
     with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/node") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/node") as wire,
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace=namespace) as plant,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace=namespace) as wire,
     ):
-        ctl, director = _Controller(), _Director()
-        node = NodeLoop(wire, ctl, director, NodeOptions(), say=lambda line: said.append(line))
-        said: list[str] = []
-        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
-        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
+        node = NodeLoop(wire, controller, director, options, say=say if say is not None else (lambda line: None))
+        p = _Plant(plant, node)
         stop = threading.Event()
-        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
-        summary: dict = {}
-        thread.start()
+        p.thread = threading.Thread(target=lambda: p.summary.update(node.run(stop)))
+        p.thread.start()
         try:
-            w, record = WireMessages(N), new_frame(N)
-            record["t"] = 0.5
-            answers = []
-            deadline = time.monotonic() + 10
-            while not answers and time.monotonic() < deadline:  # the subscription takes a moment to match
-                frames.put(w.fill_frame(record, 0))
-                answers += [m for m in iter(lambda: commands.take(0.01), None)]
-            for _ in range(6):  # the start frame again, 20 ms apart, for longer than the 50 ms link loss
-                time.sleep(0.02)
-                frames.put(w.fill_frame(record, 0))
-            time.sleep(0.02)
-            record["t"] = 0.501
-            frames.put(w.fill_frame(record, 1))
-            deadline = time.monotonic() + 5
-            while (not answers or answers[-1].frame_seq != 1) and time.monotonic() < deadline:
-                if (m := commands.take(0.01)) is not None:
-                    answers.append(m)
-            lost = [line for line in said if "link lost" in line]  # before the frames stop here
+            yield p
         finally:
             stop.set()
-            thread.join(10)
+            p.thread.join(10)
+
+
+def test_a_repeated_start_frame_is_answered_again_and_keeps_the_link():
+    """The simulator repeats its start frame every 10 ms until it obeys an answer: no link loss, nothing stepped."""
+    ctl, director = _Controller(), _Director()
+    said: list[str] = []
+    with _scripted_plant("/node", ctl, director, NodeOptions(), said.append) as p:
+        answers = []
+        deadline = time.monotonic() + 10
+        while not answers and time.monotonic() < deadline:  # the subscription takes a moment to match
+            p.send(0, 0.5)
+            answers += p.answers(0.01)
+        for _ in range(6):  # the start frame again, 20 ms apart, for longer than the 50 ms link loss
+            time.sleep(0.02)
+            p.send(0)
+        time.sleep(0.02)
+        p.send(1, 0.501)
+        deadline = time.monotonic() + 5
+        while (not answers or answers[-1].frame_seq != 1) and time.monotonic() < deadline:
+            if (m := p.commands.take(0.01)) is not None:
+                answers.append(m)
+        lost = [line for line in said if "link lost" in line]  # before the frames stop here
+    summary = p.summary
     assert lost == [], said
     assert ctl.steps == 2 and director.frames == [0.5, 0.501]  # the repeats stepped nothing
     seqs = [int(m.seq) for m in answers]
@@ -149,45 +190,31 @@ def test_a_motion_capture_sample_in_a_skipped_frame_is_not_lost():
     Before: the node took the newest frame only, so under load the motion-capture samples (one frame in ten) were
     dropped with the frames skipped and the estimate ran on the IMU alone.
     """
-    port = free_port()
-    with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/skip") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/skip") as wire,
-    ):
-        ctl, director = _Controller(), _SlowDirector()
-        node = NodeLoop(wire, ctl, director, NodeOptions(lockstep=True), say=lambda line: None)
-        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
-        stop = threading.Event()
-        summary: dict = {}
-        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
-        thread.start()
-        try:
-            w, record = WireMessages(N), new_frame(N)
+    director = _SlowDirector()
+    with _scripted_plant("/skip", _Controller(), director, NodeOptions(lockstep=True)) as p:
 
-            def send(k: int, mocap: bool) -> None:
-                record["t"] = 0.001 * k
-                record["mocap"]["new"] = mocap
-                record["mocap"]["t"] = 0.001 * k - 0.0005 if mocap else 0.0
-                record["mocap"]["p_W"] = (k, 2.0, 3.0)
-                record["mocap"]["q_WB"] = (1.0, 0.0, 0.0, 0.0)
-                frames.put(w.fill_frame(record, k))
+        def send(k: int, mocap: bool) -> None:
+            m = p.record["mocap"]
+            m["new"] = mocap
+            m["t"] = 0.001 * k - 0.0005 if mocap else 0.0
+            m["p_W"] = (k, 2.0, 3.0)
+            m["q_WB"] = (1.0, 0.0, 0.0, 0.0)
+            p.send(k, 0.001 * k)
 
-            deadline = time.monotonic() + 10
-            while not director.busy.is_set() and time.monotonic() < deadline:  # matching takes a moment
-                send(1, False)
-                time.sleep(0.02)
-            assert director.busy.is_set()
-            send(2, True)  # the loop is busy: these queue up
-            send(3, False)
-            send(4, False)
-            time.sleep(0.5)
-            director.release.set()
-            deadline = time.monotonic() + 5
-            while len(director.mocap) < 2 and time.monotonic() < deadline:
-                time.sleep(0.01)
-        finally:
-            stop.set()
-            thread.join(10)
+        deadline = time.monotonic() + 10
+        while not director.busy.is_set() and time.monotonic() < deadline:  # matching takes a moment
+            send(1, False)
+            time.sleep(0.02)
+        assert director.busy.is_set()
+        send(2, True)  # the loop is busy: these queue up
+        send(3, False)
+        send(4, False)
+        time.sleep(0.5)
+        director.release.set()
+        deadline = time.monotonic() + 5
+        while len(director.mocap) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    summary = p.summary
     first, newest = director.mocap[0], director.mocap[1]
     assert first[:2] == (0.001, False)
     assert newest == (0.004, True, (0.0015, (2.0, 2.0, 3.0)))  # frame 4, with frame 2's sample
@@ -208,30 +235,9 @@ def test_a_disarmed_director_never_gets_speeds_published():
     """The node's invariant: while the director is disarmed only zeros go out, flagged STATE_STOP."""
     from omnirotor.rosmsg.convert import COMMAND_STOP
 
-    port = free_port()
-    with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/inv") as wire,
-    ):
-        node = NodeLoop(wire, _Controller(), _DisarmedButSpinning(), NodeOptions(lockstep=True), say=lambda line: None)
-        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
-        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
-        stop = threading.Event()
-        summary: dict = {}
-        thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
-        thread.start()
-        try:
-            w, record = WireMessages(N), new_frame(N)
-            answers, k = [], 0
-            deadline = time.monotonic() + 10
-            while len(answers) < 5 and time.monotonic() < deadline:
-                k += 1
-                record["t"] = 0.001 * k
-                frames.put(w.fill_frame(record, k))
-                answers += [m for m in iter(lambda: commands.take(0.02), None)]
-        finally:
-            stop.set()
-            thread.join(10)
+    with _scripted_plant("/inv", _Controller(), _DisarmedButSpinning(), NodeOptions(lockstep=True)) as p:
+        answers = p.stream(5, 0.02, 10.0)
+    summary = p.summary
     assert len(answers) >= 5
     assert all(not m.hz.any() and m.state == COMMAND_STOP for m in answers)
     assert summary["disarmed_nonzero"] >= 5
@@ -253,37 +259,25 @@ def test_the_plant_s_failsafe_is_told_to_the_director():
     from omnirotor.rosmsg.convert import SIM_STATUS
 
     T = typestore().types
-    port = free_port()
     said: list[str] = []
-    with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/told") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/told") as wire,
-    ):
-        director = _TellableDirector()
-        node = NodeLoop(wire, _Controller(), director, NodeOptions(status_hz=200.0), say=said.append)
-        status = plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        stop = threading.Event()
-        thread = threading.Thread(target=lambda: node.run(stop))
-        thread.start()
+    director = _TellableDirector()
+    with _scripted_plant("/told", _Controller(), director, NodeOptions(status_hz=200.0), said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
         msg = T[SIM_STATUS](
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
             finished=False,
         )  # fmt: skip
-        try:
-            for _ in range(20):  # healthy: nothing told
-                status.put(msg)
-                time.sleep(0.01)
-            assert director.told == []
-            msg.failsafe, msg.cause = 1, "offboard loss"
-            deadline = time.monotonic() + 10
-            while len(director.told) < 3 and time.monotonic() < deadline:
-                status.put(msg)
-                time.sleep(0.01)
-        finally:
-            stop.set()
-            thread.join(10)
+        for _ in range(20):  # healthy: nothing told
+            status.put(msg)
+            time.sleep(0.01)
+        assert director.told == []
+        msg.failsafe, msg.cause = 1, "offboard loss"
+        deadline = time.monotonic() + 10
+        while len(director.told) < 3 and time.monotonic() < deadline:
+            status.put(msg)
+            time.sleep(0.01)
     assert len(director.told) >= 3 and set(director.told) == {"offboard loss"}
     assert [line for line in said if "stopped obeying" in line] == [
         "the plant stopped obeying the commands: offboard loss"
@@ -307,39 +301,22 @@ class _LoggingController(_Controller):
 def test_a_lockstep_node_sends_its_last_rows_when_the_frames_pause():
     """A mission's last partial batch of log rows goes when the plant stops sending frames, even when the plant's
     "finished" status never arrives (it did not on a loaded machine: the simulator then filled 17 rows in)."""
-    port = free_port()
-    with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/node") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/node") as wire,
-    ):
-        ctl = _LoggingController()
-        node = NodeLoop(wire, ctl, _Director(), NodeOptions(lockstep=True, log_rows=True), say=lambda line: None)
-        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
-        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
-        rows = plant.subscriber("/omnirotor/controller_log", CONTROLLER_LOG, depth=64)
-        stop = threading.Event()
-        thread = threading.Thread(target=node.run, args=(stop,))
-        thread.start()
-        got: dict[int, np.ndarray] = {}
-        try:
-            w, record = WireMessages(N), new_frame(N)
-            for seq in range(1, 8):  # each frame answered before the next, as a lockstep plant does
-                record["t"] = 0.001 * seq
-                answered = False
-                deadline = time.monotonic() + 10
-                while not answered and time.monotonic() < deadline:
-                    frames.put(w.fill_frame(record, seq))
-                    answered = any(int(m.frame_seq) == seq for m in iter(lambda: commands.take(0.05), None))
-                assert answered, seq
-            deadline = time.monotonic() + 5  # then no frame: a lockstep plant whose run ended
-            while len(got) < 7 and time.monotonic() < deadline:
-                if (m := rows.take(0.05)) is not None:
-                    k = int(m.n_columns)
-                    for seq, row in zip(m.frame_seq, np.asarray(m.rows).reshape(-1, k), strict=True):
-                        got[int(seq)] = row
-        finally:
-            stop.set()
-            thread.join(10)
+    got: dict[int, np.ndarray] = {}
+    with _scripted_plant("/node", _LoggingController(), _Director(), NodeOptions(lockstep=True, log_rows=True)) as p:
+        rows = p.plant.subscriber("/omnirotor/controller_log", CONTROLLER_LOG, depth=64)
+        for seq in range(1, 8):  # each frame answered before the next, as a lockstep plant does
+            answered = False
+            deadline = time.monotonic() + 10
+            while not answered and time.monotonic() < deadline:
+                p.send(seq, 0.001 * seq)
+                answered = any(int(m.frame_seq) == seq for m in p.answers(0.05))
+            assert answered, seq
+        deadline = time.monotonic() + 5  # then no frame: a lockstep plant whose run ended
+        while len(got) < 7 and time.monotonic() < deadline:
+            if (m := rows.take(0.05)) is not None:
+                k = int(m.n_columns)
+                for seq, row in zip(m.frame_seq, np.asarray(m.rows).reshape(-1, k), strict=True):
+                    got[int(seq)] = row
     assert sorted(got) == list(range(1, 8))
     assert [float(got[s][0]) for s in range(1, 8)] == pytest.approx([0.001 * s for s in range(1, 8)])
 
@@ -379,51 +356,26 @@ def test_the_director_is_only_ever_called_from_the_loop_s_thread():
     from omnirotor.rosmsg import typestore
     from omnirotor.sitl.server import TOPICS
 
-    port = free_port()
     T = typestore().types
-    with (
-        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace="/thr") as plant,
-        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace="/thr") as wire,
-    ):
-        director = _ThreadRecordingDirector()
-        node = NodeLoop(wire, _Controller(), director, NodeOptions(wrench_every=10**9), say=lambda line: None)
-        frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
-        commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
-        stop = threading.Event()
-        summary: dict = {}
-        loop_thread = threading.Thread(target=lambda: summary.update(node.run(stop)))
-        loop_thread.start()
-        replies = []
-        try:
-            w, record = WireMessages(N), new_frame(N)
-            answers, k = [], 0
-            deadline = time.monotonic() + 20
-            while len(answers) < 50 and time.monotonic() < deadline:
-                k += 1
-                record["t"] = 0.001 * k
-                frames.put(w.fill_frame(record, k))
-                answers += [m for m in iter(lambda: commands.take(0.005), None)]
-                if k % 10 == 0:  # a request from a client while frames flow
-                    req = T["omnirotor_msgs/msg/FlightRequest"](
-                        kind=0, height_m=0.0, depth_m=0.0, name="", force=False,
-                        setpoint=T["omnirotor_msgs/msg/Setpoint"](
-                            p_w=np.zeros(3), q_wb=np.zeros(4), roll_deg=0.0, pitch_deg=0.0, yaw_deg=0.0, duration_s=0.0
-                        ),
-                    )  # fmt: skip
-                    replies.append(
-                        plant.request(
-                            TOPICS["ctl"],
-                            "omnirotor_msgs/msg/FlightRequest",
-                            req,
-                            "omnirotor_msgs/msg/FlightReply",
-                            2.0,
-                        )  # fmt: skip
-                    )
-            # frames stop: gap calls, then the link loss
-            assert wait_until_true(lambda: director.stopped, 10.0)
-        finally:
-            stop.set()
-            loop_thread.join(10)
+    director = _ThreadRecordingDirector()
+    replies = []
+    req = T["omnirotor_msgs/msg/FlightRequest"](
+        kind=0, height_m=0.0, depth_m=0.0, name="", force=False,
+        setpoint=T["omnirotor_msgs/msg/Setpoint"](
+            p_w=np.zeros(3), q_wb=np.zeros(4), roll_deg=0.0, pitch_deg=0.0, yaw_deg=0.0, duration_s=0.0
+        ),
+    )  # fmt: skip
+    with _scripted_plant("/thr", _Controller(), director, NodeOptions(wrench_every=10**9)) as p:
+
+        def ask(k: int) -> None:  # a request from a client while frames flow
+            if k % 10 == 0:
+                replies.append(p.plant.request(TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", req,
+                                               "omnirotor_msgs/msg/FlightReply", 2.0))  # fmt: skip
+
+        answers = p.stream(50, 0.005, 20.0, ask)
+        # frames stop: gap calls, then the link loss
+        assert wait_until_true(lambda: director.stopped, 10.0)
+    loop_thread = p.thread
     assert len(answers) >= 50 and director.gap_calls > 0 and director.stopped and director.requests > 0
     assert any(r is not None and r.accepted for r in replies)
     assert director.threads == {loop_thread.ident}

@@ -250,6 +250,7 @@ def test_frame_assembler_fills_the_frame_record_from_px4s_samples():
     a.imu(_imu_msg(1_100_400))
     r = a.frame()[0]
     assert r["mocap"]["new"] == 0.0 and r["rotor_hz"][2] == 100.0
+    assert r["mocap"]["t"] == 0.0 and not r["mocap"]["p_W"].any() and not r["mocap"]["q_WB"].any()  # zeroed
     a.imu(_imu_msg(1_100_600))
     assert np.isnan(a.frame()[0]["rotor_hz"]).all() and a.esc_nan_frames == 2
     # a pose (PoseStamped: our frames) is taken as it is
@@ -277,6 +278,137 @@ def test_imu_rate_is_the_median_interval_of_px4s_stamps():
     assert imu_rate_hz(np.delete(t, np.s_[100:400:3])) == 1000.0  # samples lost on the way do not change it
     assert imu_rate_hz(np.arange(0, 1_000_001, 4000)) == 250.0
     assert math.isnan(imu_rate_hz(np.array([5]))) and math.isnan(imu_rate_hz(np.array([5, 5])))
+
+
+def _feed(watch, t_us: float, hz: float, seconds: float, arrival_s: float) -> tuple[float, float]:
+    """``seconds`` of IMU samples at ``hz`` into ``watch`` (arrivals on time); the next stamp and arrival."""
+    for _ in range(round(seconds * hz)):
+        watch.sample(round(t_us), arrival_s)
+        t_us += 1e6 / hz
+        arrival_s += 1.0 / hz
+    return t_us, arrival_s
+
+
+def test_the_imu_rate_watch_says_a_rate_off_for_longer_than_its_window_once_and_its_recovery():
+    from omnirotor.fly.bridge import ImuRateWatch
+
+    said: list[str] = []
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0, gap_s=0.02, name="IMU", say=said.append)
+    t, arr = _feed(w, 5e6, 1000.0, 3.0, 100.0)
+    assert w.rate_hz == pytest.approx(1000.0) and not said and w.episodes == 0
+    # 960 Hz (4 % off): within the tolerance, nothing said
+    t, arr = _feed(w, t, 960.0, 3.0, arr)
+    assert w.rate_hz == pytest.approx(960.0, rel=1e-3) and not said  # PX4's stamps are whole µs
+    # 800 Hz for 0.8 s: off in the window for less than a window, not an episode
+    t, arr = _feed(w, t, 1000.0, 2.0, arr)
+    t, arr = _feed(w, t, 800.0, 0.8, arr)
+    t, arr = _feed(w, t, 1000.0, 2.0, arr)
+    assert not said and w.episodes == 0 and w.off_s == 0.0 and w.worst_hz == 800.0
+    # 800 Hz for 3 s: said once, while it lasts; then the recovery once
+    t, arr = _feed(w, t, 800.0, 3.0, arr)
+    assert len(said) == 1 and "IMU at 800.0 Hz for more than 1 s" in said[0] and "frames go on" in said[0]
+    assert w.episodes == 1 and 0.5 < w.off_s < 3.0  # an open episode counts up to now
+    t, arr = _feed(w, t, 1000.0, 2.0, arr)
+    assert len(said) == 2 and said[1].startswith("IMU back at 1000.0 Hz after ")
+    assert w.episodes == 1 and 2.0 < w.off_s < 3.5  # closed: from the first judgement off to the first within
+    # too fast is off too (PX4 publishing at 2 kHz)
+    t, arr = _feed(w, t, 2000.0, 2.5, arr)
+    assert w.episodes == 2 and "IMU at 2000.0 Hz" in said[2] and w.worst_hz == pytest.approx(2000.0)
+    assert w.gaps == 0  # regular arrivals throughout
+    s = w.summary()
+    assert s["off_episodes"] == 2 and s["gaps"] == 0 and s["worst_gap_ms"] == 0.0 and s["rate_hz"] == 2000.0
+
+
+def test_the_imu_rate_watch_ignores_lost_samples_and_counts_gaps_with_the_worst():
+    from omnirotor.fly.bridge import ImuRateWatch
+
+    said: list[str] = []
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0, gap_s=0.02, name="IMU", say=said.append)
+    t, arr = 0.0, 10.0
+    for k in range(5000):  # every third sample lost on the way for 5 s: the median interval stays 1 ms
+        if k % 3 != 1:
+            w.sample(round(t), arr)
+        t, arr = t + 1000.0, arr + 1e-3
+    assert w.rate_hz == pytest.approx(1000.0) and w.episodes == 0 and w.gaps == 0
+    # no sample for 15 ms (not a gap), then 50 ms and 120 ms (PX4's stamps and the arrivals both jump)
+    for pause_ms in (15, 50, 120):
+        t, arr = t + 1000.0 * pause_ms, arr + 1e-3 * pause_ms
+        t, arr = _feed(w, t, 1000.0, 0.5, arr)
+    assert w.gaps == 2 and w.worst_gap_s == pytest.approx(0.121)
+    assert len(said) == 1 and said[0].startswith("IMU: no sample for 51 ms")  # the first gap said, all counted
+    # arrivals bunched by the transport (PX4's stamps regular): a gap at the bridge all the same
+    w.sample(round(t), arr + 0.03)
+    assert w.gaps == 3 and w.episodes == 0
+    # NaN arrivals (the start's measurement) are never gaps; PX4's clock going back starts a new window, said
+    w.sample(round(t + 1000), math.nan)
+    assert w.gaps == 3
+    _feed(w, 1000.0, 1000.0, 0.5, math.nan)
+    assert w.span_s == pytest.approx(0.499) and w.window_us().size == 500
+    assert len(said) == 2 and said[1].startswith("IMU: time stamps went back ") and "judged afresh" in said[1]
+
+
+def test_the_imu_rate_watchs_diagnostic_level_follows_the_rate_and_the_gaps():
+    from omnirotor.fly.bridge import ImuRateWatch
+    from omnirotor.rosmsg import msg_type
+
+    S = msg_type("diagnostic_msgs/msg/DiagnosticStatus")  # noqa: N806
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0)
+    assert w.diagnostic(0.0) == (S.STALE, "no sample yet")
+    t, arr = _feed(w, 0.0, 1000.0, 2.0, 0.0)
+    assert w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+    assert w.diagnostic(arr + 0.6) == (S.STALE, "no sample for 0.6 s")
+    t, arr = _feed(w, t + 50_000, 1000.0, 0.5, arr + 0.05)  # a 51 ms gap: WARN once, at the next report
+    level, message = w.diagnostic(arr)
+    assert level == S.WARN and "1 gap(s) over 20 ms" in message and w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+    t, arr = _feed(w, t, 800.0, 2.0, arr)  # an episode: WARN while it lasts
+    level, message = w.diagnostic(arr)
+    assert level == S.WARN and message.startswith("800.0 Hz, off --rate-hz 1000 for ")
+    t, arr = _feed(w, t, 1000.0, 1.0, arr)
+    assert w.diagnostic(arr) == (S.OK, "1000.0 Hz")
+
+
+def test_an_imu_rate_episode_open_when_px4s_clock_goes_back_ends_there():
+    from omnirotor.fly.bridge import ImuRateWatch
+
+    said: list[str] = []
+    w = ImuRateWatch(1000.0, 0.05, window_s=1.0, name="IMU", say=said.append)
+    t, arr = _feed(w, 0.0, 800.0, 3.0, 0.0)
+    assert w.episodes == 1 and w._said
+    off = w.off_s
+    _feed(w, 0.0, 1000.0, 0.5, arr)  # PX4 restarted: its clock from 0 again
+    assert w.episodes == 1 and w.off_s == pytest.approx(off, abs=2e-3) and not any("back at" in x for x in said)
+    _feed(w, 5e5, 1000.0, 2.0, arr + 1.0)  # a healthy second: no new episode, the total unchanged
+    assert w.episodes == 1 and w.off_s == pytest.approx(off, abs=2e-3)
+
+
+def test_the_bridges_in_place_frames_are_rosbags_bytes_over_assembled_frames():
+    """The bridge publishes :class:`FrameEncoder`'s payload of the assembler's record: the bytes rosbags gives for
+    the same record (:meth:`WireMessages.fill_frame`), over frames with and without ESC speeds, motion capture and
+    NaN samples, of PX4's clock from zero to past 2^31 s."""
+    from omnirotor.fly.bridge import FrameAssembler
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import FRAME, FrameEncoder, WireMessages
+
+    rng = np.random.default_rng(7)
+    store = typestore()
+    a = FrameAssembler(8, esc_timeout_s=0.1)
+    enc, msgs = FrameEncoder(8), WireMessages(8)
+    kinds = set()
+    for k in range(400):
+        t_us = int(rng.choice([0, 1, 999_999, 2**31 * 10**6 + 5])) + 1000 * k
+        gyro = rng.normal(size=3)
+        if k % 17 == 3:
+            gyro[1] = math.nan
+        a.imu(_imu_msg(t_us, gyro=gyro, acc=rng.normal(size=3)))
+        if k % 5 == 0:
+            a.esc(_esc_msg(t_us, {m: int(rng.integers(-9000, 9000)) for m in rng.permutation(8)[: 1 + k % 8]}))
+        if k % 7 == 0:
+            a.mocap_odometry(_odometry_msg(t_us - 4000, rng.normal(size=3), rng.normal(size=4)))
+        rec = a.frame()
+        kinds.add((bool(rec[0]["mocap"]["new"]), bool(np.isnan(rec[0]["rotor_hz"]).all())))
+        want = bytes(store.serialize_cdr(msgs.fill_frame(rec, k * 3), FRAME))
+        assert enc.encode(rec, k * 3) == want, k
+    assert kinds == {(False, False), (False, True), (True, False), (True, True)}
 
 
 def test_px4s_clock_is_mapped_by_the_smallest_delay_of_its_imu_samples():

@@ -169,3 +169,11 @@ def test_every_task_of_the_table_resolves_to_a_function():
 
     with pytest.raises(InputError, match="unknown task"):
         task_function("no-such-task")
+
+
+def test_the_ground_floor_imports_nothing_of_the_package():
+    """docs/architecture.md's ground floor: the real-time module among them, so that the PX4 bridge and the
+    simulator take it without the controller (it lived in fly/node.py, which imports the controller)."""
+    graph = _import_graph()
+    ground = ("so3", "messages", "_jit", "errors", "limits", "realtime")
+    assert {m: sorted(graph.get(f"omnirotor.{m}", ())) for m in ground} == {m: [] for m in ground}

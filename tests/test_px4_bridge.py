@@ -3,15 +3,18 @@ with the typestore (PX4's field lists), what the node is told (issue 24 item 6; 
 the bridge makes of PX4's sensors (:mod:`sitl.fake_px4` publishes known IMU, ESC and odometry values).
 
 In the command tests the test is the flight node: it publishes RotorCommands of its session (and of a second one,
-never obeyed), reads the plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a
-pilot would). In the frame tests it listens to the node's frames as an independent subscriber, is the motion-capture
-driver (a PoseStamped publisher), and runs a real ``omnirotor fly`` node on the bridge's frames.
+never obeyed, which starts first: the bridge is pinned to the node's session with ``--pair-session``), reads the
+plant status the bridge publishes, and makes PX4 leave offboard (as its own failsafe or a pilot would). In the
+frame tests it listens to the node's frames as an independent subscriber, is the motion-capture driver (a
+PoseStamped publisher), and runs a real ``omnirotor fly`` node on the bridge's frames.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -56,7 +59,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                            env=env(), stderr=open(tmp_path / "px4.err", "w"))  # noqa: SIM115  # fmt: skip
     bridge = subprocess.Popen(
         [sys.executable, "-c", CLI, "px4-bridge", "--listen", bridge_ep, "--connect", px4_ep, "--namespace", ns,
-         "--px4-namespace", px4_ns, "--json", "--no-frames"],
+         "--px4-namespace", px4_ns, "--json", "--no-frames", "--pair-session", "1234"],
         env=env(), stdout=subprocess.PIPE, stderr=open(tmp_path / "bridge.err", "w"), text=True,  # noqa: SIM115
     )  # fmt: skip
     try:
@@ -92,6 +95,16 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                 send()
                 time.sleep(0.005)
 
+            def foreign_first():
+                seq["theirs"] += 1
+                theirs.seq, theirs.state, theirs.hz[:] = seq["theirs"], COMMAND_ARMED, wmax
+                pub.put(theirs)
+                time.sleep(0.002)
+
+            # a foreign commander first: the bridge is pinned to the node's session (--pair-session), never to it
+            s = _until(lambda: (m := latest()) is not None and m.commands_refused >= 50 and m, 120.0, foreign_first)
+            assert s is not None, (tmp_path / "bridge.err").read_text()
+            assert s.commands_obeyed == 0 and s.paired_session_id == 0x1234
             # armed commands stream: heartbeat, then (after 1 s) offboard, then arming; the foreign session refused
             s = _until(lambda: (m := latest()) is not None and m.commands_obeyed > 300 and m, 120.0, tick)
             assert s is not None, (tmp_path / "bridge.err").read_text()
@@ -129,7 +142,7 @@ def test_the_bridge_flies_the_paired_node_on_px4_and_tells_it_when_px4_stops_obe
                 p.kill()
                 p.wait()
     got = json.loads((tmp_path / "px4.json").read_text())
-    assert summary["commands_refused"] >= 300 and summary["foreign_sessions"] == 1
+    assert summary["commands_refused"] >= 350 and summary["foreign_sessions"] == 1
     assert got["heartbeats"] > 10 and got["direct_actuator"]
     commands = [(c[0], c[1], c[2]) for c in got["vehicle_commands"]]
     assert (176, 1.0, 6.0) in commands and (400, 1.0, 0.0) in commands  # offboard, then arm
@@ -154,7 +167,7 @@ class _Px4Rig:
     """The fake PX4 and the bridge as processes; the test's own session listens (the bridge connects to it too,
     so that its subscribers exist before the bridge's first frame)."""
 
-    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str]) -> None:
+    def __init__(self, tmp: Path, px4_args: list[str], bridge_args: list[str], prefix: tuple[str, ...] = ()) -> None:
         self.tmp = tmp
         self.px4_ep, self.test_ep, self.px4_side_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
         self.ns, self.px4_ns = "/b", "/px4"
@@ -167,7 +180,7 @@ class _Px4Rig:
         self.frames = self.t.subscriber(TOPICS["frame"], FRAME, depth=1 << 14)
         self.bridge_err = tmp / "bridge.err"
         self.bridge = subprocess.Popen(
-            [sys.executable, "-c", CLI, "px4-bridge", "--connect", self.px4_ep, "--connect", self.test_ep,
+            [*prefix, sys.executable, "-c", CLI, "px4-bridge", "--connect", self.px4_ep, "--connect", self.test_ep,
              "--connect", self.px4_side_ep,
              "--namespace", self.ns, "--px4-namespace", self.px4_ns, "--json", *bridge_args],
             env=env(), stdout=subprocess.PIPE, stderr=open(self.bridge_err, "w"), text=True,  # noqa: SIM115
@@ -341,10 +354,87 @@ def test_a_node_arms_on_the_bridges_frames_with_a_mocap_pose_and_no_esc_telemetr
         assert fr[1] - 0.5 <= fr[6] <= fr[1]  # its stamp on PX4's clock, before the frame's IMU sample
 
 
+def _unprivileged() -> tuple[str, ...]:
+    """A command prefix under which a process may not use SCHED_FIFO: an rtprio limit of 0 (util-linux's prlimit)
+    and, as root, no CAP_SYS_NICE (setpriv); skips when the tools are missing."""
+    prlimit, setpriv = shutil.which("prlimit"), shutil.which("setpriv")
+    if prlimit is None or (os.geteuid() == 0 and setpriv is None):
+        pytest.skip("prlimit (and, as root, setpriv) needed to refuse SCHED_FIFO to the bridge")
+    prefix = (prlimit, "--rtprio=0")
+    if os.geteuid() == 0:
+        prefix += (setpriv, "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice")
+    return prefix
+
+
+def _move(tmp: Path, name: str, value: float) -> None:
+    """Tell the fake PX4 something through a file of its folder (written whole, then renamed into place)."""
+    (tmp / f"{name}.tmp").write_text(str(value))
+    (tmp / f"{name}.tmp").rename(tmp / name)
+
+
+@pytest.mark.slow
+def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo_is_refused(tmp_path):
+    """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
+    counted in the summary and shown on /diagnostics, the frames going on throughout (the node's controller
+    integrates the real intervals); the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and
+    bridged all the same."""
+    from omnirotor.fly.bridge import DIAGNOSTIC_ARRAY, DIAGNOSTICS_TOPIC
+
+    cpu = (os.cpu_count() or 1) - 1
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
+                  prefix=_unprivileged())  # fmt: skip
+    diag_sub = rig.t.subscriber(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY, depth=64)
+    diags: list[tuple[int, str]] = []
+
+    def tick() -> None:
+        while (m := diag_sub.take()) is not None:
+            diags.extend((int(st.level), st.message) for st in m.status)
+
+    try:
+        frames = rig.collect(1, 120.0)
+        assert frames, rig.bridge_err.read_text()
+        frames += rig.collect(1500, 30.0, tick)
+        _move(tmp_path, "imu-hz", 800)
+        end = time.monotonic() + 3.0
+        frames += rig.collect(10**6, 3.0, tick)
+        _move(tmp_path, "imu-hz", 1000)
+        while time.monotonic() < end + 2.0:
+            frames += rig.collect(10**6, 0.5, tick)
+        _move(tmp_path, "imu-gap", 150)
+        frames += rig.collect(10**6, 1.5, tick)
+        summary, _ = rig.stop()
+    finally:
+        rig.close()
+    err = rig.bridge_err.read_text()
+    assert rig.bridge.returncode == 0, err
+    lines = err.splitlines()
+    refused = [line for line in lines if "SCHED_FIFO not permitted" in line]
+    assert len(refused) == 1 and refused[0].startswith("omnirotor px4-bridge: SCHED_FIFO not permitted"), err
+    assert not any("CPU affinity" in line for line in lines), err  # the CPU was granted
+    slow = [line for line in lines if "at 800.0 Hz for more than 1 s" in line]
+    back = [line for line in lines if "back at 1000.0 Hz after" in line]
+    gap = [line for line in lines if "no sample for" in line]
+    assert len(slow) == 1 and "frames go on" in slow[0] and len(back) == 1 and len(gap) == 1, err
+    w = summary["frames"]["imu_watch"]
+    assert w["off_episodes"] == 1 and 1.0 < w["off_s"] < 4.0 and w["worst_off_rate_hz"] == 800.0, w
+    assert w["gaps"] >= 1 and w["worst_gap_ms"] > 100.0 and w["rate_hz"] == 1000.0, w
+    # the frames went on: PX4's samples 1.25 ms apart carried into frames, and the 150 ms jump of its clock
+    t_us = np.round(np.array([fr[1] for fr in frames]) * 1e6)
+    seq = np.array([fr[0] for fr in frames])
+    step = np.diff(t_us)[np.diff(seq) == 1]  # consecutive frames
+    assert (step == 1250).sum() > 1500 and (step >= 150_000).sum() == 1, np.unique(step)
+    # /diagnostics once a second: OK at the rate, WARN while it was off and after the gap
+    assert (0, "1000.0 Hz") in diags, diags
+    assert any(lv == 1 and m.startswith("800.0 Hz, off --rate-hz 1000 for ") for lv, m in diags), diags
+    assert any(lv == 1 and "gap(s) over 20 ms" in m for lv, m in diags), diags
+
+
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():
-    """The bridge stands where the simulator stands: it meets the node through the messages only (a fresh process)."""
+    """The bridge stands where the simulator stands: it meets the node through the messages only (a fresh process);
+    its command and the real-time module it shares with the node neither."""
     code = (
-        "import sys, omnirotor.fly.bridge, omnirotor.fly.px4, omnirotor.px4.frames\n"
+        "import sys, omnirotor.fly.bridge, omnirotor.fly.px4, omnirotor.px4.frames, omnirotor.realtime\n"
+        "import omnirotor.cli.cmd_px4_bridge, omnirotor.cli.realtime_options\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[:2] in (['omnirotor', 'control'], ['omnirotor', 'sim'])"
         " or m == 'mujoco')\n"
         "print(','.join(bad))\n"

@@ -164,7 +164,8 @@ def test_windows_of_the_sample_are_the_steady_descent():
     pts = hover_points(flight)
     assert len(pts.windows) == 1
     w = pts.windows[0]
-    # the README's steady descent, t = 23.0-25.8 s (rotors ~2930 rpm); not the ground, the climb or the 0.5 s hover
+    # docs/real-robot.md's steady descent, t = 23.3-26.0 s (rotors ~2930 rpm); not the ground, the climb or the
+    # 0.5 s hover
     assert 22.8 < w.t0_s < 23.6 and 25.5 < w.t1_s < 26.6
     np.testing.assert_allclose(pts.omega_hz[0], 2930 / 60, rtol=0.02)
     # level flight: the mean up axis within a degree of world up

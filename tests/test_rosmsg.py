@@ -238,37 +238,6 @@ def test_frame_wire_reads_what_rosbags_reads_for_any_frame_id_and_values():
         assert wire.decode(bytes(big)) is None
 
 
-def test_frame_wire_never_accepts_what_rosbags_refuses():
-    """Over truncations, extensions, bit flips and random bytes: whatever the fast path accepts, rosbags accepts too
-    (with the subscriber's rule on trailing bytes) and reads the same numbers; the rest it leaves to rosbags."""
-    from omnirotor.rosmsg.convert import FrameWire
-
-    store = typestore()
-    rng = np.random.default_rng(5)
-    wire = FrameWire(8)
-    valid = bytes(store.serialize_cdr(_random_frame(store, rng, 8, "base_link"), "omnirotor_msgs/msg/SensorFrame"))
-    corpus = [valid[:k] for k in range(len(valid))] + [valid + b"\x00" * k for k in range(1, 9)]
-    for _ in range(2000):
-        b = bytearray(valid)
-        for i in rng.integers(0, len(b), int(rng.integers(1, 4))):
-            b[i] ^= 1 << int(rng.integers(0, 8))
-        corpus.append(bytes(b))
-    corpus += [rng.bytes(int(k)) for k in rng.integers(0, 600, 200)]
-    accepted = 0
-    for payload in corpus:
-        fast = wire.decode(payload)
-        if fast is None:
-            continue
-        accepted += 1
-        ref, end = store.get_msgdef("omnirotor_msgs/msg/SensorFrame").deserialize_cdr_le(
-            memoryview(payload)[4:], 0, store.types["omnirotor_msgs/msg/SensorFrame"], store
-        )
-        assert end + 4 + 3 >= len(payload)
-        for f in _FRAME_FIELDS:
-            assert _same_bits(getattr(fast, f), getattr(ref, f)), f
-    assert accepted > 1000  # flips in the numbers are frames too; flips in the lengths are not
-
-
 def test_command_wire_writes_rosbags_bytes():
     """The node's command payload, updated in place, is rosbags' serialisation of the same fields, byte for byte."""
     from omnirotor.rosmsg.convert import COMMAND, CommandWire, set_stamp
@@ -316,50 +285,69 @@ def test_frame_encoder_writes_rosbags_bytes_of_the_record():
             assert enc.encode(record, seq) == bytes(store.serialize_cdr(msgs.fill_frame(record, seq), FRAME)), (n, k)
 
 
-def test_command_wire_decode_reads_what_rosbags_reads_and_never_accepts_what_it_refuses():
-    """The simulator's in-place command decoding: rosbags' values for any frame_id; over truncations, extensions,
-    bit flips and random bytes, nothing accepted that rosbags refuses."""
+_COMMAND_FIELDS = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
+
+
+def _random_command(store, rng, n: int, frame_id: str):
+    """A RotorCommand of any float64 bits and random numbers."""
+    T = store.types
+    bits = rng.integers(0, 2**63, n + 1, dtype=np.int64).view(np.float64)
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=4), frame_id=frame_id)
+    return T["omnirotor_msgs/msg/RotorCommand"](header=header, t=float(bits[0]), hz=bits[1:].copy(),
+                                                control_status=int(rng.integers(0, 2**32)),
+                                                state=int(rng.integers(0, 256)),
+                                                session_id=int(rng.integers(0, 2**63)),
+                                                seq=int(rng.integers(0, 2**63)),
+                                                frame_seq=int(rng.integers(0, 2**63)))  # fmt: skip
+
+
+def test_command_wire_decode_reads_what_rosbags_reads():
+    """The simulator's in-place command decoding: rosbags' values for any frame_id; another rotor count refused."""
     from omnirotor.rosmsg.convert import COMMAND, CommandWire
 
     store = typestore()
-    T = store.types
     rng = np.random.default_rng(21)
-    fields = ("t", "hz", "control_status", "state", "session_id", "seq", "frame_seq")
-
-    def command(n: int, frame_id: str):
-        bits = rng.integers(0, 2**63, n + 1, dtype=np.int64).view(np.float64)
-        header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=4), frame_id=frame_id)
-        return T[COMMAND](header=header, t=float(bits[0]), hz=bits[1:].copy(),
-                          control_status=int(rng.integers(0, 2**32)), state=int(rng.integers(0, 256)),
-                          session_id=int(rng.integers(0, 2**63)), seq=int(rng.integers(0, 2**63)),
-                          frame_seq=int(rng.integers(0, 2**63)))  # fmt: skip
-
     for n in (4, 8):
         wire = CommandWire(n)
         for frame_id in ("", "base_link", "é" * 3, "x" * 20):
-            payload = bytes(store.serialize_cdr(command(n, frame_id), COMMAND))
+            payload = bytes(store.serialize_cdr(_random_command(store, rng, n, frame_id), COMMAND))
             fast, ref = wire.decode(payload), store.deserialize_cdr(payload, COMMAND)
             assert fast is not None
-            for f in fields:
+            for f in _COMMAND_FIELDS:
                 assert _same_bits(getattr(fast, f), getattr(ref, f)), (n, frame_id, f)
-        assert wire.decode(bytes(store.serialize_cdr(command(n + 1, "b"), COMMAND))) is None
-    wire = CommandWire(8)
-    valid = bytes(store.serialize_cdr(command(8, "base_link"), COMMAND))
+        assert wire.decode(bytes(store.serialize_cdr(_random_command(store, rng, n + 1, "b"), COMMAND))) is None
+
+
+@pytest.mark.parametrize("kind", ["frame", "command"])
+def test_wire_decoders_never_accept_what_rosbags_refuses(kind):
+    """Over truncations, extensions, bit flips and random bytes: whatever a fast path (the node's FrameWire, the
+    simulator's CommandWire) accepts, rosbags accepts too (with the subscriber's rule on trailing bytes) and reads
+    the same numbers; the rest it leaves to rosbags."""
+    from omnirotor.rosmsg.convert import COMMAND, FRAME, CommandWire, FrameWire
+
+    store = typestore()
+    if kind == "frame":
+        rng, msgtype, fields, wire, longest = np.random.default_rng(5), FRAME, _FRAME_FIELDS, FrameWire(8), 600
+        msg = _random_frame(store, rng, 8, "base_link")
+    else:
+        rng, msgtype, fields, wire, longest = np.random.default_rng(21), COMMAND, _COMMAND_FIELDS, CommandWire(8), 300
+        msg = _random_command(store, rng, 8, "base_link")
+    valid = bytes(store.serialize_cdr(msg, msgtype))
     corpus = [valid[:k] for k in range(len(valid))] + [valid + b"\x00" * k for k in range(1, 9)]
     for _ in range(2000):
         b = bytearray(valid)
         for i in rng.integers(0, len(b), int(rng.integers(1, 4))):
             b[i] ^= 1 << int(rng.integers(0, 8))
         corpus.append(bytes(b))
-    corpus += [rng.bytes(int(k)) for k in rng.integers(0, 300, 200)]
+    corpus += [rng.bytes(int(k)) for k in rng.integers(0, longest, 200)]
     accepted = 0
     for payload in corpus:
         fast = wire.decode(payload)
         if fast is None:
             continue
         accepted += 1
-        ref, end = store.get_msgdef(COMMAND).deserialize_cdr_le(memoryview(payload)[4:], 0, T[COMMAND], store)
+        ref, end = store.get_msgdef(msgtype).deserialize_cdr_le(memoryview(payload)[4:], 0, store.types[msgtype], store)
         assert end + 4 + 3 >= len(payload)
         for f in fields:
             assert _same_bits(getattr(fast, f), getattr(ref, f)), f
-    assert accepted > 1000
+    assert accepted > 1000  # flips in the numbers are messages too; flips in the lengths are not

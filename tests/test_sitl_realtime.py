@@ -17,7 +17,7 @@ import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from omnirotor.experiments.tasks import run_task
-from omnirotor.experiments.tasks.common import ExperimentOptions
+from omnirotor.experiments.tasks.common import SETTLE_S, ExperimentOptions
 from omnirotor.rosmsg.convert import COMMAND, LOOP_STATUS, SIM_STATUS
 from sitl.procs import Pair, wait_until
 
@@ -57,13 +57,14 @@ def test_killing_the_simulator_loses_the_link_and_stops_the_commands(tmp_path):
             pass
         killed_at = time.monotonic()
         os.kill(pair.sim.pid, signal.SIGKILL)
-        late, lost = [], False
+        late, lost, sessions = [], False, set()
         while time.monotonic() < killed_at + 0.5:  # poll every millisecond: a take's time is its arrival's
             while (m := commands.take()) is not None:
                 if time.monotonic() > killed_at + 0.06:
                     late.append(m.seq)
             while (m := loop.take()) is not None:
                 lost = lost or m.link_lost
+                sessions.add(m.session_id)
             time.sleep(0.001)
         assert lost, pair.text("node")[-2000:]
         _, node = pair.wait(timeout_s=60, sim_ok=False)
@@ -71,13 +72,17 @@ def test_killing_the_simulator_loses_the_link_and_stops_the_commands(tmp_path):
     assert node["link_lost_after_ms"] <= 50 + 25  # the 50 ms limit plus one loop pause on a loaded machine
     assert late == []  # nothing commanded once the link was lost
     assert "link lost" in pair.text("node")
+    assert sessions == {int(node["session_id"], 16)}  # the node's status carries its session (a plant's --pair-session)
 
 
 @pytest.mark.slow
 def test_killing_the_node_engages_the_simulator_failsafe(tmp_path):
     with Pair(tmp_path, "hover", ["--seed", "1", "--duration", "6"], lockstep=False) as pair, pair.transport() as t:
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=64)
-        flying(pair, t, 1000)
+        # killed well after the metrics' window opens (SETTLE_S): a kill just before it leaves the window with no
+        # controller row of its own (the last row received stands in for the rest, its time stamp with it), and
+        # the simulator then says the metrics cannot be computed and exits 1, as designed
+        flying(pair, t, int(1000 * SETTLE_S) + 500)
         os.kill(pair.node.pid, signal.SIGKILL)
         engaged = wait_until(lambda: (m := status.take()) is not None and m.failsafe == 1, timeout_s=5)
         assert engaged, pair.text("sim")[-2000:]

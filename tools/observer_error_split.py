@@ -1,4 +1,4 @@
-"""Split the observer's error against the true contact force of one run (issue 12: the clean plant's 0.9 N).
+"""Split the observer's error against the true contact force of one run (issue 12: the clean plant's 0.76 N).
 
 Flies a contact task (clean plant by default) and splits ``f̂ − f_contact`` (world, while touching in the contact
 phase) into the nominal map's error at the flown rotor speeds, ``R (F_true(u) − A₁ u)`` less its value in the

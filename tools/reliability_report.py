@@ -1100,7 +1100,13 @@ ISSUE26 = (
     ),
     ("3", "campaign files validated, campaign sizes", (), ("test_campaign_validation.py",), "exp"),
     ("4", "no code from the working folder, no trust in a peer's word", (), ("test_working_folder.py",), "exp"),
-    ("5", "only the paired node commands the rotors", (), ("test_sitl_fuzz.py",), "wire"),
+    (
+        "5",
+        "only the paired node commands the rotors",
+        (),
+        ("test_sitl_fuzz.py", "test_gate.py", "test_sitl_pairing.py", "test_zenoh_auth.py"),
+        "wire",
+    ),
 )
 """The categories of issue 26 and where each is tried (``render`` counts probes and tests)."""
 

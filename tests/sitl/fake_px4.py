@@ -10,7 +10,9 @@ Its sensors (the bridge's frame direction), each with the known values of :data:
 below, so that a test can follow them through the bridge into the node's frames:
 
 * ``--imu-hz HZ``: ``/fmu/out/sensor_combined`` at HZ, paced on the wall clock, its ``timestamp`` PX4's sensor
-  clock: ``t0 + k / HZ`` exactly (monotonic µs at the start), as a real IMU's samples are regular;
+  clock: ``t0 + k / HZ`` exactly (monotonic µs at the start), as a real IMU's samples are regular; mid-run, the
+  file ``imu-hz`` in its folder (a number) changes the rate from the next sample on, and the file ``imu-gap`` (a
+  number of ms) makes the IMU skip that long once: no sample, its clock runs on (each file read and removed);
 * ``--nan-every N``: every N-th sample's gyro x is NaN (a broken sample the bridge must pass on, not choke on);
 * ``--esc``: ``/fmu/out/esc_status`` with every IMU sample of 10 (100 Hz at 1 kHz): :func:`esc_rpm` per motor,
   reported in the order :data:`ESC_ORDER` (a report's ``actuator_function`` names its motor);
@@ -104,6 +106,9 @@ def main() -> None:
         t0_us = time.monotonic_ns() // 1000
         wall0 = time.monotonic()
         k = 0
+        hz = a.imu_hz
+        due, ts_us = wall0, float(t0_us)  # the next sample's wall time and PX4 time stamp
+        skip_s = 0.0
         while not stop:
             now = time.monotonic()
             while (m := beats.take()) is not None:
@@ -124,15 +129,21 @@ def main() -> None:
                 nav = 4
             if now >= next_status:
                 next_status = now + 0.05
+                if imu is not None:
+                    hz = _read_once(folder / "imu-hz", hz)
+                    skip_s = 1e-3 * _read_once(folder / "imu-gap", 0.0)
                 status.nav_state, status.arming_state = nav, arming
                 pub.put(status)
                 log["states"].append([nav, arming])
             if imu is None:
                 time.sleep(0.002)
                 continue
+            if skip_s:  # a gap: no sample for skip_s, PX4's clock runs on
+                due, ts_us, skip_s = due + skip_s, ts_us + 1e6 * skip_s, 0.0
             # the IMU's samples due by now (a late loop catches up: PX4's sensor clock is regular)
-            while wall0 + k / a.imu_hz <= time.monotonic() and not stop:
-                ts = t0_us + round(1e6 * k / a.imu_hz)
+            while due <= time.monotonic() and not stop:
+                ts = round(ts_us)
+                due, ts_us = due + 1.0 / hz, ts_us + 1e6 / hz
                 imu.timestamp = ts
                 imu.gyro_rad[0] = (
                     math.nan if a.nan_every and k % a.nan_every == a.nan_every // 2 else IMU_FRD["gyro_rad"][0]
@@ -148,8 +159,18 @@ def main() -> None:
                 pub_imu.put(imu)
                 log["imu_sent"] += 1
                 k += 1
-            time.sleep(max(0.0, min(0.0005, wall0 + k / a.imu_hz - time.monotonic())))
+            time.sleep(max(0.0, min(0.0005, due - time.monotonic())))
     (folder / "px4.json").write_text(json.dumps(log))
+
+
+def _read_once(path: Path, default: float) -> float:
+    """The number in the file ``path`` (then removed), or ``default`` when there is none (yet)."""
+    try:
+        value = float(path.read_text())
+    except (OSError, ValueError):
+        return default
+    path.unlink()
+    return value
 
 
 if __name__ == "__main__":

@@ -36,11 +36,19 @@ class Pair:
     """A simulator (``omnirotor sim --serve``) and a node on a fresh port and namespace."""
 
     def __init__(
-        self, tmp: Path, task: str, sim_args: list[str], lockstep: bool, node_args: tuple[str, ...] = ()
+        self,
+        tmp: Path,
+        task: str,
+        sim_args: list[str],
+        lockstep: bool,
+        node_args: tuple[str, ...] = (),
+        start_node: bool = True,
+        cwd: Path | None = None,
+        link: str = "tcp",
     ) -> None:
         self.port = free_port()
         self.namespace = f"/t{secrets.token_hex(4)}"
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.endpoint = f"{link}/127.0.0.1:{self.port}"
         self.tmp = tmp
         self.out = tmp / "sim-out"
         args = ["sim", "--serve", "--task", task, "--listen", self.endpoint, "--namespace", self.namespace, "--json"]
@@ -48,16 +56,31 @@ class Pair:
         args += sim_args
         self.sim_err = open(tmp / "sim.err", "w+")  # noqa: SIM115
         self.node_err = open(tmp / "node.err", "w+")  # noqa: SIM115
+        self.cwd = cwd
         self.sim = subprocess.Popen(
-            [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True
-        )
+            [sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=self.sim_err, env=env(), text=True,
+            cwd=None if cwd is None else str(cwd),
+        )  # fmt: skip
         self.node_endpoint = f"tcp/127.0.0.1:{free_port()}"
-        node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
-                    "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
-                    "--fifo-priority", "20" if not lockstep else "0", *node_args]  # fmt: skip
+        self._node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", self.endpoint,
+                          "--listen", self.node_endpoint, "--namespace", self.namespace, "--json",
+                          "--fifo-priority", "20" if not lockstep else "0", *node_args]  # fmt: skip
+        self.node: subprocess.Popen | None = None
+        if start_node:
+            self.start_node()
+
+    def start_node(self) -> None:
+        """Start the node (at once unless the pair was made with ``start_node=False``)."""
         self.node = subprocess.Popen(
-            node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True, cwd=str(ROOT)
-        )
+            self._node_cmd, stdout=subprocess.PIPE, stderr=self.node_err, env=env(), text=True,
+            cwd=str(self.cwd or ROOT),
+        )  # fmt: skip
+
+    def plant_transport(self):
+        """A session of the test's own, connected to the simulator only (the node may not be up yet)."""
+        from omnirotor.transport import open_transport
+
+        return open_transport(listen=[], connect=[self.endpoint], namespace=self.namespace)
 
     def transport(self):
         """A session of the test's own, connected to both processes."""
@@ -91,7 +114,7 @@ class Pair:
 
     def kill(self) -> None:
         for p in (self.sim, self.node):
-            if p.poll() is None:
+            if p is not None and p.poll() is None:
                 p.kill()
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     p.wait(timeout=10)

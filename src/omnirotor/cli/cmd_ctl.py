@@ -20,7 +20,7 @@ CTL_ENDPOINT = "tcp/127.0.0.1:7448"
 """Where ``omnirotor fly`` listens by default (loopback): where ``ctl`` connects unless told otherwise."""
 EXIT_REFUSED = 1
 
-_CONNECTION = ("--connect", "--domain-id", "--namespace", "--timeout")
+_CONNECTION = ("--connect", "--zenoh-config", "--domain-id", "--namespace", "--timeout")
 """The group's options, each with a value: also accepted after the request (``ctl arm --connect ...``)."""
 
 
@@ -62,6 +62,13 @@ def _connection(
     connect: Annotated[
         list[str] | None, typer.Option(help=f"Zenoh endpoint of the node (repeatable); default {CTL_ENDPOINT}.")
     ] = None,
+    zenoh_config: Annotated[
+        str | None,
+        typer.Option(
+            help="Zenoh configuration file (JSON5): the login a node that requires one accepts "
+            "(examples/zenoh-auth/ctl.json5)."
+        ),
+    ] = None,
     domain_id: Annotated[int, typer.Option(help="ROS 2 domain id (0-232), as the node's.")] = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace, as the node's (e.g. /robot1).")] = "",
     timeout: Annotated[
@@ -70,21 +77,33 @@ def _connection(
 ) -> None:
     """Where the flight node is."""
     ctx.obj = {"connect": list(connect) if connect else [CTL_ENDPOINT], "domain_id": domain_id,
-               "namespace": namespace, "timeout": 2.0 if timeout is None else timeout}  # fmt: skip
+               "namespace": namespace, "timeout": 2.0 if timeout is None else timeout,
+               "zenoh_config": zenoh_config}  # fmt: skip
 
 
-def send(request, *, connect: list[str], domain_id: int = 0, namespace: str = "", timeout: float = 2.0):
+def send(request, *, connect: list[str], domain_id: int = 0, namespace: str = "", timeout: float = 2.0,
+         zenoh_config: str | None = None):  # fmt: skip
     """Send one :class:`~omnirotor.fly.requests.FlightRequest` and return the node's :class:`FlightReply`.
 
+    ``zenoh_config``: a Zenoh configuration file (its login, docs/transport.md); ``connect`` stands over its
+    endpoints.
+
     Raises:
-        InputError: a bad timeout, a transport that cannot open, or no answer within ``timeout`` seconds.
+        InputError: a bad timeout or configuration file, a transport that cannot open, or no answer within
+            ``timeout`` seconds.
     """
+    from pathlib import Path
+
     from omnirotor.fly.requests import CTL_TOPIC, FlightReply
+    from omnirotor.safe_io import check_input_file
     from omnirotor.transport import open_transport
 
     if not (math.isfinite(timeout) and 0.0 < timeout <= 60.0):
         raise InputError(f"--timeout must be in (0, 60] s, got {timeout}")
-    with open_transport(domain_id=domain_id, namespace=namespace, listen=[], connect=connect) as t:
+    if zenoh_config is not None:
+        check_input_file(Path(zenoh_config), "--zenoh-config")
+    with open_transport(domain_id=domain_id, namespace=namespace, listen=[], connect=connect,
+                        config_file=zenoh_config) as t:  # fmt: skip
         raw = t.request(
             CTL_TOPIC, "omnirotor_msgs/msg/FlightRequest", request.to_msg(), "omnirotor_msgs/msg/FlightReply", timeout
         )

@@ -20,11 +20,14 @@ from omnirotor.cli import app
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    SessionId,
     ZenohConfig,
     connect_option,
     listen_option,
+    session_id_arg,
     transport_args,
 )
+from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option, n_cpus
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file
 
@@ -34,6 +37,8 @@ DEFAULT_PLANT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the node connects by default: the plant's (``omnirotor sim --serve``, ``omnirotor px4-bridge``)."""
 _Connect = connect_option(DEFAULT_PLANT_ENDPOINT)
 _Listen = listen_option(DEFAULT_NODE_ENDPOINT)
+_Cpu = cpu_option("the last one")
+_FifoPriority = fifo_priority_option()
 
 
 def _director_factory(flight: str | None, overrides: list[str]):
@@ -57,12 +62,13 @@ def fly(
     zenoh_config: ZenohConfig = None,
     domain_id: DomainId = 0,
     namespace: Namespace = "",
+    session_id: SessionId = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
     flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", help="Flight parameter override key=value.")] = None,
-    cpu: Annotated[int | None, typer.Option(help="Pin the loop to this CPU (default: the last one).")] = None,
-    fifo_priority: Annotated[int, typer.Option(help="SCHED_FIFO priority of the loop (0: do not ask).")] = 50,
+    cpu: _Cpu = None,
+    fifo_priority: _FifoPriority = 50,
     maps: Annotated[
         Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify` (for `ctl map global|piecewise`).")
     ] = None,
@@ -74,17 +80,14 @@ def fly(
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
-    import os
-
-    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, set_realtime, warm_up
+    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, warm_up
     from omnirotor.fly.node import mission_from_sim as ask
+    from omnirotor.realtime import set_realtime
+    from omnirotor.sitl.gate import new_session_id
     from omnirotor.transport import open_transport
 
-    if not 0 <= fifo_priority <= 99:
-        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
-    n_cpus = os.cpu_count() or 1
-    if cpu is not None and not 0 <= cpu < n_cpus:
-        raise InputError(f"--cpu must be in 0..{n_cpus - 1}, got {cpu}")
+    check_realtime_options(cpu, fifo_priority)
+    session = session_id_arg(session_id, "--session-id")
     factory = _director_factory(flight, list(set_ or ()))
     if maps is not None:
         if mission_from_sim:
@@ -98,18 +101,23 @@ def fly(
         print(f"omnirotor fly: {line}", file=sys.stderr)
 
     def realtime() -> None:
-        set_realtime(cpu if cpu is not None else n_cpus - 1, fifo_priority or None, say)
+        set_realtime(cpu if cpu is not None else n_cpus() - 1, fifo_priority or None, say)
 
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
                           namespace=namespace, default_listen=[DEFAULT_NODE_ENDPOINT],
                           default_connect=[DEFAULT_PLANT_ENDPOINT])  # fmt: skip
     listening = args["listen"]
+    if session is None:
+        session = new_session_id()
+    say(f"controller session {session:016x} (a plant's --pair-session {session:016x} obeys this node only)")
     with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
-            summary = fly_mission(t, task, options, NodeOptions(lockstep=lockstep, **outputs), factory, realtime)
+            summary = fly_mission(
+                t, task, options, NodeOptions(lockstep=lockstep, session_id=session, **outputs), factory, realtime
+            )
         else:
             from omnirotor.control.controller import InteractionController, load_controller_params
             from omnirotor.vehicle import load_vehicle
@@ -120,9 +128,9 @@ def fly(
             wrench_maps = load_wrench_maps(str(maps), n_rotors=veh.n_rotors) if maps is not None else None
             controller = InteractionController(veh, params, wrench_maps)
             warm_up(controller)
-            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(**outputs))
+            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(session_id=session, **outputs))
             realtime()
-            say(f"flight node up (session {node.session_id:016x}); `omnirotor ctl` on {', '.join(listening)}")
+            say(f"flight node up; `omnirotor ctl` on {', '.join(listening)}")
             summary = node.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     if as_json:

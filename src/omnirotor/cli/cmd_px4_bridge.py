@@ -6,7 +6,10 @@ in one Zenoh session when the two namespaces are equal: the node's rotor command
 default because a node on a PX4 robot has no other source of them; ``--no-frames`` is for a robot whose own driver
 publishes ``/omnirotor/frame`` (two frame publishers would interleave their numbers). Ctrl-C (or SIGTERM) stops the
 motors, disarms PX4 if the node had it armed, and prints what the bridge counted. PX4's IMU at another rate than
-the node's (``--rate-hz``): one line on stderr and exit status 2, before any frame or command is bridged.
+the node's (``--rate-hz``): one line on stderr and exit status 2, before any frame or command is bridged; later in
+the flight, a rate off for longer than a second, and gaps, are said and counted (frames go on). ``--cpu`` and
+``--fifo-priority`` pin the bridge's threads and ask for ``SCHED_FIFO`` (:func:`omnirotor.realtime.set_realtime`;
+a refusal is said in one line and the bridge runs on at normal priority).
 """
 
 from __future__ import annotations
@@ -21,11 +24,22 @@ from typing import Annotated
 import typer
 
 from omnirotor.cli import app
-from omnirotor.cli.connection_options import DomainId, ZenohConfig, connect_option, listen_option, transport_args
+from omnirotor.cli.connection_options import (
+    DomainId,
+    PairSession,
+    ZenohConfig,
+    connect_option,
+    listen_option,
+    session_id_arg,
+    transport_args,
+)
+from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
 from omnirotor.errors import InputError
 
 _Connect = connect_option("tcp/127.0.0.1:7448", "the node's and PX4's")
 _Listen = listen_option()
+_Cpu = cpu_option()
+_FifoPriority = fifo_priority_option("the bridge's threads")
 
 
 @app.command("px4-bridge")
@@ -36,6 +50,7 @@ def px4_bridge(
     domain_id: DomainId = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
+    pair_session: PairSession = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
     frames: Annotated[
@@ -61,12 +76,15 @@ def px4_bridge(
         float,
         typer.Option(
             help="The node's control rate [Hz] (its controller's 1/dt): PX4's IMU (sensor_combined), measured over "
-            "its first second, must publish within 5 % of it, else exit 2."
+            "its first second, must publish within 5 % of it, else exit 2; watched for the whole flight after that "
+            "(a rate off for over 1 s, and gaps over 20 ms, are said and counted; frames go on)."
         ),
     ] = 1000.0,
     esc_timeout: Annotated[
         float, typer.Option(help="ESC telemetry older than this reads NaN in the frames [s of PX4's time].")
     ] = 0.1,
+    cpu: _Cpu = None,
+    fifo_priority: _FifoPriority = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Bridge the flight node and PX4: commands to ActuatorMotors, PX4's sensors to the node's frames.
@@ -75,10 +93,17 @@ def px4_bridge(
     motion capture come back as the node's sensor frames (docs/fly.md, "PX4").
     """
     from omnirotor.fly.bridge import BridgeOptions, FrameOptions, Px4Bridge
+    from omnirotor.realtime import set_realtime
     from omnirotor.transport import open_transport
     from omnirotor.vehicle import load_vehicle
 
-    options = BridgeOptions(command_loss_s=command_loss)
+    check_realtime_options(cpu, fifo_priority)
+    pinned = session_id_arg(pair_session, "--pair-session")
+
+    def say(line: str) -> None:
+        print(f"omnirotor px4-bridge: {line}", file=sys.stderr)
+
+    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned)
     frame_options = (
         FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
         if frames
@@ -97,10 +122,11 @@ def px4_bridge(
             px4 = stack.enter_context(open_transport(**{**args, "namespace": px4_namespace, "listen": []},
                                                      node="omnirotor_px4_bridge_px4"))  # fmt: skip
         bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
-                           frames=frame_options)  # fmt: skip
+                           say=say, frames=frame_options)  # fmt: skip
+        set_realtime(cpu, fifo_priority or None, say)  # after the transport's threads started: they keep theirs
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
-        print(f"omnirotor px4-bridge: up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}",
-              file=sys.stderr)  # fmt: skip
+        who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"
+        say(f"up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}; obeying {who}")
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:
@@ -113,8 +139,11 @@ def px4_bridge(
     )
     f = summary["frames"]
     if f is not None:
+        w = f["imu_watch"]
         print(
-            f"frames {f['frames']} (IMU {f['imu_rate_hz'] or math.nan:.1f} Hz), "
+            f"frames {f['frames']} (IMU {f['imu_rate_hz'] or math.nan:.1f} Hz at the start, "
+            f"{w['rate_hz'] or math.nan:.1f} Hz at the end; off the rate {w['off_episodes']} times for "
+            f"{w['off_s']:.1f} s, gaps over 20 ms {w['gaps']} (worst {w['worst_gap_ms']:.0f} ms)), "
             f"rotor speeds NaN in {f['esc_nan_frames']}, "
             f"motion capture samples {f['mocap_samples']}; bad payloads {f['bad_payloads']}"
         )

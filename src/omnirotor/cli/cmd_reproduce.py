@@ -18,7 +18,7 @@ def reproduce(
     out: Annotated[Path, typer.Option(help="Output folder for report.md, metrics.json and the figures.")] = Path(
         "out/reproduce"
     ),
-    quick: Annotated[bool, typer.Option(help="Shortened protocols (about 3 minutes on 2 cores).")] = False,
+    quick: Annotated[bool, typer.Option(help="Shortened protocols (under a minute on 2 cores once compiled).")] = False,
     seed: Annotated[int, typer.Option(help="Base seed.")] = 0,
     estimator: Annotated[str, typer.Option(help="State estimator: ukf (paper) or bypass (faster).")] = "ukf",
     workers: Annotated[int | None, typer.Option(min=1, max=64, help="Processes for the independent runs.")] = None,

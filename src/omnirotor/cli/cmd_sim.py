@@ -19,11 +19,14 @@ from omnirotor.cli import app, number_option
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    PairSession,
     ZenohConfig,
     connect_option,
     listen_option,
+    session_id_arg,
     transport_args,
 )
+from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file, check_output_dir, dumps_json, note
 
@@ -31,6 +34,8 @@ DEFAULT_SIM_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the simulator listens by default (loopback)."""
 _Listen = listen_option(DEFAULT_SIM_ENDPOINT)
 _Connect = connect_option()
+_Cpu = cpu_option()
+_FifoPriority = fifo_priority_option("the real-time plant loop")
 
 
 @app.command()
@@ -50,14 +55,14 @@ def sim(
     zenoh_config: ZenohConfig = None,
     domain_id: DomainId = 0,
     namespace: Namespace = "",
+    pair_session: PairSession = None,
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
     offboard_loss: Annotated[float, typer.Option(help="No command for this long stops the rotors [s].")] = 0.5,
     wait: Annotated[float, typer.Option(help="How long to wait for the controller's first command [s].")] = 60.0,
-    fifo_priority: Annotated[
-        int, typer.Option(help="SCHED_FIFO priority of the real-time plant loop (0: do not ask).")
-    ] = 0,
+    cpu: _Cpu = None,
+    fifo_priority: _FifoPriority = 0,
     map_mode: Annotated[str, typer.Option("--map", help="Wrench map: nominal, global, piecewise.")] = "nominal",
     maps: Annotated[Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify`.")] = None,
     blend: Annotated[str, typer.Option(help="Piecewise region switching: hard or smooth.")] = "hard",
@@ -88,9 +93,10 @@ def sim(
     from omnirotor.fly.record import output_options
 
     outputs = output_options(record, foxglove, foxglove_port)
+    outputs["pair_session"] = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                    ros_views, offboard_loss, fifo_priority, outputs)  # fmt: skip
+                    ros_views, offboard_loss, cpu, fifo_priority, outputs)  # fmt: skip
         return
     from omnirotor.experiments.tasks import TASKS
     from omnirotor.experiments.tasks.common import ExperimentOptions
@@ -109,8 +115,7 @@ def sim(
         maps=str(maps) if maps is not None else None, blend=blend, quick=quick, zero_observer=zero,
     )  # fmt: skip
     options.controller_params()  # validate before opening anything
-    if not 0 <= fifo_priority <= 99:
-        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
+    check_realtime_options(cpu, fifo_priority)
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views, **outputs
     )
@@ -120,10 +125,12 @@ def sim(
     with open_transport(**args, node="omnirotor_sim") as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
-        if fifo_priority and not lockstep:
-            from omnirotor.fly.node import set_realtime
+        _say_pairing(serve_opts.pair_session)
+        from omnirotor.realtime import set_realtime
 
-            set_realtime(None, fifo_priority, lambda line: note(line))
+        if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
+            note("--fifo-priority is for real time: the lockstep plant runs at normal priority")
+        set_realtime(cpu, None if lockstep else (fifo_priority or None), note)
         result, report = _serve(t, task, options, serve_opts)
     if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
         _say_recording(report.recording)
@@ -159,6 +166,14 @@ def sim(
     )
 
 
+def _say_pairing(pinned: int | None) -> None:
+    """Whom the plant obeys, said at its start."""
+    if pinned is not None:
+        note(f"obeying the rotor commands of controller session {pinned:016x} only (--pair-session)")
+    else:
+        note("obeying the first controller session that commands (first come; --pair-session pins one)")
+
+
 def _serve(transport, task, options, serve_opts):
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -174,7 +189,7 @@ def _serve(transport, task, options, serve_opts):
 
 
 def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                ros_views, offboard_loss, fifo_priority, outputs) -> None:  # fmt: skip
+                ros_views, offboard_loss, cpu, fifo_priority, outputs) -> None:  # fmt: skip
     """Interactive flight: the plant on its stand until the node takes off (omnirotor.sitl.server.serve_free)."""
     from omnirotor.experiments.loop import task_sim_params
     from omnirotor.sim import SCENES, Simulator
@@ -184,20 +199,19 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
 
     if scene not in SCENES:
         raise InputError(f"unknown scene {scene!r}; scenes: {', '.join(SCENES)}")
-    if not 0 <= fifo_priority <= 99:
-        raise InputError(f"--fifo-priority must be in 0..99, got {fifo_priority}")
+    check_realtime_options(cpu, fifo_priority)
     args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
                           namespace=namespace, default_listen=[DEFAULT_SIM_ENDPOINT])  # fmt: skip
     sim = Simulator(load_vehicle(vehicle), scene=scene, params=task_sim_params(truth, disturbances), seed=seed)
     endpoints = args["listen"]
     serve_opts = ServeOptions(offboard_loss_s=offboard_loss, ros_views=ros_views, **outputs)
     with open_transport(**args, node="omnirotor_sim") as t:
-        if fifo_priority:
-            from omnirotor.fly.node import set_realtime
+        from omnirotor.realtime import set_realtime
 
-            set_realtime(None, fifo_priority, lambda line: note(line))
+        set_realtime(cpu, fifo_priority or None, note)
         note(f"serving the {scene} scene on {', '.join(endpoints)}, the vehicle on its stand until `omnirotor fly` "
              "takes off (`omnirotor ctl arm`, `takeoff`); Ctrl-C ends")  # fmt: skip
+        _say_pairing(serve_opts.pair_session)
         report = serve_free(t, sim, serve_opts)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     print(

@@ -3,6 +3,8 @@
 Each command declares ``--listen``, ``--connect``, ``--zenoh-config``, ``--domain-id`` and ``--namespace`` with
 these types (its own default endpoints named in their help) and opens its session with the keyword arguments of
 :func:`transport_args` (docs/transport.md). ``omnirotor ctl`` has its own (a client: connect only, a timeout).
+The pairing options (:mod:`omnirotor.sitl.gate`): the node's ``--session-id`` and the plants' ``--pair-session``,
+read by :func:`session_id_arg`.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import Annotated
 
 import typer
 
+from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file
 
 
@@ -33,10 +36,43 @@ def connect_option(default: str | None = None, what: str = "") -> type:
 
 
 ZenohConfig = Annotated[
-    str | None, typer.Option(help="Zenoh configuration file (JSON5): access control, TLS (docs/transport.md).")
+    str | None,
+    typer.Option(
+        help="Zenoh configuration file (JSON5): login or mutual TLS, access control (examples/zenoh-auth/, "
+        "examples/zenoh-tls/, docs/transport.md)."
+    ),
 ]
 DomainId = Annotated[int, typer.Option(help="ROS 2 domain id (0-232).")]
 Namespace = Annotated[str, typer.Option(help="ROS 2 namespace of every topic, e.g. /robot1.")]
+SessionId = Annotated[
+    str | None,
+    typer.Option(
+        metavar="HEX",
+        help="The controller session id of this node's rotor commands (hex, as printed at its start); default: "
+        "random. Give the same to the plant's --pair-session.",
+    ),
+]
+PairSession = Annotated[
+    str | None,
+    typer.Option(
+        metavar="HEX",
+        help="Obey the rotor commands of this controller session only (hex, as `omnirotor fly` prints it, or its "
+        "--session-id), from the first command on. Default: the first session that commands is paired (first "
+        "come: a foreign publisher that starts first takes the pairing).",
+    ),
+]
+
+
+def session_id_arg(text: str | None, option: str) -> int | None:
+    """The session id of ``--session-id`` or ``--pair-session`` (None when not given); one line when malformed."""
+    if text is None:
+        return None
+    from omnirotor.sitl.gate import parse_session_id
+
+    try:
+        return parse_session_id(text, option)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
 
 
 def transport_args(

@@ -30,9 +30,9 @@ Time stamps to PX4 are this process's monotonic clock in microseconds (PX4's bri
 robot without time sync should use PX4's ``timesync_status``).
 
 **The frame direction** (:class:`Px4FrameSource`, on unless ``--no-frames``): the node's ``/omnirotor/frame``
-(``omnirotor_msgs/msg/SensorFrame``, the record of :func:`omnirotor.messages.frame_dtype` through
-:class:`omnirotor.rosmsg.convert.WireMessages`: no second frame format), one per IMU sample, so that PX4's IMU
-drives the node's period as a robot's IMU does:
+(``omnirotor_msgs/msg/SensorFrame``, the record of :func:`omnirotor.messages.frame_dtype` written in place by
+:class:`omnirotor.rosmsg.convert.FrameEncoder`, the simulator's encoder: rosbags' bytes, no second frame format),
+one per IMU sample, so that PX4's IMU drives the node's period as a robot's IMU does:
 
     /fmu/out/sensor_combined    px4_msgs/msg/SensorCombined   the frame's IMU, FRD -> FLU; its ``timestamp`` [µs
                                                               since PX4's boot] / 1e6 is the frame's ``t`` [s]
@@ -62,8 +62,15 @@ never holds a sample from its future when the IMU's queue lags behind; IMU sampl
 The node's controller assumes its period (``rate_hz``, 1 kHz): before any frame is published the IMU's rate is
 measured over ``rate_window_s`` (the median interval of PX4's time stamps, not of their arrivals), and a rate more
 than ``rate_tolerance`` away refuses to bridge (one line, exit status 2): a controller run at another rate than it
-was tuned for is unsafe. Values are passed as they are (NaN included: the node's supervision judges them);
-malformed payloads on any of these topics are counted (``bad_payloads`` in the summary), never raised.
+was tuned for is unsafe. After it, the rate is watched for the whole flight (:class:`ImuRateWatch`: the rate of
+the last ``rate_window_s`` of samples, judged ten times a window): a rate off the tolerance for longer than the
+window is said once and its recovery once more, and gaps (no sample arriving for ``gap_s``, 20 ms) are counted
+with the worst; both in the summary (``imu_watch``) and, once a second, on ``/diagnostics`` in the node's namespace
+(``diagnostic_msgs/msg/DiagnosticArray``, ROS's standard: WARN while the rate is off or after a gap, STALE when
+no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`). The frames go on meanwhile: the controller integrates the
+real intervals between frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
+are passed as they are (NaN included: the node's supervision judges them); malformed payloads on any of these
+topics are counted (``bad_payloads`` in the summary), never raised.
 """
 
 from __future__ import annotations
@@ -92,6 +99,7 @@ from omnirotor.fly.px4 import (
     rotor_hz_from_esc_status,
 )
 from omnirotor.messages import new_frame
+from omnirotor.realtime import frozen_gc
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -99,7 +107,7 @@ from omnirotor.rosmsg.convert import (
     FRAME,
     POSE,
     SIM_STATUS,
-    WireMessages,
+    FrameEncoder,
     command_check,
     set_stamp,
 )
@@ -118,6 +126,7 @@ __all__ = [
     "NAV_OFFBOARD",
     "ARMING_ARMED",
     "imu_rate_hz",
+    "ImuRateWatch",
 ]
 
 PX4_TOPICS = {
@@ -147,6 +156,9 @@ ARMING_ARMED = 2
 """``VehicleStatus.arming_state`` armed."""
 FAILSAFE_NONE, FAILSAFE_COMMAND_LOSS, FAILSAFE_ROBOT = 0, 1, 2
 """``SimStatus.failsafe`` values the bridge reports (the plant status the node reads)."""
+DIAGNOSTICS_TOPIC = "/diagnostics"
+"""ROS's diagnostics topic (in the node's namespace): the frame direction's state once a second."""
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,12 +170,15 @@ class BridgeOptions:
         heartbeat_hz: OffboardControlMode rate [Hz] (PX4 wants 2 Hz or more).
         lead_s: heartbeat time before the switch to offboard [s].
         status_hz: plant status rate [Hz].
+        pair_session: obey this controller session only, from the first command (``--pair-session``,
+            :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
     """
 
     command_loss_s: float = 0.5
     heartbeat_hz: float = 10.0
     lead_s: float = 1.0
     status_hz: float = 20.0
+    pair_session: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
@@ -186,6 +201,7 @@ class FrameOptions:
         rate_tolerance: the largest relative difference of the measured IMU rate from ``rate_hz``.
         rate_window_s: the IMU rate is measured over this much of PX4's time before any frame is published [s].
         esc_timeout_s: ESC telemetry older than this (PX4's time) reads NaN [s].
+        gap_s: no IMU sample for longer than this is a gap (counted; the node's stale-IMU limit) [s].
         clock_window_s: the span of the running offset between PX4's clock and this host's [s] (``"pose"``).
     """
 
@@ -195,12 +211,13 @@ class FrameOptions:
     rate_tolerance: float = 0.05
     rate_window_s: float = 1.0
     esc_timeout_s: float = 0.1
+    gap_s: float = 0.02
     clock_window_s: float = 2.0
 
     def __post_init__(self) -> None:
         if self.mocap not in MOCAP_SOURCES:
             raise InputError(f"the motion capture source must be one of {', '.join(MOCAP_SOURCES)}, got {self.mocap!r}")
-        for name in ("rate_hz", "rate_tolerance", "rate_window_s", "esc_timeout_s", "clock_window_s"):
+        for name in ("rate_hz", "rate_tolerance", "rate_window_s", "esc_timeout_s", "gap_s", "clock_window_s"):
             check_positive(name, getattr(self, name))
         if not self.mocap_topic.startswith("/"):
             raise InputError(f"the motion capture topic must be absolute (start with /), got {self.mocap_topic!r}")
@@ -215,6 +232,165 @@ def imu_rate_hz(timestamps_us: np.ndarray) -> float:
     d = np.diff(np.asarray(timestamps_us, dtype=np.float64))
     d = d[d > 0]
     return 1e6 / float(np.median(d)) if d.size else math.nan
+
+
+class ImuRateWatch:
+    """PX4's IMU rate and its gaps over the whole flight (module docstring: the rate watch).
+
+    :meth:`sample` takes every IMU sample: its PX4 time stamp [µs] into a ring of the last ``window_s`` or more, its
+    arrival on this host's monotonic clock for the gaps. Every tenth of a window of PX4's time the rate of the last
+    ``window_s`` of samples is judged (:func:`imu_rate_hz`: the median interval, so a lost sample does not move it),
+    once the samples span a whole window. A rate more than ``tolerance`` away from ``rate_hz`` in every judgement
+    for longer than ``window_s`` is an *episode*: said once when it has lasted that long, and once more when a
+    judgement finds the rate back within the tolerance. A *gap* is an arrival more than ``gap_s`` after the previous
+    one (the first said, all counted, the worst kept). A time stamp that goes backwards (PX4 restarted) is said and
+    starts the window afresh (an open episode ends there). Nothing allocates per sample; a judgement (ten a second)
+    sorts one window.
+
+    Args:
+        rate_hz: the node's control rate [Hz].
+        tolerance: the largest relative difference of the rate from ``rate_hz``.
+        window_s: the sliding window [s of PX4's time].
+        gap_s: an arrival more than this after the previous is a gap [s].
+        name: the IMU's name in what is said (e.g. its topic).
+        say: where the lines go.
+
+    Attributes:
+        rate_hz: the newest judged rate [Hz] (NaN before the first).
+        episodes: episodes said; ``off_s``: their total length [s of PX4's time] (an open one up to now);
+        worst_hz: of the judged rates off the tolerance (in an episode or not), the farthest from ``rate_hz``
+            (NaN: none).
+        gaps: gaps counted; ``worst_gap_s``: the longest [s] (0 without).
+    """
+
+    def __init__(self, rate_hz: float, tolerance: float = 0.05, window_s: float = 1.0, gap_s: float = 0.02,
+                 name: str = "PX4's IMU", say: Callable[[str], None] | None = None) -> None:  # fmt: skip
+        self.nominal_hz, self.tolerance, self.window_s, self.gap_s = rate_hz, tolerance, window_s, gap_s
+        self.name = name
+        self._say = say if say is not None else (lambda line: None)
+        self._ring = np.zeros(int(4 * rate_hz * window_s) + 16)  # room for a window at 4x the nominal rate
+        self._window_us = 1e6 * window_s
+        self._check_us = self._window_us / 10
+        self._n = 0  # samples in the ring since the window started (may exceed its size: it wraps)
+        self._first_us = self._last_us = math.nan
+        self._next_check_us = math.nan
+        self._last_arrival = math.nan
+        self._off_since_us = math.nan  # PX4's time of the first judgement off in a row
+        self._said = False
+        self.rate_hz = math.nan
+        self.episodes = 0
+        self._off_closed_s = 0.0
+        self.worst_hz = math.nan
+        self.gaps = 0
+        self.worst_gap_s = 0.0
+        self._gaps_told = 0  # gaps counted at the previous :meth:`diagnostic`
+
+    def sample(self, t_us: int, arrival_s: float) -> None:
+        """One IMU sample: PX4's ``timestamp`` [µs], its arrival [s, monotonic; NaN: not counted for gaps]."""
+        gap = arrival_s - self._last_arrival
+        self._last_arrival = arrival_s
+        if gap > self.gap_s:
+            self.gaps += 1
+            if gap > self.worst_gap_s:
+                self.worst_gap_s = gap
+            if self.gaps == 1:
+                self._say(f"{self.name}: no sample for {1000 * gap:.0f} ms (more than {1000 * self.gap_s:g} ms; the "
+                          "node's stale-IMU failsafe acts on it); gaps are counted in the summary")  # fmt: skip
+        t = float(t_us)
+        if not t >= self._last_us:  # the first sample, or PX4's clock went back: a new window
+            if self._n:
+                self._say(f"{self.name}: time stamps went back {1e-6 * (self._last_us - t):.3f} s (PX4 restarted?); "
+                          "its rate is judged afresh")  # fmt: skip
+            if self._said:  # an open episode ends with the old clock
+                self._off_closed_s += 1e-6 * (self._last_us - self._off_since_us)
+            self._said = False
+            self._off_since_us = math.nan
+            self._n = 0
+            self._first_us = t
+            self._next_check_us = t + self._window_us
+        self._last_us = t
+        ring = self._ring
+        ring[self._n % ring.size] = t
+        self._n += 1
+        if t >= self._next_check_us:
+            self._next_check_us = t + self._check_us
+            self._judge(t)
+
+    def window_us(self) -> np.ndarray:
+        """The time stamps of the last ``window_s`` of samples [µs], oldest first (a new array)."""
+        ring, n = self._ring, self._n
+        if n <= ring.size:
+            s = ring[:n]
+        else:
+            k = n % ring.size
+            s = np.concatenate((ring[k:], ring[:k]))
+        if not s.size:
+            return s.copy()
+        return s[int(np.searchsorted(s, s[-1] - self._window_us)) :].copy()
+
+    def _judge(self, t_us: float) -> None:
+        self.rate_hz = rate = imu_rate_hz(self.window_us())
+        off = abs(rate / self.nominal_hz - 1.0)
+        if off <= self.tolerance:  # NaN (no interval) is not judged within
+            if self._said:
+                self._off_closed_s += 1e-6 * (t_us - self._off_since_us)
+                self._say(f"{self.name} back at {rate:.1f} Hz after {1e-6 * (t_us - self._off_since_us):.1f} s off")
+            self._said = False
+            self._off_since_us = math.nan
+            return
+        if math.isnan(self.worst_hz) or off > abs(self.worst_hz / self.nominal_hz - 1.0):
+            self.worst_hz = rate
+        if math.isnan(self._off_since_us):
+            self._off_since_us = t_us
+        elif not self._said and t_us - self._off_since_us > self._window_us:
+            self._said = True
+            self.episodes += 1
+            self._say(
+                f"{self.name} at {rate:.1f} Hz for more than {self.window_s:g} s, the node's controller runs at "
+                f"{self.nominal_hz:g} Hz (tolerance {100 * self.tolerance:g} %): frames go on (the controller "
+                "integrates the real intervals; the node's stale-IMU failsafe acts on gaps); check PX4's load and "
+                "IMU_GYRO_RATEMAX"
+            )
+
+    @property
+    def span_s(self) -> float:
+        """PX4's time from the window's first sample (since the start or a clock reset) to the newest [s]."""
+        return 1e-6 * (self._last_us - self._first_us) if self._n else 0.0
+
+    @property
+    def off_s(self) -> float:
+        """The episodes' total length [s of PX4's time], an open one up to the newest sample."""
+        open_s = 1e-6 * (self._last_us - self._off_since_us) if self._said else 0.0
+        return self._off_closed_s + open_s
+
+    def diagnostic(self, now_s: float, stale_s: float = 0.5) -> tuple[int, str]:
+        """The IMU's state now (``now_s`` on the arrivals' clock) as a ROS diagnostic level and message.
+
+        ``diagnostic_msgs/msg/DiagnosticStatus``' levels: STALE (3) with no sample arrived yet or none for
+        ``stale_s``; WARN (1) while an episode is open, or when gaps came since the previous call; else OK (0).
+        """
+        rate = "rate not judged yet" if math.isnan(self.rate_hz) else f"{self.rate_hz:.1f} Hz"
+        new_gaps, self._gaps_told = self.gaps - self._gaps_told, self.gaps
+        age = now_s - self._last_arrival
+        if not age <= stale_s:
+            return 3, "no sample yet" if math.isnan(age) else f"no sample for {age:.1f} s"
+        if self._said:
+            off_s = 1e-6 * (self._last_us - self._off_since_us)
+            return 1, f"{rate}, off --rate-hz {self.nominal_hz:g} for {off_s:.1f} s"
+        if new_gaps:
+            return 1, f"{rate}; {new_gaps} gap(s) over {1000 * self.gap_s:g} ms since the last report"
+        return 0, rate
+
+    def summary(self) -> dict:
+        """What the watch counted (JSON-ready: None for a rate not judged)."""
+        return {
+            "rate_hz": None if math.isnan(self.rate_hz) else self.rate_hz,
+            "off_episodes": self.episodes,
+            "off_s": self.off_s,
+            "worst_off_rate_hz": None if math.isnan(self.worst_hz) else self.worst_hz,
+            "gaps": self.gaps,
+            "worst_gap_ms": 1000 * self.worst_gap_s,
+        }
 
 
 class FrameAssembler:
@@ -250,6 +426,7 @@ class FrameAssembler:
         self._p, self._q = np.zeros(3), np.zeros(4)
         self._sample_t = 0.0
         self._pending = False
+        self._m_written = False  # the record's motion capture holds a sample (zeroed at the next frame without)
         self.t = math.nan  # the time of the frame being assembled [s]
         self.frames = self.esc_nan_frames = self.mocap_samples = self.mocap_replaced = 0
 
@@ -300,9 +477,11 @@ class FrameAssembler:
             self._m_p[:] = self._p
             self._m_q[:] = self._q
             self._pending = False
+            self._m_written = True
             self.mocap_samples += 1
-        else:
-            m[...] = 0.0  # the record's convention: no sample, its entries zero
+        elif self._m_written:  # the record's convention: no sample, its entries zero (they stay so until one)
+            m[...] = 0.0
+            self._m_written = False
         self.frames += 1
         return self.record
 
@@ -355,7 +534,7 @@ class Px4FrameSource:
         else:
             self._mocap = node.subscriber(o.mocap_topic, POSE, depth=64)
         self._pub = node.publisher(TOPICS["frame"], FRAME)
-        self._msgs = WireMessages(n_rotors)
+        self._encoder = FrameEncoder(n_rotors)
         self._clock = _ClockOffset(o.clock_window_s)
         self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
         self.esc_where = ros_topic(px4.namespace, PX4_TOPICS["esc_status"])
@@ -369,6 +548,8 @@ class Px4FrameSource:
         self.stamps_unsynced = 0
         self.errors = 0
         self.imu_gaps = 0
+        self.watch = ImuRateWatch(o.rate_hz, o.rate_tolerance, o.rate_window_s, o.gap_s,
+                                  f"PX4's IMU ({self.imu_where})", say)  # fmt: skip
         self._esc_q: collections.deque = collections.deque(maxlen=64)
         self._mocap_q: collections.deque = collections.deque(maxlen=64)
         self._said: set[str] = set()
@@ -389,7 +570,6 @@ class Px4FrameSource:
             InputError: the rate is more than ``rate_tolerance`` away from ``rate_hz`` (the node's control rate).
         """
         o = self.options
-        stamps: list[int] = []
         last = time.monotonic()  # of the last sample (or the start)
         while stop is None or not stop.is_set():
             msg = self._imu.take(0.05)
@@ -399,13 +579,15 @@ class Px4FrameSource:
                                          "before its rate is measured)")  # fmt: skip
                 continue
             last = time.monotonic()
-            stamps.append(int(msg.timestamp))
-            self._clock.imu(1e-6 * stamps[-1], time.time())
-            if stamps[-1] - stamps[0] >= 1e6 * o.rate_window_s:
+            t_us = int(msg.timestamp)
+            self.watch.sample(t_us, math.nan)  # its window, not its gaps: no frame is due yet
+            self._clock.imu(1e-6 * t_us, time.time())
+            if self.watch.span_s >= o.rate_window_s:
                 break
         else:
             return math.nan
-        self.rate_hz = rate = imu_rate_hz(np.array(stamps))
+        stamps = self.watch.window_us()
+        self.rate_hz = rate = imu_rate_hz(stamps)
         if not (abs(rate / o.rate_hz - 1.0) <= o.rate_tolerance):
             raise InputError(
                 f"PX4's IMU ({self.imu_where}) publishes at {rate:.1f} Hz, the node's controller runs at "
@@ -437,6 +619,7 @@ class Px4FrameSource:
         t_prev = a.t
         t = a.imu(msg)
         self._clock.imu(t, arrival)
+        self.watch.sample(int(msg.timestamp), time.monotonic())
         if t - t_prev > 1.5 / self.options.rate_hz:
             self.imu_gaps += 1  # samples lost on the way (the node counts the frames it missed)
         # ESC reports and motion-capture samples wait until the frame's time reaches theirs (a frame never carries
@@ -456,7 +639,7 @@ class Px4FrameSource:
         if math.isnan(self._t0):
             self._t0 = t
         self._notices(t)
-        self._pub.put(self._msgs.fill_frame(a.frame(), self.seq))
+        self._pub.put_raw(self._encoder.encode(a.frame(), self.seq))
         self.seq += 1
 
     def _mocap_time(self, msg) -> float:
@@ -492,6 +675,35 @@ class Px4FrameSource:
         while not stop.is_set():
             self.poll(0.05)
 
+    def diagnostics(self, wall_s: float) -> object:
+        """A ``diagnostic_msgs/msg/DiagnosticArray`` of the frame direction now, stamped ``wall_s``.
+
+        ``wall_s`` is this host's system clock, as ROS's diagnostics tools expect. One status, ``omnirotor
+        px4-bridge: PX4's IMU``, with :meth:`ImuRateWatch.diagnostic`'s level and message and the counts of the
+        summary as key-values.
+        """
+        T = typestore().types
+        w, a = self.watch, self.assembler
+        level, message = w.diagnostic(time.monotonic())
+        values = {
+            "topic": self.imu_where, "rate_hz": f"{w.rate_hz:.1f}", "rate_expected_hz": f"{w.nominal_hz:g}",
+            "off_episodes": str(w.episodes), "off_s": f"{w.off_s:.1f}", "gaps": str(w.gaps),
+            "worst_gap_ms": f"{1000 * w.worst_gap_s:.0f}", "frames": str(a.frames),
+            "frames_esc_nan": str(a.esc_nan_frames), "mocap_samples": str(a.mocap_samples),
+            "imu_samples_lost": str(self.imu_gaps),
+        }  # fmt: skip
+        status = T["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=level,
+            name="omnirotor px4-bridge: PX4's IMU", message=message, hardware_id="px4",
+            values=[T["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()],
+        )  # fmt: skip
+        msg = T[DIAGNOSTIC_ARRAY](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+            status=[status],
+        )
+        set_stamp(msg.header, wall_s)
+        return msg
+
     def summary(self) -> dict:
         """What the frame direction counted."""
         a = self.assembler
@@ -504,6 +716,7 @@ class Px4FrameSource:
             "mocap_stamps_unsynced": self.stamps_unsynced,
             "errors": self.errors,
             "imu_gaps": self.imu_gaps,
+            "imu_watch": self.watch.summary(),
             "bad_payloads": {
                 "sensor_combined": self._imu.n_bad,
                 "esc_status": self._esc.n_bad,
@@ -541,7 +754,7 @@ class Px4Bridge:
         self._pub_status = node.publisher(TOPICS["sim_status"], SIM_STATUS)
         self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k not in _PX4_OUT}
         self._vstatus = px4.subscriber(PX4_TOPICS["vehicle_status"], _PX4_TYPES["vehicle_status"], depth=4)
-        self.gate = CommandGate("omnirotor px4-bridge")
+        self.gate = CommandGate("omnirotor px4-bridge", pinned=o.pair_session)
         self.offboard = Px4Offboard(heartbeat_hz=o.heartbeat_hz, lead_s=o.lead_s)
         self.armed = False  # the node's state, from its last obeyed command
         self.controls = np.full(NUM_CONTROLS, np.nan)
@@ -560,6 +773,8 @@ class Px4Bridge:
         )  # fmt: skip
         self._status_next = 0.0
         self.frames = None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say)
+        self._pub_diag = None if frames is None else node.publisher(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY)
+        self._diag_next = 0.0
 
     @staticmethod
     def _now_us() -> int:
@@ -580,6 +795,9 @@ class Px4Bridge:
             self._command_loss(now - self.cmd_wall_s)
         self._offboard(self._now_us())
         self._publish_status(now)
+        if self._pub_diag is not None and now >= self._diag_next:
+            self._diag_next = now + 1.0
+            self._pub_diag.put(self.frames.diagnostics(time.time()))
 
     def _obey(self, msg) -> None:
         armed = int(msg.state) == COMMAND_ARMED
@@ -648,7 +866,10 @@ class Px4Bridge:
         """Bridge until ``stop`` or Ctrl-C; at the end NaN to every motor and PX4 disarmed if the node had it armed.
 
         With frames, PX4's IMU rate is measured first (nothing is bridged before), then the frames go out from
-        their own thread while this one obeys the commands.
+        their own thread while this one obeys the commands. Both threads inherit the calling thread's scheduling
+        (:func:`omnirotor.realtime.set_realtime` before this call); the garbage collector is frozen while they run
+        (:func:`omnirotor.realtime.frozen_gc`: each sample allocates its decoded messages, freed by reference
+        counting, and no collection pauses a period).
 
         Raises:
             InputError: PX4's IMU rate is not the node's control rate (:meth:`Px4FrameSource.measure_rate`).
@@ -658,13 +879,17 @@ class Px4Bridge:
         with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the bridging; the motors are stopped below
             if self.frames is not None:
                 self.frames.measure_rate(stop)
-                thread = threading.Thread(target=self.frames.run, args=(stop,), name="px4-frames", daemon=True)
-                thread.start()
-            while not stop.is_set():
-                self.poll(0.02)
-        stop.set()
-        if thread is not None:
-            thread.join(5.0)
+            with frozen_gc():
+                if self.frames is not None:
+                    thread = threading.Thread(target=self.frames.run, args=(stop,), name="px4-frames", daemon=True)
+                    thread.start()
+                try:
+                    while not stop.is_set():
+                        self.poll(0.02)
+                finally:
+                    stop.set()
+                    if thread is not None:
+                        thread.join(5.0)
         if self.armed and self.failsafe == FAILSAFE_NONE:
             self.controls.fill(np.nan)
             self._send("actuator_motors", actuator_motors_msg(self.controls, self._now_us(), self.flags))

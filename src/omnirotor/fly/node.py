@@ -21,13 +21,13 @@ of 20, and the rest as soon as frames pause (a lockstep plant at the end of its 
 Real time (the default): between frames the loop sleeps in the transport's queue until a frame arrives, or until the
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
 is frozen and disabled in the loop; the loop's thread asks for CPU affinity and ``SCHED_FIFO`` (said on stderr where
-the OS refuses). A period with no frame calls the director with the growing link ages (its failsafes); no frame for
-``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the director told (``frames_stopped``),
-and no command is published until frames come back. Deadline accounting: a period is *late* when its command left
-more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the wire, when its frame came that much later
-than one period after the previous one, or when its frame was missed; an *overrun* is a period whose work took
-longer than the period. Counts, the worst lateness and the frame-to-command percentiles are in ``LoopStatus`` and in
-the summary on exit.
+the OS refuses; both in :mod:`omnirotor.realtime`). A period with no frame calls the director with the growing link
+ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the
+director told (``frames_stopped``), and no command is published until frames come back. Deadline accounting: a
+period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the
+wire, when its frame came that much later than one period after the previous one, or when its frame was missed; an
+*overrun* is a period whose work took longer than the period. Counts, the worst lateness and the frame-to-command
+percentiles are in ``LoopStatus`` and in the summary on exit.
 
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
@@ -46,11 +46,8 @@ output without a step; Ctrl-C (or ``stop``) ends it with the summary.
 from __future__ import annotations
 
 import dataclasses
-import gc
 import math
-import os
 import queue
-import secrets
 import sys
 import threading
 import time
@@ -62,6 +59,7 @@ import numpy as np
 from omnirotor.errors import InputError
 from omnirotor.fly.failsafe import LinkAges
 from omnirotor.messages import SensorFrame
+from omnirotor.realtime import freeze_gc, thaw_gc
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
     COMMAND,
@@ -79,6 +77,7 @@ from omnirotor.rosmsg.convert import (
     frame_check,
     set_stamp,
 )
+from omnirotor.sitl.gate import new_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
 
@@ -86,7 +85,6 @@ __all__ = [
     "NodeOptions",
     "NodeLoop",
     "LoopStats",
-    "set_realtime",
     "LinkAges",
     "warm_up",
     "mission_from_sim",
@@ -127,6 +125,8 @@ class NodeOptions:
             on the frame key wakes it only within this guard instead of at every payload [s]; 0: wait in the
             channel at once. Frames come on the plant's clock, so a real one is not due before the guard; the
             default leaves 0.3 ms for the sleep's own overshoot (about 0.1 ms here) and the frame's jitter.
+        session_id: the controller session id its rotor commands carry (``omnirotor fly --session-id``; a plant
+            pinned to it with ``--pair-session`` obeys this node only: :mod:`omnirotor.sitl.gate`); None: random.
     """
 
     period_s: float = 0.001
@@ -142,6 +142,7 @@ class NodeOptions:
     record: str | None = None
     foxglove_port: int | None = None
     frame_guard_s: float = 0.0003
+    session_id: int | None = None
 
 
 class LoopStats:
@@ -243,24 +244,6 @@ def _percentiles(x: np.ndarray) -> dict:
     return {"p50": 1e6 * float(p50), "p99": 1e6 * float(p99), "max": 1e6 * float(x.max()), "n": int(x.size)}
 
 
-def set_realtime(cpu: int | None, priority: int | None, say: Callable[[str], None]) -> None:
-    """Ask for CPU affinity (``cpu``) and ``SCHED_FIFO`` at ``priority`` for the calling thread; refusals are said.
-
-    Call it after the transport is open, so the transport's own threads keep their CPUs.
-    """
-    if cpu is not None:
-        try:
-            os.sched_setaffinity(0, {cpu})
-        except (OSError, AttributeError, ValueError) as exc:
-            say(f"CPU affinity to CPU {cpu} not permitted ({exc.__class__.__name__}): the OS schedules the loop")
-    if priority is not None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError) as exc:
-            why = "needs CAP_SYS_NICE or an rtprio limit" if isinstance(exc, PermissionError) else str(exc)
-            say(f"SCHED_FIFO not permitted ({why}): the loop runs at normal priority")
-
-
 class NodeLoop:
     """The node's loop (module docstring).
 
@@ -286,7 +269,7 @@ class NodeLoop:
         self._say = say if say is not None else (lambda line: print(f"omnirotor fly: {line}", file=sys.stderr))
         n = controller.vehicle.n_rotors
         self.n = n
-        self.session_id = secrets.randbits(63) | 1
+        self.session_id = o.session_id if o.session_id is not None else new_session_id()
         self.msgs = WireMessages(n)
         self.stats = LoopStats(o.late_threshold_s)
         self._codec = FrameCodec(n)
@@ -326,7 +309,7 @@ class NodeLoop:
         self._loop_msg = T[LOOP_STATUS](
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
-            frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False,
+            frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False, session_id=self.session_id,
         )  # fmt: skip
         self._zeros = np.zeros(n)
         self._cmd_wire = CommandWire(n)
@@ -339,6 +322,7 @@ class NodeLoop:
         """Motion-capture samples of skipped frames carried into the newest frame (the loop had fallen behind)."""
         self.link_lost = False
         self._plant_failsafe = False
+        self._plant_paired_other = 0  # another session the plant said it obeys (said once per session)
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -514,9 +498,7 @@ class NodeLoop:
         next_gap_call = math.inf
         steps = 0
         cpu0, thread0 = time.process_time(), time.thread_time()
-        gc.collect()
-        gc.freeze()
-        gc.disable()
+        freeze_gc()
         try:
             while not stop.is_set() and not self.finished:
                 # asleep until a frame arrives or the next thing is due (the director's gap call, the status)
@@ -623,8 +605,7 @@ class NodeLoop:
         except KeyboardInterrupt:
             pass
         finally:
-            gc.enable()
-            gc.unfreeze()
+            thaw_gc()
         self._flush_rows()
         self._publish_status()
         out = stats.summary()
@@ -670,7 +651,7 @@ class NodeLoop:
             self.stats.controller_errors += 1
 
     def _poll_sim_status(self) -> None:
-        """A mission ends when the simulator says its run finished."""
+        """The plant's status: its failsafe (the director disarms), another session it obeys (said), the end."""
         msg = self._sim_status.take_latest()
         if msg is not None and msg.failsafe:
             # the plant does not obey (its offboard-loss failsafe; PX4 out of offboard): the director disarms
@@ -686,6 +667,13 @@ class NodeLoop:
                     self.stats.controller_errors += 1
         elif msg is not None:
             self._plant_failsafe = False
+        if msg is not None and int(msg.paired_session_id) not in (0, self.session_id, self._plant_paired_other):
+            # first come: another publisher commanded first (sitl/gate.py); this node's commands are refused
+            self._plant_paired_other = other = int(msg.paired_session_id)
+            self._say(
+                f"the plant obeys controller session {other:016x}, not this node's {self.session_id:016x}: its "
+                f"commands are refused (pin the plant to this node: --pair-session {self.session_id:016x})"
+            )
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:

@@ -35,7 +35,6 @@ zeros), and held as zeros; a robot bridge does the same (:mod:`omnirotor.fly.px4
 from __future__ import annotations
 
 import dataclasses
-import gc
 import json
 import math
 import sys
@@ -47,6 +46,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand
+from omnirotor.realtime import freeze_gc, thaw_gc
 from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -118,6 +118,8 @@ class ServeOptions:
             and its ground truth (``/omnirotor/pose`` is the true pose), streamed from a writer process; or None.
         foxglove_port: serve the simulator's live view (true pose, contact, rotors) on this loopback port (0: any
             free one), or None.
+        pair_session: obey this controller session only, from the first command (``--pair-session``: pinned
+            pairing, :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
     """
 
     lockstep: bool = False
@@ -129,6 +131,7 @@ class ServeOptions:
     row_wait_s: float = 2.0
     record: str | None = None
     foxglove_port: int | None = None
+    pair_session: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -191,7 +194,7 @@ class SimLink:
             decoder=CommandWire(n_rotors).decode,
         )  # fmt: skip
         self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
-        self.gate = CommandGate()
+        self.gate = CommandGate(pinned=options.pair_session)
         self.rows_malformed = 0
         self.stale_commands = 0
         self.stop_nonzero = 0
@@ -406,9 +409,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     zeros = np.zeros(link.n)
     lockstep = opts.lockstep
     held = 0
-    gc.collect()  # now, not between the first command and the first step
-    gc.freeze()
-    gc.disable()
+    freeze_gc()  # now, not between the first command and the first step
     # wait for the node: the start frame goes out every 10 ms until a command answering it is obeyed
     deadline = time.monotonic() + opts.start_timeout_s
     next_send = 0.0
@@ -476,8 +477,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
                 progress((k + 1) / n_steps)
         wall = time.monotonic() - wall0
     finally:
-        gc.enable()
-        gc.unfreeze()
+        thaw_gc()
     report.lockstep = lockstep
     report.steps = n_steps
     report.commands_obeyed = link.gate.obeyed
@@ -632,9 +632,7 @@ def serve_free(
     seq = 0
     held = 0
     released = failsafe = False
-    gc.collect()
-    gc.freeze()
-    gc.disable()
+    freeze_gc()
     wall0 = time.monotonic()
     k = 0
     try:
@@ -666,8 +664,7 @@ def serve_free(
     except KeyboardInterrupt:
         pass  # Ctrl-C or SIGTERM ends the run here; the summary below is still written
     finally:
-        gc.enable()
-        gc.unfreeze()
+        thaw_gc()
         report.recording = outputs.close()
     report.commands_obeyed = link.gate.obeyed
     report.commands_held = held

@@ -12,7 +12,7 @@ sphere (the protocol's sampler, so near-zero-crossing attitudes are rejected as 
   in the loop, ``f_hat_W = m g e3 - R_WB A_k,1 u_k`` and ``m_hat_B = -A_k,2 u_k`` with ``u_k`` the true
   equilibrium of a controller allocating with ``A_k`` (:func:`~omnirotor.sim.aero.hover_equilibrium`);
   its mean and RMS over attitudes [N, N·m];
-* **sliding** (closed loop, :func:`omnirotor.experiments.loop.run_task`): one short sliding run per
+* **sliding** (closed loop, :func:`omnirotor.experiments.tasks.run_task`): one short sliding run per
   partition with the maps of the first repetition: contact kept, EE error, and how often the map switched.
 """
 

@@ -165,8 +165,8 @@ def _check_endpoints(what: str, endpoints: Sequence[str]) -> list[str]:
         out.append(str(e))
         if what == "listen" and m.group(1) != "unixsock-stream" and not _is_loopback(m.group(2)):
             print(
-                f"omnirotor: listening on {e}, outside loopback: anyone on that network can publish and "
-                "subscribe unless Zenoh access control or TLS is configured (docs/fly.md)",
+                f"omnirotor: listening on {e}, outside loopback: anyone on that network can publish and subscribe "
+                "unless Zenoh login and access control are configured (docs/transport.md, examples/zenoh-auth/)",
                 file=sys.stderr,
             )
     return out

@@ -25,7 +25,7 @@ from omnirotor.identification import IdentificationParams, identify, load_hover_
 from omnirotor.safe_io import make_dir, route_mujoco_log, write_json_atomic, write_text_atomic
 from omnirotor.vehicle import load_vehicle
 
-__all__ = ["Plan", "plan", "run_one", "reproduce", "claims", "write_report"]
+__all__ = ["Plan", "plan", "in_plan_order", "run_one", "reproduce", "claims", "write_report"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +48,15 @@ class Plan:
 def plan() -> Plan:
     """The paper's campaign."""
     return Plan()
+
+
+def in_plan_order(samples: dict[str, dict]) -> dict[str, dict]:
+    """``samples`` (keyed by map mode) in the order the plan first runs each mode.
+
+    Not the order the workers finished in: the hover figure's maps keep their places from run to run.
+    """
+    order = list(dict.fromkeys(mode for _, mode in plan().runs))
+    return {m: samples[m] for m in sorted(samples, key=lambda m: order.index(m) if m in order else len(order))}
 
 
 def run_one(task: str, options: ExperimentOptions) -> tuple[str, dict, dict | None]:
@@ -160,7 +169,7 @@ def reproduce(
     from omnirotor.experiments.figures import plot_hover_violins, plot_table1
 
     if samples:
-        figures["hover"] = str(plot_hover_violins(samples, out / "hover-validation.png"))
+        figures["hover"] = str(plot_hover_violins(in_plan_order(samples), out / "hover-validation.png"))
     figures["table1"] = str(plot_table1(ordered, PAPER_TABLE1, out / "table1.png"))
     write_report(out / "report.md", ordered, figures, quick=quick, disturbances=disturbances)
     return ordered

@@ -1,0 +1,77 @@
+"""The plant's command gate (omnirotor.sitl.gate): first-come and pinned pairing (issue 26 item 5)."""
+
+from __future__ import annotations
+
+import pytest
+
+from omnirotor.sitl.gate import MAX_SEQ_JUMP, CommandGate, new_session_id, parse_session_id
+
+NODE = 0x1A2B3C4D5E6F7081
+FLOOD = 12345
+
+
+def test_first_come_pairs_whoever_commands_first_and_refuses_the_node_after(capsys):
+    gate = CommandGate()
+    assert gate.paired == 0
+    assert gate.offer(FLOOD, 7)  # a foreign publisher that starts first takes the pairing
+    assert gate.paired == FLOOD
+    assert not gate.offer(NODE, 1)
+    assert not gate.offer(NODE, 2)
+    assert (gate.obeyed, gate.refused, gate.foreign_sessions) == (1, 2, 1)
+    err = capsys.readouterr().err
+    assert f"paired with controller session {FLOOD:016x}" in err
+    assert err.count(f"refused rotor commands of session {NODE:016x}") == 1  # said once per session
+
+
+def test_pinned_refuses_every_other_session_from_the_first_command(capsys):
+    gate = CommandGate("plant", pinned=NODE)
+    assert gate.paired == NODE  # before any command
+    for seq in range(1, 50):  # a flood before the node: never paired with, never obeyed
+        assert not gate.offer(FLOOD + seq % 3, seq)
+    assert gate.paired == NODE and gate.obeyed == 0 and gate.refused == 49 and gate.foreign_sessions == 3
+    assert gate.offer(NODE, 500)  # the node's first command, whatever its number
+    assert gate.offer(NODE, 501)
+    assert not gate.offer(NODE, 501)  # a replay
+    assert not gate.offer(NODE, 501 + MAX_SEQ_JUMP + 1)  # a jump beyond the bound
+    assert not gate.offer(FLOOD, 10_000)
+    assert gate.obeyed == 2 and gate.refused == 52
+    err = capsys.readouterr().err
+    assert "paired with controller session" not in err  # nothing is paired: it was pinned
+    assert f"refused rotor commands of session {FLOOD:016x}: paired with {NODE:016x} (--pair-session)" in err
+    assert f"the pinned controller session {NODE:016x} commands" in err
+
+
+def test_release_keeps_the_pin_and_restarts_the_numbers():
+    pinned = CommandGate(pinned=NODE)
+    assert pinned.offer(NODE, 900)
+    pinned.release()  # the failsafe stopped the rotors
+    assert pinned.paired == NODE
+    assert not pinned.offer(FLOOD, 1)  # still not the flood's to take
+    assert pinned.offer(NODE, 5000)  # the node's next number, far beyond the old one, starts anew
+    first = CommandGate()
+    assert first.offer(NODE, 3)
+    first.release()
+    assert first.paired == 0
+    assert first.offer(FLOOD, 1) and first.paired == FLOOD  # first come again after a release
+
+
+@pytest.mark.parametrize("text, value", [("1a2b3c4d5e6f7081", NODE), ("0x1A2B3C4D5E6F7081", NODE), ("ff", 255),
+                                         ("ffffffffffffffff", (1 << 64) - 1)])  # fmt: skip
+def test_session_ids_parse_as_printed(text, value):
+    assert parse_session_id(text, "--pair-session") == value
+
+
+@pytest.mark.parametrize("text", ["", "0", "0x", "00000000", "xyz", "1ffffffffffffffff", "-1", "12 34", "1.5"])
+def test_bad_session_ids_are_one_line_errors(text):
+    with pytest.raises(ValueError, match="--pair-session") as exc:
+        parse_session_id(text, "--pair-session")
+    assert "\n" not in str(exc.value)
+
+
+def test_new_session_ids_are_nonzero_and_parse_back():
+    for _ in range(100):
+        s = new_session_id()
+        assert 0 < s < 1 << 63
+        assert parse_session_id(f"{s:016x}", "--session-id") == s
+    with pytest.raises(ValueError):
+        CommandGate(pinned=0)
