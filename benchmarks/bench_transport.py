@@ -35,6 +35,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -57,6 +58,9 @@ def _env() -> dict:
 FLOOD_HZ = 10_000
 """The flood's rate on each key [messages/s]: ten times the loop's."""
 
+
+SIM_AFTER_NODE_S = 60.0
+"""How long the simulator may run on after the node exited, beyond the run's duration, before the pair is failed."""
 
 FLOOD_MODES = ("after", "before")
 """When the flood starts (module docstring): after the simulator paired with the node, or before the node."""
@@ -135,7 +139,9 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
         sim_cmd += ["--pair-session", BENCH_SESSION]
         node_cmd += ["--session-id", BENCH_SESSION]
     pipe = subprocess.PIPE
-    sim = subprocess.Popen(sim_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
+    # the pair's output to files, not pipes: neither blocks on a full pipe while the other is waited for
+    outs = [tempfile.TemporaryFile("w+") for _ in range(4)]
+    sim = subprocess.Popen(sim_cmd, stdout=outs[0], stderr=outs[1], env=_env(), text=True)
     node = flooder = None
     try:
         if flood_mode is not None:  # the flooder's own wait ("after"), or the node started once it floods ("before")
@@ -144,18 +150,34 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
             flooder = subprocess.Popen(flood_cmd, stdout=pipe, stderr=subprocess.DEVNULL, env=_env(), text=True)
             if flood_mode == "before" and flooder.stdout.readline().strip() != "flooding":
                 raise RuntimeError("the flood did not start")
-        node = subprocess.Popen(node_cmd, stdout=pipe, stderr=pipe, env=_env(), text=True)
-        sim_out, sim_err = sim.communicate(timeout=1800)
-        node_out, node_err = node.communicate(timeout=120)
+        node = subprocess.Popen(node_cmd, stdout=outs[2], stderr=outs[3], env=_env(), text=True)
+        node.wait(timeout=1800)
+        try:  # the simulator ends its run soon after the node (its failsafe, at worst): a bounded wait
+            sim.wait(timeout=SIM_AFTER_NODE_S + duration_s)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+            sim.wait()
+            outs[1].write(f"\n(bench: killed, still running {SIM_AFTER_NODE_S + duration_s:.0f} s after the node "
+                          "exited)")  # fmt: skip
     finally:  # the flooder (its end is ours), and the pair when it did not finish
         for p in (sim, node, flooder):
             if p is not None and p.poll() is None:
                 p.kill()
+                p.wait()
+    sim_out, sim_err, node_out, node_err = (_read(f) for f in outs)
     try:
         return {"sim": json.loads(sim_out)["sitl"], "node": json.loads(node_out.strip().splitlines()[-1])}
     except (ValueError, KeyError, IndexError):
         raise RuntimeError(f"the pair did not finish: simulator said {sim_err[-800:]!r}; node said "
                            f"{node_err[-800:]!r}") from None  # fmt: skip
+
+
+def _read(f) -> str:
+    """All a temporary output file holds (and closes it)."""
+    with f:
+        f.flush()
+        f.seek(0)
+        return f.read()
 
 
 @contextlib.contextmanager
