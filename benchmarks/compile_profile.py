@@ -126,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("compile_profile: numba was imported before NUMBA_CACHE_DIR could be set")
     with tempfile.TemporaryDirectory(prefix="omnirotor-numba-cache-") as cache:
         os.environ["NUMBA_CACHE_DIR"] = cache
+        from omnirotor.cli import use_numba_opt_default
+
+        use_numba_opt_default()  # as the command's own process does (its numba level, unless NUMBA_OPT is set)
         sys.path.insert(0, str(HERE))
         from bench_startup import FIRST_RUN_ARGS
 

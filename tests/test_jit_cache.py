@@ -45,9 +45,10 @@ print(json.dumps({{"value": value, "hits": sum(kernel.stats.cache_hits.values())
 """
 
 
-def _run(root: Path, names: dict) -> dict:
+def _run(root: Path, names: dict, **numba_env: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(root))
     env.pop("NUMBA_CACHE_DIR", None)  # the cache beside the copied sources
+    env.update(numba_env)
     proc = subprocess.run(
         [sys.executable, "-c", PROBE.format(**names)], env=env, capture_output=True, text=True, check=True
     )
@@ -75,6 +76,26 @@ def test_editing_a_helper_in_another_module_recompiles_the_dependent_kernel(tmp_
 
     (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=10.0))  # a constant the helper reads, a third file
     assert _run(tmp_path, names)["value"] == 32.0
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_a_kernel_compiled_at_one_optimisation_level_is_never_loaded_at_another(tmp_path: Path) -> None:
+    """numba's own cache key has no optimisation level: the dependency cache keeps each level in its folder."""
+    pkg = tmp_path / "omnirotor"
+    shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    names = {"kernel": "_probe_kernel", "helper": "_probe_helper", "consts": "_probe_consts"}
+    (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=0.0))
+    (pkg / "_probe_helper.py").write_text(HELPER.format(consts=names["consts"], inc=1.0))
+    (pkg / "_probe_kernel.py").write_text(KERNEL.format(helper=names["helper"]))
+    levels = {"NUMBA_LOOP_VECTORIZE": "1", "NUMBA_SLP_VECTORIZE": "0"}
+
+    assert _run(tmp_path, names, NUMBA_OPT="3", **levels) == {"value": 4.0, "hits": 0, "misses": 1}
+    assert _run(tmp_path, names, NUMBA_OPT="1", **levels) == {"value": 4.0, "hits": 0, "misses": 1}  # not O3's
+    assert _run(tmp_path, names, NUMBA_OPT="1", NUMBA_LOOP_VECTORIZE="0", NUMBA_SLP_VECTORIZE="0")["misses"] == 1
+    assert _run(tmp_path, names, NUMBA_OPT="3", **levels) == {"value": 4.0, "hits": 1, "misses": 0}  # O3's kept
+    assert _run(tmp_path, names, NUMBA_OPT="1", **levels) == {"value": 4.0, "hits": 1, "misses": 0}
+    suffixes = {f.name.rsplit("-", 1)[1] for f in (pkg / "__pycache__").glob("deps-*")}
+    assert {"o3v10", "o1v10", "o1v00"} <= suffixes
 
 
 def test_source_closure_follows_package_imports_only() -> None:
@@ -196,7 +217,7 @@ def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: P
     for k in range(n_live):  # modules that import nothing of each other: one closure (and folder) each
         f = src / f"m{k}.py"
         f.write_text(f"X = {k}\n")
-        live.append("deps-" + _closure_hash(str(f))[:20])
+        live.append(f"deps-{_closure_hash(str(f))[:20]}-o{1 + k % 3}v10")  # at any optimisation level
     stale = [f"deps-stale{i:02d}" for i in range(_KEEP_CACHE_FOLDERS + 2)]
     for i, name in enumerate(live + stale):  # the live ones the oldest: they used to be removed first
         d = base / name
@@ -207,3 +228,58 @@ def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: P
     kept = {f.name for f in base.glob("deps-*")}
     assert set(live) <= kept  # every module's current cache stays
     assert kept - set(live) == set(stale[-_KEEP_CACHE_FOLDERS:])  # of the others, the newest few
+
+
+PAUSE_PROBE = """
+import gc, json
+import numba
+from numba.core import event
+from omnirotor import _jit
+
+seen = []
+
+
+class Seen(event.Listener):  # registered after _jit's: sees the collector as a compile has it
+    def on_start(self, ev):
+        seen.append([ev.data["dispatcher"].py_func.__name__, gc.isenabled()])
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compile", Seen())
+
+
+def ours(x):
+    return x + 1.0
+
+
+def theirs(x):
+    return x * 2.0
+
+
+def ours_again(x):
+    return x - 1.0
+
+
+ours.__module__ = ours_again.__module__ = "omnirotor._probe"
+_jit.jit(ours)(1.0)
+after_ours = gc.isenabled()
+numba.njit(theirs)(1.0)
+gc.disable()  # a caller that disabled the collector keeps it disabled
+_jit.jit(ours_again)(1.0)
+print(json.dumps({"seen": seen, "after_ours": after_ours, "after_disabled": gc.isenabled()}))
+"""
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled")
+def test_the_collector_is_paused_while_a_kernel_of_the_package_compiles(tmp_path: Path) -> None:
+    (tmp_path / "probe.py").write_text(PAUSE_PROBE)
+    env = dict(os.environ, PYTHONPATH=str(SRC.parent), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.run(
+        [sys.executable, "probe.py"], cwd=tmp_path, env=env, capture_output=True, text=True, check=True
+    )
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["seen"] == [["ours", False], ["theirs", True], ["ours_again", False]]
+    assert out["after_ours"] is True  # restored after the compile
+    assert out["after_disabled"] is False

@@ -39,6 +39,7 @@ that of MuJoCo's profiler clock ``mjcb_time`` (:func:`mujoco_timer_address`), tr
 from __future__ import annotations
 
 import functools
+import gc
 import hashlib
 import os
 import re
@@ -48,6 +49,7 @@ import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
+from numba.core import event
 from numba.core.caching import (
     CompileResultCacheImpl,
     FunctionCache,
@@ -66,6 +68,8 @@ __all__ = [
     "DependencyCache",
     "DependencyLocator",
     "source_closure",
+    "codegen_settings",
+    "CollectorPause",
     "mujoco_function",
     "mujoco_timer_address",
     "monotonic_ns",
@@ -148,9 +152,28 @@ _KEEP_CACHE_FOLDERS = 4
 """Cache folders of other source versions (one per hash) kept beside each module's; older ones are removed."""
 
 
+def codegen_settings() -> str:
+    """The settings of numba that change the machine code but not its cache key, as a folder-name suffix.
+
+    numba keys a cached specialisation on its signature and the CPU only; its LLVM optimisation level
+    (``NUMBA_OPT``) and vectorizers (``NUMBA_LOOP_VECTORIZE``, ``NUMBA_SLP_VECTORIZE``) are read from the
+    environment and would not be told apart. The dependency cache keeps each combination in its own folder
+    (``deps-<hash>-<settings>``), so a kernel compiled at one level is never loaded at another (the
+    ``omnirotor`` command compiles at its own level, :data:`omnirotor.cli.NUMBA_OPT_DEFAULT`; the library at
+    numba's, or the user's). Read from ``numba.config`` when a kernel is defined (its module imported).
+    """
+    c = numba.config
+    opt = "max" if getattr(c.OPT, "is_opt_max", False) else str(int(c.OPT))
+    return f"o{opt}v{int(c.LOOP_VECTORIZE)}{int(c.SLP_VECTORIZE)}"
+
+
+_FOLDER_KEY = len("deps-") + 20
+"""A cache folder's name up to its sources' hash (the settings' suffix follows)."""
+
+
 @functools.cache
 def _live_folders(source_dir: str) -> frozenset[str]:
-    """The cache folder names of the current sources of every module in ``source_dir`` (``deps-<hash>``)."""
+    """The cache folder names, up to the settings, of the current sources of every module in ``source_dir``."""
     return frozenset("deps-" + _closure_hash(str(f))[:20] for f in Path(source_dir).glob("*.py"))
 
 
@@ -163,12 +186,13 @@ def _prune_cache_folders(base: str, source_dir: str | None = None) -> None:
     modules of one package have closures of their own, eight in ``control``: keeping only the four newest folders
     of all deleted half of the current caches at every process's start, and each run compiled them again). A
     process still running older sources that loses its folder compiles again (numba treats a missing file as a
-    cache miss); nothing else is affected.
+    cache miss); nothing else is affected. The current sources' folders of every code-generation setting
+    (:func:`codegen_settings`) are live: the command line and the library may compile at different levels.
     """
     try:
         live = _live_folders(source_dir) if source_dir is not None else frozenset()
         folders = sorted(Path(base).glob("deps-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
-        stale = [f for f in folders if f.name not in live]
+        stale = [f for f in folders if f.name[:_FOLDER_KEY] not in live]
         for old in stale[_KEEP_CACHE_FOLDERS:]:
             for f in old.iterdir():
                 f.unlink(missing_ok=True)
@@ -181,7 +205,8 @@ class DependencyLocator:
     """Mixin of a numba cache locator keyed on the hash of the kernel's :func:`source_closure`.
 
     numba's locators stamp the function's own file only. Here the stamp is the closure's hash, and the cache
-    lives in a folder named after that hash (``deps-<hash>`` under numba's usual place), so sources of another
+    lives in a folder named after that hash (``deps-<hash>-<settings>`` under numba's usual place, the settings
+    those of :func:`codegen_settings`), so sources of another
     version never read an index written by this one: numba unpickles an index before it compares stamps, and
     an index whose signatures name a class that no longer exists (a NamedTuple type a kernel once took) would
     raise instead of missing. Switching between checkouts also keeps both versions' machine code. The
@@ -193,7 +218,8 @@ class DependencyLocator:
         return ("omnirotor-closure", _closure_hash(self._py_file))
 
     def get_cache_path(self):
-        return os.path.join(super().get_cache_path(), "deps-" + _closure_hash(self._py_file)[:20])
+        folder = f"deps-{_closure_hash(self._py_file)[:20]}-{codegen_settings()}"
+        return os.path.join(super().get_cache_path(), folder)
 
     def ensure_cache_path(self):
         super().ensure_cache_path()
@@ -217,6 +243,41 @@ class DependencyCache(FunctionCache):
 
     _impl_class = _DependencyCacheImpl
 
+
+class CollectorPause(event.Listener):
+    """Python's cyclic garbage collector paused while numba compiles a kernel of this package (numba's event API).
+
+    A compile allocates millions of short-lived objects (numba's IR, types, llvmlite's IR); the collector, run
+    every few hundred allocations, walks every object alive in the process, numba's registries and the IR of the
+    functions compiled so far included, over and over: about a tenth of a first run's compile time
+    (BENCHMARKS.md, issue 23 item 6, session 14). It is disabled from the start of the outermost ``numba:compile``
+    event of a function of this package to its end, and restored as it was (a caller that disabled it keeps it
+    disabled); the cycles left by the compile are collected by the collector's next run as usual. Compiles of
+    other code (a user's kernels) are left alone. Registered once, when this module is imported.
+    """
+
+    def __init__(self) -> None:
+        self._depth = 0
+        self._was_enabled = False
+
+    def on_start(self, ev) -> None:
+        if self._depth == 0:
+            py_func = getattr(ev.data["dispatcher"], "py_func", None)
+            if getattr(py_func, "__module__", "").split(".")[0] != _PACKAGE:
+                return
+            self._was_enabled = gc.isenabled()
+            gc.disable()
+        self._depth += 1
+
+    def on_end(self, ev) -> None:
+        if self._depth == 0:  # a compile of other code (not paused)
+            return
+        self._depth -= 1
+        if self._depth == 0 and self._was_enabled:
+            gc.enable()
+
+
+event.register("numba:compile", CollectorPause())
 
 _OPTIONS = {"cache": True, "fastmath": False, "error_model": "numpy"}
 _njit_entry = numba.njit(**_OPTIONS)

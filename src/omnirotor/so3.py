@@ -190,8 +190,10 @@ def project_to_SO3(M: np.ndarray) -> np.ndarray:
 
 # -- compiled helpers of the 1 kHz kernels ----------------------------------------------------------------------
 
-_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy")
-_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+# Without numba's C-pointer wrapper (``no_cfunc_wrapper``, as the package's kernels, ``omnirotor._jit``): nothing
+# calls these through a C pointer, and the wrapper would be optimised and emitted again in every kernel linking one.
+_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
+_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always", no_cfunc_wrapper=True)
 
 
 @_kernel

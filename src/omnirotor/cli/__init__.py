@@ -49,7 +49,17 @@ from typer.core import TyperGroup  # noqa: E402
 
 from omnirotor.errors import InputError  # noqa: E402
 
-__all__ = ["app", "main", "number_option", "Interrupted", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "CommandGroup"]
+__all__ = [
+    "app",
+    "main",
+    "number_option",
+    "Interrupted",
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERRUPTED",
+    "CommandGroup",
+    "NUMBA_OPT_DEFAULT",
+    "use_numba_opt_default",
+]
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -162,8 +172,37 @@ def _register() -> None:
         importlib.import_module(f"{__name__}.{name}")
 
 
+NUMBA_OPT_DEFAULT = "1"
+"""numba's LLVM optimisation level (``NUMBA_OPT``) for the command's compiled kernels, unless the environment
+sets one (a user's ``NUMBA_OPT`` wins). Level 1 compiles a first run's kernels in less CPU time than numba's
+default 3 and the step runs as fast (BENCHMARKS.md, issue 23 item 6, session 14); the level does not change
+the arithmetic (no fast-math: the controller's reference replays bit for bit at either). The library itself
+leaves numba's setting alone; the kernel cache keeps each level apart (:func:`omnirotor._jit.codegen_settings`).
+"""
+
+
+def use_numba_opt_default() -> None:
+    """Set ``NUMBA_OPT`` to :data:`NUMBA_OPT_DEFAULT` for this process unless it is set (before any compile).
+
+    For the command's own process (:func:`main`) and its workers, which inherit the environment.
+    """
+    if "NUMBA_OPT" in os.environ:
+        return
+    os.environ["NUMBA_OPT"] = NUMBA_OPT_DEFAULT
+    numba = sys.modules.get("numba")
+    if numba is not None:  # imported already (an in-process caller): numba reads its settings again
+        numba.core.config.reload_config()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns (and exits with) the process status."""
+    """Run the CLI; returns (and exits with) the process status.
+
+    Run as the command (``argv`` None: the process is the command's own), it first applies the command's numba
+    optimisation level (:func:`use_numba_opt_default`); called in a process of the caller's, it leaves numba's
+    settings as they are.
+    """
+    if argv is None:
+        use_numba_opt_default()
     _register()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -541,16 +541,24 @@ class InteractionController:
         """
         if self._trajectory is None:
             raise InputError("InteractionController.step before reset(frame, trajectory)")
-        record = self._record(frame)
+        record = frame.record
+        if record is None or record.dtype is not self._frame_dtype:  # (the common case inline: _record)
+            record = self._record(frame)
         row = self.log.next_record()  # the log's next row as a (1,) record: the step writes it in place
         if row is None:  # a full log that does not grow: nothing logged
             row = self._no_row
-        if self.estimator is self._kernel_estimator and self._fast:
-            # A compiled estimator and QP: one compiled call, typed once (_typed_arrays) if its arrays are ours.
-            if self._typed_arrays(record, row):
-                bits = self._typed_step(self.state, record, row)
+        if self._fast and self.estimator is self._kernel_estimator:
+            # A compiled estimator and QP: one compiled call, typed once (_typed_arrays) if its arrays are ours;
+            # the check's common case inline (the same state; a row of the log memory checked last time).
+            state = self.state
+            if (
+                state is self._typed_state
+                and (row.base is self._typed_row_base or row is self._no_row)
+                and (record is self._frame_buf or (record.dtype is self._frame_dtype and record.ndim == 1))
+            ) or self._typed_arrays(record, row):
+                bits = self._typed_step(state, record, row)
             else:
-                bits = _c.controller_step(self.state, record, row)
+                bits = _c.controller_step(state, record, row)
         else:
             bits = self._step_slow(frame, record, row)
         if bits == _c.STEP_NO_ESTIMATE:  # (unreachable after reset: the bypass state is checked there)
