@@ -27,6 +27,7 @@ from omnirotor.cli import app
 from omnirotor.cli.connection_options import (
     DomainId,
     PairSession,
+    PlantSessionId,
     ZenohConfig,
     connect_option,
     listen_option,
@@ -51,6 +52,7 @@ def px4_bridge(
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
     pair_session: PairSession = None,
+    session_id: PlantSessionId = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
     frames: Annotated[
@@ -99,11 +101,12 @@ def px4_bridge(
 
     check_realtime_options(cpu, fifo_priority)
     pinned = session_id_arg(pair_session, "--pair-session")
+    own = session_id_arg(session_id, "--session-id")
 
     def say(line: str) -> None:
         print(f"omnirotor px4-bridge: {line}", file=sys.stderr)
 
-    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned)
+    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned, session_id=own)
     frame_options = (
         FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
         if frames
@@ -127,6 +130,9 @@ def px4_bridge(
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
         who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"
         say(f"up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}; obeying {who}")
+        if frame_options is not None:
+            say(f"plant session {bridge.session_id:016x} (a node's --plant-session {bridge.session_id:016x} follows "
+                "these frames only)")  # fmt: skip
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:

@@ -20,6 +20,7 @@ from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
     PairSession,
+    PlantSessionId,
     ZenohConfig,
     connect_option,
     listen_option,
@@ -56,6 +57,7 @@ def sim(
     domain_id: DomainId = 0,
     namespace: Namespace = "",
     pair_session: PairSession = None,
+    session_id: PlantSessionId = None,
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
@@ -94,6 +96,11 @@ def sim(
 
     outputs = output_options(record, foxglove, foxglove_port)
     outputs["pair_session"] = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
+    outputs["session_id"] = session_id_arg(session_id, "--session-id")
+    if outputs["session_id"] is None:
+        from omnirotor.sitl.gate import new_session_id
+
+        outputs["session_id"] = new_session_id()
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
                     ros_views, offboard_loss, cpu, fifo_priority, outputs)  # fmt: skip
@@ -125,7 +132,7 @@ def sim(
     with open_transport(**args, node="omnirotor_sim") as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
-        _say_pairing(serve_opts.pair_session)
+        _say_pairing(serve_opts.pair_session, serve_opts.session_id)
         from omnirotor.realtime import set_realtime
 
         if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
@@ -166,8 +173,9 @@ def sim(
     )
 
 
-def _say_pairing(pinned: int | None) -> None:
-    """Whom the plant obeys, said at its start."""
+def _say_pairing(pinned: int | None, own: int) -> None:
+    """The plant's own session and whom it obeys, said at its start."""
+    note(f"plant session {own:016x} (a node's --plant-session {own:016x} follows this plant only)")
     if pinned is not None:
         note(f"obeying the rotor commands of controller session {pinned:016x} only (--pair-session)")
     else:
@@ -211,7 +219,7 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         set_realtime(cpu, fifo_priority or None, note)
         note(f"serving the {scene} scene on {', '.join(endpoints)}, the vehicle on its stand until `omnirotor fly` "
              "takes off (`omnirotor ctl arm`, `takeoff`); Ctrl-C ends")  # fmt: skip
-        _say_pairing(serve_opts.pair_session)
+        _say_pairing(serve_opts.pair_session, serve_opts.session_id)
         report = serve_free(t, sim, serve_opts)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     print(

@@ -111,7 +111,7 @@ from omnirotor.rosmsg.convert import (
     command_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import CommandGate
+from omnirotor.sitl.gate import CommandGate, new_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport, ros_topic
 
@@ -172,6 +172,8 @@ class BridgeOptions:
         status_hz: plant status rate [Hz].
         pair_session: obey this controller session only, from the first command (``--pair-session``,
             :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
+        session_id: the plant session its frames carry (``--session-id``; a node's ``--plant-session`` follows
+            this bridge only); None: random.
     """
 
     command_loss_s: float = 0.5
@@ -179,6 +181,7 @@ class BridgeOptions:
     lead_s: float = 1.0
     status_hz: float = 20.0
     pair_session: int | None = None
+    session_id: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
@@ -520,10 +523,11 @@ class Px4FrameSource:
         n_rotors: the vehicle's rotors.
         options: the frame options.
         say: where one-line notices go.
+        session_id: the plant session every frame carries (:mod:`omnirotor.sitl.gate`).
     """
 
     def __init__(self, node: Transport, px4: Transport, n_rotors: int, options: FrameOptions,
-                 say: Callable[[str], None]) -> None:  # fmt: skip
+                 say: Callable[[str], None], session_id: int) -> None:  # fmt: skip
         self.options = o = options
         self._say = say
         self.assembler = FrameAssembler(n_rotors, o.esc_timeout_s)
@@ -534,7 +538,7 @@ class Px4FrameSource:
         else:
             self._mocap = node.subscriber(o.mocap_topic, POSE, depth=64)
         self._pub = node.publisher(TOPICS["frame"], FRAME)
-        self._encoder = FrameEncoder(n_rotors)
+        self._encoder = FrameEncoder(n_rotors, session_id=session_id)
         self._clock = _ClockOffset(o.clock_window_s)
         self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
         self.esc_where = ros_topic(px4.namespace, PX4_TOPICS["esc_status"])
@@ -755,6 +759,7 @@ class Px4Bridge:
         self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k not in _PX4_OUT}
         self._vstatus = px4.subscriber(PX4_TOPICS["vehicle_status"], _PX4_TYPES["vehicle_status"], depth=4)
         self.gate = CommandGate("omnirotor px4-bridge", pinned=o.pair_session)
+        self.session_id = o.session_id if o.session_id is not None else new_session_id()
         self.offboard = Px4Offboard(heartbeat_hz=o.heartbeat_hz, lead_s=o.lead_s)
         self.armed = False  # the node's state, from its last obeyed command
         self.controls = np.full(NUM_CONTROLS, np.nan)
@@ -769,10 +774,12 @@ class Px4Bridge:
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
-            finished=False,
+            finished=False, plant_session_id=0 if frames is None else self.session_id,  # no frames: not the plant's
         )  # fmt: skip
         self._status_next = 0.0
-        self.frames = None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say)
+        self.frames = (
+            None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say, self.session_id)
+        )
         self._pub_diag = None if frames is None else node.publisher(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY)
         self._diag_next = 0.0
 
@@ -901,6 +908,7 @@ class Px4Bridge:
         """What the bridge counted."""
         return {
             "paired_session_id": f"{self.gate.paired:016x}",
+            "plant_session_id": f"{self.session_id:016x}" if self.frames is not None else None,
             "commands_obeyed": self.gate.obeyed,
             "commands_refused": self.gate.refused,
             "foreign_sessions": self.gate.foreign_sessions,

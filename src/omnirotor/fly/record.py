@@ -70,6 +70,7 @@ def record_dtype(n_rotors: int, n_log: int) -> np.dtype:
     return np.dtype(
         [
             ("seq", np.int64),  # period counter (the row's index + 1)
+            ("plant_session", np.uint64),  # the session of the plant that sent the frame (SensorFrame.session_id)
             ("t", _F8),  # frame time [s]
             ("acc_B", _F8, 3),  # [m/s²]
             ("gyro_B", _F8, 3),  # [rad/s]
@@ -164,8 +165,11 @@ class FlightRecorder:
         self._proc.start()
         self._closed = False
 
-    def period(self, frame: SensorFrame, cmd_hz: np.ndarray, control_status: int = 0, log_row=None, *, block=False):
+    def period(self, frame: SensorFrame, cmd_hz: np.ndarray, control_status: int = 0, log_row=None, *, block=False,
+               plant_session: int = 0):  # fmt: skip
         """Copy one period into the ring: the frame, the speeds sent, and the controller's log row (or None).
+
+        ``plant_session`` is the session of the plant that sent the frame (the recorded frame's ``session_id``).
 
         Never blocks unless ``block`` (offline replays): a full ring drops the row (:attr:`dropped`).
 
@@ -182,6 +186,7 @@ class FlightRecorder:
         f = self._fields  # one view per field of the ring: an indexed store each, no record object
         self._seq += 1
         f["seq"][i] = self._seq
+        f["plant_session"][i] = plant_session
         f["t"][i] = frame.t
         f["acc_B"][i] = frame.imu_acc_B
         f["gyro_B"][i] = frame.imu_gyro_B
@@ -329,9 +334,10 @@ def _writer_main(
                 t = float(r["t"])
                 seq = int(r["seq"])
                 put("/omnirotor/frame", t, T["omnirotor_msgs/msg/SensorFrame"](
-                    header=header(t, "base_link"), seq=seq, t=t, imu_acc_b=r["acc_B"], imu_gyro_b=r["gyro_B"],
-                    mocap_new=bool(r["mocap_new"]), mocap_t=float(r["mocap_t"]), mocap_p_w=r["mocap_p_W"],
-                    mocap_q_wb=r["mocap_q_WB"], has_state=False, state=zeros21, rotor_hz=r["rotor_hz"],
+                    header=header(t, "base_link"), session_id=int(r["plant_session"]), seq=seq, t=t,
+                    imu_acc_b=r["acc_B"], imu_gyro_b=r["gyro_B"], mocap_new=bool(r["mocap_new"]),
+                    mocap_t=float(r["mocap_t"]), mocap_p_w=r["mocap_p_W"], mocap_q_wb=r["mocap_q_WB"], has_state=False,
+                    state=zeros21, rotor_hz=r["rotor_hz"],
                 ))  # fmt: skip
                 put("/omnirotor/rotor_cmd", t, T["omnirotor_msgs/msg/RotorCommand"](
                     header=header(t, "base_link"), t=t, hz=r["cmd_hz"], control_status=int(r["control_status"]),
@@ -380,6 +386,7 @@ class Recording:
     Attributes:
         counts: messages per topic.
         t: (N,) frame times [s].
+        plant_session: (N,) the session of the plant that sent each frame (uint64).
         mocap_new: (N,) motion capture arrived in the period.
         rotor_hz: (N, n) measured speeds [Hz].
         cmd_hz: (N, n) speeds sent [Hz].
@@ -391,6 +398,7 @@ class Recording:
 
     counts: dict[str, int]
     t: np.ndarray
+    plant_session: np.ndarray
     mocap_new: np.ndarray
     rotor_hz: np.ndarray
     cmd_hz: np.ndarray
@@ -412,7 +420,8 @@ def read_recording(path: str | Path) -> Recording:
     from omnirotor.fly.requests import FlightStatus
     from omnirotor.rosmsg import typestore
 
-    cols: dict[str, list] = {k: [] for k in ("t", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status")}
+    names = ("t", "session", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status")
+    cols: dict[str, list] = {k: [] for k in names}
     try:
         with AnyReader([Path(path)], default_typestore=typestore()) as reader:
             counts = {c.topic: c.msgcount for c in reader.connections}
@@ -420,6 +429,7 @@ def read_recording(path: str | Path) -> Recording:
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == "/omnirotor/frame":
                     cols["t"].append(msg.t)
+                    cols["session"].append(msg.session_id)
                     cols["mocap"].append(msg.mocap_new)
                     cols["rotor"].append(np.asarray(msg.rotor_hz))
                 elif conn.topic == "/omnirotor/rotor_cmd":
@@ -438,7 +448,8 @@ def read_recording(path: str | Path) -> Recording:
     except Exception as exc:  # noqa: BLE001  (rosbags raises several kinds for a damaged or foreign bag)
         raise InputError(f"{path}: not a readable flight recording ({type(exc).__name__}: {exc})") from None
     return Recording(
-        counts=counts, t=np.array(cols["t"]), mocap_new=np.array(cols["mocap"], dtype=bool),
+        counts=counts, t=np.array(cols["t"]), plant_session=np.array(cols["session"], dtype=np.uint64),
+        mocap_new=np.array(cols["mocap"], dtype=bool),
         rotor_hz=np.array(cols["rotor"]), cmd_hz=np.array(cols["cmd"]), control_status=np.array(cols["cs"]),
         pose_t=np.array(cols["pose_t"]), p_W=np.array(cols["p"]).reshape(-1, 3),
         f_ext_W=np.array(cols["f"]).reshape(-1, 3), status=cols["status"],

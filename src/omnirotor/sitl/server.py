@@ -66,7 +66,7 @@ from omnirotor.rosmsg.convert import (
     command_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import CommandGate
+from omnirotor.sitl.gate import CommandGate, new_session_id
 from omnirotor.transport import Transport
 
 __all__ = ["ServeOptions", "SimLink", "SitlReport", "serve_task", "serve_free", "TOPICS", "MISSION_OPTION_FIELDS"]
@@ -120,6 +120,8 @@ class ServeOptions:
             free one), or None.
         pair_session: obey this controller session only, from the first command (``--pair-session``: pinned
             pairing, :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
+        session_id: this plant's session, carried by every frame (``--session-id``; a node's ``--plant-session``
+            follows this plant only: :mod:`omnirotor.sitl.gate`); None: random.
     """
 
     lockstep: bool = False
@@ -132,6 +134,7 @@ class ServeOptions:
     record: str | None = None
     foxglove_port: int | None = None
     pair_session: int | None = None
+    session_id: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -181,7 +184,8 @@ class SimLink:
         self.options = options
         self.n = n_rotors
         self.msgs = WireMessages(n_rotors)
-        self._frame_wire = FrameEncoder(n_rotors)
+        self.session_id = options.session_id if options.session_id is not None else new_session_id()
+        self._frame_wire = FrameEncoder(n_rotors, session_id=self.session_id)
         self._pub_frame = transport.publisher(TOPICS["frame"], FRAME, block=options.lockstep)
         self._views = (
             (transport.publisher(TOPICS["imu"], IMU), transport.publisher(TOPICS["mocap"], POSE),
@@ -208,7 +212,7 @@ class SimLink:
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="world"),
             t=0.0, steps=0, lockstep=options.lockstep, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
-            finished=False,
+            finished=False, plant_session_id=self.session_id,
         )  # fmt: skip
         self._status_every_s = 1.0 / options.status_hz
         self._status_next = 0.0
@@ -303,6 +307,7 @@ class SimOutputs:
         n = sim.vehicle.n_rotors
         self._sim = sim
         self._codec = FrameCodec(n, sim.frame_record)
+        self._session = options.session_id or 0
         columns = Recorder(1, TRUTH_GROUPS(n)).column_names
         self._row = np.zeros(len(columns))
         self.recorder = self.live = None
@@ -319,7 +324,7 @@ class SimOutputs:
         try:
             if self.recorder is not None:
                 sim.truth_row(self._row)
-                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row)
+                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row, plant_session=self._session)
             if self.live is not None:
                 self.live.sim_period(sim.t, sim.truth)
         except Exception:  # noqa: BLE001  (a recording or a view that fails never stops the plant: counted)
