@@ -247,6 +247,22 @@ def test_a_disarmed_director_never_gets_speeds_published():
     assert summary["disarmed_nonzero"] >= 5
 
 
+def _sim_status(**fields):
+    """A healthy plant's ``SimStatus`` (the scripted plant's session), ``fields`` replaced."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    T = typestore().types
+    values = dict(
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+        t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+        commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0, finished=False,
+        plant_session_id=PLANT,
+    )  # fmt: skip
+    values.update(fields)
+    return T[SIM_STATUS](**values)
+
+
 class _TellableDirector(_Director):
     def __init__(self) -> None:
         super().__init__()
@@ -259,20 +275,13 @@ class _TellableDirector(_Director):
 def test_the_plant_s_failsafe_is_told_to_the_director():
     """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
     is told while it lasts, the node says it once."""
-    from omnirotor.rosmsg import typestore
     from omnirotor.rosmsg.convert import SIM_STATUS
 
-    T = typestore().types
     said: list[str] = []
     director = _TellableDirector()
     with _scripted_plant("/told", _Controller(), director, NodeOptions(status_hz=200.0), said.append) as p:
         status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        msg = T[SIM_STATUS](
-            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
-            t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
-            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
-            finished=False, plant_session_id=PLANT,
-        )  # fmt: skip
+        msg = _sim_status()
         for _ in range(20):  # healthy: nothing told
             status.put(msg)
             time.sleep(0.01)
@@ -459,10 +468,8 @@ def test_a_pinned_node_follows_its_plant_through_foreign_frames_that_came_first(
 def test_a_first_come_node_follows_whoever_sends_first_and_says_so():
     """Without ``--plant-session`` the first well-formed frame's session is followed (documented), the later plant
     is refused and named, and the plant's status naming its own session makes the node say how to pin it."""
-    from omnirotor.rosmsg import typestore
     from omnirotor.rosmsg.convert import SIM_STATUS
 
-    T = typestore().types
     ctl, director = _Controller(), _Director()
     said: list[str] = []
     with _scripted_plant("/first", ctl, director, NodeOptions(lockstep=True, status_hz=200.0), said.append) as p:
@@ -472,12 +479,7 @@ def test_a_first_come_node_follows_whoever_sends_first_and_says_so():
             p.send(k, 0.1 + 0.001 * k)
         assert [m for m in p.answers(0.2) if int(m.frame_seq) < 3] == []
         status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        msg = T[SIM_STATUS](
-            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
-            t=0.0, steps=0, lockstep=True, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
-            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
-            finished=False, plant_session_id=PLANT,
-        )  # fmt: skip
+        msg = _sim_status(lockstep=True)
         deadline = time.monotonic() + 10
         while not any("status names" in line for line in said) and time.monotonic() < deadline:
             status.put(msg)

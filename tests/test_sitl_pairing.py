@@ -16,6 +16,7 @@ and says which session it follows and how to pin the simulator's.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -31,16 +32,24 @@ NODE = 0x1A2B3C4D5E6F7081
 PLANT = 0x5107A7E000000001
 
 
+@contextlib.contextmanager
+def _waiting_plant(tmp_path, sim_args: list[str], lockstep: bool, node_args: tuple[str, ...]):
+    """A hover pair whose node is not started yet, a session of the test's own on the simulator, the simulator's
+    status subscriber and its first status (the plant is up, waiting): ``(pair, t, status, first)``."""
+    with (
+        Pair(tmp_path, "hover", sim_args, lockstep=lockstep, node_args=node_args, start_node=False) as pair,
+        pair.plant_transport() as t,
+    ):
+        status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
+        first = status_until(status, lambda m: True, 300)
+        assert first, pair.text("sim")[-2000:]
+        yield pair, t, status, first
+
+
 @pytest.mark.slow
 def test_pinned_pairing_flies_the_node_through_a_flood_that_started_first(tmp_path):
     sim_args = ["--seed", "4", "--duration", "2", "--pair-session", f"{NODE:x}"]
-    with (
-        Pair(tmp_path, "hover", sim_args, lockstep=True, node_args=("--session-id", f"{NODE:016x}"),
-             start_node=False) as pair,
-        pair.plant_transport() as t,
-    ):  # fmt: skip
-        status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
-        assert status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]  # the plant is up, waiting
+    with _waiting_plant(tmp_path, sim_args, True, ("--session-id", f"{NODE:016x}")) as (pair, t, status, _):
         with Flood(t, answer_start_frame=True) as flood:
             before = status_until(status, lambda m: m.commands_refused >= 200, 120)
             assert before, pair.text("sim")[-2000:]
@@ -65,13 +74,8 @@ def test_pinned_pairing_flies_the_node_through_a_flood_that_started_first(tmp_pa
 @pytest.mark.slow
 def test_first_come_pairs_with_a_flood_that_started_first_and_refuses_the_node(tmp_path):
     """The default's weakness, as documented (docs/transport.md): whoever commands first is obeyed."""
-    with (
-        Pair(tmp_path, "hover", ["--seed", "4", "--duration", "2"], lockstep=True,
-             node_args=("--session-id", f"{NODE:016x}"), start_node=False) as pair,
-        pair.plant_transport() as t,
-    ):  # fmt: skip
-        status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
-        assert status_until(status, lambda m: True, 300), pair.text("sim")[-2000:]
+    sim_args = ["--seed", "4", "--duration", "2"]
+    with _waiting_plant(tmp_path, sim_args, True, ("--session-id", f"{NODE:016x}")) as (pair, t, status, _):
         # the flood's commands answer frames the plant never sent: the plant pairs but does not start its run
         with Flood(t, answer_start_frame=False):
             paired = status_until(status, lambda m: m.paired_session_id != 0, 120)
@@ -91,14 +95,8 @@ def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(
     """``fly --plant-session``: the flood's frames are refused from the very first, counted and said once; the
     node follows the simulator's frames only and its hover holds."""
     sim_args = ["--seed", "4", "--duration", "2", "--session-id", f"{PLANT:x}"]
-    with (
-        Pair(tmp_path, "hover", sim_args, lockstep=False, node_args=("--plant-session", f"{PLANT:016x}"),
-             start_node=False) as pair,
-        pair.plant_transport() as t,
-    ):  # fmt: skip
-        status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
-        up = status_until(status, lambda m: True, 300)  # the plant is up, waiting
-        assert up and up.plant_session_id == PLANT, pair.text("sim")[-2000:]
+    with _waiting_plant(tmp_path, sim_args, False, ("--plant-session", f"{PLANT:016x}")) as (pair, t, _, up):
+        assert up.plant_session_id == PLANT  # the plant is up, waiting, and says its session
         assert f"plant session {PLANT:016x}" in pair.text("sim")
         with Flood(t, commands=False, frames=True) as flood:
             assert wait_until(lambda: flood.frames_sent > 200, 60)
