@@ -539,3 +539,23 @@ def test_a_link_loss_releases_only_a_first_come_plant_of_a_disarmed_node(pinned,
     else:
         assert not any(gone in line for line in said) and s["plant_session_id"] == f"{PLANT:016x}"
         assert 0.6 in director.frames and 0.5 not in director.frames and s["frames_foreign"] >= 1
+
+
+def test_frames_without_a_plant_session_are_refused_and_never_paired_with():
+    """A frame with ``session_id`` 0 (a plant that does not say who it is) is bad, said once; a first-come node
+    does not pair with it and follows the first plant that says its session."""
+    ctl, director = _Controller(), _Director()
+    said: list[str] = []
+    with _scripted_plant("/unsigned", ctl, director, NodeOptions(lockstep=True), said.append) as p:
+        deadline = time.monotonic() + 10
+        while p.node.frames_unsigned < 5 and time.monotonic() < deadline:
+            p.send(1, 0.001, 0)
+            time.sleep(0.01)
+        assert p.answers(0.1) == [] and p.node.plant_gate.paired == 0
+        _until_answered(p, 2, 0.002)
+    s = p.summary
+    assert s["plant_session_id"] == f"{PLANT:016x}" and s["frames_bad"] >= 5 and s["frames_foreign"] == 0
+    assert director.frames == [0.002]
+    assert [line for line in said if "without a plant session" in line] == [
+        "refused sensor frames without a plant session (session_id 0): a plant fills it"
+    ]
