@@ -103,7 +103,7 @@ def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(
             pair.start_node()  # the node starts into the flood
             sitl, node = pair.wait(timeout_s=900)
     s = sitl["sitl"]
-    assert node["plant_session_id"] == f"{PLANT:016x}" and node["plant_session_pinned"]
+    assert node["plant_session_id"] == s["plant_session_id"] == f"{PLANT:016x}" and node["plant_session_pinned"]
     assert node["frames_foreign"] > 0 and node["foreign_plant_sessions"] == 1 and not node["link_lost"]
     err = pair.text("node")
     assert f"following the sensor frames of plant session {PLANT:016x} only (--plant-session)" in err

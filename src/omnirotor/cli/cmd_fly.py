@@ -155,6 +155,13 @@ def _print_summary(s: dict) -> None:
         f"worst lateness {s['worst_late_ms']:.2f} ms; frame to command p50 {lat.get('p50', float('nan')):.0f} µs, "
         f"p99 {lat.get('p99', float('nan')):.0f} µs; link lost: {s['link_lost']}"
     )
+    plant, k = s.get("plant_session_id"), s.get("foreign_plant_sessions", 0)
+    print(
+        (f"plant session {plant} ({'pinned' if s.get('plant_session_pinned') else 'first come'})" if plant else
+         "no plant session followed")
+        + f"; frames of other plant sessions refused: {s.get('frames_foreign', 0)} (from {k} session"
+        + ("" if k == 1 else "s") + ")"
+    )  # fmt: skip
     rec = s.get("recording")
     if rec is not None:
         n = sum(rec.get("messages", {}).values())

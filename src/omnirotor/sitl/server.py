@@ -154,6 +154,8 @@ class SitlReport:
     commands_refused: int = 0
     stop_with_speeds: int = 0
     foreign_sessions: int = 0
+    plant_session_id: str = ""
+    """This plant's session (its frames' ``session_id``, hex): what a node's ``--plant-session`` takes."""
     bad_payloads: int = 0
     failsafe: bool = False
     failsafe_after_s: float | None = None
@@ -490,6 +492,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     report.commands_refused = link.gate.refused
     report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
+    report.plant_session_id = f"{link.session_id:016x}"
     report.bad_payloads = link.bad_payloads
     report.wall_s = wall
     report.real_time_factor = n_steps * dt / wall if wall > 0 else math.inf
@@ -676,6 +679,7 @@ def serve_free(
     report.commands_refused = link.gate.refused
     report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
+    report.plant_session_id = f"{link.session_id:016x}"
     report.bad_payloads = link.bad_payloads
     report.wall_s = time.monotonic() - wall0
     report.real_time_factor = report.steps * dt / report.wall_s if report.wall_s > 0 else 0.0
