@@ -203,7 +203,8 @@ class _Px4Rig:
             m = self.frames.take(0.05)
             if m is not None:
                 got.append((int(m.seq), float(m.t), m.imu_acc_b.copy(), m.imu_gyro_b.copy(), m.rotor_hz.copy(),
-                            bool(m.mocap_new), float(m.mocap_t), m.mocap_p_w.copy(), m.mocap_q_wb.copy()))  # fmt: skip
+                            bool(m.mocap_new), float(m.mocap_t), m.mocap_p_w.copy(), m.mocap_q_wb.copy(),
+                            int(m.session_id)))  # fmt: skip
             if tick is not None:
                 tick()
         return got
@@ -229,7 +230,7 @@ class _Px4Rig:
 def test_the_bridge_makes_the_nodes_frames_of_px4s_imu_esc_telemetry_and_odometry(tmp_path):
     """Known values through the whole path: PX4's FRD/NED samples in, the node's FLU/NWU frame messages out."""
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc", "--odometry", "--nan-every", "200"],
-                  ["--mocap", "odometry"])  # fmt: skip
+                  ["--mocap", "odometry", "--session-id", "b41d9e0000000003"])  # fmt: skip
     try:
         first = rig.collect(1, 120.0)
         assert first, rig.bridge_err.read_text()
@@ -247,6 +248,9 @@ def test_the_bridge_makes_the_nodes_frames_of_px4s_imu_esc_telemetry_and_odometr
     assert rig.bridge.returncode == 0 and len(frames) >= 1500, rig.bridge_err.read_text()
     seq = np.array([f[0] for f in frames])
     assert seq[0] == 0 and (np.diff(seq) > 0).all()  # numbered from 0, increasing
+    # every frame says its plant (--session-id, said at the start; a node's --plant-session follows it)
+    assert {fr[9] for fr in frames} == {0xB41D9E0000000003} and summary["plant_session_id"] == "b41d9e0000000003"
+    assert "plant session b41d9e0000000003 (a node's --plant-session b41d9e0000000003" in rig.bridge_err.read_text()
     f = summary["frames"]
     assert f["frames"] >= seq[-1] + 1 and f["errors"] == 0 and f["imu_rate_hz"] == 1000.0
     # each topic's garbage counted (a subscriber keeps the newest `depth` samples, 16 for the ESC telemetry: on a
