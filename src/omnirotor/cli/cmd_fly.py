@@ -147,6 +147,12 @@ def _print_summary(s: dict) -> None:
         f"worst lateness {s['worst_late_ms']:.2f} ms; frame to command p50 {lat.get('p50', float('nan')):.0f} µs, "
         f"p99 {lat.get('p99', float('nan')):.0f} µs; link lost: {s['link_lost']}"
     )
+    imu = s.get("plant_imu")
+    if imu and (imu["rate_off_episodes"] or imu["gaps"]):
+        print(
+            f"the plant's IMU: rate off {imu['rate_off_episodes']} time(s), {imu['rate_off_s']:.1f} s in all; "
+            f"{imu['gaps']} gap(s), the worst {imu['worst_gap_ms']:.0f} ms"
+        )
     rec = s.get("recording")
     if rec is not None:
         n = sum(rec.get("messages", {}).values())
