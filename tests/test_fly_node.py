@@ -257,7 +257,7 @@ def _sim_status(**fields):
         header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
         t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
         commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0, finished=False,
-        plant_session_id=PLANT,
+        plant_session_id=PLANT, imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
     )  # fmt: skip
     values.update(fields)
     return T[SIM_STATUS](**values)

@@ -387,20 +387,34 @@ def _move(tmp: Path, name: str, value: float) -> None:
 @pytest.mark.slow
 def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo_is_refused(tmp_path):
     """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
-    counted in the summary and shown on /diagnostics, the frames going on throughout (the node's controller
-    integrates the real intervals); the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and
-    bridged all the same."""
+    counted in the summary, shown on /diagnostics and sent in SimStatus, the frames going on throughout (the node's
+    controller integrates the real intervals); a real node reads the counts from SimStatus, says them and has them
+    in its summary and its recording; the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line)
+    and bridged all the same."""
     from omnirotor.fly.bridge import DIAGNOSTIC_ARRAY, DIAGNOSTICS_TOPIC
+    from omnirotor.fly.record import read_recording
 
     cpu = (os.cpu_count() or 1) - 1
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
                   prefix=_unprivileged())  # fmt: skip
     diag_sub = rig.t.subscriber(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY, depth=64)
+    status_sub = rig.t.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=64)
     diags: list[tuple[int, str]] = []
+    statuses: list[tuple[int, float, int, float]] = []
+    bag = tmp_path / "flight"
+    node_err = tmp_path / "node.err"
+    node = subprocess.Popen(
+        [sys.executable, "-c", CLI, "fly", "--connect", rig.test_ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
+         "--namespace", rig.ns, "--fifo-priority", "0", "--json", "--record", str(bag)],
+        env=env(), stdout=subprocess.PIPE, stderr=open(node_err, "w"), text=True,  # noqa: SIM115
+    )  # fmt: skip
+    rig.procs.append(node)
 
     def tick() -> None:
         while (m := diag_sub.take()) is not None:
             diags.extend((int(st.level), st.message) for st in m.status)
+        while (m := status_sub.take()) is not None:
+            statuses.append((m.imu_rate_off_episodes, m.imu_rate_off_s, m.imu_gaps, m.imu_worst_gap_s))
 
     try:
         frames = rig.collect(1, 120.0)
@@ -414,6 +428,12 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
             frames += rig.collect(10**6, 0.5, tick)
         _move(tmp_path, "imu-gap", 150)
         frames += rig.collect(10**6, 1.5, tick)
+        # the node (its controller compiled or loaded meanwhile) has heard the counts in SimStatus: it says them
+        heard = _until(lambda: "the plant says its IMU stream paused" in node_err.read_text(), 300.0,
+                       lambda: rig.collect(10**6, 0.05))  # fmt: skip
+        assert heard, node_err.read_text()[-3000:]
+        node.send_signal(signal.SIGTERM)
+        node_summary = json.loads(node.communicate(timeout=60)[0].strip().splitlines()[-1])
         summary, _ = rig.stop()
     finally:
         rig.close()
@@ -439,6 +459,18 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
     assert (0, "1000.0 Hz") in diags, diags
     assert any(lv == 1 and m.startswith("800.0 Hz, off --rate-hz 1000 for ") for lv, m in diags), diags
     assert any(lv == 1 and "gap(s) over 20 ms" in m for lv, m in diags), diags
+    # SimStatus carries the counts: no episode before the slow-down; the episode, the gap after it
+    assert statuses[0][0] == 0 and statuses[-1][0] == 1, (statuses[:3], statuses[-1])
+    assert 1.0 < statuses[-1][1] < 4.0 and 1 <= statuses[-1][2] <= w["gaps"] and statuses[-1][3] > 0.1, statuses[-1]
+    # the node heard them: said once each, in its summary, and recorded with the plant's status
+    node_lines = node_err.read_text().splitlines()
+    assert sum("the plant says its IMU rate is off the control rate (1 time(s)" in x for x in node_lines) == 1
+    assert sum("the plant says its IMU stream paused" in x for x in node_lines) == 1
+    p = node_summary["plant_imu"]
+    assert p["rate_off_episodes"] == 1 and 1.0 < p["rate_off_s"] < 4.0, p
+    assert p["gaps"] >= 1 and p["worst_gap_ms"] > 100.0, p
+    rec = read_recording(bag).plant_status
+    assert rec and rec[-1].imu_rate_off_episodes == 1 and rec[-1].imu_gaps == p["gaps"]
 
 
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():

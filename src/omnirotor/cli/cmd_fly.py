@@ -162,6 +162,12 @@ def _print_summary(s: dict) -> None:
         + f"; frames of other plant sessions refused: {s.get('frames_foreign', 0)} (from {k} session"
         + ("" if k == 1 else "s") + ")"
     )  # fmt: skip
+    imu = s.get("plant_imu")
+    if imu and (imu["rate_off_episodes"] or imu["gaps"]):
+        print(
+            f"the plant's IMU: rate off {imu['rate_off_episodes']} time(s), {imu['rate_off_s']:.1f} s in all; "
+            f"{imu['gaps']} gap(s), the worst {imu['worst_gap_ms']:.0f} ms"
+        )
     rec = s.get("recording")
     if rec is not None:
         n = sum(rec.get("messages", {}).values())

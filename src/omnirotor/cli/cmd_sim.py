@@ -3,8 +3,8 @@
 See :mod:`omnirotor.sitl.server` for the topics, the clocks and the failsafe. With ``--task`` the server flies
 that task of ``omnirotor run`` (same options) with the controller of ``omnirotor fly --mission-from-sim`` and
 prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``). When the
-offboard-loss failsafe cut a task so that its metrics cannot be computed, it says why on one line and exits 1
-(with ``--json``: the wire's counts and ``"metrics": null``).
+offboard-loss failsafe cut a task, its metrics cannot be computed (they are over the whole protocol): it says why on
+one line and exits 1 (with ``--json``: the wire's counts and ``"metrics": null``; with ``--out``: what was flown).
 """
 
 from __future__ import annotations
@@ -140,28 +140,27 @@ def sim(
         set_realtime(cpu, None if lockstep else (fifo_priority or None), note)
         result, report = _serve(t, task, options, serve_opts)
     if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
+        _say_missing_rows(report)
         _say_recording(report.recording)
         note(
             f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a "
             f"command; the task's metrics cannot be computed from the part flown ({report.metrics_error})"
         )
+        cut = {"task": task, "metrics": None, "sitl": report.as_dict()}
+        if out is not None and report.flown is not None:  # what was flown is kept, as a run's would be
+            _write_run(out, task, cut, *report.flown)
+            note(f"what was flown: {out / 'truth.npz'} and {out / 'controller.npz'}")
         if as_json:
-            print(dumps_json({"task": task, "metrics": None, "sitl": report.as_dict()}))
+            print(dumps_json(cut))
         raise typer.Exit(1)
     rep = result.summary()
     rep["sitl"] = report.as_dict()
-    if report.log_rows_missing:
-        note(f"{report.log_rows_missing} controller log rows did not arrive; the previous row stands in for each")
+    _say_missing_rows(report)
     _say_recording(report.recording)
     if report.failsafe:
         note(f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a command")
     if out is not None:
-        from omnirotor.safe_io import make_dir, write_json_atomic
-
-        make_dir(out, "--out")
-        write_json_atomic(out / f"{task}-sitl.json", rep)
-        result.truth_log.to_npz(out / "truth.npz")
-        result.controller_log.to_npz(out / "controller.npz")
+        _write_run(out, task, rep, result.controller_log, result.truth_log)
     if as_json:
         print(dumps_json(rep))
         return
@@ -228,6 +227,27 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         + (f"; offboard-loss failsafe after {report.failsafe_after_s:.3f} s" if report.failsafe else "")
     )
     _say_recording(report.recording)
+
+
+def _write_run(out: Path, task: str, rep: dict, controller_log, truth_log) -> None:
+    """The run's JSON and its two logs into ``out``."""
+    from omnirotor.safe_io import make_dir, write_json_atomic
+
+    make_dir(out, "--out")
+    write_json_atomic(out / f"{task}-sitl.json", rep)
+    truth_log.to_npz(out / "truth.npz")
+    controller_log.to_npz(out / "controller.npz")
+
+
+def _say_missing_rows(report) -> None:
+    """The node's controller-log rows that did not arrive: stood in, or past the log's end (after a failsafe)."""
+    missing, cut = report.log_rows_missing, report.log_rows_cut
+    if missing > cut:
+        note(f"{missing - cut} controller log rows did not arrive; the previous row stands in for each, at its own "
+             "period's time")  # fmt: skip
+    if cut:
+        note(f"the controller log ends with the node's last row: the {cut} periods after it (the failsafe cut the "
+             "run) have no controller row")  # fmt: skip
 
 
 def _say_recording(rec: dict) -> None:

@@ -67,8 +67,10 @@ the last ``rate_window_s`` of samples, judged ten times a window): a rate off th
 window is said once and its recovery once more, and gaps (no sample arriving for ``gap_s``, 20 ms) are counted
 with the worst; both in the summary (``imu_watch``) and, once a second, on ``/diagnostics`` in the node's namespace
 (``diagnostic_msgs/msg/DiagnosticArray``, ROS's standard: WARN while the rate is off or after a gap, STALE when
-no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`). The frames go on meanwhile: the controller integrates the
-real intervals between frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
+no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`); the counts also go with every ``SimStatus``
+(``imu_rate_off_episodes``, ``imu_rate_off_s``, ``imu_gaps``, ``imu_worst_gap_s``), which the node reads, says and
+puts in its summary and recording. The frames go on meanwhile: the controller integrates the real intervals between
+frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
 are passed as they are (NaN included: the node's supervision judges them); malformed payloads on any of these
 topics are counted (``bad_payloads`` in the summary), never raised.
 """
@@ -775,6 +777,7 @@ class Px4Bridge:
             t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
             finished=False, plant_session_id=0 if frames is None else self.session_id,  # no frames: not the plant's
+            imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
         )  # fmt: skip
         self._status_next = 0.0
         self.frames = (
@@ -867,6 +870,10 @@ class Px4Bridge:
         s.foreign_sessions = self.gate.foreign_sessions
         s.bad_payloads = self._cmd.n_bad
         s.command_age_s = now - self.cmd_wall_s
+        if self.frames is not None:  # PX4's IMU as the frame thread's watch sees it (plain numbers: no lock needed)
+            w = self.frames.watch
+            s.imu_rate_off_episodes, s.imu_rate_off_s = w.episodes, w.off_s
+            s.imu_gaps, s.imu_worst_gap_s = w.gaps, w.worst_gap_s
         self._pub_status.put(s)
 
     def run(self, stop: threading.Event | None = None) -> dict:

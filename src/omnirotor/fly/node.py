@@ -345,6 +345,8 @@ class NodeLoop:
         self._plant_failsafe = False
         self._plant_paired_other = 0  # another session the plant said it obeys (said once per session)
         self._plant_said_other = 0  # another plant session the plant's status named (said once per session)
+        self.plant_imu: dict | None = None
+        """The plant's watch of its IMU, from its newest ``SimStatus`` (None: no status heard); in the summary."""
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -651,6 +653,7 @@ class NodeLoop:
         out["start_frame_answered_again"] = self.start_answers
         out["mocap_carried"] = self.mocap_carried
         out["session_id"] = f"{self.session_id:016x}"
+        out["plant_imu"] = self.plant_imu
         return out
 
     def _idle(self, now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call) -> bool:
@@ -732,10 +735,30 @@ class NodeLoop:
                 f"the plant's status names plant session {own:016x}, not the followed {g.paired:016x}: its frames "
                 f"are refused (follow it: --plant-session {own:016x})"
             )
+        if msg is not None:
+            self._plant_imu_status(msg)
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
             self.finished = True
+
+    def _plant_imu_status(self, msg) -> None:
+        """The plant's IMU counts (a robot bridge's watch of PX4's IMU; 0 from the simulator): kept, news said."""
+        was = self.plant_imu
+        now = self.plant_imu = {
+            "rate_off_episodes": int(msg.imu_rate_off_episodes),
+            "rate_off_s": float(msg.imu_rate_off_s),
+            "gaps": int(msg.imu_gaps),
+            "worst_gap_ms": 1000.0 * float(msg.imu_worst_gap_s),
+        }
+        if now["rate_off_episodes"] > (was["rate_off_episodes"] if was else 0):
+            self._say(f"the plant says its IMU rate is off the control rate ({now['rate_off_episodes']} time(s), "
+                      f"{now['rate_off_s']:.1f} s in all): the controller integrates the real intervals")  # fmt: skip
+        if now["gaps"] and not (was and was["gaps"]):
+            self._say(f"the plant says its IMU stream paused (worst {now['worst_gap_ms']:.0f} ms so far); gaps are "
+                      "counted in the summary (plant_imu)")  # fmt: skip
+        if self.recorder is not None:
+            self.recorder.plant_status(msg, self.last_t)
 
 
 def _has_mocap(msg) -> bool:

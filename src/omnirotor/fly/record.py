@@ -21,6 +21,8 @@ topic                    type                                   what
 /omnirotor/desired       geometry_msgs/msg/PoseStamped          the desired EE reference
 /omnirotor/wrench_est    geometry_msgs/msg/WrenchStamped        the observer's estimate, force and moment in W
 /omnirotor/status        omnirotor_msgs/msg/FlightStatus        the director's status (as often as given)
+/omnirotor/sim_status    omnirotor_msgs/msg/SimStatus           the plant's status as the node heard it (about
+                                                                50 Hz: failsafe, pairing, its IMU watch's counts)
 ======================== ====================================== ==============================================
 
 The estimate, references and wrench (at 100 Hz by default: ``derived_every``) come from the controller's log
@@ -55,6 +57,7 @@ TOPICS = {
     "/omnirotor/desired": "geometry_msgs/msg/PoseStamped",
     "/omnirotor/wrench_est": "geometry_msgs/msg/WrenchStamped",
     "/omnirotor/status": "omnirotor_msgs/msg/FlightStatus",
+    "/omnirotor/sim_status": "omnirotor_msgs/msg/SimStatus",
 }
 """The recorded topics and their types (module docstring)."""
 
@@ -215,6 +218,18 @@ class FlightRecorder:
         except queue.Full:
             self.dropped += 1
 
+    def plant_status(self, msg, t: float) -> None:
+        """Record the plant's ``SimStatus`` as heard, at the node's frame time ``t`` [s]; dropped if the writer lags.
+
+        The node's frame time is the bag's one clock (a robot bridge stamps its status on its own host's clock).
+        """
+        from omnirotor.rosmsg import typestore
+
+        try:
+            self._status.put_nowait((t, bytes(typestore().serialize_cdr(msg, TOPICS["/omnirotor/sim_status"]))))
+        except queue.Full:
+            self.dropped += 1
+
     def close(self, timeout_s: float = 30.0) -> dict:
         """Drain the ring, finish the bag and stop the writer; returns its summary (messages per topic, ...).
 
@@ -296,7 +311,10 @@ def _writer_main(
         conns = {topic: writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in TOPICS.items()}
 
         def put(topic: str, t: float, msg) -> None:
-            writer.write(conns[topic], max(0, int(round(t * 1e9))), store.serialize_cdr(msg, TOPICS[topic]))
+            put_raw(topic, t, store.serialize_cdr(msg, TOPICS[topic]))
+
+        def put_raw(topic: str, t: float, raw: bytes) -> None:
+            writer.write(conns[topic], max(0, int(round(t * 1e9))), raw)
             counts[topic] += 1
 
         def header(t: float, frame_id: str):
@@ -322,7 +340,7 @@ def _writer_main(
         while True:
             h = published()
             if taken == h:
-                _drain_status(status_q, put)
+                _drain_status(status_q, put, put_raw)
                 if stop.is_set() and published() == taken:
                     break
                 time.sleep(0.002)
@@ -357,7 +375,7 @@ def _writer_main(
                                 torque=T["geometry_msgs/msg/Vector3"](x=m_W[0], y=m_W[1], z=m_W[2]),
                             ),
                         ))  # fmt: skip
-            _drain_status(status_q, put)
+            _drain_status(status_q, put, put_raw)
         writer.close()
         result_q.put({"messages": counts, "rows": taken, "path": path})
     except Exception as exc:  # noqa: BLE001  (the reason goes back to the node, which says it)
@@ -366,12 +384,16 @@ def _writer_main(
         shm.close()
 
 
-def _drain_status(status_q, put) -> None:
+def _drain_status(status_q, put, put_raw) -> None:
     while True:
         try:
             st = status_q.get_nowait()
         except (queue.Empty, OSError, EOFError):
             return
+        if isinstance(st, tuple):  # the plant's SimStatus, serialised as heard (FlightRecorder.plant_status)
+            t, raw = st
+            put_raw("/omnirotor/sim_status", t if math.isfinite(t) else 0.0, raw)
+            continue
         t = st.t if math.isfinite(st.t) else 0.0
         put("/omnirotor/status", t, st.to_msg())
 
@@ -394,6 +416,7 @@ class Recording:
         pose_t, p_W: (M,) times [s] and (M, 3) positions [m] of the state estimate.
         f_ext_W: (M, 3) estimated external force [N], world frame.
         status: the FlightStatus messages, in order.
+        plant_status: the plant's SimStatus messages as the node heard them (rosbags objects), in order.
     """
 
     counts: dict[str, int]
@@ -407,6 +430,7 @@ class Recording:
     p_W: np.ndarray
     f_ext_W: np.ndarray
     status: list
+    plant_status: list = dataclasses.field(default_factory=list)
 
 
 def read_recording(path: str | Path) -> Recording:
@@ -420,7 +444,7 @@ def read_recording(path: str | Path) -> Recording:
     from omnirotor.fly.requests import FlightStatus
     from omnirotor.rosmsg import typestore
 
-    names = ("t", "session", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status")
+    names = ("t", "session", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status", "plant")
     cols: dict[str, list] = {k: [] for k in names}
     try:
         with AnyReader([Path(path)], default_typestore=typestore()) as reader:
@@ -445,6 +469,8 @@ def read_recording(path: str | Path) -> Recording:
                     cols["f"].append((f.x, f.y, f.z))
                 elif conn.topic == "/omnirotor/status":
                     cols["status"].append(FlightStatus.from_msg(msg))
+                elif conn.topic == "/omnirotor/sim_status":
+                    cols["plant"].append(msg)
     except Exception as exc:  # noqa: BLE001  (rosbags raises several kinds for a damaged or foreign bag)
         raise InputError(f"{path}: not a readable flight recording ({type(exc).__name__}: {exc})") from None
     return Recording(
@@ -453,4 +479,5 @@ def read_recording(path: str | Path) -> Recording:
         rotor_hz=np.array(cols["rotor"]), cmd_hz=np.array(cols["cmd"]), control_status=np.array(cols["cs"]),
         pose_t=np.array(cols["pose_t"]), p_W=np.array(cols["p"]).reshape(-1, 3),
         f_ext_W=np.array(cols["f"]).reshape(-1, 3), status=cols["status"],
+        plant_status=cols["plant"],
     )  # fmt: skip
