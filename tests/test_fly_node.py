@@ -252,23 +252,53 @@ class _TellableDirector(_Director):
         self.told.append(why)
 
 
-def test_the_plant_s_failsafe_is_told_to_the_director():
-    """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
-    is told while it lasts, the node says it once."""
+def _sim_status(**fields):
+    """A healthy plant's ``SimStatus`` message, with ``fields`` set."""
     from omnirotor.rosmsg import typestore
     from omnirotor.rosmsg.convert import SIM_STATUS
 
     T = typestore().types
+    msg = T[SIM_STATUS](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+        t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+        commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
+        finished=False, imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
+    )  # fmt: skip
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    return msg
+
+
+def test_the_end_of_a_mission_is_not_taken_for_a_lost_link():
+    """The plant's frames stop at the end of its run and its status says "finished"; the loop reads the status at
+    its own rate (here every 2 s, as a starved loop might): the link's 50 ms timeout must not call the end a link
+    loss (seen under load in test_sitl_fuzz)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    said: list[str] = []
+    opts = NodeOptions(status_hz=0.5, log_rows=True)
+    with _scripted_plant("/end", _LoggingController(), _Director(), opts, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        got = p.stream(20, 0.01, 30.0)
+        assert len(got) >= 20
+        lost_before = sum("link lost" in line for line in said)  # (a pause of this process mid-stream may lose it)
+        status.put(_sim_status(steps=max(int(m.frame_seq) for m in got), finished=True))  # as the simulator does
+        p.thread.join(10)
+        assert not p.thread.is_alive()  # the loop ended by itself
+    assert sum("link lost" in line for line in said) == lost_before, said
+    assert not p.summary["link_lost"]
+
+
+def test_the_plant_s_failsafe_is_told_to_the_director():
+    """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
+    is told while it lasts, the node says it once."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
     said: list[str] = []
     director = _TellableDirector()
     with _scripted_plant("/told", _Controller(), director, NodeOptions(status_hz=200.0), said.append) as p:
         status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        msg = T[SIM_STATUS](
-            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
-            t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
-            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
-            finished=False, imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
-        )  # fmt: skip
+        msg = _sim_status()
         for _ in range(20):  # healthy: nothing told
             status.put(msg)
             time.sleep(0.01)
