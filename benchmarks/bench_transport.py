@@ -11,13 +11,14 @@
   and its loop thread's alone); quiet, and with a CPU hog (a busy Python process) pinned on the other core;
 * real-time SITL under a flood (issue 26 item 5): a third process, connected to both, publishes at ten times the
   loop's rate (10 kHz on each key) well-formed rotor commands of a foreign session with full speeds on the command
-  key, and bogus frames (random bytes, truncated frames, well-formed frames with forged numbers) on the frame key;
-  the node's periods late beside the quiet figure, and what each side counted and dropped. Two modes: *after*
-  pairing (the simulator first come, the flood from when it has paired with the node to the end) and *before*
-  the node (the flood from before the node starts, the simulator pinned to the node's session with
-  ``--pair-session``: first come, the flood would take the pairing; docs/transport.md).
+  key, and bogus frames (random bytes, truncated frames, well-formed frames of a foreign plant session with forged
+  numbers) on the frame key; the node's periods late beside the quiet figure, and what each side counted and
+  dropped. Two modes: *after* pairing (both sides first come, the flood from when the simulator has paired with the
+  node to the end) and *before* the node (the flood from before the node starts, both sides pinned: the simulator
+  to the node's session with ``--pair-session``, the node to the simulator's with ``--plant-session``; first come,
+  the flood would take either pairing: docs/transport.md).
 
-``--flood-only``: the flood cases alone (after a warm-up).
+``--flood-only``: the flood cases alone (after a warm-up); ``--flood-mode after|before``: one of them.
 
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.
@@ -66,6 +67,10 @@ FLOOD_MODES = ("after", "before")
 """When the flood starts (module docstring): after the simulator paired with the node, or before the node."""
 BENCH_SESSION = "be4c4000000000a1"
 """The node's session id in the flood's *before* mode (``fly --session-id``, ``sim --pair-session``)."""
+BENCH_PLANT = "be4c4000000000b3"
+"""The simulator's session id in the flood's *before* mode (``sim --session-id``, ``fly --plant-session``)."""
+FORGED_PLANT = 0xF0E1F0E1F0E1F0E1
+"""The plant session of the flood's well-formed frames (a second plant's, or a forger's)."""
 
 
 def flood(endpoints: list[str], namespace: str, duration_s: float, mode: str = "after",
@@ -89,6 +94,7 @@ def flood(endpoints: list[str], namespace: str, duration_s: float, mode: str = "
         cmd, frame = t.publisher(TOPICS["rotor_cmd"], COMMAND), t.publisher(TOPICS["frame"], FRAME)
         w = WireMessages(8)
         w.command.session_id, w.command.hz[:], w.command.state = 0x5EED, 400.0, 1
+        w.frame.session_id = FORGED_PLANT
         valid = bytes(frame.serialize(w.fill_frame(new_frame(8), 1)))
         bogus = [rng.bytes(int(n)) for n in rng.integers(1, 600, 8)] + [valid[: len(valid) // 2], valid[:40]]
         forged = []
@@ -135,9 +141,9 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
                 "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
-    if flood_mode == "before":  # pinned pairing: the flood that comes first must not take it
-        sim_cmd += ["--pair-session", BENCH_SESSION]
-        node_cmd += ["--session-id", BENCH_SESSION]
+    if flood_mode == "before":  # pinned pairing both ways: the flood that comes first must take neither
+        sim_cmd += ["--pair-session", BENCH_SESSION, "--session-id", BENCH_PLANT]
+        node_cmd += ["--session-id", BENCH_SESSION, "--plant-session", BENCH_PLANT]
     pipe = subprocess.PIPE
     # the pair's output to files, not pipes: neither blocks on a full pipe while the other is waited for
     outs = [tempfile.TemporaryFile("w+") for _ in range(4)]
@@ -204,6 +210,7 @@ def real_time_figures(r: dict) -> dict:
         "node_cpu_per_frame_us": node["cpu_per_frame_us"],
         "node_loop_cpu_per_frame_us": node.get("loop_cpu_per_frame_us"),
         "node_frames_bad": node["frames_bad"],
+        "node_frames_foreign": node.get("frames_foreign", 0),
         "sim_late_steps": sim["late_steps"],
         "sim_commands_obeyed": sim["commands_obeyed"],
         "sim_commands_held": sim["commands_held"],
@@ -213,8 +220,9 @@ def real_time_figures(r: dict) -> dict:
     }
 
 
-def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, file=sys.stderr)) -> dict:
-    """Every figure of the module docstring (``flood_only``: the flood cases alone)."""
+def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, file=sys.stderr),
+            flood_modes: tuple[str, ...] = FLOOD_MODES) -> dict:  # fmt: skip
+    """Every figure of the module docstring (``flood_only``: the flood cases alone, in ``flood_modes``)."""
     lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
     out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS,
                  "load_before": os.getloadavg(), "cpus": os.cpu_count()}  # fmt: skip
@@ -236,10 +244,10 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
         with cpu_hog(0) if hog and n_cpus > 1 else contextlib.nullcontext():
             r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True)
         out[f"real_time{'_hog' if hog else ''}"] = real_time_figures(r)
-    for mode in FLOOD_MODES:
+    for mode in flood_modes:
         note(
             f"real-time hover {rt_s:g} s under a flood ({FLOOD_HZ} foreign commands and bogus frames per second) "
-            + ("from the pairing on" if mode == "after" else "from before the node, the simulator pinned")
+            + ("from the pairing on" if mode == "after" else "from before the node, both sides pinned")
         )
         r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode)
         out[f"real_time_flood_{mode}"] = real_time_figures(r)
@@ -267,7 +275,7 @@ def render(r: dict) -> str:
     flood_label = f"real time, flood ({FLOOD_HZ // 1000} kHz foreign commands + bogus frames)"
     for key, label in (("real_time", "real time, quiet"), ("real_time_hog", "real time, CPU hog on CPU 0"),
                        ("real_time_flood_after", f"{flood_label} after the pairing"),
-                       ("real_time_flood_before", f"{flood_label} before the node, sim pinned")):  # fmt: skip
+                       ("real_time_flood_before", f"{flood_label} before the node, both pinned")):  # fmt: skip
         if key not in r:
             continue
         d = r[key]
@@ -278,8 +286,9 @@ def render(r: dict) -> str:
             f"{d['worst_late_ms']:.1f} ms; node CPU {d['node_cpu_per_frame_us']:.0f} µs/frame ({_loop(d)} in its "
             "loop)"
             + (
-                f"; dropped: {d['node_frames_bad']} bogus frames (node), {d['sim_commands_refused']} foreign "
-                f"commands (sim), {d['sim_commands_obeyed']} of the node's obeyed"
+                f"; dropped: {d['node_frames_bad']} bogus and {d.get('node_frames_foreign', 0)} foreign frames "
+                f"(node), {d['sim_commands_refused']} foreign commands (sim), {d['sim_commands_obeyed']} of the "
+                "node's obeyed"
                 if key.startswith("real_time_flood")
                 else ""
             )
@@ -299,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="shorter runs (2 s lockstep, 10 s real time)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--flood-only", action="store_true", help="the flood cases alone (both modes)")
+    ap.add_argument("--flood-mode", choices=FLOOD_MODES, help="only this flood mode (default: both)")
     ap.add_argument("--flood-peer", nargs=4, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS", "MODE"),
                     help=argparse.SUPPRESS)  # fmt: skip
     args = ap.parse_args(argv)
@@ -306,7 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         endpoints, ns, seconds, mode = args.flood_peer
         print(json.dumps(flood(endpoints.split(","), ns, float(seconds), mode)))
         return 0
-    result = collect(args.quick, args.flood_only)
+    modes = (args.flood_mode,) if args.flood_mode else FLOOD_MODES
+    result = collect(args.quick, args.flood_only, flood_modes=modes)
     print(json.dumps(result, indent=1) if args.json else render(result))
     return 0
 

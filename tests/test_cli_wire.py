@@ -39,6 +39,11 @@ def _taken_port():
         (["sim", "--serve", "--task", "hover", "--pair-session", "1ffffffffffffffff"], "--pair-session must be"),
         (["sim", "--serve", "--pair-session", "0x0"], "--pair-session must not be 0"),
         (["px4-bridge", "--pair-session", "12 34"], "--pair-session must be"),
+        (["fly", "--plant-session", "xyz"], "--plant-session must be 1 to 16 hex digits"),
+        (["fly", "--mission-from-sim", "--plant-session", "0"], "--plant-session must not be 0"),
+        (["sim", "--serve", "--task", "hover", "--session-id", "g1"], "--session-id must be"),
+        (["sim", "--serve", "--session-id", "00"], "--session-id must not be 0"),
+        (["px4-bridge", "--session-id", "1ffffffffffffffff"], "--session-id must be"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, says, capsys, tmp_path, monkeypatch):

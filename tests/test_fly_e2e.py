@@ -123,5 +123,7 @@ def test_an_interactive_flight_takes_off_from_the_floor_lands_on_it_and_ends_on_
     text = [err.read() for err in errs]
     assert [p.returncode for p in procs] == [0, 0], text
     assert "steps flown" in outs[0] and "frames" in outs[1]
+    plant = text[0].split("plant session ")[1].split()[0]  # the simulator's, said at its start
+    assert f"plant session {plant} (first come); frames of other plant sessions refused: 0" in outs[1]
     assert "link lost" not in text[1], text[1]  # no frame gap at the release from the floor
     assert "Traceback" not in text[0] + text[1]

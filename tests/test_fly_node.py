@@ -17,6 +17,8 @@ from omnirotor.transport import open_transport
 from sitl.procs import free_port
 
 N = 8
+PLANT = 0x5107A7E000000001
+"""The scripted plant's session (``SensorFrame.session_id``)."""
 
 
 class _Controller:
@@ -60,13 +62,15 @@ class _Plant:
         self.frames = plant.publisher("/omnirotor/frame", FRAME, block=True)
         self.commands = plant.subscriber("/omnirotor/rotor_cmd", COMMAND, depth=64)
         self.record, self._msgs = new_frame(N), WireMessages(N)
+        self._msgs.frame.session_id = PLANT
         self.summary: dict = {}
         self.thread: threading.Thread | None = None
 
-    def send(self, seq: int, t: float | None = None) -> None:
-        """Publish the record as frame ``seq`` (its time set to ``t`` first, when given)."""
+    def send(self, seq: int, t: float | None = None, session: int = PLANT) -> None:
+        """Publish the record as frame ``seq`` of plant ``session`` (its time set to ``t`` first, when given)."""
         if t is not None:
             self.record["t"] = t
+        self._msgs.frame.session_id = session
         self.frames.put(self._msgs.fill_frame(self.record, seq))
 
     def answers(self, timeout_s: float) -> list:
@@ -243,6 +247,22 @@ def test_a_disarmed_director_never_gets_speeds_published():
     assert summary["disarmed_nonzero"] >= 5
 
 
+def _sim_status(**fields):
+    """A healthy plant's ``SimStatus`` (the scripted plant's session), ``fields`` replaced."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    T = typestore().types
+    values = dict(
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+        t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
+        commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0, finished=False,
+        plant_session_id=PLANT, imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
+    )  # fmt: skip
+    values.update(fields)
+    return T[SIM_STATUS](**values)
+
+
 class _TellableDirector(_Director):
     def __init__(self) -> None:
         super().__init__()
@@ -252,23 +272,36 @@ class _TellableDirector(_Director):
         self.told.append(why)
 
 
+def test_the_end_of_a_mission_is_not_taken_for_a_lost_link():
+    """The plant's frames stop at the end of its run and its status says "finished"; the loop reads the status at
+    its own rate (here every 2 s, as a starved loop might): the link's 50 ms timeout must not call the end a link
+    loss (seen under load in test_sitl_fuzz)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    said: list[str] = []
+    opts = NodeOptions(status_hz=0.5, log_rows=True)
+    with _scripted_plant("/end", _LoggingController(), _Director(), opts, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        got = p.stream(20, 0.01, 30.0)
+        assert len(got) >= 20
+        lost_before = sum("link lost" in line for line in said)  # (a pause of this process mid-stream may lose it)
+        status.put(_sim_status(steps=max(int(m.frame_seq) for m in got), finished=True))  # as the simulator does
+        p.thread.join(10)
+        assert not p.thread.is_alive()  # the loop ended by itself
+    assert sum("link lost" in line for line in said) == lost_before, said
+    assert not p.summary["link_lost"]
+
+
 def test_the_plant_s_failsafe_is_told_to_the_director():
     """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
     is told while it lasts, the node says it once."""
-    from omnirotor.rosmsg import typestore
     from omnirotor.rosmsg.convert import SIM_STATUS
 
-    T = typestore().types
     said: list[str] = []
     director = _TellableDirector()
     with _scripted_plant("/told", _Controller(), director, NodeOptions(status_hz=200.0), said.append) as p:
         status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        msg = T[SIM_STATUS](
-            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
-            t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
-            commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=0.0,
-            finished=False,
-        )  # fmt: skip
+        msg = _sim_status()
         for _ in range(20):  # healthy: nothing told
             status.put(msg)
             time.sleep(0.01)
@@ -388,3 +421,165 @@ def wait_until_true(fn, timeout_s: float) -> bool:
             return True
         time.sleep(0.005)
     return False
+
+
+# -- the plant the node follows (omnirotor.sitl.gate.FrameGate; issue 26 item 5) -----------------------------------
+
+FOREIGN = 0x0BAD5E55F7A3E001
+"""Another plant session: a flooder's forged frames, or a second plant."""
+
+
+def _until_answered(p: _Plant, seq: int, t: float, timeout_s: float = 10.0, session: int = PLANT) -> list:
+    """Frame ``seq`` of ``session`` sent every 20 ms until a command answers it (the subscription takes a moment to
+    match); the commands that came meanwhile."""
+    got: list = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        p.send(seq, t, session)
+        got += p.answers(0.02)
+        if any(int(m.frame_seq) == seq for m in got):
+            return got
+    raise AssertionError(f"frame {seq} of {session:016x} was never answered")
+
+
+def _foreign_until_refused(p: _Plant, n: int, first_seq: int = 1) -> int:
+    """Foreign frames numbered from ``first_seq`` until the node refused ``n`` of them; the next number."""
+    seq, deadline = first_seq, time.monotonic() + 10
+    while p.node.plant_gate.refused_foreign < n and time.monotonic() < deadline:
+        p.send(seq, 0.001 * seq, FOREIGN)
+        seq += 1
+        time.sleep(0.002)
+    assert p.node.plant_gate.refused_foreign >= n
+    return seq
+
+
+def test_a_pinned_node_follows_its_plant_through_foreign_frames_that_came_first():
+    """``--plant-session``: a flood of well-formed frames of another session with plausible numbers, before and
+    between the plant's, is refused from the very first, counted apart from the bad ones, said once; never
+    followed, never answered, never stepped."""
+    ctl, director = _Controller(), _Director()
+    said: list[str] = []
+    with _scripted_plant(
+        "/pin", ctl, director, NodeOptions(lockstep=True, plant_session=PLANT, wrench_every=10**6), said.append
+    ) as p:
+        seq = _foreign_until_refused(p, 20)  # before the plant's first frame
+        assert p.answers(0.05) == [] and ctl.steps == 0
+        answers = _until_answered(p, 1, 0.001)
+        for k in range(2, 30):
+            p.send(seq, 0.5, FOREIGN)  # a forged frame one ahead of the plant's next, then the plant's own
+            seq += 1
+            p.send(k, 0.001 * k)
+            answers += p.answers(0.05)
+        deadline = time.monotonic() + 10  # the plant's last frame answered (a loaded machine may skip some before)
+        while 29 not in {int(m.frame_seq) for m in answers} and time.monotonic() < deadline:
+            answers += p.answers(0.05)
+    s = p.summary
+    assert 29 in {int(m.frame_seq) for m in answers}
+    # only the plant's frames were flown (the forged ones are at 0.5 s), the last one among them
+    assert all(t < 0.5 for t in director.frames) and 0.029 in director.frames and ctl.steps == len(director.frames)
+    assert s["plant_session_id"] == f"{PLANT:016x}" and s["plant_session_pinned"]
+    # those before the plant's first frame at least (a frame queued behind a newer one taken is skipped unread)
+    assert s["frames_foreign"] >= 20 and s["foreign_plant_sessions"] == 1
+    assert s["frames_bad"] == 0  # the foreign frames are not counted as malformed
+    refused = [line for line in said if "refused sensor frames" in line]
+    assert refused == [
+        f"refused sensor frames of plant session {FOREIGN:016x}: following {PLANT:016x} (--plant-session)"
+    ]
+    assert f"the pinned plant session {PLANT:016x} sends frames" in said
+    assert not any("following plant session" in line for line in said)  # never first come
+
+
+def test_a_first_come_node_follows_whoever_sends_first_and_says_so():
+    """Without ``--plant-session`` the first well-formed frame's session is followed (documented), the later plant
+    is refused and named, and the plant's status naming its own session makes the node say how to pin it."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    ctl, director = _Controller(), _Director()
+    said: list[str] = []
+    with _scripted_plant("/first", ctl, director, NodeOptions(lockstep=True, status_hz=200.0), said.append) as p:
+        _until_answered(p, 1, 0.001, session=FOREIGN)  # the flooder comes first
+        _until_answered(p, 2, 0.002, session=FOREIGN)
+        for k in range(1, 10):  # the real plant's frames: refused
+            p.send(k, 0.1 + 0.001 * k)
+        assert p.answers(0.2) == []  # none of the real plant's frames is answered
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        msg = _sim_status(lockstep=True)
+        deadline = time.monotonic() + 10
+        while not any("status names" in line for line in said) and time.monotonic() < deadline:
+            status.put(msg)
+            p.send(3, 0.003, FOREIGN)  # frames keep the loop turning (it reads the status between frames)
+            time.sleep(0.01)
+    s = p.summary
+    assert s["plant_session_id"] == f"{FOREIGN:016x}" and not s["plant_session_pinned"]
+    assert s["frames_foreign"] >= 1 and s["foreign_plant_sessions"] == 1
+    assert all(t < 0.1 for t in director.frames)  # only the first come's frames were flown
+    assert (
+        f"following plant session {FOREIGN:016x}, the first to send frames (first come: --plant-session pins one)"
+        in said
+    )
+    assert f"refused sensor frames of plant session {PLANT:016x}: following {FOREIGN:016x}" in said
+    assert (
+        f"the plant's status names plant session {PLANT:016x}, not the followed {FOREIGN:016x}: its frames are "
+        f"refused (follow it: --plant-session {PLANT:016x})"
+    ) in said
+
+
+class _ArmedDirector(_Director):
+    armed = True
+
+
+@pytest.mark.parametrize(
+    "pinned, armed, released",
+    [(None, False, True), (None, True, False), (PLANT, False, False)],
+    ids=["first-come-disarmed", "first-come-armed", "pinned"],
+)
+def test_a_link_loss_releases_only_a_first_come_plant_of_a_disarmed_node(pinned, armed, released):
+    """After a link loss the followed plant's numbers start anew (any number); another plant is followed only when
+    the pairing was first come and the director is disarmed (never in flight, never pinned)."""
+    ctl, director = _Controller(), (_ArmedDirector() if armed else _Director())
+    said: list[str] = []
+    options = NodeOptions(lockstep=True, lockstep_link_loss_s=0.2, plant_session=pinned)
+    with _scripted_plant("/loss", ctl, director, options, said.append) as p:
+        _until_answered(p, 1, 0.001)
+        _until_answered(p, 2, 0.002)
+        deadline = time.monotonic() + 10
+        while not any("link lost" in line for line in said) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert any("link lost" in line for line in said), said
+        if released:
+            answers = _until_answered(p, 7, 0.5, session=FOREIGN)  # the next plant to send frames is followed
+        else:
+            for _ in range(10):
+                p.send(7, 0.5, FOREIGN)
+                time.sleep(0.01)
+            assert [m for m in p.answers(0.2) if int(m.frame_seq) == 7] == []  # refused
+            answers = _until_answered(p, 5000, 0.6)  # the same plant, its count far on: followed
+    s = p.summary
+    assert answers
+    gone = f"plant session {PLANT:016x} released (link lost, disarmed)"
+    if released:
+        assert any(gone in line for line in said) and s["plant_session_id"] == f"{FOREIGN:016x}"
+        assert 0.5 in director.frames
+    else:
+        assert not any(gone in line for line in said) and s["plant_session_id"] == f"{PLANT:016x}"
+        assert 0.6 in director.frames and 0.5 not in director.frames and s["frames_foreign"] >= 1
+
+
+def test_frames_without_a_plant_session_are_refused_and_never_paired_with():
+    """A frame with ``session_id`` 0 (a plant that does not say who it is) is bad, said once; a first-come node
+    does not pair with it and follows the first plant that says its session."""
+    ctl, director = _Controller(), _Director()
+    said: list[str] = []
+    with _scripted_plant("/unsigned", ctl, director, NodeOptions(lockstep=True), said.append) as p:
+        deadline = time.monotonic() + 10
+        while p.node.frames_unsigned < 5 and time.monotonic() < deadline:
+            p.send(1, 0.001, 0)
+            time.sleep(0.01)
+        assert p.answers(0.1) == [] and p.node.plant_gate.paired == 0
+        _until_answered(p, 2, 0.002)
+    s = p.summary
+    assert s["plant_session_id"] == f"{PLANT:016x}" and s["frames_bad"] >= 5 and s["frames_foreign"] == 0
+    assert director.frames == [0.002]
+    assert [line for line in said if "without a plant session" in line] == [
+        "refused sensor frames without a plant session (session_id 0): a plant fills it"
+    ]

@@ -16,6 +16,7 @@ from omnirotor.messages import SensorFrame
 from omnirotor.recorder import Recorder
 
 COLUMNS = Recorder(1, LOG_GROUPS(8)).column_names
+SESSION = 0xF00DFACE12345679  # the plant's session, recorded with its frames
 
 
 def _frame(k, mocap_every=10):
@@ -52,7 +53,7 @@ def test_a_recording_reads_back_with_rosbags_and_the_mcap_library(tmp_path):
     path = tmp_path / "flight"
     with FlightRecorder(path, 8, COLUMNS, derived_every=5) as rec:
         for k in range(1000):
-            assert rec.period(_frame(k), np.full(8, 150.0 + k % 3), 4, _log_row(k), block=True)
+            assert rec.period(_frame(k), np.full(8, 150.0 + k % 3), 4, _log_row(k), block=True, plant_session=SESSION)
             if k % 20 == 0:
                 rec.status(_status(k * 1e-3))
     r = read_recording(path)
@@ -60,6 +61,7 @@ def test_a_recording_reads_back_with_rosbags_and_the_mcap_library(tmp_path):
     assert r.counts["/omnirotor/pose"] == r.counts["/omnirotor/wrench_est"] == 200  # every 5th period
     assert r.counts["/omnirotor/status"] == 50 and r.status[0].mode == FlightMode.HOLD
     np.testing.assert_array_equal(r.t, np.arange(1000) * 1e-3)  # float64 time, exact
+    assert r.plant_session.dtype == np.uint64 and (r.plant_session == SESSION).all()  # all 64 bits
     np.testing.assert_array_equal(r.cmd_hz[:, 0], 150.0 + np.arange(1000) % 3)
     np.testing.assert_array_equal(r.rotor_hz[:, 3], 140.0 + np.arange(1000) % 7)
     assert r.mocap_new.sum() == 100 and (r.control_status == 4).all()

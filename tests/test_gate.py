@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from omnirotor.sitl.gate import MAX_SEQ_JUMP, CommandGate, new_session_id, parse_session_id
+from omnirotor.sitl.gate import MAX_SEQ_JUMP, CommandGate, FrameGate, new_session_id, parse_session_id
 
 NODE = 0x1A2B3C4D5E6F7081
 FLOOD = 12345
@@ -75,3 +75,56 @@ def test_new_session_ids_are_nonzero_and_parse_back():
         assert parse_session_id(f"{s:016x}", "--session-id") == s
     with pytest.raises(ValueError):
         CommandGate(pinned=0)
+
+
+# -- the same rule at the node: the plant session whose frames it follows (FrameGate) -------------------------------
+
+PLANT = 0x5107A7E000000001
+
+
+def test_the_frame_gate_pinned_refuses_a_flood_that_came_first_and_follows_its_plant():
+    said: list[str] = []
+    gate = FrameGate(pinned=PLANT, say=said.append)
+    for seq in range(5, 60):  # forged frames with plausible numbers before the plant's first
+        assert not gate.admits(FLOOD, seq)
+    assert gate.paired == PLANT and gate.accepted == 0 and gate.refused_foreign == 55 and gate.foreign_sessions == 1
+    assert gate.admits(PLANT, 0)  # the plant's start frame, whatever the flood numbered
+    gate.follow(0)
+    assert gate.start_repeated and gate.admits(PLANT, 0)  # its repetition: answered again (the node's rule)
+    assert not gate.admits(FLOOD, 1) and gate.admits(PLANT, 1)
+    gate.follow(1)
+    assert not gate.start_repeated and not gate.admits(PLANT, 0) and not gate.admits(PLANT, 1)  # old, a replay
+    assert not gate.admits(PLANT, 2 + MAX_SEQ_JUMP) and gate.admits(PLANT, 1 + MAX_SEQ_JUMP)  # the jump's bound
+    assert gate.refused == gate.refused_foreign + 3
+    assert said == [
+        f"refused sensor frames of plant session {FLOOD:016x}: following {PLANT:016x} (--plant-session)",
+        f"the pinned plant session {PLANT:016x} sends frames",
+    ]
+
+
+def test_the_frame_gate_judges_without_advancing_until_a_frame_is_followed():
+    """The node judges queued frames newest first and takes one: older ones of the same plant stay admissible (a
+    skipped frame's motion-capture sample is carried), the numbers advance by the frame followed only."""
+    gate = FrameGate(say=lambda line: None)
+    assert gate.admits(PLANT, 10) and gate.paired == PLANT  # first come: paired by the first well-formed frame
+    gate.follow(10)
+    assert gate.admits(PLANT, 14) and gate.admits(PLANT, 12) and gate.admits(PLANT, 11)
+    gate.follow(14)
+    assert not gate.admits(PLANT, 12) and gate.admits(PLANT, 15) and gate.accepted == 2
+
+
+def test_the_frame_gate_first_come_keeps_its_plant_through_a_renumbering_and_pairs_anew_only_when_released():
+    said: list[str] = []
+    gate = FrameGate(say=said.append)
+    assert gate.admits(FLOOD, 3)  # whoever sends first is followed
+    gate.follow(3)
+    assert not gate.admits(PLANT, 4) and gate.paired == FLOOD
+    gate.renumber()  # a link loss while armed: the same plant, its numbers anew
+    assert not gate.admits(PLANT, 1) and gate.admits(FLOOD, 90_000)
+    gate.release()  # a link loss while disarmed
+    assert gate.paired == 0 and gate.admits(PLANT, 77) and gate.paired == PLANT
+    assert said == [
+        f"following plant session {FLOOD:016x}, the first to send frames (first come: --plant-session pins one)",
+        f"refused sensor frames of plant session {PLANT:016x}: following {FLOOD:016x}",
+        f"following plant session {PLANT:016x}, the first to send frames (first come: --plant-session pins one)",
+    ]

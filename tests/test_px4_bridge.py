@@ -203,7 +203,8 @@ class _Px4Rig:
             m = self.frames.take(0.05)
             if m is not None:
                 got.append((int(m.seq), float(m.t), m.imu_acc_b.copy(), m.imu_gyro_b.copy(), m.rotor_hz.copy(),
-                            bool(m.mocap_new), float(m.mocap_t), m.mocap_p_w.copy(), m.mocap_q_wb.copy()))  # fmt: skip
+                            bool(m.mocap_new), float(m.mocap_t), m.mocap_p_w.copy(), m.mocap_q_wb.copy(),
+                            int(m.session_id)))  # fmt: skip
             if tick is not None:
                 tick()
         return got
@@ -229,7 +230,7 @@ class _Px4Rig:
 def test_the_bridge_makes_the_nodes_frames_of_px4s_imu_esc_telemetry_and_odometry(tmp_path):
     """Known values through the whole path: PX4's FRD/NED samples in, the node's FLU/NWU frame messages out."""
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc", "--odometry", "--nan-every", "200"],
-                  ["--mocap", "odometry"])  # fmt: skip
+                  ["--mocap", "odometry", "--session-id", "b41d9e0000000003"])  # fmt: skip
     try:
         first = rig.collect(1, 120.0)
         assert first, rig.bridge_err.read_text()
@@ -247,6 +248,9 @@ def test_the_bridge_makes_the_nodes_frames_of_px4s_imu_esc_telemetry_and_odometr
     assert rig.bridge.returncode == 0 and len(frames) >= 1500, rig.bridge_err.read_text()
     seq = np.array([f[0] for f in frames])
     assert seq[0] == 0 and (np.diff(seq) > 0).all()  # numbered from 0, increasing
+    # every frame says its plant (--session-id, said at the start; a node's --plant-session follows it)
+    assert {fr[9] for fr in frames} == {0xB41D9E0000000003} and summary["plant_session_id"] == "b41d9e0000000003"
+    assert "plant session b41d9e0000000003 (a node's --plant-session b41d9e0000000003" in rig.bridge_err.read_text()
     f = summary["frames"]
     assert f["frames"] >= seq[-1] + 1 and f["errors"] == 0 and f["imu_rate_hz"] == 1000.0
     # each topic's garbage counted (a subscriber keeps the newest `depth` samples, 16 for the ESC telemetry: on a
@@ -383,20 +387,34 @@ def _move(tmp: Path, name: str, value: float) -> None:
 @pytest.mark.slow
 def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo_is_refused(tmp_path):
     """PX4's IMU slows to 800 Hz for 3 s mid-flight, then stops for 150 ms: each said once (and the recovery),
-    counted in the summary and shown on /diagnostics, the frames going on throughout (the node's controller
-    integrates the real intervals); the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line) and
-    bridged all the same."""
+    counted in the summary, shown on /diagnostics and sent in SimStatus, the frames going on throughout (the node's
+    controller integrates the real intervals); a real node reads the counts from SimStatus, says them and has them
+    in its summary and its recording; the bridge asked for SCHED_FIFO and a CPU, was refused the first (one line)
+    and bridged all the same."""
     from omnirotor.fly.bridge import DIAGNOSTIC_ARRAY, DIAGNOSTICS_TOPIC
+    from omnirotor.fly.record import read_recording
 
     cpu = (os.cpu_count() or 1) - 1
     rig = _Px4Rig(tmp_path, ["--imu-hz", "1000", "--esc"], ["--fifo-priority", "50", "--cpu", str(cpu)],
                   prefix=_unprivileged())  # fmt: skip
     diag_sub = rig.t.subscriber(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY, depth=64)
+    status_sub = rig.t.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=64)
     diags: list[tuple[int, str]] = []
+    statuses: list[tuple[int, float, int, float]] = []
+    bag = tmp_path / "flight"
+    node_err = tmp_path / "node.err"
+    node = subprocess.Popen(
+        [sys.executable, "-c", CLI, "fly", "--connect", rig.test_ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
+         "--namespace", rig.ns, "--fifo-priority", "0", "--json", "--record", str(bag)],
+        env=env(), stdout=subprocess.PIPE, stderr=open(node_err, "w"), text=True,  # noqa: SIM115
+    )  # fmt: skip
+    rig.procs.append(node)
 
     def tick() -> None:
         while (m := diag_sub.take()) is not None:
             diags.extend((int(st.level), st.message) for st in m.status)
+        while (m := status_sub.take()) is not None:
+            statuses.append((m.imu_rate_off_episodes, m.imu_rate_off_s, m.imu_gaps, m.imu_worst_gap_s))
 
     try:
         frames = rig.collect(1, 120.0)
@@ -410,6 +428,12 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
             frames += rig.collect(10**6, 0.5, tick)
         _move(tmp_path, "imu-gap", 150)
         frames += rig.collect(10**6, 1.5, tick)
+        # the node (its controller compiled or loaded meanwhile) has heard the counts in SimStatus: it says them
+        heard = _until(lambda: "the plant says its IMU stream paused" in node_err.read_text(), 300.0,
+                       lambda: rig.collect(10**6, 0.05))  # fmt: skip
+        assert heard, node_err.read_text()[-3000:]
+        node.send_signal(signal.SIGTERM)
+        node_summary = json.loads(node.communicate(timeout=60)[0].strip().splitlines()[-1])
         summary, _ = rig.stop()
     finally:
         rig.close()
@@ -435,6 +459,18 @@ def test_the_bridge_watches_px4s_imu_rate_all_flight_and_runs_on_when_sched_fifo
     assert (0, "1000.0 Hz") in diags, diags
     assert any(lv == 1 and m.startswith("800.0 Hz, off --rate-hz 1000 for ") for lv, m in diags), diags
     assert any(lv == 1 and "gap(s) over 20 ms" in m for lv, m in diags), diags
+    # SimStatus carries the counts: no episode before the slow-down; the episode, the gap after it
+    assert statuses[0][0] == 0 and statuses[-1][0] == 1, (statuses[:3], statuses[-1])
+    assert 1.0 < statuses[-1][1] < 4.0 and 1 <= statuses[-1][2] <= w["gaps"] and statuses[-1][3] > 0.1, statuses[-1]
+    # the node heard them: said once each, in its summary, and recorded with the plant's status
+    node_lines = node_err.read_text().splitlines()
+    assert sum("the plant says its IMU rate is off the control rate (1 time(s)" in x for x in node_lines) == 1
+    assert sum("the plant says its IMU stream paused" in x for x in node_lines) == 1
+    p = node_summary["plant_imu"]
+    assert p["rate_off_episodes"] == 1 and 1.0 < p["rate_off_s"] < 4.0, p
+    assert p["gaps"] >= 1 and p["worst_gap_ms"] > 100.0, p
+    rec = read_recording(bag).plant_status
+    assert rec and rec[-1].imu_rate_off_episodes == 1 and rec[-1].imu_gaps == p["gaps"]
 
 
 def test_the_bridge_imports_neither_the_controller_nor_the_simulator():

@@ -194,14 +194,15 @@ def _random_frame(store, rng, n: int, frame_id: str):
         header=T["std_msgs/msg/Header"](
             stamp=T["builtin_interfaces/msg/Time"](sec=int(rng.integers(0, 2**31)), nanosec=7), frame_id=frame_id
         ),
-        seq=int(rng.integers(0, 2**63)), t=float(bits[0]), imu_acc_b=bits[1:4].copy(), imu_gyro_b=bits[4:7].copy(),
+        session_id=int(rng.integers(0, 2**64, dtype=np.uint64)), seq=int(rng.integers(0, 2**63)), t=float(bits[0]),
+        imu_acc_b=bits[1:4].copy(), imu_gyro_b=bits[4:7].copy(),
         mocap_new=bool(rng.integers(0, 2)), mocap_t=float(bits[7]), mocap_p_w=bits[8:11].copy(),
         mocap_q_wb=bits[11:15].copy(), has_state=bool(rng.integers(0, 2)), state=bits[15:36].copy(),
         rotor_hz=bits[36 : 36 + n].copy(),
     )  # fmt: skip
 
 
-_FRAME_FIELDS = ("seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
+_FRAME_FIELDS = ("session_id", "seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
                  "has_state", "state", "rotor_hz")  # fmt: skip
 
 
@@ -272,8 +273,10 @@ def test_frame_encoder_writes_rosbags_bytes_of_the_record():
 
     store = typestore()
     rng = np.random.default_rng(13)
-    for n in (4, 8):
-        enc, msgs = FrameEncoder(n), WireMessages(n)
+    for n, session in ((4, 0), (8, 0xFEDCBA9876543211), (8, 1)):
+        enc, msgs = FrameEncoder(n, session_id=session), WireMessages(n)
+        msgs.frame.session_id = session  # the plant's session: set once, not part of the record
+        assert enc.session_id == session
         record = new_frame(n)
         x = flat_view(record)
         for k in range(40):

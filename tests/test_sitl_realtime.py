@@ -77,20 +77,26 @@ def test_killing_the_simulator_loses_the_link_and_stops_the_commands(tmp_path):
 
 @pytest.mark.slow
 def test_killing_the_node_engages_the_simulator_failsafe(tmp_path):
+    """The rotors stop; the run has no metrics (a task's are over its whole protocol), what was flown is kept."""
     with Pair(tmp_path, "hover", ["--seed", "1", "--duration", "6"], lockstep=False) as pair, pair.transport() as t:
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=64)
-        # killed well after the metrics' window opens (SETTLE_S): a kill just before it leaves the window with no
-        # controller row of its own (the last row received stands in for the rest, its time stamp with it), and
-        # the simulator then says the metrics cannot be computed and exits 1, as designed
         flying(pair, t, int(1000 * SETTLE_S) + 500)
         os.kill(pair.node.pid, signal.SIGKILL)
         engaged = wait_until(lambda: (m := status.take()) is not None and m.failsafe == 1, timeout_s=5)
         assert engaged, pair.text("sim")[-2000:]
-        sitl, _ = pair.wait(timeout_s=300, node_ok=False)
+        pair.wait(timeout_s=300, sim_ok=False, node_ok=False)
+        assert pair.sim.returncode == 1, pair.text("sim")[-3000:]
+        sitl = json.loads((pair.out / "hover-sitl.json").read_text())
         truth = np.load(pair.out / "truth.npz")
+        ctl = np.load(pair.out / "controller.npz")
     s = sitl["sitl"]
-    assert s["failsafe"] and 0.5 <= s["failsafe_after_s"] <= 0.5 + 0.05
-    assert "offboard-loss failsafe" in pair.text("sim")
+    assert sitl["metrics"] is None and s["failsafe"] and 0.5 <= s["failsafe_after_s"] <= 0.5 + 0.05
+    err = pair.text("sim")
+    assert "offboard-loss failsafe" in err and "metrics cannot be computed" in err and "Traceback" not in err
+    # the controller log ends with the node's last row (the periods after it said), its time increasing
+    assert s["log_rows_cut"] > 500 and "the controller log ends with the node's last row" in err
+    t_ctl = ctl["t"].ravel()
+    assert t_ctl.size == s["steps"] - s["log_rows_cut"] and np.all(np.diff(t_ctl) > 0)
     rotor = truth["rotor_hz"]
     assert np.all(np.abs(rotor[-100:]) < 1.0)  # the rotors stopped by the end
 

@@ -1102,9 +1102,9 @@ ISSUE26 = (
     ("4", "no code from the working folder, no trust in a peer's word", (), ("test_working_folder.py",), "exp"),
     (
         "5",
-        "only the paired node commands the rotors",
+        "only the paired node commands the rotors, only its plant's frames are followed",
         (),
-        ("test_sitl_fuzz.py", "test_gate.py", "test_sitl_pairing.py", "test_zenoh_auth.py"),
+        ("test_sitl_fuzz.py", "test_gate.py", "test_sitl_pairing.py", "test_fly_node.py", "test_zenoh_auth.py"),
         "wire",
     ),
 )

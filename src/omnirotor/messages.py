@@ -2,6 +2,9 @@
 
 A plant produces a :class:`SensorFrame` every control period and consumes a :class:`RotorCommand`.
 Neither side imports the other: the controller can fly a real robot whose driver fills the same frame.
+Who sent a frame or a command (a session id) and its number travel on the wire beside these types
+(:mod:`omnirotor.rosmsg.convert`, judged by :mod:`omnirotor.sitl.gate`), not in them: they are measurements
+and set-points only.
 Arrays in a message belong to that message (the producer hands over fresh arrays or copies).
 
 Frame records. The same frame is also one NumPy structured record, :func:`frame_dtype` ``(n_rotors)``, whose

@@ -8,6 +8,7 @@ with the summary of its deadline accounting.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import sys
@@ -20,6 +21,7 @@ from omnirotor.cli import app
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
+    PlantSession,
     SessionId,
     ZenohConfig,
     connect_option,
@@ -63,6 +65,7 @@ def fly(
     domain_id: DomainId = 0,
     namespace: Namespace = "",
     session_id: SessionId = None,
+    plant_session: PlantSession = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (interactive flight).")] = "omnirotor",
     config: Annotated[str | None, typer.Option(help="Controller parameters TOML file (interactive flight).")] = None,
     flight: Annotated[str | None, typer.Option(help="Flight parameters TOML file (limits, presets).")] = None,
@@ -88,6 +91,7 @@ def fly(
 
     check_realtime_options(cpu, fifo_priority)
     session = session_id_arg(session_id, "--session-id")
+    plant = session_id_arg(plant_session, "--plant-session")
     factory = _director_factory(flight, list(set_ or ()))
     if maps is not None:
         if mission_from_sim:
@@ -111,13 +115,17 @@ def fly(
     if session is None:
         session = new_session_id()
     say(f"controller session {session:016x} (a plant's --pair-session {session:016x} obeys this node only)")
+    if plant is not None:
+        say(f"following the sensor frames of plant session {plant:016x} only (--plant-session)")
+    else:
+        say("following the first plant session that sends frames (first come; --plant-session pins one)")
+    node_options = NodeOptions(session_id=session, plant_session=plant, **outputs)
     with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
             task, options, lockstep = ask(t, timeout_s=30.0)
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
-            summary = fly_mission(
-                t, task, options, NodeOptions(lockstep=lockstep, session_id=session, **outputs), factory, realtime
-            )
+            node_options = dataclasses.replace(node_options, lockstep=lockstep)
+            summary = fly_mission(t, task, options, node_options, factory, realtime)
         else:
             from omnirotor.control.controller import InteractionController, load_controller_params
             from omnirotor.vehicle import load_vehicle
@@ -128,7 +136,7 @@ def fly(
             wrench_maps = load_wrench_maps(str(maps), n_rotors=veh.n_rotors) if maps is not None else None
             controller = InteractionController(veh, params, wrench_maps)
             warm_up(controller)
-            node = NodeLoop(t, controller, factory(controller, None), NodeOptions(session_id=session, **outputs))
+            node = NodeLoop(t, controller, factory(controller, None), node_options)
             realtime()
             say(f"flight node up; `omnirotor ctl` on {', '.join(listening)}")
             summary = node.run()
@@ -147,6 +155,19 @@ def _print_summary(s: dict) -> None:
         f"worst lateness {s['worst_late_ms']:.2f} ms; frame to command p50 {lat.get('p50', float('nan')):.0f} µs, "
         f"p99 {lat.get('p99', float('nan')):.0f} µs; link lost: {s['link_lost']}"
     )
+    plant, k = s.get("plant_session_id"), s.get("foreign_plant_sessions", 0)
+    print(
+        (f"plant session {plant} ({'pinned' if s.get('plant_session_pinned') else 'first come'})" if plant else
+         "no plant session followed")
+        + f"; frames of other plant sessions refused: {s.get('frames_foreign', 0)} (from {k} session"
+        + ("" if k == 1 else "s") + ")"
+    )  # fmt: skip
+    imu = s.get("plant_imu")
+    if imu and (imu["rate_off_episodes"] or imu["gaps"]):
+        print(
+            f"the plant's IMU: rate off {imu['rate_off_episodes']} time(s), {imu['rate_off_s']:.1f} s in all; "
+            f"{imu['gaps']} gap(s), the worst {imu['worst_gap_ms']:.0f} ms"
+        )
     rec = s.get("recording")
     if rec is not None:
         n = sum(rec.get("messages", {}).values())

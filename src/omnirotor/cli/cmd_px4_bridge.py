@@ -10,6 +10,12 @@ the node's (``--rate-hz``): one line on stderr and exit status 2, before any fra
 the flight, a rate off for longer than a second, and gaps, are said and counted (frames go on). ``--cpu`` and
 ``--fifo-priority`` pin the bridge's threads and ask for ``SCHED_FIFO`` (:func:`omnirotor.realtime.set_realtime`;
 a refusal is said in one line and the bridge runs on at normal priority).
+
+The node's side and PX4's side share one set of connection options (``--connect``, ``--zenoh-config``: one Zenoh
+network) unless ``--px4-connect`` or ``--px4-zenoh-config`` is given: PX4's side then has a session of its own
+with those (a plain one without ``--px4-zenoh-config``), so that the node's side can require a login or mutual TLS
+with access control (examples/zenoh-auth/, examples/zenoh-tls/: ``plant.json5``) that PX4's own Zenoh peer, on its
+link to the flight controller, is not asked for (docs/transport.md, "On a shared network").
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from omnirotor.cli import app
 from omnirotor.cli.connection_options import (
     DomainId,
     PairSession,
+    PlantSessionId,
     ZenohConfig,
     connect_option,
     listen_option,
@@ -36,7 +43,15 @@ from omnirotor.cli.connection_options import (
 from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
 from omnirotor.errors import InputError
 
-_Connect = connect_option("tcp/127.0.0.1:7448", "the node's and PX4's")
+_Connect = connect_option("tcp/127.0.0.1:7448", "the node's, and PX4's unless --px4-connect or --px4-zenoh-config")
+_Px4Connect = connect_option(what="PX4's Zenoh peer or router, in a session of PX4's side's own")
+_Px4ZenohConfig = Annotated[
+    str | None,
+    typer.Option(
+        help="Zenoh configuration file (JSON5) of PX4's side's own session (its login or TLS, if any); without it "
+        "and without --px4-connect PX4's side shares the node's session options (--zenoh-config)."
+    ),
+]
 _Listen = listen_option()
 _Cpu = cpu_option()
 _FifoPriority = fifo_priority_option("the bridge's threads")
@@ -50,7 +65,10 @@ def px4_bridge(
     domain_id: DomainId = 0,
     namespace: Annotated[str, typer.Option(help="ROS 2 namespace of the node's topics, e.g. /robot1.")] = "",
     px4_namespace: Annotated[str, typer.Option(help="ROS 2 namespace of PX4's topics (its bridge's).")] = "",
+    px4_connect: _Px4Connect = None,
+    px4_zenoh_config: _Px4ZenohConfig = None,
     pair_session: PairSession = None,
+    session_id: PlantSessionId = None,
     vehicle: Annotated[str, typer.Option(help="Vehicle preset or TOML file (rotors, speed limits).")] = "omnirotor",
     command_loss: Annotated[float, typer.Option(help="No command for this long stops the motors [s].")] = 0.5,
     frames: Annotated[
@@ -99,11 +117,12 @@ def px4_bridge(
 
     check_realtime_options(cpu, fifo_priority)
     pinned = session_id_arg(pair_session, "--pair-session")
+    own = session_id_arg(session_id, "--session-id")
 
     def say(line: str) -> None:
         print(f"omnirotor px4-bridge: {line}", file=sys.stderr)
 
-    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned)
+    options = BridgeOptions(command_loss_s=command_loss, pair_session=pinned, session_id=own)
     frame_options = (
         FrameOptions(mocap=mocap, mocap_topic=mocap_topic, rate_hz=rate_hz, esc_timeout_s=esc_timeout)
         if frames
@@ -114,19 +133,28 @@ def px4_bridge(
         raise InputError(f"PX4 drives at most 12 motors, the vehicle has {veh.n_rotors}")
     args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
                           namespace=namespace, default_connect=["tcp/127.0.0.1:7448"])  # fmt: skip
+    if px4_connect or px4_zenoh_config is not None:  # PX4's side in a session of its own (module docstring)
+        px4_args = transport_args(listen=None, connect=px4_connect, zenoh_config=px4_zenoh_config,
+                                  domain_id=domain_id, namespace=px4_namespace)  # fmt: skip
+    elif px4_namespace != namespace:
+        px4_args = {**args, "namespace": px4_namespace, "listen": []}
+    else:
+        px4_args = None  # one session for both sides
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     with contextlib.ExitStack() as stack:
         node = stack.enter_context(open_transport(**args, node="omnirotor_px4_bridge"))
         px4 = node
-        if px4_namespace != namespace:
-            px4 = stack.enter_context(open_transport(**{**args, "namespace": px4_namespace, "listen": []},
-                                                     node="omnirotor_px4_bridge_px4"))  # fmt: skip
+        if px4_args is not None:
+            px4 = stack.enter_context(open_transport(**px4_args, node="omnirotor_px4_bridge_px4"))
         bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
                            say=say, frames=frame_options)  # fmt: skip
         set_realtime(cpu, fifo_priority or None, say)  # after the transport's threads started: they keep theirs
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
         who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"
         say(f"up; {veh.n_rotors} motors, reversible flags {bridge.flags:#x}; {what}; obeying {who}")
+        if frame_options is not None:
+            say(f"plant session {bridge.session_id:016x} (a node's --plant-session {bridge.session_id:016x} follows "
+                "these frames only)")  # fmt: skip
         summary = bridge.run()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if as_json:

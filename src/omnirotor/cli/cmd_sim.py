@@ -3,8 +3,8 @@
 See :mod:`omnirotor.sitl.server` for the topics, the clocks and the failsafe. With ``--task`` the server flies
 that task of ``omnirotor run`` (same options) with the controller of ``omnirotor fly --mission-from-sim`` and
 prints the run's metrics as ``omnirotor run`` does, plus what the wire counted (``sitl``). When the
-offboard-loss failsafe cut a task so that its metrics cannot be computed, it says why on one line and exits 1
-(with ``--json``: the wire's counts and ``"metrics": null``).
+offboard-loss failsafe cut a task, its metrics cannot be computed (they are over the whole protocol): it says why on
+one line and exits 1 (with ``--json``: the wire's counts and ``"metrics": null``; with ``--out``: what was flown).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
     PairSession,
+    PlantSessionId,
     ZenohConfig,
     connect_option,
     listen_option,
@@ -56,6 +57,7 @@ def sim(
     domain_id: DomainId = 0,
     namespace: Namespace = "",
     pair_session: PairSession = None,
+    session_id: PlantSessionId = None,
     ros_views: Annotated[
         bool, typer.Option(help="Also publish sensor_msgs/Imu, PoseStamped and RotorSpeeds every period.")
     ] = True,
@@ -94,6 +96,11 @@ def sim(
 
     outputs = output_options(record, foxglove, foxglove_port)
     outputs["pair_session"] = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
+    outputs["session_id"] = session_id_arg(session_id, "--session-id")
+    if outputs["session_id"] is None:
+        from omnirotor.sitl.gate import new_session_id
+
+        outputs["session_id"] = new_session_id()
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
                     ros_views, offboard_loss, cpu, fifo_priority, outputs)  # fmt: skip
@@ -125,7 +132,7 @@ def sim(
     with open_transport(**args, node="omnirotor_sim") as t:
         note(f"serving {task} on {', '.join(endpoints)} ({'lockstep' if lockstep else 'real time'}); waiting for "
              "`omnirotor fly --mission-from-sim`")  # fmt: skip
-        _say_pairing(serve_opts.pair_session)
+        _say_pairing(serve_opts.pair_session, serve_opts.session_id)
         from omnirotor.realtime import set_realtime
 
         if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
@@ -133,28 +140,27 @@ def sim(
         set_realtime(cpu, None if lockstep else (fifo_priority or None), note)
         result, report = _serve(t, task, options, serve_opts)
     if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
+        _say_missing_rows(report)
         _say_recording(report.recording)
         note(
             f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a "
             f"command; the task's metrics cannot be computed from the part flown ({report.metrics_error})"
         )
+        cut = {"task": task, "metrics": None, "sitl": report.as_dict()}
+        if out is not None and report.flown is not None:  # what was flown is kept, as a run's would be
+            _write_run(out, task, cut, *report.flown)
+            note(f"what was flown: {out / 'truth.npz'} and {out / 'controller.npz'}")
         if as_json:
-            print(dumps_json({"task": task, "metrics": None, "sitl": report.as_dict()}))
+            print(dumps_json(cut))
         raise typer.Exit(1)
     rep = result.summary()
     rep["sitl"] = report.as_dict()
-    if report.log_rows_missing:
-        note(f"{report.log_rows_missing} controller log rows did not arrive; the previous row stands in for each")
+    _say_missing_rows(report)
     _say_recording(report.recording)
     if report.failsafe:
         note(f"the offboard-loss failsafe stopped the rotors after {report.failsafe_after_s:.3f} s without a command")
     if out is not None:
-        from omnirotor.safe_io import make_dir, write_json_atomic
-
-        make_dir(out, "--out")
-        write_json_atomic(out / f"{task}-sitl.json", rep)
-        result.truth_log.to_npz(out / "truth.npz")
-        result.controller_log.to_npz(out / "controller.npz")
+        _write_run(out, task, rep, result.controller_log, result.truth_log)
     if as_json:
         print(dumps_json(rep))
         return
@@ -166,8 +172,9 @@ def sim(
     )
 
 
-def _say_pairing(pinned: int | None) -> None:
-    """Whom the plant obeys, said at its start."""
+def _say_pairing(pinned: int | None, own: int) -> None:
+    """The plant's own session and whom it obeys, said at its start."""
+    note(f"plant session {own:016x} (a node's --plant-session {own:016x} follows this plant only)")
     if pinned is not None:
         note(f"obeying the rotor commands of controller session {pinned:016x} only (--pair-session)")
     else:
@@ -211,7 +218,7 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         set_realtime(cpu, fifo_priority or None, note)
         note(f"serving the {scene} scene on {', '.join(endpoints)}, the vehicle on its stand until `omnirotor fly` "
              "takes off (`omnirotor ctl arm`, `takeoff`); Ctrl-C ends")  # fmt: skip
-        _say_pairing(serve_opts.pair_session)
+        _say_pairing(serve_opts.pair_session, serve_opts.session_id)
         report = serve_free(t, sim, serve_opts)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the summary short
     print(
@@ -220,6 +227,27 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
         + (f"; offboard-loss failsafe after {report.failsafe_after_s:.3f} s" if report.failsafe else "")
     )
     _say_recording(report.recording)
+
+
+def _write_run(out: Path, task: str, rep: dict, controller_log, truth_log) -> None:
+    """The run's JSON and its two logs into ``out``."""
+    from omnirotor.safe_io import make_dir, write_json_atomic
+
+    make_dir(out, "--out")
+    write_json_atomic(out / f"{task}-sitl.json", rep)
+    truth_log.to_npz(out / "truth.npz")
+    controller_log.to_npz(out / "controller.npz")
+
+
+def _say_missing_rows(report) -> None:
+    """The node's controller-log rows that did not arrive: stood in, or past the log's end (after a failsafe)."""
+    missing, cut = report.log_rows_missing, report.log_rows_cut
+    if missing > cut:
+        note(f"{missing - cut} controller log rows did not arrive; the previous row stands in for each, at its own "
+             "period's time")  # fmt: skip
+    if cut:
+        note(f"the controller log ends with the node's last row: the {cut} periods after it (the failsafe cut the "
+             "run) have no controller row")  # fmt: skip
 
 
 def _say_recording(rec: dict) -> None:

@@ -3,8 +3,9 @@
 Each command declares ``--listen``, ``--connect``, ``--zenoh-config``, ``--domain-id`` and ``--namespace`` with
 these types (its own default endpoints named in their help) and opens its session with the keyword arguments of
 :func:`transport_args` (docs/transport.md). ``omnirotor ctl`` has its own (a client: connect only, a timeout).
-The pairing options (:mod:`omnirotor.sitl.gate`): the node's ``--session-id`` and the plants' ``--pair-session``,
-read by :func:`session_id_arg`.
+The pairing options (:mod:`omnirotor.sitl.gate`), both ways, read by :func:`session_id_arg`: the node's
+``--session-id`` (its commands) and ``--plant-session`` (the frames it follows); the plants' ``--session-id``
+(their frames) and ``--pair-session`` (the commands they obey).
 """
 
 from __future__ import annotations
@@ -50,6 +51,24 @@ SessionId = Annotated[
         metavar="HEX",
         help="The controller session id of this node's rotor commands (hex, as printed at its start); default: "
         "random. Give the same to the plant's --pair-session.",
+    ),
+]
+PlantSessionId = Annotated[
+    str | None,
+    typer.Option(
+        "--session-id",
+        metavar="HEX",
+        help="This plant's session id, carried by every sensor frame (hex, printed at its start); default: random. "
+        "Give the same to the node's --plant-session.",
+    ),
+]
+PlantSession = Annotated[
+    str | None,
+    typer.Option(
+        metavar="HEX",
+        help="Follow the sensor frames of this plant session only (hex, as `omnirotor sim --serve` or `omnirotor "
+        "px4-bridge` prints it, or its --session-id), from the first frame on. Default: the first plant that sends "
+        "frames is followed (first come: a foreign publisher that starts first is followed).",
     ),
 ]
 PairSession = Annotated[

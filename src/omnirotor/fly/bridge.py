@@ -67,8 +67,10 @@ the last ``rate_window_s`` of samples, judged ten times a window): a rate off th
 window is said once and its recovery once more, and gaps (no sample arriving for ``gap_s``, 20 ms) are counted
 with the worst; both in the summary (``imu_watch``) and, once a second, on ``/diagnostics`` in the node's namespace
 (``diagnostic_msgs/msg/DiagnosticArray``, ROS's standard: WARN while the rate is off or after a gap, STALE when
-no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`). The frames go on meanwhile: the controller integrates the
-real intervals between frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
+no sample came for 0.5 s; :meth:`Px4FrameSource.diagnostics`); the counts also go with every ``SimStatus``
+(``imu_rate_off_episodes``, ``imu_rate_off_s``, ``imu_gaps``, ``imu_worst_gap_s``), which the node reads, says and
+puts in its summary and recording. The frames go on meanwhile: the controller integrates the real intervals between
+frames, and the node's stale-IMU failsafe is the safety action on a starving IMU. Values
 are passed as they are (NaN included: the node's supervision judges them); malformed payloads on any of these
 topics are counted (``bad_payloads`` in the summary), never raised.
 """
@@ -111,7 +113,7 @@ from omnirotor.rosmsg.convert import (
     command_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import CommandGate
+from omnirotor.sitl.gate import CommandGate, new_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport, ros_topic
 
@@ -172,6 +174,8 @@ class BridgeOptions:
         status_hz: plant status rate [Hz].
         pair_session: obey this controller session only, from the first command (``--pair-session``,
             :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
+        session_id: the plant session its frames carry (``--session-id``; a node's ``--plant-session`` follows
+            this bridge only); None: random.
     """
 
     command_loss_s: float = 0.5
@@ -179,6 +183,7 @@ class BridgeOptions:
     lead_s: float = 1.0
     status_hz: float = 20.0
     pair_session: int | None = None
+    session_id: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("command_loss_s", "heartbeat_hz", "lead_s", "status_hz"):
@@ -520,10 +525,11 @@ class Px4FrameSource:
         n_rotors: the vehicle's rotors.
         options: the frame options.
         say: where one-line notices go.
+        session_id: the plant session every frame carries (:mod:`omnirotor.sitl.gate`).
     """
 
     def __init__(self, node: Transport, px4: Transport, n_rotors: int, options: FrameOptions,
-                 say: Callable[[str], None]) -> None:  # fmt: skip
+                 say: Callable[[str], None], session_id: int) -> None:  # fmt: skip
         self.options = o = options
         self._say = say
         self.assembler = FrameAssembler(n_rotors, o.esc_timeout_s)
@@ -534,7 +540,7 @@ class Px4FrameSource:
         else:
             self._mocap = node.subscriber(o.mocap_topic, POSE, depth=64)
         self._pub = node.publisher(TOPICS["frame"], FRAME)
-        self._encoder = FrameEncoder(n_rotors)
+        self._encoder = FrameEncoder(n_rotors, session_id=session_id)
         self._clock = _ClockOffset(o.clock_window_s)
         self.imu_where = ros_topic(px4.namespace, PX4_TOPICS["sensor_combined"])
         self.esc_where = ros_topic(px4.namespace, PX4_TOPICS["esc_status"])
@@ -755,6 +761,7 @@ class Px4Bridge:
         self._pub = {k: px4.publisher(PX4_TOPICS[k], _PX4_TYPES[k]) for k in _PX4_TYPES if k not in _PX4_OUT}
         self._vstatus = px4.subscriber(PX4_TOPICS["vehicle_status"], _PX4_TYPES["vehicle_status"], depth=4)
         self.gate = CommandGate("omnirotor px4-bridge", pinned=o.pair_session)
+        self.session_id = o.session_id if o.session_id is not None else new_session_id()
         self.offboard = Px4Offboard(heartbeat_hz=o.heartbeat_hz, lead_s=o.lead_s)
         self.armed = False  # the node's state, from its last obeyed command
         self.controls = np.full(NUM_CONTROLS, np.nan)
@@ -769,10 +776,13 @@ class Px4Bridge:
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, steps=0, lockstep=False, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
-            finished=False,
+            finished=False, plant_session_id=0 if frames is None else self.session_id,  # no frames: not the plant's
+            imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
         )  # fmt: skip
         self._status_next = 0.0
-        self.frames = None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say)
+        self.frames = (
+            None if frames is None else Px4FrameSource(node, px4, n_rotors, frames, self._say, self.session_id)
+        )
         self._pub_diag = None if frames is None else node.publisher(DIAGNOSTICS_TOPIC, DIAGNOSTIC_ARRAY)
         self._diag_next = 0.0
 
@@ -860,6 +870,10 @@ class Px4Bridge:
         s.foreign_sessions = self.gate.foreign_sessions
         s.bad_payloads = self._cmd.n_bad
         s.command_age_s = now - self.cmd_wall_s
+        if self.frames is not None:  # PX4's IMU as the frame thread's watch sees it (plain numbers: no lock needed)
+            w = self.frames.watch
+            s.imu_rate_off_episodes, s.imu_rate_off_s = w.episodes, w.off_s
+            s.imu_gaps, s.imu_worst_gap_s = w.gaps, w.worst_gap_s
         self._pub_status.put(s)
 
     def run(self, stop: threading.Event | None = None) -> dict:
@@ -901,6 +915,7 @@ class Px4Bridge:
         """What the bridge counted."""
         return {
             "paired_session_id": f"{self.gate.paired:016x}",
+            "plant_session_id": f"{self.session_id:016x}" if self.frames is not None else None,
             "commands_obeyed": self.gate.obeyed,
             "commands_refused": self.gate.refused,
             "foreign_sessions": self.gate.foreign_sessions,

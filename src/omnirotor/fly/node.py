@@ -22,8 +22,9 @@ Real time (the default): between frames the loop sleeps in the transport's queue
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
 is frozen and disabled in the loop; the loop's thread asks for CPU affinity and ``SCHED_FIFO`` (said on stderr where
 the OS refuses; both in :mod:`omnirotor.realtime`). A period with no frame calls the director with the growing link
-ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the
-director told (``frames_stopped``), and no command is published until frames come back. Deadline accounting: a
+ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost* (unless the plant's status, read then,
+says its mission ended): said on stderr and in the status, the director told (``frames_stopped``), and no command
+is published until frames come back. Deadline accounting: a
 period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the
 wire, when its frame came that much later than one period after the previous one, or when its frame was missed; an
 *overrun* is a period whose work took longer than the period. Counts, the worst lateness and the frame-to-command
@@ -32,12 +33,21 @@ percentiles are in ``LoopStatus`` and in the summary on exit.
 Lockstep (``lockstep=True``, for ``omnirotor sim --serve --lockstep``): the loop answers every frame as soon as
 it arrives, with no pacing; link ages are in the frames' own time, and the link is lost after 5 s.
 
-A frame whose number is not above the last one followed, or more than :data:`MAX_FRAME_JUMP` above it, is
-counted bad and dropped (a replay, a forged or corrupted number that would otherwise lock the real frames out);
-after a link loss any number is followed again. The one exception is the plant's start frame (number 0), which
-the simulator repeats every 10 ms until it has obeyed a command answering it: repeated, it is answered again
-with the same command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a
-busy machine is not a link loss.
+Which frames are followed (:class:`omnirotor.sitl.gate.FrameGate`, the plant's command gate's rule in the other
+direction): those of one plant session (``SensorFrame.session_id``, random per plant process, printed at its
+start). Pinned (``plant_session``, ``omnirotor fly --plant-session HEX``), only that session's, from the very first
+frame; first come, the session of the first well-formed frame. A frame of another session is refused, counted
+(``frames_foreign``, not in ``frames_bad``) and said once per session, never followed; a frame without a session
+(0) is counted bad and said once. Of the followed session, a frame whose number is not above the last one
+followed, or more than :data:`MAX_FRAME_JUMP` above it, is counted bad and dropped (a replay, a forged or
+corrupted number that would otherwise lock the real frames out). After a link loss the followed session's next
+frame is followed whatever its number (the plant may have restarted its count); a pinned session is kept, and a
+first-come one is released only while the link is lost *and* the director is disarmed (on the ground, or stopped
+by the link-loss failsafe): then the first plant to send frames is followed again, and said, but never a second
+plant in flight. The one exception to the numbers is the plant's start frame (number 0), which the simulator
+repeats every 10 ms until it has obeyed a command answering it: repeated, it is answered again with the same
+command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a busy machine
+is not a link loss.
 
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
@@ -77,7 +87,7 @@ from omnirotor.rosmsg.convert import (
     frame_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import new_session_id
+from omnirotor.sitl.gate import MAX_SEQ_JUMP, FrameGate, new_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
 
@@ -93,7 +103,7 @@ __all__ = [
 
 _LATENCY_WINDOW = 1 << 17
 _RECENT = 1000
-MAX_FRAME_JUMP = 1000
+MAX_FRAME_JUMP = MAX_SEQ_JUMP
 """The largest step of the frame number the loop follows (a second of frames); larger ones count as bad."""
 _FRAME_DEPTH = 32
 _ROW_BATCH = 20
@@ -127,6 +137,9 @@ class NodeOptions:
             default leaves 0.3 ms for the sleep's own overshoot (about 0.1 ms here) and the frame's jitter.
         session_id: the controller session id its rotor commands carry (``omnirotor fly --session-id``; a plant
             pinned to it with ``--pair-session`` obeys this node only: :mod:`omnirotor.sitl.gate`); None: random.
+        plant_session: follow the frames of this plant session only (``omnirotor fly --plant-session``, the id
+            the plant prints at its start or was given with its ``--session-id``); None: the first come (module
+            docstring).
     """
 
     period_s: float = 0.001
@@ -143,6 +156,7 @@ class NodeOptions:
     foxglove_port: int | None = None
     frame_guard_s: float = 0.0003
     session_id: int | None = None
+    plant_session: int | None = None
 
 
 class LoopStats:
@@ -274,12 +288,19 @@ class NodeLoop:
         self.stats = LoopStats(o.late_threshold_s)
         self._codec = FrameCodec(n)
         shape_ok = frame_check(n)
+        self.plant_gate = gate = FrameGate(o.plant_session, say=self._say)
+        self.frames_unsigned = 0
+        """Well-formed frames without a plant session (``session_id`` 0), refused (counted in ``frames_bad``)."""
 
-        def frame_ok(msg) -> bool:  # the right shape and a number this loop follows (module docstring)
-            last = self._last_seq
-            if last == 0 and msg.seq == 0 and shape_ok(msg):  # the plant repeats its start frame: answer again
-                return True
-            return shape_ok(msg) and (last < 0 or self.link_lost or 0 < msg.seq - last <= MAX_FRAME_JUMP)
+        def frame_ok(msg) -> bool:  # the right shape, the followed plant and a number it follows (module docstring)
+            if not shape_ok(msg):
+                return False
+            if msg.session_id == 0:
+                self.frames_unsigned += 1
+                if self.frames_unsigned == 1:
+                    self._say("refused sensor frames without a plant session (session_id 0): a plant fills it")
+                return False
+            return gate.admits(msg.session_id, msg.seq)
 
         self._frames = transport.subscriber(
             TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok, decoder=FrameWire(n).decode
@@ -310,6 +331,7 @@ class NodeLoop:
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
             t=0.0, periods=0, periods_late=0, late_threshold_s=o.late_threshold_s, overruns=0, worst_late_s=0.0,
             frame_to_command_p99_s=0.0, frames=0, frames_bad=0, link_lost=False, session_id=self.session_id,
+            plant_session_id=0, frames_foreign=0, foreign_plant_sessions=0,
         )  # fmt: skip
         self._zeros = np.zeros(n)
         self._cmd_wire = CommandWire(n)
@@ -323,6 +345,9 @@ class NodeLoop:
         self.link_lost = False
         self._plant_failsafe = False
         self._plant_paired_other = 0  # another session the plant said it obeys (said once per session)
+        self._plant_said_other = 0  # another plant session the plant's status named (said once per session)
+        self.plant_imu: dict | None = None
+        """The plant's watch of its IMU, from its newest ``SimStatus`` (None: no status heard); in the summary."""
         self.link_lost_age_s = math.nan
         self.finished = False
         self._finish_seq = math.inf
@@ -386,8 +411,10 @@ class NodeLoop:
         m.worst_late_s = s.worst_late_s
         m.frame_to_command_p99_s = s.recent_p99_s()
         m.frames = s.frames
-        m.frames_bad = self._frames.n_bad
+        g = self.plant_gate
+        m.frames_bad = self._frames.n_bad - g.refused_foreign
         m.link_lost = self.link_lost
+        m.plant_session_id, m.frames_foreign, m.foreign_plant_sessions = g.paired, g.refused_foreign, g.foreign_sessions
         self._pub_loop.put(m)
         if self._pub_status is not None:
             try:
@@ -456,7 +483,9 @@ class NodeLoop:
         row = log.data[log.n - 1] if cmd is not None and log.n else None
         try:
             if self.recorder is not None:
-                self.recorder.period(frame, hz, int(cmd.status) if cmd is not None else 0, row)
+                self.recorder.period(
+                    frame, hz, int(cmd.status) if cmd is not None else 0, row, plant_session=self.plant_gate.paired
+                )
             if self.live is not None:
                 self.live.node_period(frame, hz, row)
         except Exception:  # noqa: BLE001  (a recording or view that fails never ends the flight: counted)
@@ -536,7 +565,7 @@ class NodeLoop:
                     if self.link_lost and o.exit_on_link_loss:
                         break
                     continue
-                if msg.seq == 0 and last_seq == 0:
+                if msg.seq == 0 and self.plant_gate.start_repeated:
                     # the plant's start frame again: our answer has not reached it yet (it repeats the frame
                     # every 10 ms until it obeys one); the same answer again, nothing stepped, the link alive
                     self._republish_command(msg.t)
@@ -556,6 +585,7 @@ class NodeLoop:
                 if not o.lockstep and math.isfinite(last_arrival):
                     arrival_late = max(0.0, arrival - last_arrival - period)
                 last_seq = self._last_seq = int(msg.seq)
+                self.plant_gate.follow(last_seq)
                 stats.frames += 1
                 frame = self._codec.decode(msg)
                 self.last_t = frame.t
@@ -612,13 +642,19 @@ class NodeLoop:
         out.update(self.close_outputs())
         out["cpu_per_frame_us"] = 1e6 * (time.process_time() - cpu0) / max(stats.frames, 1)
         out["loop_cpu_per_frame_us"] = 1e6 * (time.thread_time() - thread0) / max(stats.frames, 1)
-        out["frames_bad"] = self._frames.n_bad
+        g = self.plant_gate
+        out["frames_bad"] = self._frames.n_bad - g.refused_foreign
+        out["frames_foreign"] = g.refused_foreign
+        out["foreign_plant_sessions"] = g.foreign_sessions
+        out["plant_session_id"] = f"{g.paired:016x}" if g.paired else None
+        out["plant_session_pinned"] = g.pinned is not None
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
         out["start_frame_answered_again"] = self.start_answers
         out["mocap_carried"] = self.mocap_carried
         out["session_id"] = f"{self.session_id:016x}"
+        out["plant_imu"] = self.plant_imu
         return out
 
     def _idle(self, now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call) -> bool:
@@ -627,15 +663,26 @@ class NodeLoop:
         Returns:
             True when the director was called for a period without a frame.
         """
-        if last_frame is None or self.link_lost:
+        if self.link_lost:
+            self._release_plant()
+            return False
+        if last_frame is None:
             return False
         age = now - last_seen
+        if age > loss_s and self.options.log_rows:
+            # a mission's plant stops its frames when its run ends and says so in its status, which the loop reads
+            # only at the status rate: read it now, so that the end is not taken for a lost link
+            self._poll_sim_status()
+            if self.finished:
+                return False
         if age > loss_s:
             self.link_lost = True
             self.link_lost_age_s = age
             self.stats.link_losses += 1
             self._say(f"link lost: no sensor frame for {1000 * age:.1f} ms; rotor commands stopped")
             self._call_director(last_frame, LinkAges(age, math.inf, True))
+            self.plant_gate.renumber()  # the followed plant's next frame, whatever its number (module docstring)
+            self._release_plant()
             self._publish_status()
             return False
         if not self.options.lockstep and now >= next_gap_call:
@@ -643,6 +690,17 @@ class NodeLoop:
             self._call_director(last_frame, LinkAges(age, mocap_age, False))
             return True
         return False
+
+    def _release_plant(self) -> None:
+        """The link is lost: a first-come plant session is released once the director is disarmed (docstring)."""
+        g = self.plant_gate
+        if g.pinned is not None or g.paired == 0 or getattr(self.director, "armed", False):
+            return
+        self._say(
+            f"plant session {g.paired:016x} released (link lost, disarmed): the next plant to send frames is "
+            "followed (first come; --plant-session pins one)"
+        )
+        g.release()
 
     def _call_director(self, frame: SensorFrame, ages) -> None:
         try:
@@ -674,10 +732,40 @@ class NodeLoop:
                 f"the plant obeys controller session {other:016x}, not this node's {self.session_id:016x}: its "
                 f"commands are refused (pin the plant to this node: --pair-session {self.session_id:016x})"
             )
+        g = self.plant_gate
+        own = int(msg.plant_session_id) if msg is not None else 0
+        if own not in (0, g.paired, self._plant_said_other) and g.paired != 0:
+            # the plant on the status key sends as another session than the one followed (first come: a foreign
+            # publisher's frames came first; pinned: the wrong id was given)
+            self._plant_said_other = own
+            self._say(
+                f"the plant's status names plant session {own:016x}, not the followed {g.paired:016x}: its frames "
+                f"are refused (follow it: --plant-session {own:016x})"
+            )
+        if msg is not None:
+            self._plant_imu_status(msg)
         if msg is not None and msg.finished and self.options.log_rows:
             self._finish_seq = int(msg.steps)  # its last frame's number: answered before the loop ends
         if self._last_seq >= self._finish_seq:
             self.finished = True
+
+    def _plant_imu_status(self, msg) -> None:
+        """The plant's IMU counts (a robot bridge's watch of PX4's IMU; 0 from the simulator): kept, news said."""
+        was = self.plant_imu
+        now = self.plant_imu = {
+            "rate_off_episodes": int(msg.imu_rate_off_episodes),
+            "rate_off_s": float(msg.imu_rate_off_s),
+            "gaps": int(msg.imu_gaps),
+            "worst_gap_ms": 1000.0 * float(msg.imu_worst_gap_s),
+        }
+        if now["rate_off_episodes"] > (was["rate_off_episodes"] if was else 0):
+            self._say(f"the plant says its IMU rate is off the control rate ({now['rate_off_episodes']} time(s), "
+                      f"{now['rate_off_s']:.1f} s in all): the controller integrates the real intervals")  # fmt: skip
+        if now["gaps"] and not (was and was["gaps"]):
+            self._say(f"the plant says its IMU stream paused (worst {now['worst_gap_ms']:.0f} ms so far); gaps are "
+                      "counted in the summary (plant_imu)")  # fmt: skip
+        if self.recorder is not None:
+            self.recorder.plant_status(msg, self.last_t)
 
 
 def _has_mocap(msg) -> bool:

@@ -21,6 +21,8 @@ topic                    type                                   what
 /omnirotor/desired       geometry_msgs/msg/PoseStamped          the desired EE reference
 /omnirotor/wrench_est    geometry_msgs/msg/WrenchStamped        the observer's estimate, force and moment in W
 /omnirotor/status        omnirotor_msgs/msg/FlightStatus        the director's status (as often as given)
+/omnirotor/sim_status    omnirotor_msgs/msg/SimStatus           the plant's status as the node heard it (about
+                                                                50 Hz: failsafe, pairing, its IMU watch's counts)
 ======================== ====================================== ==============================================
 
 The estimate, references and wrench (at 100 Hz by default: ``derived_every``) come from the controller's log
@@ -55,6 +57,7 @@ TOPICS = {
     "/omnirotor/desired": "geometry_msgs/msg/PoseStamped",
     "/omnirotor/wrench_est": "geometry_msgs/msg/WrenchStamped",
     "/omnirotor/status": "omnirotor_msgs/msg/FlightStatus",
+    "/omnirotor/sim_status": "omnirotor_msgs/msg/SimStatus",
 }
 """The recorded topics and their types (module docstring)."""
 
@@ -70,6 +73,7 @@ def record_dtype(n_rotors: int, n_log: int) -> np.dtype:
     return np.dtype(
         [
             ("seq", np.int64),  # period counter (the row's index + 1)
+            ("plant_session", np.uint64),  # the session of the plant that sent the frame (SensorFrame.session_id)
             ("t", _F8),  # frame time [s]
             ("acc_B", _F8, 3),  # [m/s²]
             ("gyro_B", _F8, 3),  # [rad/s]
@@ -164,8 +168,11 @@ class FlightRecorder:
         self._proc.start()
         self._closed = False
 
-    def period(self, frame: SensorFrame, cmd_hz: np.ndarray, control_status: int = 0, log_row=None, *, block=False):
+    def period(self, frame: SensorFrame, cmd_hz: np.ndarray, control_status: int = 0, log_row=None, *, block=False,
+               plant_session: int = 0):  # fmt: skip
         """Copy one period into the ring: the frame, the speeds sent, and the controller's log row (or None).
+
+        ``plant_session`` is the session of the plant that sent the frame (the recorded frame's ``session_id``).
 
         Never blocks unless ``block`` (offline replays): a full ring drops the row (:attr:`dropped`).
 
@@ -182,6 +189,7 @@ class FlightRecorder:
         f = self._fields  # one view per field of the ring: an indexed store each, no record object
         self._seq += 1
         f["seq"][i] = self._seq
+        f["plant_session"][i] = plant_session
         f["t"][i] = frame.t
         f["acc_B"][i] = frame.imu_acc_B
         f["gyro_B"][i] = frame.imu_gyro_B
@@ -207,6 +215,18 @@ class FlightRecorder:
         """Record a :class:`~omnirotor.fly.requests.FlightStatus` (about 50 Hz; dropped if the writer lags)."""
         try:
             self._status.put_nowait(status)
+        except queue.Full:
+            self.dropped += 1
+
+    def plant_status(self, msg, t: float) -> None:
+        """Record the plant's ``SimStatus`` as heard, at the node's frame time ``t`` [s]; dropped if the writer lags.
+
+        The node's frame time is the bag's one clock (a robot bridge stamps its status on its own host's clock).
+        """
+        from omnirotor.rosmsg import typestore
+
+        try:
+            self._status.put_nowait((t, bytes(typestore().serialize_cdr(msg, TOPICS["/omnirotor/sim_status"]))))
         except queue.Full:
             self.dropped += 1
 
@@ -291,7 +311,10 @@ def _writer_main(
         conns = {topic: writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in TOPICS.items()}
 
         def put(topic: str, t: float, msg) -> None:
-            writer.write(conns[topic], max(0, int(round(t * 1e9))), store.serialize_cdr(msg, TOPICS[topic]))
+            put_raw(topic, t, store.serialize_cdr(msg, TOPICS[topic]))
+
+        def put_raw(topic: str, t: float, raw: bytes) -> None:
+            writer.write(conns[topic], max(0, int(round(t * 1e9))), raw)
             counts[topic] += 1
 
         def header(t: float, frame_id: str):
@@ -317,7 +340,7 @@ def _writer_main(
         while True:
             h = published()
             if taken == h:
-                _drain_status(status_q, put)
+                _drain_status(status_q, put, put_raw)
                 if stop.is_set() and published() == taken:
                     break
                 time.sleep(0.002)
@@ -329,9 +352,10 @@ def _writer_main(
                 t = float(r["t"])
                 seq = int(r["seq"])
                 put("/omnirotor/frame", t, T["omnirotor_msgs/msg/SensorFrame"](
-                    header=header(t, "base_link"), seq=seq, t=t, imu_acc_b=r["acc_B"], imu_gyro_b=r["gyro_B"],
-                    mocap_new=bool(r["mocap_new"]), mocap_t=float(r["mocap_t"]), mocap_p_w=r["mocap_p_W"],
-                    mocap_q_wb=r["mocap_q_WB"], has_state=False, state=zeros21, rotor_hz=r["rotor_hz"],
+                    header=header(t, "base_link"), session_id=int(r["plant_session"]), seq=seq, t=t,
+                    imu_acc_b=r["acc_B"], imu_gyro_b=r["gyro_B"], mocap_new=bool(r["mocap_new"]),
+                    mocap_t=float(r["mocap_t"]), mocap_p_w=r["mocap_p_W"], mocap_q_wb=r["mocap_q_WB"], has_state=False,
+                    state=zeros21, rotor_hz=r["rotor_hz"],
                 ))  # fmt: skip
                 put("/omnirotor/rotor_cmd", t, T["omnirotor_msgs/msg/RotorCommand"](
                     header=header(t, "base_link"), t=t, hz=r["cmd_hz"], control_status=int(r["control_status"]),
@@ -351,7 +375,7 @@ def _writer_main(
                                 torque=T["geometry_msgs/msg/Vector3"](x=m_W[0], y=m_W[1], z=m_W[2]),
                             ),
                         ))  # fmt: skip
-            _drain_status(status_q, put)
+            _drain_status(status_q, put, put_raw)
         writer.close()
         result_q.put({"messages": counts, "rows": taken, "path": path})
     except Exception as exc:  # noqa: BLE001  (the reason goes back to the node, which says it)
@@ -360,12 +384,16 @@ def _writer_main(
         shm.close()
 
 
-def _drain_status(status_q, put) -> None:
+def _drain_status(status_q, put, put_raw) -> None:
     while True:
         try:
             st = status_q.get_nowait()
         except (queue.Empty, OSError, EOFError):
             return
+        if isinstance(st, tuple):  # the plant's SimStatus, serialised as heard (FlightRecorder.plant_status)
+            t, raw = st
+            put_raw("/omnirotor/sim_status", t if math.isfinite(t) else 0.0, raw)
+            continue
         t = st.t if math.isfinite(st.t) else 0.0
         put("/omnirotor/status", t, st.to_msg())
 
@@ -380,6 +408,7 @@ class Recording:
     Attributes:
         counts: messages per topic.
         t: (N,) frame times [s].
+        plant_session: (N,) the session of the plant that sent each frame (uint64).
         mocap_new: (N,) motion capture arrived in the period.
         rotor_hz: (N, n) measured speeds [Hz].
         cmd_hz: (N, n) speeds sent [Hz].
@@ -387,10 +416,12 @@ class Recording:
         pose_t, p_W: (M,) times [s] and (M, 3) positions [m] of the state estimate.
         f_ext_W: (M, 3) estimated external force [N], world frame.
         status: the FlightStatus messages, in order.
+        plant_status: the plant's SimStatus messages as the node heard them (rosbags objects), in order.
     """
 
     counts: dict[str, int]
     t: np.ndarray
+    plant_session: np.ndarray
     mocap_new: np.ndarray
     rotor_hz: np.ndarray
     cmd_hz: np.ndarray
@@ -399,6 +430,7 @@ class Recording:
     p_W: np.ndarray
     f_ext_W: np.ndarray
     status: list
+    plant_status: list = dataclasses.field(default_factory=list)
 
 
 def read_recording(path: str | Path) -> Recording:
@@ -412,7 +444,8 @@ def read_recording(path: str | Path) -> Recording:
     from omnirotor.fly.requests import FlightStatus
     from omnirotor.rosmsg import typestore
 
-    cols: dict[str, list] = {k: [] for k in ("t", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status")}
+    names = ("t", "session", "mocap", "rotor", "cmd", "cs", "pose_t", "p", "f", "status", "plant")
+    cols: dict[str, list] = {k: [] for k in names}
     try:
         with AnyReader([Path(path)], default_typestore=typestore()) as reader:
             counts = {c.topic: c.msgcount for c in reader.connections}
@@ -420,6 +453,7 @@ def read_recording(path: str | Path) -> Recording:
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == "/omnirotor/frame":
                     cols["t"].append(msg.t)
+                    cols["session"].append(msg.session_id)
                     cols["mocap"].append(msg.mocap_new)
                     cols["rotor"].append(np.asarray(msg.rotor_hz))
                 elif conn.topic == "/omnirotor/rotor_cmd":
@@ -435,11 +469,15 @@ def read_recording(path: str | Path) -> Recording:
                     cols["f"].append((f.x, f.y, f.z))
                 elif conn.topic == "/omnirotor/status":
                     cols["status"].append(FlightStatus.from_msg(msg))
+                elif conn.topic == "/omnirotor/sim_status":
+                    cols["plant"].append(msg)
     except Exception as exc:  # noqa: BLE001  (rosbags raises several kinds for a damaged or foreign bag)
         raise InputError(f"{path}: not a readable flight recording ({type(exc).__name__}: {exc})") from None
     return Recording(
-        counts=counts, t=np.array(cols["t"]), mocap_new=np.array(cols["mocap"], dtype=bool),
+        counts=counts, t=np.array(cols["t"]), plant_session=np.array(cols["session"], dtype=np.uint64),
+        mocap_new=np.array(cols["mocap"], dtype=bool),
         rotor_hz=np.array(cols["rotor"]), cmd_hz=np.array(cols["cmd"]), control_status=np.array(cols["cs"]),
         pose_t=np.array(cols["pose_t"]), p_W=np.array(cols["p"]).reshape(-1, 3),
         f_ext_W=np.array(cols["f"]).reshape(-1, 3), status=cols["status"],
+        plant_status=cols["plant"],
     )  # fmt: skip

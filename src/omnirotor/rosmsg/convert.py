@@ -3,7 +3,10 @@
 ``omnirotor_msgs`` and standard types: every number of ``omnirotor_msgs/msg/SensorFrame`` and ``RotorCommand`` is
 float64, so a frame record (:func:`omnirotor.messages.frame_dtype`) sent and received is the same bits (the lockstep
 SITL depends on it). The message's ``state`` is the record's state as 21 numbers: ``p_W, v_W, a_W, R_WB``
-(row-major), ``omega_B``.
+(row-major), ``omega_B``. Beside the measurements, a frame carries who sent it and its number: ``session_id``
+(the plant's session, random per plant process) and ``seq``, as a command carries the node's; both are the wire's,
+judged by the receiver before anything is decoded (:mod:`omnirotor.sitl.gate`), so neither is in the frame record
+(measurements only, every field float64, read by compiled code) nor in :class:`~omnirotor.messages.SensorFrame`.
 
 The ROS views (``sensor_msgs/msg/Imu``, ``geometry_msgs/msg/PoseStamped``, ``RotorSpeeds``,
 ``geometry_msgs/msg/WrenchStamped``) are for ROS 2 tools and listeners; the node reads the frame message.
@@ -123,9 +126,9 @@ class WireMessages:
 
         z3, z4 = np.zeros(3), np.zeros(4)
         self.frame = T[FRAME](
-            header=header(frame_id), seq=0, t=0.0, imu_acc_b=z3.copy(), imu_gyro_b=z3.copy(), mocap_new=False,
-            mocap_t=0.0, mocap_p_w=z3.copy(), mocap_q_wb=z4.copy(), has_state=False, state=np.zeros(_STATE_SIZE),
-            rotor_hz=np.zeros(n_rotors),
+            header=header(frame_id), session_id=0, seq=0, t=0.0, imu_acc_b=z3.copy(), imu_gyro_b=z3.copy(),
+            mocap_new=False, mocap_t=0.0, mocap_p_w=z3.copy(), mocap_q_wb=z4.copy(), has_state=False,
+            state=np.zeros(_STATE_SIZE), rotor_hz=np.zeros(n_rotors),
         )  # fmt: skip
         self.command = T[COMMAND](
             header=header(frame_id), t=0.0, hz=np.zeros(n_rotors), control_status=0, state=0, session_id=0, seq=0,
@@ -153,7 +156,10 @@ class WireMessages:
         )
 
     def fill_frame(self, record: np.ndarray, seq: int) -> object:
-        """The frame message of a ``(1,)`` frame record (:mod:`omnirotor.messages`), exact; returns :attr:`frame`."""
+        """The frame message of a ``(1,)`` frame record (:mod:`omnirotor.messages`), exact; returns :attr:`frame`.
+
+        Its ``session_id`` (the plant's session, not part of the record) is left as the caller set it.
+        """
         if record is not self._record:  # the plant writes the same record every period: its view is kept
             self._record, self._flat = record, flat_view(record)
         x, m = self._flat, self.frame
@@ -301,7 +307,7 @@ class WireFrame:
     payload's bits, the same as rosbags' deserialiser gives (tested).
     """
 
-    __slots__ = ("seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
+    __slots__ = ("session_id", "seq", "t", "imu_acc_b", "imu_gyro_b", "mocap_new", "mocap_t", "mocap_p_w", "mocap_q_wb",
                  "has_state", "state", "rotor_hz")  # fmt: skip
 
 
@@ -317,6 +323,7 @@ class FrameWire:
     def __init__(self, n_rotors: int) -> None:
         self.n = n_rotors
         self._little = np.little_endian
+        self._ids = struct.Struct("<QQ")
 
     def decode(self, payload: bytes) -> WireFrame | None:
         """The frame in ``payload``, or None (not the fast layout: ask rosbags)."""
@@ -326,10 +333,10 @@ class FrameWire:
         length = int.from_bytes(payload[12:16], "little")  # frame_id's, its NUL included (rosbags checks it)
         if length < 1 or 16 + length > size or payload[15 + length] != 0:
             return None
-        a = 4 + _align8(12 + length)  # seq's offset in the payload
+        a = 4 + _align8(12 + length)  # session_id's offset in the payload
         n = self.n
-        end = a + 320 + 8 * n
-        if not end <= size <= end + 3 or int.from_bytes(payload[a + 312 : a + 316], "little") != n:
+        end = a + 328 + 8 * n
+        if not end <= size <= end + 3 or int.from_bytes(payload[a + 320 : a + 324], "little") != n:
             return None
         try:
             payload[16 : 15 + length].decode()
@@ -337,15 +344,15 @@ class FrameWire:
             return None
         f = np.frombuffer(payload, np.float64, (end - a) // 8, a)
         m = WireFrame()
-        m.seq = int.from_bytes(payload[a : a + 8], "little")
-        m.t = float(f[1])
-        m.imu_acc_b, m.imu_gyro_b = f[2:5], f[5:8]
-        m.mocap_new = payload[a + 64] != 0
-        m.mocap_t = float(f[9])
-        m.mocap_p_w, m.mocap_q_wb = f[10:13], f[13:17]
-        m.has_state = payload[a + 136] != 0
-        m.state = f[18:39]
-        m.rotor_hz = f[40:]
+        m.session_id, m.seq = self._ids.unpack_from(payload, a)
+        m.t = float(f[2])
+        m.imu_acc_b, m.imu_gyro_b = f[3:6], f[6:9]
+        m.mocap_new = payload[a + 72] != 0
+        m.mocap_t = float(f[10])
+        m.mocap_p_w, m.mocap_q_wb = f[11:14], f[14:18]
+        m.has_state = payload[a + 144] != 0
+        m.state = f[19:40]
+        m.rotor_hz = f[41:]
         return m
 
 
@@ -355,23 +362,38 @@ class FrameEncoder:
     The payload is rosbags' serialisation of :meth:`WireMessages.fill_frame`'s message (``frame_id``
     ``base_link``), its numbers then overwritten from the record's flat view at their offsets: the same bytes as
     rosbags gives for the same frame (tested), without a message object per period.
+
+    Args:
+        n_rotors: the vehicle's rotors.
+        frame_id: the header's frame.
+        session_id: the plant's session (``SensorFrame.session_id``, written once: :attr:`session_id`).
     """
 
-    def __init__(self, n_rotors: int, frame_id: str = "base_link") -> None:
+    def __init__(self, n_rotors: int, frame_id: str = "base_link", session_id: int = 0) -> None:
         store = typestore()
         body = bytes(store.serialize_cdr(WireMessages(n_rotors, frame_id).frame, FRAME))
         self.buf = bytearray(body)
-        a = 4 + _align8(12 + len(frame_id.encode()) + 1)  # seq's offset
-        if a + 320 + 8 * n_rotors != len(self.buf):
+        a = 4 + _align8(12 + len(frame_id.encode()) + 1)  # session_id's offset
+        if a + 328 + 8 * n_rotors != len(self.buf):
             raise RuntimeError("SensorFrame's CDR layout is not the one FrameEncoder writes")
-        f = np.frombuffer(self.buf, np.float64, 40 + n_rotors, a)
-        self._t, self._imu, self._mocap, self._state, self._hz = f[1:2], f[2:8], f[9:17], f[18:39], f[40:]
-        self._new_at, self._valid_at, self._seq_at = a + 64, a + 136, a
+        f = np.frombuffer(self.buf, np.float64, 41 + n_rotors, a)
+        self._t, self._imu, self._mocap, self._state, self._hz = f[2:3], f[3:9], f[10:18], f[19:40], f[41:]
+        self._new_at, self._valid_at, self._session_at, self._seq_at = a + 72, a + 144, a, a + 8
         order = "<" if np.little_endian else ">"
         self._stamp = struct.Struct(order + "iI")
         self._seq = struct.Struct(order + "Q")
         self._record: np.ndarray | None = None
         self._x = np.zeros(0)
+        self.session_id = session_id
+
+    @property
+    def session_id(self) -> int:
+        """The plant session every payload carries."""
+        return self._seq.unpack_from(self.buf, self._session_at)[0]
+
+    @session_id.setter
+    def session_id(self, value: int) -> None:
+        self._seq.pack_into(self.buf, self._session_at, value)
 
     def encode(self, record: np.ndarray, seq: int) -> bytes:
         """The payload of the ``(1,)`` frame record ``record`` as frame number ``seq`` (as :meth:`fill_frame`)."""

@@ -34,6 +34,7 @@ zeros), and held as zeros; a robot bridge does the same (:mod:`omnirotor.fly.px4
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -66,10 +67,13 @@ from omnirotor.rosmsg.convert import (
     command_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import CommandGate
+from omnirotor.sitl.gate import CommandGate, new_session_id
 from omnirotor.transport import Transport
 
-__all__ = ["ServeOptions", "SimLink", "SitlReport", "serve_task", "serve_free", "TOPICS", "MISSION_OPTION_FIELDS"]
+__all__ = [
+    "ServeOptions", "SimLink", "SitlReport", "serve_task", "serve_free", "stand_in_rows", "TOPICS",
+    "MISSION_OPTION_FIELDS",
+]  # fmt: skip
 
 TOPICS = {
     "frame": "/omnirotor/frame",
@@ -120,6 +124,8 @@ class ServeOptions:
             free one), or None.
         pair_session: obey this controller session only, from the first command (``--pair-session``: pinned
             pairing, :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
+        session_id: this plant's session, carried by every frame (``--session-id``; a node's ``--plant-session``
+            follows this plant only: :mod:`omnirotor.sitl.gate`); None: random.
     """
 
     lockstep: bool = False
@@ -132,6 +138,7 @@ class ServeOptions:
     record: str | None = None
     foxglove_port: int | None = None
     pair_session: int | None = None
+    session_id: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -151,10 +158,15 @@ class SitlReport:
     commands_refused: int = 0
     stop_with_speeds: int = 0
     foreign_sessions: int = 0
+    plant_session_id: str = ""
+    """This plant's session (its frames' ``session_id``, hex): what a node's ``--plant-session`` takes."""
     bad_payloads: int = 0
     failsafe: bool = False
     failsafe_after_s: float | None = None
     log_rows_missing: int = 0
+    """Controller-log rows that never arrived (:func:`stand_in_rows`): stood in, or cut (``log_rows_cut``)."""
+    log_rows_cut: int = 0
+    """Of them, the periods after the node's last row when the failsafe cut the run: the log ends before them."""
     recording: dict = dataclasses.field(default_factory=dict)
     metrics_error: str = ""
     late_steps: int = 0
@@ -162,10 +174,16 @@ class SitlReport:
     real_time_factor: float = 0.0
     round_trip_us: dict = dataclasses.field(default_factory=dict)
     """Frame out -> command in [µs] (p50, p99, max) in lockstep; empty in real time (:func:`_sleep_until`)."""
+    flown: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
+    """``(controller log, truth log)`` of a run the failsafe cut (no task result carries them); not in the JSON."""
 
     def as_dict(self) -> dict:
-        """A JSON-ready dict."""
-        return dataclasses.asdict(self)
+        """A JSON-ready dict (without :attr:`flown`)."""
+        return copy.deepcopy({f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "flown"})
+
+
+class RunCut(Exception):  # noqa: N818  (not an error of the program: the run was cut, said by the caller)
+    """The offboard-loss failsafe cut a task's run: its metrics are over its whole protocol, so there are none."""
 
 
 class SimLink:
@@ -181,7 +199,8 @@ class SimLink:
         self.options = options
         self.n = n_rotors
         self.msgs = WireMessages(n_rotors)
-        self._frame_wire = FrameEncoder(n_rotors)
+        self.session_id = options.session_id if options.session_id is not None else new_session_id()
+        self._frame_wire = FrameEncoder(n_rotors, session_id=self.session_id)
         self._pub_frame = transport.publisher(TOPICS["frame"], FRAME, block=options.lockstep)
         self._views = (
             (transport.publisher(TOPICS["imu"], IMU), transport.publisher(TOPICS["mocap"], POSE),
@@ -208,7 +227,8 @@ class SimLink:
             header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="world"),
             t=0.0, steps=0, lockstep=options.lockstep, failsafe=0, cause="", paired_session_id=0, commands_obeyed=0,
             commands_held=0, commands_refused=0, foreign_sessions=0, bad_payloads=0, command_age_s=math.inf,
-            finished=False,
+            finished=False, plant_session_id=self.session_id,
+            imu_rate_off_episodes=0, imu_rate_off_s=0.0, imu_gaps=0, imu_worst_gap_s=0.0,
         )  # fmt: skip
         self._status_every_s = 1.0 / options.status_hz
         self._status_next = 0.0
@@ -303,6 +323,7 @@ class SimOutputs:
         n = sim.vehicle.n_rotors
         self._sim = sim
         self._codec = FrameCodec(n, sim.frame_record)
+        self._session = options.session_id or 0
         columns = Recorder(1, TRUTH_GROUPS(n)).column_names
         self._row = np.zeros(len(columns))
         self.recorder = self.live = None
@@ -319,7 +340,7 @@ class SimOutputs:
         try:
             if self.recorder is not None:
                 sim.truth_row(self._row)
-                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row)
+                self.recorder.period(self._codec.refresh(), cmd_hz, 0, self._row, plant_session=self._session)
             if self.live is not None:
                 self.live.sim_period(sim.t, sim.truth)
         except Exception:  # noqa: BLE001  (a recording or a view that fails never stops the plant: counted)
@@ -384,17 +405,61 @@ def remote_loop(link: SimLink, report: SitlReport) -> Callable:
             link.drain_rows(store_row)
             time.sleep(0.001)
         link.drain_rows(store_row)
-        missing = np.flatnonzero(~have_row)
-        report.log_rows_missing = int(missing.size)
-        if missing.size == n_steps:
-            raise InputError("the flight node sent no controller log rows: the run has no metrics")
-        first = int(np.argmax(have_row))
-        for j in missing:  # the previous row stands in, the first received one before it (said by the caller)
-            log.data[j] = log.data[j - 1] if j > first else log.data[first]
-        log.n = n_steps
+        report.log_rows_missing, report.log_rows_cut = stand_in_rows(log, have_row, dt, end_at_last=report.failsafe)
+        if report.failsafe:  # the vehicle fell with its rotors stopped: not the task's protocol, no metric of it
+            report.flown = (log, truth_log)
+            t_end = float(log.data[log.n - 1, log.column_names.index("t")])
+            raise RunCut(
+                f"the node's last controller row is at t = {t_end:.3f} s of the task's {duration_s:g} s, and a "
+                "task's metrics are over its whole protocol"
+            )
         return log, truth_log
 
     return loop
+
+
+def stand_in_rows(log: Recorder, have_row: np.ndarray, dt: float, end_at_last: bool = False) -> tuple[int, int]:
+    """Fill the controller-log rows that never arrived (``~have_row``) with stand-ins.
+
+    Each stand-in is the previous row (the first received one before it) with its own period's time: the time
+    column ``t`` is the nearest earlier received row's plus ``dt`` per period (the first received row's minus
+    ``dt`` per period before it), so that the log's time keeps increasing and a metric masked by time sees a
+    stand-in at the instant it stands for, not twice at the old one.
+
+    With ``end_at_last`` (the offboard-loss failsafe cut the run: the node stopped commanding) the rows after the
+    node's last one are not stood in: the controller flew none of those periods, so the log ends with its last
+    row (``log.n``), and a metric whose window lies past it cannot be computed, as in an in-process run that
+    stopped there. Both counts are said by the caller (``log_rows_missing``, ``log_rows_cut``).
+
+    Args:
+        log: the controller log; rows ``[0, len(have_row))`` are filled in place and ``log.n`` set.
+        have_row: which rows arrived.
+        dt: the period between two rows [s] (the plant's frame period).
+        end_at_last: end the log at the last received row.
+
+    Returns:
+        ``(rows missing, of them cut from the log's end)``.
+
+    Raises:
+        InputError: no row arrived at all (the run has no metrics).
+    """
+    n = have_row.size
+    missing = np.flatnonzero(~have_row)
+    if missing.size == n:
+        raise InputError("the flight node sent no controller log rows: the run has no metrics")
+    end = n - int(np.argmax(have_row[::-1])) if end_at_last else n  # one past the last received row
+    t = log.column_names.index("t")
+    data = log.data
+    first = int(np.argmax(have_row))
+    for j in missing[missing < end]:  # ascending: a row before j is received or already stood in
+        if j > first:
+            data[j] = data[j - 1]
+            data[j, t] = data[j - 1, t] + dt
+        else:
+            data[j] = data[first]
+            data[j, t] = data[first, t] - (first - j) * dt
+    log.n = end
+    return int(missing.size), n - end
 
 
 def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_row, progress, on_step,
@@ -485,6 +550,7 @@ def _run(link: SimLink, report: SitlReport, sim, n_steps: int, truth_log, store_
     report.commands_refused = link.gate.refused
     report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
+    report.plant_session_id = f"{link.session_id:016x}"
     report.bad_payloads = link.bad_payloads
     report.wall_s = wall
     report.real_time_factor = n_steps * dt / wall if wall > 0 else math.inf
@@ -570,8 +636,8 @@ def serve_task(
 
     Returns:
         ``(the task's result, the server's report)``; the result is None when the offboard-loss failsafe cut
-        the run and the task's metrics cannot be computed from what was flown (why: ``report.metrics_error``);
-        otherwise its summary is the run's JSON as ``omnirotor run``
+        the run: the task's metrics cannot be computed from the part flown (why: ``report.metrics_error``; the
+        logs of what was flown: ``report.flown``); otherwise its summary is the run's JSON as ``omnirotor run``
         gives it (its timing entries are the wire's: the truth log's ``controller_step_us`` is the frame-to-command
         round trip in lockstep; 0 in real time, where the node's summary has it as its frame-to-command figure).
 
@@ -596,7 +662,7 @@ def serve_task(
         except Exception as exc:  # noqa: BLE001  (only after the failsafe cut the run: its metrics are undefined)
             if not report.failsafe:
                 raise
-            report.metrics_error = f"{type(exc).__name__}: {exc}"
+            report.metrics_error = str(exc) if isinstance(exc, RunCut) else f"{type(exc).__name__}: {exc}"
             return None, report
     return result, report
 
@@ -671,6 +737,7 @@ def serve_free(
     report.commands_refused = link.gate.refused
     report.stop_with_speeds = link.stop_nonzero
     report.foreign_sessions = link.gate.foreign_sessions
+    report.plant_session_id = f"{link.session_id:016x}"
     report.bad_payloads = link.bad_payloads
     report.wall_s = time.monotonic() - wall0
     report.real_time_factor = report.steps * dt / report.wall_s if report.wall_s > 0 else 0.0
