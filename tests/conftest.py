@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+
+# The tests compile at the omnirotor command's numba level (omnirotor.cli.NUMBA_OPT_DEFAULT; test_jit_cache checks
+# that they agree), so the commands the tests start load the kernels the test process compiled, and the reverse.
+# Set before numba is imported; a NUMBA_OPT in the environment wins, as for the command.
+TEST_NUMBA_OPT = "1"
+os.environ.setdefault("NUMBA_OPT", TEST_NUMBA_OPT)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FLIGHT_DATA = SHARED / "data" / "omnirotor-hover-flight"
