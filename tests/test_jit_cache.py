@@ -288,7 +288,6 @@ def test_the_collector_is_paused_while_a_kernel_of_the_package_compiles(tmp_path
 def test_the_tests_compile_at_the_commands_level() -> None:
     """conftest's level is the command's: the commands the tests start share the test process's kernel cache."""
     from conftest import TEST_NUMBA_OPT
-
     from omnirotor.cli import NUMBA_OPT_DEFAULT
 
     assert TEST_NUMBA_OPT == NUMBA_OPT_DEFAULT
