@@ -29,6 +29,11 @@ not list are read: a dispatcher's ``overloads`` (its compiled specialisations by
 :class:`PointerCaller`'s function types) and a specialisation's ``entry_point`` (:func:`typed_entry`, which
 falls back to the dispatcher if it is absent).
 
+numba's LLVM optimisation level and vectorizers are not in numba's cache key: the cache keeps each setting in a
+folder of its own (:func:`codegen_settings`; the ``omnirotor`` command compiles at level 1, the library at
+numba's level or the user's). Python's cyclic garbage collector is paused while a kernel of the package compiles
+(:class:`CollectorPause`, on numba's documented compile events): about a tenth of a first run's compile time.
+
 C functions called from kernels are bound by symbol name (numba's ``ExternalFunction``), never by address, so
 the cached machine code stays valid in a new process: :func:`mujoco_function` (MuJoCo's C API, from the shared
 library the ``mujoco`` package ships and has loaded) and :func:`monotonic_ns` (the C library's
