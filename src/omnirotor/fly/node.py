@@ -344,7 +344,9 @@ class NodeLoop:
             transport.serve(
                 TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request
             )
-        self._row_msg = T[CONTROLLER_LOG](frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0))
+        self._row_msg = T[CONTROLLER_LOG](
+            session_id=self.session_id, frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0)
+        )
         self._row_seq = np.zeros(_ROW_BATCH, np.uint64)
         self._rows: np.ndarray | None = None  # (_ROW_BATCH, columns), allocated on the first row
         self._n_rows = 0
