@@ -654,3 +654,27 @@ def test_ctl_status_names_the_plant_followed_and_what_was_refused():
     )
     assert m and int(m[1]) >= 1 and int(m[2]) >= 5, reply.message
     assert reply.message.endswith("; controller session 1a2b3c4d5e6f7081")
+
+
+def test_a_plant_pinned_to_another_node_is_said_with_both_ways_out():
+    """A restarted node (a new random session) and a plant still pinned to the old one: the plant's status names
+    the session it obeys, and the node says how to pair again, either way (issue 26 item 5: restarts)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    old = 0x0123456789ABCDEF
+    said: list[str] = []
+    options = NodeOptions(lockstep=True, status_hz=200.0, session_id=0x1A2B3C4D5E6F7081)
+    with _scripted_plant("/restarted", _Controller(), _Director(), options, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        _until_answered(p, 1, 0.001)
+        seq, deadline = 2, time.monotonic() + 10
+        while not any("the plant obeys" in line for line in said) and time.monotonic() < deadline:
+            status.put(_sim_status(paired_session_id=old, lockstep=True))
+            p.send(seq, 0.001 * seq)
+            seq += 1
+            time.sleep(0.005)
+    assert [line for line in said if "the plant obeys" in line] == [
+        f"the plant obeys controller session {old:016x}, not this node's 1a2b3c4d5e6f7081: its commands are refused "
+        f"(pin the plant to this node: --pair-session 1a2b3c4d5e6f7081; if the node it obeys is gone, a restarted "
+        f"one, start this node with --session-id {old:016x})"
+    ]
