@@ -272,6 +272,26 @@ class _TellableDirector(_Director):
         self.told.append(why)
 
 
+def test_the_end_of_a_mission_is_not_taken_for_a_lost_link():
+    """The plant's frames stop at the end of its run and its status says "finished"; the loop reads the status at
+    its own rate (here every 2 s, as a starved loop might): the link's 50 ms timeout must not call the end a link
+    loss (seen under load in test_sitl_fuzz)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    said: list[str] = []
+    opts = NodeOptions(status_hz=0.5, log_rows=True)
+    with _scripted_plant("/end", _LoggingController(), _Director(), opts, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        got = p.stream(20, 0.01, 30.0)
+        assert len(got) >= 20
+        lost_before = sum("link lost" in line for line in said)  # (a pause of this process mid-stream may lose it)
+        status.put(_sim_status(steps=max(int(m.frame_seq) for m in got), finished=True))  # as the simulator does
+        p.thread.join(10)
+        assert not p.thread.is_alive()  # the loop ended by itself
+    assert sum("link lost" in line for line in said) == lost_before, said
+    assert not p.summary["link_lost"]
+
+
 @pytest.mark.parametrize("own", [PLANT, 0], ids=["the-plant-followed", "a-frameless-bridge"])
 def test_the_plant_s_failsafe_is_told_to_the_director(own):
     """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director

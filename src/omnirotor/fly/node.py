@@ -22,8 +22,9 @@ Real time (the default): between frames the loop sleeps in the transport's queue
 director's next gap call or the status is due (no polling: the CPU stays free for the plant); the garbage collector
 is frozen and disabled in the loop; the loop's thread asks for CPU affinity and ``SCHED_FIFO`` (said on stderr where
 the OS refuses; both in :mod:`omnirotor.realtime`). A period with no frame calls the director with the growing link
-ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost*: said on stderr and in the status, the
-director told (``frames_stopped``), and no command is published until frames come back. Deadline accounting: a
+ages (its failsafes); no frame for ``link_loss_s`` (50 ms) is *link lost* (unless the plant's status, read then,
+says its mission ended): said on stderr and in the status, the director told (``frames_stopped``), and no command
+is published until frames come back. Deadline accounting: a
 period is *late* when its command left more than ``late_threshold_s`` (0.5 ms) after its frame was taken from the
 wire, when its frame came that much later than one period after the previous one, or when its frame was missed; an
 *overrun* is a period whose work took longer than the period. Counts, the worst lateness and the frame-to-command
@@ -712,6 +713,12 @@ class NodeLoop:
         if last_frame is None:
             return False
         age = now - last_seen
+        if age > loss_s and self.options.log_rows:
+            # a mission's plant stops its frames when its run ends and says so in its status, which the loop reads
+            # only at the status rate: read it now, so that the end is not taken for a lost link
+            self._poll_sim_status()
+            if self.finished:
+                return False
         if age > loss_s:
             self.link_lost = True
             self.link_lost_age_s = age
