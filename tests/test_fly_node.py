@@ -698,3 +698,34 @@ def test_a_plant_pinned_to_another_node_is_said_with_both_ways_out():
         f"(pin the plant to this node: --pair-session 1a2b3c4d5e6f7081; if the node it obeys is gone, a restarted "
         f"one, start this node with --session-id {old:016x})"
     ]
+
+
+def test_a_mission_names_its_plant_and_a_pinned_node_refuses_another_s(capsys):
+    """``--mission-from-sim`` hears which plant session served the mission (said); pinned with ``--plant-session``
+    to another (a second simulator answered first), the node stops at once: one line, exit 2 (issue 26 item 5)."""
+    from omnirotor.cli import main
+    from omnirotor.experiments.tasks.common import ExperimentOptions
+    from omnirotor.fly.node import mission_from_sim
+    from omnirotor.rosmsg import typestore
+    from omnirotor.sitl.server import TOPICS, mission_json
+
+    T = typestore().types
+    port, ns = free_port(), "/mission_of"
+    mission = mission_json("hover", ExperimentOptions(), False, PLANT)
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace=ns) as sim,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace=ns) as node,
+    ):
+        sim.serve(TOPICS["mission"], "std_msgs/msg/String", "std_msgs/msg/String",
+                  lambda req: T["std_msgs/msg/String"](data=mission))  # fmt: skip
+        task, _, lockstep, served_by = mission_from_sim(node, timeout_s=10.0)
+        assert (task, lockstep, served_by) == ("hover", False, PLANT)
+        argv = ["fly", "--mission-from-sim", "--plant-session", f"{FOREIGN:016x}", "--connect",
+                f"tcp/127.0.0.1:{port}", "--listen", f"tcp/127.0.0.1:{free_port()}", "--namespace", ns]  # fmt: skip
+        assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert (
+        f"omnirotor: error: the mission came from plant session {PLANT:016x}, not the --plant-session "
+        f"{FOREIGN:016x} (another simulator answered first; stop it, or follow that one)\n"
+    ) in err
+    assert "Traceback" not in err

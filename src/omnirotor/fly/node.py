@@ -93,7 +93,7 @@ from omnirotor.rosmsg.convert import (
     frame_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import MAX_SEQ_JUMP, FrameGate, new_session_id
+from omnirotor.sitl.gate import MAX_SEQ_JUMP, FrameGate, new_session_id, parse_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
 
@@ -855,8 +855,10 @@ class _MissionFlown(Exception):  # noqa: N818  (control flow: the task's own met
         self.summary = summary
 
 
-def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str, dict, bool]:
-    """Ask the simulator which task it serves; ``(task, options as a dict, lockstep)``.
+def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str, dict, bool, int | None]:
+    """Ask the simulator which task it serves; ``(task, options as a dict, lockstep, its plant session)``.
+
+    The plant session is the one of the simulator that answered (None from a simulator that does not say it).
 
     Raises:
         InputError: no simulator answered within ``timeout_s``, or its answer is not a mission.
@@ -876,9 +878,11 @@ def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str
         task, options, lockstep = mission["task"], mission["options"], mission["lockstep"]
         if not isinstance(task, str) or not isinstance(options, dict) or not isinstance(lockstep, bool):
             raise TypeError
-    except (ValueError, KeyError, TypeError):
+        served_by = mission.get("plant_session")
+        plant = parse_session_id(served_by, "plant_session") if served_by is not None else None
+    except (ValueError, KeyError, TypeError, AttributeError):
         raise InputError("the simulator's mission is not a task and its options") from None
-    return task, options, lockstep
+    return task, options, lockstep, plant
 
 
 def fly_mission(

@@ -623,10 +623,14 @@ def _sleep_until(when: float, link: SimLink | None) -> None:
         link.poll_commands()
 
 
-def mission_json(task: str, options, lockstep: bool) -> str:
-    """The mission the server flies, as the JSON the node's ``--mission-from-sim`` reads."""
+def mission_json(task: str, options, lockstep: bool, plant_session: int = 0) -> str:
+    """The mission the server flies, as the JSON the node's ``--mission-from-sim`` reads.
+
+    ``plant_session``: the server's own session (its frames'), so that the node knows which plant served it.
+    """
     fields = {name: getattr(options, name) for name in MISSION_OPTION_FIELDS}
-    return json.dumps({"task": task, "options": fields, "lockstep": lockstep})
+    session = f"{plant_session:016x}" if plant_session else None
+    return json.dumps({"task": task, "options": fields, "lockstep": lockstep, "plant_session": session})
 
 
 def serve_task(
@@ -655,7 +659,7 @@ def serve_task(
     vehicle = load_vehicle(options.vehicle)
     link = SimLink(transport, vehicle.n_rotors, serve)
     T = typestore().types
-    mission = mission_json(task, options, serve.lockstep)
+    mission = mission_json(task, options, serve.lockstep, link.session_id)
     transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
     report = SitlReport(lockstep=serve.lockstep)
     with loop_override(remote_loop(link, report)):
