@@ -601,3 +601,17 @@ def test_random_streams_and_requests_never_raise_and_stay_within_limits(vehicle)
         out = d.output(ctl.step(frame) if d.wants_step() else None)
         assert np.isfinite(out).all() and (out >= lo).all() and (out <= hi).all()
         assert isinstance(d.status(), FlightStatus)
+
+
+def test_a_request_of_an_unknown_kind_or_an_overlong_name_is_one_clear_refusal():
+    """``ctl`` requests from any process are checked like the CLI's: an unknown kind index is named, and a name past
+    the bound is refused without echoing it (issue 26 item 4)."""
+    from omnirotor.fly.requests import MAX_NAME_CHARS, request_from
+
+    with pytest.raises(InputError, match=r"unknown request kind 250 \(0 to 9: status, arm"):
+        request_from({"kind": 250})
+    with pytest.raises(InputError, match=r"unknown request kind -1 "):
+        request_from({"kind": -1})  # not the last request by Python's negative index
+    with pytest.raises(InputError, match=f"at most {MAX_NAME_CHARS} characters, got 100000") as exc:
+        request_from({"kind": "preset", "name": "x" * 100_000})
+    assert len(str(exc.value)) < 200

@@ -292,16 +292,19 @@ def test_the_end_of_a_mission_is_not_taken_for_a_lost_link():
     assert not p.summary["link_lost"]
 
 
-def test_the_plant_s_failsafe_is_told_to_the_director():
+@pytest.mark.parametrize("own", [PLANT, 0], ids=["the-plant-followed", "a-frameless-bridge"])
+def test_the_plant_s_failsafe_is_told_to_the_director(own):
     """The simulator's offboard-loss failsafe (or PX4 out of offboard, from the bridge) in SimStatus: the director
-    is told while it lasts, the node says it once."""
+    is told while it lasts, the node says it once; from the plant followed, or from a bridge that sends no frames
+    (its status names no plant session)."""
     from omnirotor.rosmsg.convert import SIM_STATUS
 
     said: list[str] = []
     director = _TellableDirector()
-    with _scripted_plant("/told", _Controller(), director, NodeOptions(status_hz=200.0), said.append) as p:
+    options = NodeOptions(status_hz=200.0, plant_session=PLANT)  # the status of the plant followed (pinned)
+    with _scripted_plant("/told", _Controller(), director, options, said.append) as p:
         status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
-        msg = _sim_status()
+        msg = _sim_status(plant_session_id=own)
         for _ in range(20):  # healthy: nothing told
             status.put(msg)
             time.sleep(0.01)
@@ -329,6 +332,53 @@ class _LoggingController(_Controller):
         self.log.data[self.log.n] = (frame.t, self.steps)
         self.log.n += 1
         return cmd
+
+
+def test_a_status_of_another_plant_session_is_ignored_never_obeyed():
+    """A ``SimStatus`` naming another plant session than the followed one (a second plant whose failsafe fired, or
+    a forger), or naming none once the followed plant's own was heard, neither disarms the director nor ends the
+    run: ignored, counted, the other session said once; the followed plant's own status still is (issue 26 item 5:
+    only the paired plant is heeded)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    said: list[str] = []
+    director = _TellableDirector()
+    options = NodeOptions(lockstep=True, status_hz=200.0, log_rows=True)  # first come: the plant's frame first
+    with _scripted_plant("/forged_status", _LoggingController(), director, options, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        _until_answered(p, 1, 0.001)
+        seq, deadline = 2, time.monotonic() + 10
+        while p.node.plant_imu is None and time.monotonic() < deadline:  # the plant's own status heard once
+            status.put(_sim_status())
+            p.send(seq, 0.001 * seq)
+            seq += 1
+            time.sleep(0.005)
+        # another plant's (or a forger's) failsafe and end; then one naming no plant (as a frameless bridge)
+        forged = [
+            _sim_status(plant_session_id=session, failsafe=1, cause="forged", finished=True, steps=0)
+            for session in (FOREIGN, 0)
+        ]
+        deadline = time.monotonic() + 10
+        while getattr(p.node, "statuses_foreign", 0) < 20 and not director.told and time.monotonic() < deadline:
+            status.put(forged[seq % 2])
+            p.send(seq, 0.001 * seq)  # frames keep the loop turning (it reads the status between frames)
+            seq += 1
+            time.sleep(0.005)
+        assert director.told == [] and not p.node.finished  # neither obeyed
+        assert p.node.statuses_foreign >= 20
+        own = _sim_status(failsafe=1, cause="offboard loss")
+        deadline = time.monotonic() + 10
+        while not director.told and time.monotonic() < deadline:
+            status.put(own)
+            p.send(seq, 0.001 * seq)
+            seq += 1
+            time.sleep(0.005)
+    assert set(director.told) == {"offboard loss"}  # the followed plant's own failsafe still disarms
+    assert p.summary["plant_statuses_foreign"] >= 20
+    assert [line for line in said if "status names" in line] == [
+        f"the plant's status names plant session {FOREIGN:016x}, not the followed {PLANT:016x}: its frames and its "
+        f"status are ignored (follow it: --plant-session {FOREIGN:016x})"
+    ]
 
 
 def test_a_lockstep_node_sends_its_last_rows_when_the_frames_pause():
@@ -519,8 +569,8 @@ def test_a_first_come_node_follows_whoever_sends_first_and_says_so():
     )
     assert f"refused sensor frames of plant session {PLANT:016x}: following {FOREIGN:016x}" in said
     assert (
-        f"the plant's status names plant session {PLANT:016x}, not the followed {FOREIGN:016x}: its frames are "
-        f"refused (follow it: --plant-session {PLANT:016x})"
+        f"the plant's status names plant session {PLANT:016x}, not the followed {FOREIGN:016x}: its frames and "
+        f"its status are ignored (follow it: --plant-session {PLANT:016x})"
     ) in said
 
 
@@ -583,3 +633,99 @@ def test_frames_without_a_plant_session_are_refused_and_never_paired_with():
     assert [line for line in said if "without a plant session" in line] == [
         "refused sensor frames without a plant session (session_id 0): a plant fills it"
     ]
+
+
+class _StatusDirector(_Director):
+    """Answers ``omnirotor ctl status`` as the flight director does (a FlightReply)."""
+
+    def request(self, req):
+        from omnirotor.fly.modes import FlightMode
+        from omnirotor.fly.requests import FlightReply
+
+        return FlightReply(True, "status", FlightMode.DISARMED, FlightMode.DISARMED, "mode disarmed")
+
+
+def test_ctl_status_names_the_plant_followed_and_what_was_refused():
+    """``omnirotor ctl status`` shows what diagnoses a pairing: the plant session followed and how, the frames of
+    other sessions refused and how many sessions, the node's own session."""
+    import re
+
+    from omnirotor.fly.requests import REQUEST_IDS
+    from omnirotor.rosmsg import typestore
+    from omnirotor.sitl.server import TOPICS
+
+    T = typestore().types
+    req = T["omnirotor_msgs/msg/FlightRequest"](
+        kind=REQUEST_IDS["status"], height_m=0.0, depth_m=0.0, name="", force=False,
+        setpoint=T["omnirotor_msgs/msg/Setpoint"](
+            p_w=np.zeros(3), q_wb=np.zeros(4), roll_deg=0.0, pitch_deg=0.0, yaw_deg=0.0, duration_s=0.0
+        ),
+    )  # fmt: skip
+    options = NodeOptions(lockstep=True, plant_session=PLANT, session_id=0x1A2B3C4D5E6F7081)
+    with _scripted_plant("/ctl_status", _Controller(), _StatusDirector(), options) as p:
+        _foreign_until_refused(p, 5)
+        _until_answered(p, 1, 0.001)
+        reply = p.plant.request(TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", req,
+                                "omnirotor_msgs/msg/FlightReply", 5.0)  # fmt: skip
+    assert reply is not None and reply.accepted
+    assert reply.message.startswith(f"mode disarmed; link up: plant session {PLANT:016x} (pinned), ")
+    m = re.search(
+        r", (\d+) frames followed, 0 bad, (\d+) of other plant sessions refused \(1 session\(s\)\)", reply.message
+    )
+    assert m and int(m[1]) >= 1 and int(m[2]) >= 5, reply.message
+    assert reply.message.endswith("; controller session 1a2b3c4d5e6f7081")
+
+
+def test_a_plant_pinned_to_another_node_is_said_with_both_ways_out():
+    """A restarted node (a new random session) and a plant still pinned to the old one: the plant's status names
+    the session it obeys, and the node says how to pair again, either way (issue 26 item 5: restarts)."""
+    from omnirotor.rosmsg.convert import SIM_STATUS
+
+    old = 0x0123456789ABCDEF
+    said: list[str] = []
+    options = NodeOptions(lockstep=True, status_hz=200.0, session_id=0x1A2B3C4D5E6F7081)
+    with _scripted_plant("/restarted", _Controller(), _Director(), options, said.append) as p:
+        status = p.plant.publisher("/omnirotor/sim_status", SIM_STATUS, block=True)
+        _until_answered(p, 1, 0.001)
+        seq, deadline = 2, time.monotonic() + 10
+        while not any("the plant obeys" in line for line in said) and time.monotonic() < deadline:
+            status.put(_sim_status(paired_session_id=old, lockstep=True))
+            p.send(seq, 0.001 * seq)
+            seq += 1
+            time.sleep(0.005)
+    assert [line for line in said if "the plant obeys" in line] == [
+        f"the plant obeys controller session {old:016x}, not this node's 1a2b3c4d5e6f7081: its commands are refused "
+        f"(pin the plant to this node: --pair-session 1a2b3c4d5e6f7081; if the node it obeys is gone, a restarted "
+        f"one, start this node with --session-id {old:016x})"
+    ]
+
+
+def test_a_mission_names_its_plant_and_a_pinned_node_refuses_another_s(capsys):
+    """``--mission-from-sim`` hears which plant session served the mission (said); pinned with ``--plant-session``
+    to another (a second simulator answered first), the node stops at once: one line, exit 2 (issue 26 item 5)."""
+    from omnirotor.cli import main
+    from omnirotor.experiments.tasks.common import ExperimentOptions
+    from omnirotor.fly.node import mission_from_sim
+    from omnirotor.rosmsg import typestore
+    from omnirotor.sitl.server import TOPICS, mission_json
+
+    T = typestore().types
+    port, ns = free_port(), "/mission_of"
+    mission = mission_json("hover", ExperimentOptions(), False, PLANT)
+    with (
+        open_transport(listen=[f"tcp/127.0.0.1:{port}"], namespace=ns) as sim,
+        open_transport(listen=[], connect=[f"tcp/127.0.0.1:{port}"], namespace=ns) as node,
+    ):
+        sim.serve(TOPICS["mission"], "std_msgs/msg/String", "std_msgs/msg/String",
+                  lambda req: T["std_msgs/msg/String"](data=mission))  # fmt: skip
+        task, _, lockstep, served_by = mission_from_sim(node, timeout_s=10.0)
+        assert (task, lockstep, served_by) == ("hover", False, PLANT)
+        argv = ["fly", "--mission-from-sim", "--plant-session", f"{FOREIGN:016x}", "--connect",
+                f"tcp/127.0.0.1:{port}", "--listen", f"tcp/127.0.0.1:{free_port()}", "--namespace", ns]  # fmt: skip
+        assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert (
+        f"omnirotor: error: the mission came from plant session {PLANT:016x}, not the --plant-session "
+        f"{FOREIGN:016x} (another simulator answered first; stop it, or follow that one)\n"
+    ) in err
+    assert "Traceback" not in err

@@ -128,3 +128,24 @@ def test_the_frame_gate_first_come_keeps_its_plant_through_a_renumbering_and_pai
         f"refused sensor frames of plant session {PLANT:016x}: following {FLOOD:016x}",
         f"following plant session {PLANT:016x}, the first to send frames (first come: --plant-session pins one)",
     ]
+
+
+def test_a_flood_of_distinct_sessions_is_counted_in_bounded_memory_and_said_in_a_few_lines():
+    """3 000 distinct foreign sessions: every message refused and counted, the distinct sessions tracked up to the
+    cap (memory bounded), the first few said one by one and the rest in one line, not a line per session."""
+    from omnirotor.sitl import gate as gate_module
+
+    said: list[str] = []
+    gate = FrameGate(say=said.append)
+    assert gate.offer(PLANT, 1)
+    for session in range(100, 3100):
+        assert not gate.offer(session, 2)
+    assert gate.refused_foreign == gate.refused == 3000
+    assert gate.foreign_sessions == gate_module._MAX_TRACKED_SESSIONS == 1024
+    refused = [line for line in said if line.startswith("refused sensor frames of plant session")]
+    assert len(refused) == gate_module._SAID_SESSIONS == 8
+    assert said[-1] == (
+        "refused sensor frames of more plant sessions: counted (foreign_plant_sessions), not said one by one"
+    )
+    assert len(said) == 1 + 8 + 1  # followed, 8 sessions, the rest
+    assert gate.offer(PLANT, 2)  # the plant still followed

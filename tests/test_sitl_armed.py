@@ -58,3 +58,34 @@ def test_a_stop_command_is_flown_as_zeros_and_an_old_armed_one_is_never_flown():
         send(4, 3, 250.0, COMMAND_ARMED)  # armed again by the node: flown
         assert _until(lambda: link.poll_commands(0.05))
         assert np.all(link.cmd_hz == 250.0)
+
+
+def test_controller_log_rows_of_another_session_never_enter_the_run():
+    """The rows the simulator computes a mission's metrics from are the obeyed node's only: rows of another
+    controller session (a second node, a forger) are dropped and counted as bad payloads (issue 26 item 5)."""
+    from omnirotor.rosmsg import typestore
+    from omnirotor.rosmsg.convert import CONTROLLER_LOG
+
+    T = typestore().types
+    ep, ns = f"tcp/127.0.0.1:{free_port()}", "/rows"
+    with open_transport(listen=[ep], namespace=ns) as plant, open_transport(connect=[ep], namespace=ns) as node:
+        link = SimLink(plant, N, ServeOptions(ros_views=False, pair_session=77))
+        rows = node.publisher(TOPICS["controller_log"], CONTROLLER_LOG, block=True)
+        stored: dict[int, float] = {}
+
+        def send(session: int, seq: int, value: float) -> None:
+            rows.put(T[CONTROLLER_LOG](session_id=session, frame_seq=np.array([seq], np.uint64), n_columns=2,
+                                       rows=np.full(2, value)))  # fmt: skip
+
+        def drained(seq: int) -> bool:
+            link.drain_rows(lambda s, row: stored.__setitem__(s, float(row[0])))
+            return seq in stored
+
+        assert _until(lambda: (send(77, 1, 1.0), drained(1))[1])  # the obeyed node's row (once the key matched)
+        for seq in (1, 2, 3):
+            send(99, seq, -1.0)  # a forger's rows over the node's and ahead of them
+        send(77, 2, 2.0)
+        assert _until(lambda: drained(2))
+        link.drain_rows(lambda s, row: stored.__setitem__(s, float(row[0])))
+    assert stored == {1: 1.0, 2: 2.0}  # the forged rows never stored
+    assert link.bad_payloads >= 3

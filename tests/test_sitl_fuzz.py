@@ -58,7 +58,8 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
         COMMAND: bytes(store.serialize_cdr(w.command, COMMAND)),
         CONTROLLER_LOG: bytes(
             store.serialize_cdr(
-                T[CONTROLLER_LOG](frame_seq=np.array([3], np.uint64), n_columns=5, rows=np.ones(5)), CONTROLLER_LOG
+                T[CONTROLLER_LOG](session_id=12345, frame_seq=np.array([3], np.uint64), n_columns=5, rows=np.ones(5)),
+                CONTROLLER_LOG,
             )
         ),
     }

@@ -154,7 +154,7 @@ def test_a_first_come_node_follows_forged_frames_that_came_first_and_names_the_r
             assert wait_until(lambda: refused in text("node"), 600), text("node")[-2000:] + text("sim")[-2000:]
             told = (
                 f"the plant's status names plant session {PLANT:016x}, not the followed {FLOOD_PLANT:016x}: its "
-                f"frames are refused (follow it: --plant-session {PLANT:016x})"
+                f"frames and its status are ignored (follow it: --plant-session {PLANT:016x})"
             )
             assert wait_until(lambda: told in text("node"), 120), text("node")[-2000:]
             assert flood.frames_sent > 0

@@ -655,6 +655,22 @@ def probes() -> list[Probe]:
             ("study", "points-per-region", "--out", "{t}/s", "--validation", "-1"),
         ),
         P("sizes", "study partitions --reps 0", ("study", "partitions", "--out", "{t}/s", "--reps", "0")),
+        # the sessions that pair the node and its plant (issue 26 item 5): 1 to 16 hex digits, never 0
+        *(
+            P("pairing ids", f"{cmd} {option} {value!r}", (*argv, f"{option}={value}"))
+            for cmd, argv, option, value in (
+                ("fly", ("fly",), "--plant-session", "0"),
+                ("fly", ("fly",), "--plant-session", "-1"),
+                ("fly", ("fly",), "--plant-session", "10000000000000000"),  # 2**64
+                ("fly", ("fly",), "--plant-session", "0x"),
+                ("fly", ("fly",), "--session-id", "12 34"),
+                ("fly", ("fly",), "--session-id", "0x0x1"),
+                ("sim --serve", ("sim", "--serve", "--task", "hover"), "--pair-session", "xyz"),
+                ("sim --serve", ("sim", "--serve", "--task", "hover"), "--session-id", "00000000"),
+                ("px4-bridge", ("px4-bridge",), "--pair-session", "1.5"),
+                ("px4-bridge", ("px4-bridge",), "--session-id", "1ffffffffffffffff"),
+            )
+        ),
     ]
 
 
@@ -1103,8 +1119,15 @@ ISSUE26 = (
     (
         "5",
         "only the paired node commands the rotors, only its plant's frames are followed",
-        (),
-        ("test_sitl_fuzz.py", "test_gate.py", "test_sitl_pairing.py", "test_fly_node.py", "test_zenoh_auth.py"),
+        ("pairing ids",),
+        (
+            "test_sitl_fuzz.py",
+            "test_gate.py",
+            "test_sitl_pairing.py",
+            "test_fly_node.py",
+            "test_sitl_armed.py",
+            "test_zenoh_auth.py",
+        ),
         "wire",
     ),
 )

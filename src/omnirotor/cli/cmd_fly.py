@@ -122,8 +122,14 @@ def fly(
     node_options = NodeOptions(session_id=session, plant_session=plant, **outputs)
     with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
-            task, options, lockstep = ask(t, timeout_s=30.0)
-            say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'})")
+            task, options, lockstep, served_by = ask(t, timeout_s=30.0)
+            if plant is not None and served_by is not None and served_by != plant:
+                raise InputError(
+                    f"the mission came from plant session {served_by:016x}, not the --plant-session {plant:016x} "
+                    "(another simulator answered first; stop it, or follow that one)"
+                )
+            by = f", served by plant session {served_by:016x}" if served_by is not None else ""
+            say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'}){by}")
             node_options = dataclasses.replace(node_options, lockstep=lockstep)
             summary = fly_mission(t, task, options, node_options, factory, realtime)
         else:

@@ -49,6 +49,12 @@ repeats every 10 ms until it has obeyed a command answering it: repeated, it is 
 command (nothing stepped) and keeps the link alive, so that a first answer delayed past 50 ms on a busy machine
 is not a link loss.
 
+The plant's status (``SimStatus``: its failsafe, which disarms the director, and the end of its run) is read
+only from the followed plant session (``plant_session_id``), or from a plant that sends no frames (0: a robot
+bridge with ``--no-frames``) as long as no status named the followed session; a status naming another session (a
+second plant, a forger), or none once the followed plant's own was heard, is ignored, counted
+(``plant_statuses_foreign`` in the summary) and the other session said once.
+
 Nothing raises out of the loop: a frame the controller refuses is counted and answered by the director's
 output without a step; Ctrl-C (or ``stop``) ends it with the summary.
 """
@@ -87,7 +93,7 @@ from omnirotor.rosmsg.convert import (
     frame_check,
     set_stamp,
 )
-from omnirotor.sitl.gate import MAX_SEQ_JUMP, FrameGate, new_session_id
+from omnirotor.sitl.gate import MAX_SEQ_JUMP, FrameGate, new_session_id, parse_session_id
 from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import Transport
 
@@ -305,7 +311,23 @@ class NodeLoop:
         self._frames = transport.subscriber(
             TOPICS["frame"], FRAME, depth=_FRAME_DEPTH, check=frame_ok, decoder=FrameWire(n).decode
         )
-        self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4)
+        self.statuses_foreign = 0
+        """Plant statuses (``SimStatus``) naming another plant session than the followed one: ignored."""
+        self._status_other = 0  # the plant session the last such status named
+        self._status_named = 0  # the followed plant session, once a status named it: then none without one counts
+
+        def status_ok(msg) -> bool:  # the followed plant's status, or a frameless bridge's (module docstring)
+            own = int(msg.plant_session_id)
+            if own != 0 and own == gate.paired:
+                self._status_named = own
+                return True
+            if own == 0 and self._status_named != gate.paired:
+                return True
+            self.statuses_foreign += 1
+            self._status_other = own
+            return False
+
+        self._sim_status = transport.subscriber(TOPICS["sim_status"], SIM_STATUS, depth=4, check=status_ok)
         self._pub_cmd = transport.publisher(TOPICS["rotor_cmd"], COMMAND, block=o.lockstep)
         self._pub_loop = transport.publisher(TOPICS["loop_status"], LOOP_STATUS)
         self._pub_wrench = transport.publisher(TOPICS["wrench_est"], WRENCH)
@@ -323,7 +345,9 @@ class NodeLoop:
             transport.serve(
                 TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request
             )
-        self._row_msg = T[CONTROLLER_LOG](frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0))
+        self._row_msg = T[CONTROLLER_LOG](
+            session_id=self.session_id, frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0)
+        )
         self._row_seq = np.zeros(_ROW_BATCH, np.uint64)
         self._rows: np.ndarray | None = None  # (_ROW_BATCH, columns), allocated on the first row
         self._n_rows = 0
@@ -386,9 +410,28 @@ class NodeLoop:
                 reply = self.director.request(req)
                 T = typestore().types
                 fields = reply.to_fields() if hasattr(reply, "to_fields") else reply
+                if getattr(reply, "kind", None) == "status" and getattr(reply, "accepted", False):
+                    fields["message"] = f"{fields['message']}; {self.link_line()}"
                 slot.put(T["omnirotor_msgs/msg/FlightReply"](**fields))
             except Exception as exc:  # noqa: BLE001  (a failing request never ends the loop)
                 self._say(f"request failed: {exc.__class__.__name__}: {exc}")
+
+    def link_line(self) -> str:
+        """The link's pairing on one line, for ``omnirotor ctl status``: the plant followed, what was refused."""
+        g = self.plant_gate
+        if g.paired:
+            how = "pinned" if g.pinned is not None else "first come"
+            plant = f"plant session {g.paired:016x} ({how})"
+        else:
+            plant = "no plant session followed yet (first come)"
+        s = (
+            f"link {'lost' if self.link_lost else 'up'}: {plant}, {self.stats.frames} frames followed, "
+            f"{self._frames.n_bad - g.refused_foreign} bad, {g.refused_foreign} of other plant sessions refused "
+            f"({g.foreign_sessions} session(s)"
+        )
+        if self.statuses_foreign:
+            s += f"; {self.statuses_foreign} of their statuses ignored"
+        return s + f"); controller session {self.session_id:016x}"
 
     # -- publishing -------------------------------------------------------------------------------------------
     def _publish_command(self, hz: np.ndarray, t: float, frame_seq: int, control_status: int, armed: bool) -> None:
@@ -648,6 +691,7 @@ class NodeLoop:
         out["foreign_plant_sessions"] = g.foreign_sessions
         out["plant_session_id"] = f"{g.paired:016x}" if g.paired else None
         out["plant_session_pinned"] = g.pinned is not None
+        out["plant_statuses_foreign"] = self.statuses_foreign
         out["link_lost"] = self.link_lost
         out["link_lost_after_ms"] = 1000 * self.link_lost_age_s if math.isfinite(self.link_lost_age_s) else None
         out["commands"] = self.cmd_seq
@@ -730,17 +774,18 @@ class NodeLoop:
             self._plant_paired_other = other = int(msg.paired_session_id)
             self._say(
                 f"the plant obeys controller session {other:016x}, not this node's {self.session_id:016x}: its "
-                f"commands are refused (pin the plant to this node: --pair-session {self.session_id:016x})"
+                f"commands are refused (pin the plant to this node: --pair-session {self.session_id:016x}; if "
+                f"the node it obeys is gone, a restarted one, start this node with --session-id {other:016x})"
             )
         g = self.plant_gate
-        own = int(msg.plant_session_id) if msg is not None else 0
+        own = self._status_other
         if own not in (0, g.paired, self._plant_said_other) and g.paired != 0:
-            # the plant on the status key sends as another session than the one followed (first come: a foreign
-            # publisher's frames came first; pinned: the wrong id was given)
+            # a status on the key names another plant session than the one followed (first come: a foreign
+            # publisher's frames came first; pinned: the wrong id was given; or a second plant): ignored, said
             self._plant_said_other = own
             self._say(
                 f"the plant's status names plant session {own:016x}, not the followed {g.paired:016x}: its frames "
-                f"are refused (follow it: --plant-session {own:016x})"
+                f"and its status are ignored (follow it: --plant-session {own:016x})"
             )
         if msg is not None:
             self._plant_imu_status(msg)
@@ -810,8 +855,10 @@ class _MissionFlown(Exception):  # noqa: N818  (control flow: the task's own met
         self.summary = summary
 
 
-def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str, dict, bool]:
-    """Ask the simulator which task it serves; ``(task, options as a dict, lockstep)``.
+def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str, dict, bool, int | None]:
+    """Ask the simulator which task it serves; ``(task, options as a dict, lockstep, its plant session)``.
+
+    The plant session is the one of the simulator that answered (None from a simulator that does not say it).
 
     Raises:
         InputError: no simulator answered within ``timeout_s``, or its answer is not a mission.
@@ -831,9 +878,11 @@ def mission_from_sim(transport: Transport, timeout_s: float = 10.0) -> tuple[str
         task, options, lockstep = mission["task"], mission["options"], mission["lockstep"]
         if not isinstance(task, str) or not isinstance(options, dict) or not isinstance(lockstep, bool):
             raise TypeError
-    except (ValueError, KeyError, TypeError):
+        served_by = mission.get("plant_session")
+        plant = parse_session_id(served_by, "plant_session") if served_by is not None else None
+    except (ValueError, KeyError, TypeError, AttributeError):
         raise InputError("the simulator's mission is not a task and its options") from None
-    return task, options, lockstep
+    return task, options, lockstep, plant
 
 
 def fly_mission(

@@ -25,6 +25,8 @@ CTL_TOPIC = "/omnirotor/ctl"
 """The request/reply topic of the flight node (FlightRequest -> FlightReply)."""
 
 _NAN = math.nan
+MAX_NAME_CHARS = 100
+"""The longest preset or map name a request may carry (a longer one is refused, never echoed whole)."""
 
 
 def _header(t: float, frame_id: str) -> Any:
@@ -125,7 +127,9 @@ class FlightRequest:
 
     def __post_init__(self) -> None:
         if self.kind not in REQUEST_IDS:
-            raise InputError(f"unknown request {self.kind!r}; requests: {', '.join(REQUESTS)}")
+            raise InputError(f"unknown request {str(self.kind)[:MAX_NAME_CHARS]!r}; requests: {', '.join(REQUESTS)}")
+        if len(self.name) > MAX_NAME_CHARS:
+            raise InputError(f"a preset or map name is at most {MAX_NAME_CHARS} characters, got {len(self.name)}")
 
     def to_fields(self) -> dict[str, Any]:
         """The fields of the ROS message."""
@@ -156,6 +160,10 @@ class FlightRequest:
         kind = get("kind", None)
         try:
             if not isinstance(kind, str):
+                if not 0 <= int(kind) < len(REQUESTS):
+                    raise ValueError(
+                        f"unknown request kind {int(kind)} (0 to {len(REQUESTS) - 1}: {', '.join(REQUESTS)})"
+                    )
                 kind = REQUESTS[int(kind)]
             sp = get("setpoint", None)
             setpoint = Setpoint.from_fields(sp) if sp is not None else None

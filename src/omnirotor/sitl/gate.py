@@ -19,11 +19,13 @@ Two ways to pair:
   publishes first is followed: a foreign publisher that starts first pairs the receiver with itself, and the real
   sender is then refused (and said).
 
-From then on a message of another session is refused, counted and flagged (said once per session on stderr), never
-followed; so is a message of the paired session whose number is not above the last one followed (a replay, or an
-older message overtaken), or more than ``max_jump`` above it (:data:`MAX_SEQ_JUMP`: one forged or corrupted number
-cannot lock the paired sender out). The first message followed (after the start, a :meth:`~SessionGate.release` or
-a :meth:`~SessionGate.renumber`) sets where the numbers start.
+From then on a message of another session is refused, counted and flagged (said once per session on stderr: the
+first 8 sessions one by one, the rest in one line), never followed; so is a message of the paired session whose
+number is not above the last one followed (a replay, or an older message overtaken), or more than
+:data:`MAX_SEQ_JUMP` above it (a number beyond it, forged or corrupted, cannot lock the paired sender out; one
+within it is followed, and the sender's own messages are then refused until their numbers pass it). The first
+message followed (after the start, a :meth:`~SessionGate.release` or a :meth:`~SessionGate.renumber`) sets where
+the numbers start.
 
 What ends a pairing is the receiver's to decide, from what its side knows:
 
@@ -56,6 +58,9 @@ __all__ = [
 ]
 
 _MAX_TRACKED_SESSIONS = 1024
+_SAID_SESSIONS = 8
+"""Other sessions said one by one on stderr; those after are counted and said once together (a flood of distinct
+sessions would otherwise print a line per session, up to the tracked 1024, from the receiving loop)."""
 MAX_SEQ_JUMP = 1000
 """The largest step of the sequence number between two messages followed (a second of messages at 1 kHz)."""
 
@@ -88,6 +93,7 @@ class _Words:
     refused: str
     pinned_first: str
     option: str
+    more: str
 
 
 _COMMAND_WORDS = _Words(
@@ -95,12 +101,14 @@ _COMMAND_WORDS = _Words(
     refused="refused rotor commands of session {s:016x}: paired with {p:016x}{how}",
     pinned_first="the pinned controller session {s:016x} commands",
     option="--pair-session",
+    more="refused rotor commands of more controller sessions: counted (foreign_sessions), not said one by one",
 )
 _FRAME_WORDS = _Words(
     paired="following plant session {s:016x}, the first to send frames (first come: --plant-session pins one)",
     refused="refused sensor frames of plant session {s:016x}: following {p:016x}{how}",
     pinned_first="the pinned plant session {s:016x} sends frames",
     option="--plant-session",
+    more="refused sensor frames of more plant sessions: counted (foreign_plant_sessions), not said one by one",
 )
 
 
@@ -119,7 +127,8 @@ class SessionGate:
         accepted: messages followed.
         refused: messages refused (another session, or a number not increasing or beyond the jump).
         refused_foreign: of those, the messages of another session.
-        foreign_sessions: distinct other sessions seen (up to 1024 tracked).
+        foreign_sessions: distinct other sessions seen, up to 1024 (a flood of more distinct sessions shows 1024;
+            :attr:`refused_foreign` counts every message). The first 8 are said one by one, the rest together.
     """
 
     def __init__(
@@ -160,8 +169,11 @@ class SessionGate:
             self.refused_foreign += 1
             if session_id not in self._foreign and len(self._foreign) < _MAX_TRACKED_SESSIONS:
                 self._foreign.add(session_id)
-                how = f" ({self._words.option})" if self.pinned else ""
-                self._say(self._words.refused.format(s=session_id, p=self.paired, how=how))
+                if len(self._foreign) <= _SAID_SESSIONS:
+                    how = f" ({self._words.option})" if self.pinned else ""
+                    self._say(self._words.refused.format(s=session_id, p=self.paired, how=how))
+                elif len(self._foreign) == _SAID_SESSIONS + 1:
+                    self._say(self._words.more)
             return False
         if not self._fresh and not 0 < seq - self.last_seq <= MAX_SEQ_JUMP:
             self.refused += 1

@@ -9,7 +9,7 @@ Topics (ROS 2 names, in the transport's namespace; types in :mod:`omnirotor.rosm
     /omnirotor/rotor_speeds     omnirotor_msgs/msg/RotorSpeeds   every period (ROS view)
     /omnirotor/sim_status       omnirotor_msgs/msg/SimStatus     about 50 Hz
     /omnirotor/rotor_cmd        omnirotor_msgs/msg/RotorCommand  consumed: obeyed from the paired session only
-    /omnirotor/controller_log   omnirotor_msgs/msg/ControllerLog consumed: the node's log rows (missions)
+    /omnirotor/controller_log   omnirotor_msgs/msg/ControllerLog consumed: the obeyed node's log rows (missions)
     /omnirotor/mission          std_msgs/msg/String (request/reply): the task this server flies, as JSON
 
 A *task* (``--task``, every task of ``omnirotor run``) runs the task function of ``omnirotor run`` unchanged —
@@ -212,8 +212,12 @@ class SimLink:
             TOPICS["rotor_cmd"], COMMAND, depth=_COMMAND_DEPTH, check=command_check(n_rotors),
             decoder=CommandWire(n_rotors).decode,
         )  # fmt: skip
-        self._sub_rows = transport.subscriber(TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH)
-        self.gate = CommandGate(pinned=options.pair_session)
+        self.gate = gate = CommandGate(pinned=options.pair_session)
+        # the rows of the controller session obeyed only: another process's rows never enter the run's metrics
+        self._sub_rows = transport.subscriber(
+            TOPICS["controller_log"], CONTROLLER_LOG, depth=_LOG_DEPTH,
+            check=lambda msg: gate.paired != 0 and int(msg.session_id) == gate.paired,
+        )  # fmt: skip
         self.rows_malformed = 0
         self.stale_commands = 0
         self.stop_nonzero = 0
@@ -235,7 +239,7 @@ class SimLink:
 
     @property
     def bad_payloads(self) -> int:
-        """Payloads on the command and log keys that did not decode or were malformed."""
+        """Bad payloads on the command and log keys: undecodable, malformed, or rows of another session."""
         return self._sub_cmd.n_bad + self._sub_rows.n_bad + self.rows_malformed
 
     def send_frame(self, record: np.ndarray, seq: int) -> None:
@@ -619,10 +623,14 @@ def _sleep_until(when: float, link: SimLink | None) -> None:
         link.poll_commands()
 
 
-def mission_json(task: str, options, lockstep: bool) -> str:
-    """The mission the server flies, as the JSON the node's ``--mission-from-sim`` reads."""
+def mission_json(task: str, options, lockstep: bool, plant_session: int = 0) -> str:
+    """The mission the server flies, as the JSON the node's ``--mission-from-sim`` reads.
+
+    ``plant_session``: the server's own session (its frames'), so that the node knows which plant served it.
+    """
     fields = {name: getattr(options, name) for name in MISSION_OPTION_FIELDS}
-    return json.dumps({"task": task, "options": fields, "lockstep": lockstep})
+    session = f"{plant_session:016x}" if plant_session else None
+    return json.dumps({"task": task, "options": fields, "lockstep": lockstep, "plant_session": session})
 
 
 def serve_task(
@@ -651,7 +659,7 @@ def serve_task(
     vehicle = load_vehicle(options.vehicle)
     link = SimLink(transport, vehicle.n_rotors, serve)
     T = typestore().types
-    mission = mission_json(task, options, serve.lockstep)
+    mission = mission_json(task, options, serve.lockstep, link.session_id)
     transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
     report = SitlReport(lockstep=serve.lockstep)
     with loop_override(remote_loop(link, report)):
