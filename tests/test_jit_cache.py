@@ -55,14 +55,20 @@ def _run(root: Path, names: dict, **numba_env: str) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
-def test_editing_a_helper_in_another_module_recompiles_the_dependent_kernel(tmp_path: Path) -> None:
+def _probe_package(tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A copy of the package in ``tmp_path`` with a probe kernel, the helper it calls and the constants it reads."""
     pkg = tmp_path / "omnirotor"
     shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     names = {"kernel": "_probe_kernel", "helper": "_probe_helper", "consts": "_probe_consts"}
     (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=0.0))
     (pkg / "_probe_helper.py").write_text(HELPER.format(consts=names["consts"], inc=1.0))
     (pkg / "_probe_kernel.py").write_text(KERNEL.format(helper=names["helper"]))
+    return pkg, names
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_editing_a_helper_in_another_module_recompiles_the_dependent_kernel(tmp_path: Path) -> None:
+    pkg, names = _probe_package(tmp_path)
     kernel_stat = (pkg / "_probe_kernel.py").stat()
 
     first = _run(tmp_path, names)
@@ -81,12 +87,7 @@ def test_editing_a_helper_in_another_module_recompiles_the_dependent_kernel(tmp_
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
 def test_a_kernel_compiled_at_one_optimisation_level_is_never_loaded_at_another(tmp_path: Path) -> None:
     """numba's own cache key has no optimisation level: the dependency cache keeps each level in its folder."""
-    pkg = tmp_path / "omnirotor"
-    shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    names = {"kernel": "_probe_kernel", "helper": "_probe_helper", "consts": "_probe_consts"}
-    (pkg / "_probe_consts.py").write_text(CONSTS.format(offset=0.0))
-    (pkg / "_probe_helper.py").write_text(HELPER.format(consts=names["consts"], inc=1.0))
-    (pkg / "_probe_kernel.py").write_text(KERNEL.format(helper=names["helper"]))
+    pkg, names = _probe_package(tmp_path)
     levels = {"NUMBA_LOOP_VECTORIZE": "1", "NUMBA_SLP_VECTORIZE": "0"}
 
     assert _run(tmp_path, names, NUMBA_OPT="3", **levels) == {"value": 4.0, "hits": 0, "misses": 1}
