@@ -245,7 +245,7 @@ class Seen(event.Listener):  # registered after _jit's: sees the collector as a 
         seen.append([ev.data["dispatcher"].py_func.__name__, gc.isenabled()])
 
     def on_end(self, ev):
-        pass
+        return None  # only the start is watched (numba's Listener asks for both hooks)
 
 
 event.register("numba:compile", Seen())
