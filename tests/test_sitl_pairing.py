@@ -117,6 +117,28 @@ def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(
 
 
 @pytest.mark.slow
+def test_a_mission_node_pins_the_plant_that_served_its_mission_through_forged_frames_that_started_first(tmp_path):
+    """``fly --mission-from-sim`` without ``--plant-session``: the mission's reply names the simulator's session and
+    the node pins it, so the flood's frames, there before the node, are refused from the very first (first come
+    would follow them: the next test) and the hover holds."""
+    sim_args = ["--seed", "4", "--duration", "2", "--session-id", f"{PLANT:x}"]
+    with _waiting_plant(tmp_path, sim_args, False, ()) as (pair, t, _, up):
+        assert up.plant_session_id == PLANT
+        with Flood(t, commands=False, frames=True) as flood:
+            assert wait_until(lambda: flood.frames_sent > 200, 60)
+            pair.start_node()  # the node starts into the flood, pinned by nothing but its mission
+            sitl, node = pair.wait(timeout_s=900)
+    s = sitl["sitl"]
+    assert node["plant_session_id"] == s["plant_session_id"] == f"{PLANT:016x}" and node["plant_session_pinned"]
+    assert node["frames_foreign"] > 0 and node["foreign_plant_sessions"] == 1 and not node["link_lost"]
+    err = pair.text("node")
+    assert f"following the sensor frames of plant session {PLANT:016x} only (the mission's plant)" in err
+    assert "first come" not in err and "following plant session" not in err
+    assert s["commands_obeyed"] > 0 and s["commands_obeyed"] + s["commands_held"] >= s["steps"] and not s["failsafe"]
+    assert sitl["success"]
+
+
+@pytest.mark.slow
 def test_a_first_come_node_follows_forged_frames_that_came_first_and_names_the_real_plant(tmp_path):
     """The default's weakness, as documented (docs/transport.md): the node follows the first plant session it hears.
 
