@@ -18,7 +18,20 @@
   to the node's session with ``--pair-session``, the node to the simulator's with ``--plant-session``; first come,
   the flood would take either pairing: docs/transport.md).
 
-``--flood-only``: the flood cases alone (after a warm-up); ``--flood-mode after|before``: one of them.
+* real-time SITL under a ``ctl`` flood (issue 26's "any process may send ctl requests"): a third process connected to
+  the node sends ``FlightRequest`` queries as fast as the node answers them (:data:`CTL_OUTSTANDING` in flight),
+  well-formed ``status`` requests (``ctl-status``) or malformed ones (``ctl-malformed``: random bytes, a truncated
+  request, an unknown kind, a 5000-character name), from when the node flies to the run's end: the node's periods
+  late, its frame-to-command p99, the hover's verdict, and the requests answered, refused and answered busy (the
+  node's bound, ``omnirotor fly --ctl-rate``) on both sides;
+* the tracking against the in-process run: the same seeded hover flown by ``omnirotor run hover`` in one process,
+  and each real-time run's RMS error per axis (the true pose's, the run JSON's ``ee_rms_error_true``) beside it,
+  with the share of the plant's periods held (no fresh command: ``commands_held``) and of the node's periods late,
+  and the gap's least-squares slope against the held share (``--repeats N`` quiet runs; the hog and flood runs
+  are rows too). It was a test's assertion until session 14 (within 0.5 cm of the in-process run); the periods
+  held decide it, a speed of the machine.
+
+``--flood-only``: the flood cases alone (after a warm-up); ``--flood-mode MODE``: one of them.
 
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.

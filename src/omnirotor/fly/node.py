@@ -12,7 +12,9 @@ ones count as missed periods, but the newest motion-capture sample among the ski
 it has none: a loop that falls behind must not lose the samples that anchor the estimate), commands go to
 ``/omnirotor/rotor_cmd`` with this process's random session id and increasing sequence numbers (the plant obeys one
 session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl`` requests (``/omnirotor/ctl``) are answered between frames on
-the loop's own thread (the director is not thread-safe). Status: ``/omnirotor/status`` (the director's,
+the loop's own thread (the director is not thread-safe), one per pass; the transport's thread takes in one request
+per ``1 / NodeOptions.ctl_rate_hz`` and answers the others busy at once, before decoding them (a flood of requests
+from any process must not take the loop's time). Status: ``/omnirotor/status`` (the director's,
 ``FlightStatus``) and ``/omnirotor/loop_status`` (``LoopStatus``, the deadline accounting below) about 50 times a
 second; ``/omnirotor/wrench_est`` (``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One
 message per period is on the hot path, the command; a mission's controller-log rows go to the simulator in batches
