@@ -239,8 +239,10 @@ def ctl_flood(endpoint: str, namespace: str, duration_s: float, kind: str) -> di
     return {**counts, "rate_hz": counts["sent"] / max(elapsed, 1e-9), "kind": kind}
 
 
-def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flood_mode: str | None = None) -> dict:
-    """One SITL hover: the simulator's ``sitl`` report and the node's summary, under a flood in ``flood_mode``."""
+def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flood_mode: str | None = None,
+             ctl_rate: float | None = None) -> dict:  # fmt: skip
+    """One SITL hover: the simulator's run JSON, its ``sitl`` report and the node's summary, under a flood in
+    ``flood_mode`` (``ctl_rate``: the node's ``--ctl-rate``, None its default)."""
     port, node_port = _port(), _port()
     ns = f"/bench{port}"
     sim_cmd = [sys.executable, "-c", CLI, "sim", "--serve", "--task", "hover", "--duration", str(duration_s),
@@ -250,6 +252,7 @@ def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flo
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
                 "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
+    node_cmd += [] if ctl_rate is None else ["--ctl-rate", f"{ctl_rate:g}"]
     if flood_mode == "before":  # pinned pairing both ways: the flood that comes first must take neither
         sim_cmd += ["--pair-session", BENCH_SESSION, "--session-id", BENCH_PLANT]
         node_cmd += ["--session-id", BENCH_SESSION, "--plant-session", BENCH_PLANT]
@@ -390,15 +393,17 @@ def gap_growth(rows: list[dict]) -> dict:
 
 
 def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, file=sys.stderr),
-            flood_modes: tuple[str, ...] = FLOOD_MODES + CTL_MODES, repeats: int | None = None) -> dict:  # fmt: skip
+            flood_modes: tuple[str, ...] = FLOOD_MODES + CTL_MODES, repeats: int | None = None,
+            ctl_rate: float | None = None) -> dict:  # fmt: skip
     """Every figure of the module docstring (``flood_only``: the flood cases alone, in ``flood_modes``).
 
-    ``repeats``: quiet real-time runs (default 1 quick, 3 full), each a row of the tracking table.
+    ``repeats``: quiet real-time runs (default 1 quick, 3 full), each a row of the tracking table; ``ctl_rate``: the
+    node's ``--ctl-rate`` in every run (None: its default).
     """
     lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
     repeats = (1 if quick else 3) if repeats is None else repeats
     out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS,
-                 "load_before": os.getloadavg(), "cpus": os.cpu_count()}  # fmt: skip
+                 "load_before": os.getloadavg(), "cpus": os.cpu_count(), "node_ctl_rate": ctl_rate}  # fmt: skip
     note("warm-up (numba cache)")
     run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
     for views in () if flood_only else (False, True):
@@ -419,7 +424,7 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
     for case, hog in cases + ([] if flood_only else [("real_time_hog", True)]):
         note(f"real-time hover {rt_s:g} s{' with a CPU hog on CPU 0' if hog else ''} ({case})")
         with cpu_hog(0) if hog and n_cpus > 1 else contextlib.nullcontext():
-            r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True)
+            r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, ctl_rate=ctl_rate)
         out[case] = real_time_figures(r)
         rows.append(tracking_row(case, r, ref))
     for mode in flood_modes:
@@ -430,7 +435,7 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
                 "from the pairing on" if mode == "after" else "from before the node, both sides pinned"
             )
         note(f"real-time hover {rt_s:g} s under {what}")
-        r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode)
+        r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode, ctl_rate=ctl_rate)
         case = f"real_time_flood_{mode.replace('-', '_')}"
         out[case] = real_time_figures(r)
         out[case]["hover_success"] = r["run"].get("success")
@@ -548,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--flood-only", action="store_true", help="the flood cases alone (every mode)")
     ap.add_argument("--flood-mode", choices=FLOOD_MODES + CTL_MODES, help="only this flood mode (default: every one)")
     ap.add_argument("--repeats", type=int, help="quiet real-time runs (default: 1 quick, 3 full)")
+    ap.add_argument("--node-ctl-rate", type=float, help="the node's --ctl-rate (default: its own; 1000: one a period)")
     ap.add_argument("--flood-peer", nargs=4, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS", "MODE"),
                     help=argparse.SUPPRESS)  # fmt: skip
     ap.add_argument("--ctl-peer", nargs=4, metavar=("ENDPOINT", "NAMESPACE", "SECONDS", "KIND"), help=argparse.SUPPRESS)
@@ -563,7 +569,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats is not None and not 1 <= args.repeats <= 20:
         ap.error(f"--repeats must be 1 to 20, got {args.repeats}")
     modes = (args.flood_mode,) if args.flood_mode else FLOOD_MODES + CTL_MODES
-    result = collect(args.quick, args.flood_only, flood_modes=modes, repeats=args.repeats)
+    result = collect(args.quick, args.flood_only, flood_modes=modes, repeats=args.repeats, ctl_rate=args.node_ctl_rate)
     print(json.dumps(result, indent=1) if args.json else render(result))
     return 0
 
