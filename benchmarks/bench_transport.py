@@ -359,11 +359,15 @@ def in_process_hover(duration_s: float) -> dict:
 
 
 def tracking_row(case: str, r: dict, ref: dict) -> dict:
-    """One real-time run's tracking against the in-process run ``ref``: RMS per axis, its gap, the periods held."""
-    rms, sim, node = r["run"]["ee_rms_error_true"], r["sim"], r["node"]
+    """One real-time run's tracking against the in-process run ``ref``: RMS per axis, its gap, the periods held.
+
+    A run the plant's failsafe cut has no metrics (docs/transport.md): its row says so, with empty RMS and gap.
+    """
+    rms, sim, node = r["run"].get("ee_rms_error_true") or {}, r["sim"], r["node"]
     axes = [a for a in TRACKING_AXES if a in rms and a in ref["ee_rms_error_true"]]
     return {
         "case": case,
+        "failsafe": bool(sim["failsafe"]),
         "rms": {a: rms[a] for a in axes},
         "gap": {a: rms[a] - ref["ee_rms_error_true"][a] for a in axes},
         "held_share": sim["commands_held"] / max(sim["steps"], 1),
@@ -379,6 +383,7 @@ def gap_growth(rows: list[dict]) -> dict:
     """
     import numpy as np
 
+    rows = [row for row in rows if row["rms"]]  # runs with metrics
     held = np.array([row["held_share"] for row in rows])
     out: dict = {"runs": len(rows), "held_share_range": [float(held.min()), float(held.max())] if rows else None}
     ok = len(rows) >= 3 and float(np.ptp(held)) >= 0.01
@@ -525,8 +530,8 @@ def _tracking(tr: dict) -> list[str]:
         + ("held" if tr.get("in_process_success") else "FAILED") + " |",
     ]  # fmt: skip
     for row in sorted(tr["rows"], key=lambda x: x["held_share"]):
-        cells = " | ".join(f"{row['rms'][a]:.2f} ({row['gap'][a]:+.2f})" for a in axes)
-        verdict = "held" if row["success"] else "FAILED"
+        cells = " | ".join(f"{row['rms'][a]:.2f} ({row['gap'][a]:+.2f})" if a in row["rms"] else "-" for a in axes)
+        verdict = "cut by the failsafe (no metrics)" if row["failsafe"] else "held" if row["success"] else "FAILED"
         lines.append(f"| {row['case']} | {100 * row['held_share']:.1f} % | {100 * row['late_share']:.1f} % | "
                      f"{cells} | {verdict} |")  # fmt: skip
     g = tr["growth"]
