@@ -545,6 +545,30 @@ def _tracking(tr: dict) -> list[str]:
     return lines
 
 
+def plot_tracking(tr: dict, path: str) -> None:
+    """The tracking table as a figure: each run's RMS gap to the in-process run against the share of periods held."""
+    import matplotlib.pyplot as plt
+
+    from omnirotor.experiments.figures import save_figure
+
+    rows = [row for row in tr["rows"] if row["rms"]]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    for ax, group, unit in ((axes[0], ("x_cm", "y_cm", "z_cm"), "cm"), (axes[1], ("roll_deg", "pitch_deg", "yaw_deg"),
+                                                                         "deg")):  # fmt: skip
+        for a, marker in zip(group, "o^s", strict=True):
+            pts = [(100 * row["held_share"], row["gap"][a]) for row in rows if a in row["gap"]]
+            if pts:
+                ax.scatter(*zip(*pts, strict=True), marker=marker, label=a.split("_")[0])
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_xlabel("plant periods held (no fresh command) [%]")
+        ax.set_ylabel(f"RMS error, transport - in process [{unit}]")
+        ax.legend()
+    cut = len(tr["rows"]) - len(rows)
+    fig.suptitle(f"Real-time hover over the transport against the same hover in process ({len(rows)} runs"
+                 + (f"; {cut} cut by the plant's failsafe, not shown" if cut else "") + ")")  # fmt: skip
+    save_figure(fig, path)
+
+
 def _loop(d: dict) -> str:
     v = d.get("node_loop_cpu_per_frame_us")
     return "?" if v is None else f"{v:.0f}"
@@ -558,6 +582,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--flood-only", action="store_true", help="the flood cases alone (every mode)")
     ap.add_argument("--flood-mode", choices=FLOOD_MODES + CTL_MODES, help="only this flood mode (default: every one)")
     ap.add_argument("--repeats", type=int, help="quiet real-time runs (default: 1 quick, 3 full)")
+    ap.add_argument("--plot", metavar="PNG", help="also draw the tracking table into this PNG file")
     ap.add_argument("--node-ctl-rate", type=float, help="the node's --ctl-rate (default: its own; 1000: one a period)")
     ap.add_argument("--flood-peer", nargs=4, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS", "MODE"),
                     help=argparse.SUPPRESS)  # fmt: skip
@@ -575,6 +600,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--repeats must be 1 to 20, got {args.repeats}")
     modes = (args.flood_mode,) if args.flood_mode else FLOOD_MODES + CTL_MODES
     result = collect(args.quick, args.flood_only, flood_modes=modes, repeats=args.repeats, ctl_rate=args.node_ctl_rate)
+    if args.plot:
+        plot_tracking(result["tracking"], args.plot)
     print(json.dumps(result, indent=1) if args.json else render(result))
     return 0
 
