@@ -236,7 +236,8 @@ def ctl_flood(endpoint: str, namespace: str, duration_s: float, kind: str) -> di
         slots.acquire(timeout=max(drained - time.monotonic(), 0.0))
     answered = counts["accepted"] + counts["refused"] + counts["busy"]
     counts["unanswered"] = counts["sent"] - answered
-    return {**counts, "rate_hz": counts["sent"] / max(elapsed, 1e-9), "kind": kind}
+    cpu = time.process_time()  # the flooder's own CPU (its Python and Zenoh's threads): taken from the pair's cores
+    return {**counts, "rate_hz": counts["sent"] / max(elapsed, 1e-9), "kind": kind, "cpu_s": cpu, "s": elapsed}
 
 
 def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flood_mode: str | None = None,
