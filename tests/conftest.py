@@ -7,11 +7,13 @@ from pathlib import Path
 
 import pytest
 
-# The tests compile at the omnirotor command's numba level (omnirotor.cli.NUMBA_OPT_DEFAULT; test_jit_cache checks
-# that they agree), so the commands the tests start load the kernels the test process compiled, and the reverse.
-# Set before numba is imported; a NUMBA_OPT in the environment wins, as for the command.
-TEST_NUMBA_OPT = "1"
-os.environ.setdefault("NUMBA_OPT", TEST_NUMBA_OPT)
+from omnirotor.cli import use_numba_opt_default
+
+# The tests compile at the omnirotor command's numba level (the command's own setter, before numba is imported:
+# omnirotor.cli imports no numba), so the commands the tests start load the kernels the test process compiled, and
+# the reverse. A NUMBA_OPT in the environment wins, as for the command (test_jit_cache checks the level in force).
+NUMBA_OPT_PRESET = os.environ.get("NUMBA_OPT")
+use_numba_opt_default()
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FLIGHT_DATA = SHARED / "data" / "omnirotor-hover-flight"

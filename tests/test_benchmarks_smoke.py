@@ -161,6 +161,9 @@ def test_sliding_campaigns_one_and_two_workers_give_the_speedup(tiny):
     assert sl["sim_s"] == pytest.approx(cfg.sliding_campaign_runs * cfg.sliding_campaign_duration_s, abs=0.05)
     w1, w2 = sl["wall_median_s"]["1"], sl["wall_median_s"]["2"]
     assert tiny["campaign_sliding_speedup_2_workers"] == pytest.approx(w1 / w2)
+    c1, c2 = sl["cpu_median_s"]["1"], sl["cpu_median_s"]["2"]
+    assert c1 == pytest.approx(bench._median(sl["cpu_s"]["1"])) and c2 == pytest.approx(bench._median(sl["cpu_s"]["2"]))
+    assert sl["speedup_ceiling_by_cpu"] == pytest.approx(2 * c1 / c2)
     assert "campaign sliding" in sl["command"] and "--workers W" in sl["command"]
 
 

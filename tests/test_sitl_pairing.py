@@ -91,11 +91,18 @@ def test_first_come_pairs_with_a_flood_that_started_first_and_refuses_the_node(t
 
 
 @pytest.mark.slow
-def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(tmp_path):
-    """``fly --plant-session``: the flood's frames are refused from the very first, counted and said once; the
-    node follows the simulator's frames only and its hover holds."""
+@pytest.mark.parametrize(
+    ("node_args", "pinned_by"),
+    [(("--plant-session", f"{PLANT:016x}"), "--plant-session"), ((), "the mission's plant")],
+    ids=["plant-session", "mission"],
+)
+def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(tmp_path, node_args, pinned_by):
+    """Pinned by ``fly --plant-session``, or by the mission's reply, which names the simulator's session (without
+    the option): the flood's frames, there before the node, are refused from the very first, counted and said once
+    (first come would follow them: the next test); the node follows the simulator's frames only and its hover
+    holds."""
     sim_args = ["--seed", "4", "--duration", "2", "--session-id", f"{PLANT:x}"]
-    with _waiting_plant(tmp_path, sim_args, False, ("--plant-session", f"{PLANT:016x}")) as (pair, t, _, up):
+    with _waiting_plant(tmp_path, sim_args, False, node_args) as (pair, t, _, up):
         assert up.plant_session_id == PLANT  # the plant is up, waiting, and says its session
         assert f"plant session {PLANT:016x}" in pair.text("sim")
         with Flood(t, commands=False, frames=True) as flood:
@@ -106,11 +113,12 @@ def test_a_pinned_node_flies_its_plant_through_forged_frames_that_started_first(
     assert node["plant_session_id"] == s["plant_session_id"] == f"{PLANT:016x}" and node["plant_session_pinned"]
     assert node["frames_foreign"] > 0 and node["foreign_plant_sessions"] == 1 and not node["link_lost"]
     err = pair.text("node")
-    assert f"following the sensor frames of plant session {PLANT:016x} only (--plant-session)" in err
+    assert f"following the sensor frames of plant session {PLANT:016x} only ({pinned_by})" in err
     refused = f"refused sensor frames of plant session {FLOOD_PLANT:016x}: following {PLANT:016x} (--plant-session)"
     assert err.count(refused) == 1  # said once, counted throughout
     assert f"the pinned plant session {PLANT:016x} sends frames" in err
-    assert "following plant session" not in err and "status names plant session" not in err  # never first come
+    assert "first come" not in err and "following plant session" not in err  # never first come
+    assert "status names plant session" not in err
     # the node's commands flew the plant: every period commanded or held, never the failsafe, and the hover holds
     assert s["commands_obeyed"] > 0 and s["commands_obeyed"] + s["commands_held"] >= s["steps"] and not s["failsafe"]
     assert sitl["success"] and max(sitl["ee_max_error"][a] for a in ("x_cm", "y_cm", "z_cm")) < 5.0

@@ -117,7 +117,7 @@ def fly(
     say(f"controller session {session:016x} (a plant's --pair-session {session:016x} obeys this node only)")
     if plant is not None:
         say(f"following the sensor frames of plant session {plant:016x} only (--plant-session)")
-    else:
+    elif not mission_from_sim:  # a mission names its plant (below)
         say("following the first plant session that sends frames (first come; --plant-session pins one)")
     node_options = NodeOptions(session_id=session, plant_session=plant, **outputs)
     with open_transport(**args, node="omnirotor_fly") as t:
@@ -131,6 +131,11 @@ def fly(
             by = f", served by plant session {served_by:016x}" if served_by is not None else ""
             say(f"flying the simulator's mission: {task} ({'lockstep' if lockstep else 'real time'}){by}")
             node_options = dataclasses.replace(node_options, lockstep=lockstep)
+            if plant is None and served_by is not None:  # the mission names its plant: pin it, not first come
+                say(f"following the sensor frames of plant session {served_by:016x} only (the mission's plant)")
+                node_options = dataclasses.replace(node_options, plant_session=served_by)
+            elif plant is None:
+                say("following the first plant session that sends frames (first come: the mission names no plant)")
             summary = fly_mission(t, task, options, node_options, factory, realtime)
         else:
             from omnirotor.control.controller import InteractionController, load_controller_params
