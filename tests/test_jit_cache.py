@@ -293,10 +293,25 @@ def test_old_cache_folders_are_pruned(tmp_path: Path) -> None:
         d = tmp_path / f"deps-{i:02d}"
         d.mkdir()
         (d / "k.nbi").write_bytes(b"x")
+        (d / "ext-a").mkdir()  # a block's folder inside (record_sources) goes with it
+        (d / "ext-a" / "k.nbi").write_bytes(b"x")
         os.utime(d, ns=(i * 10**9, i * 10**9))
     _prune_cache_folders(str(tmp_path))
     kept = sorted(f.name for f in tmp_path.glob("deps-*"))
     assert kept == [f"deps-{i:02d}" for i in range(3, _KEEP_CACHE_FOLDERS + 3)]
+
+
+def test_old_folders_of_blocks_outside_a_kernels_closure_are_pruned(tmp_path: Path) -> None:
+    from omnirotor._jit import _KEEP_EXTENSION_FOLDERS, _prune_extension_folders
+
+    for i in range(_KEEP_EXTENSION_FOLDERS + 2):
+        d = tmp_path / f"ext-{i:02d}"
+        d.mkdir()
+        (d / "k.nbi").write_bytes(b"x")
+        os.utime(d, ns=(i * 10**9, i * 10**9))
+    _prune_extension_folders(str(tmp_path))
+    kept = sorted(f.name for f in tmp_path.glob("ext-*"))
+    assert kept == [f"ext-{i:02d}" for i in range(2, _KEEP_EXTENSION_FOLDERS + 2)]
 
 
 def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: Path) -> None:
