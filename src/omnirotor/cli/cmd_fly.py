@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import Annotated
 
 import typer
 
-from omnirotor.cli import app
+from omnirotor.cli import app, number_option
 from omnirotor.cli.connection_options import (
     DomainId,
     Namespace,
@@ -80,16 +81,27 @@ def fly(
     ] = None,
     foxglove: Annotated[bool, typer.Option(help="Serve the live view (Foxglove WebSocket) on loopback.")] = False,
     foxglove_port: Annotated[int, typer.Option(help="Port of the live view (0: any free one, said).")] = 8765,
+    ctl_rate: Annotated[
+        float | None,
+        typer.Option(
+            help="The most `omnirotor ctl` requests served per second (others answered busy) [default: 100; at "
+            "most 1000].",
+            parser=number_option,
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
-    from omnirotor.fly.node import NodeLoop, NodeOptions, fly_mission, warm_up
+    from omnirotor.fly.node import CTL_RATE_HZ, MAX_CTL_RATE_HZ, NodeLoop, NodeOptions, fly_mission, warm_up
     from omnirotor.fly.node import mission_from_sim as ask
     from omnirotor.realtime import set_realtime
     from omnirotor.sitl.gate import new_session_id
     from omnirotor.transport import open_transport
 
     check_realtime_options(cpu, fifo_priority)
+    ctl_rate = CTL_RATE_HZ if ctl_rate is None else ctl_rate
+    if not (math.isfinite(ctl_rate) and 0.0 < ctl_rate <= MAX_CTL_RATE_HZ):
+        raise InputError(f"--ctl-rate must be in (0, {MAX_CTL_RATE_HZ:g}] requests a second, got {ctl_rate}")
     session = session_id_arg(session_id, "--session-id")
     plant = session_id_arg(plant_session, "--plant-session")
     factory = _director_factory(flight, list(set_ or ()))
@@ -119,7 +131,7 @@ def fly(
         say(f"following the sensor frames of plant session {plant:016x} only (--plant-session)")
     elif not mission_from_sim:  # a mission names its plant (below)
         say("following the first plant session that sends frames (first come; --plant-session pins one)")
-    node_options = NodeOptions(session_id=session, plant_session=plant, **outputs)
+    node_options = NodeOptions(session_id=session, plant_session=plant, ctl_rate_hz=ctl_rate, **outputs)
     with open_transport(**args, node="omnirotor_fly") as t:
         if mission_from_sim:
             task, options, lockstep, served_by = ask(t, timeout_s=30.0)
@@ -178,6 +190,12 @@ def _print_summary(s: dict) -> None:
         print(
             f"the plant's IMU: rate off {imu['rate_off_episodes']} time(s), {imu['rate_off_s']:.1f} s in all; "
             f"{imu['gaps']} gap(s), the worst {imu['worst_gap_ms']:.0f} ms"
+        )
+    req = s.get("requests")
+    if req and (req["served"] or req["busy"] or req["bad"]):
+        print(
+            f"ctl requests: {req['served']} served, {req['busy']} answered busy (at most {req['rate_hz']:g} a "
+            f"second), {req['bad']} malformed, {req['unserved']} not served in time"
         )
     rec = s.get("recording")
     if rec is not None:

@@ -12,7 +12,9 @@ ones count as missed periods, but the newest motion-capture sample among the ski
 it has none: a loop that falls behind must not lose the samples that anchor the estimate), commands go to
 ``/omnirotor/rotor_cmd`` with this process's random session id and increasing sequence numbers (the plant obeys one
 session: :mod:`omnirotor.sitl.gate`). ``omnirotor ctl`` requests (``/omnirotor/ctl``) are answered between frames on
-the loop's own thread (the director is not thread-safe). Status: ``/omnirotor/status`` (the director's,
+the loop's own thread (the director is not thread-safe), one per pass; the transport's thread takes in one request
+per ``1 / NodeOptions.ctl_rate_hz`` and answers the others busy at once, before decoding them (a flood of requests
+from any process must not take the loop's time). Status: ``/omnirotor/status`` (the director's,
 ``FlightStatus``) and ``/omnirotor/loop_status`` (``LoopStatus``, the deadline accounting below) about 50 times a
 second; ``/omnirotor/wrench_est`` (``WrenchStamped``, the observer's estimate in the world frame) at 100 Hz. One
 message per period is on the hot path, the command; a mission's controller-log rows go to the simulator in batches
@@ -74,6 +76,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.fly.failsafe import LinkAges
+from omnirotor.fly.modes import REQUESTS
 from omnirotor.messages import SensorFrame
 from omnirotor.realtime import freeze_gc, thaw_gc
 from omnirotor.rosmsg import typestore
@@ -115,6 +118,14 @@ _FRAME_DEPTH = 32
 _ROW_BATCH = 20
 """Controller-log rows per ControllerLog message (missions): one message every 20 steps, not one per step."""
 _LOCKSTEP_WAIT_S = 0.02
+REQUESTS_PER_PERIOD = 1
+"""The most ``ctl`` requests the loop serves in one pass between frames."""
+CTL_RATE_HZ = 100.0
+"""The most ``ctl`` requests the loop serves per second by default (a person types a few; the status is on its own
+topic at 50 Hz). A flood of 600 ``status`` requests a second, all served, held 80 % of a loaded machine's periods
+(BENCHMARKS.md)."""
+MAX_CTL_RATE_HZ = 1000.0
+"""The highest ``--ctl-rate``: one request a period."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,6 +157,9 @@ class NodeOptions:
         plant_session: follow the frames of this plant session only (``omnirotor fly --plant-session``, the id
             the plant prints at its start or was given with its ``--session-id``); None: the first come (module
             docstring).
+        ctl_rate_hz: the most ``omnirotor ctl`` requests the loop serves per second (``omnirotor fly --ctl-rate``):
+            one is taken in at most every ``1 / ctl_rate_hz`` seconds and one period, the others answered busy at
+            once on the transport's thread, never decoded (module docstring).
     """
 
     period_s: float = 0.001
@@ -163,6 +177,7 @@ class NodeOptions:
     frame_guard_s: float = 0.0003
     session_id: int | None = None
     plant_session: int | None = None
+    ctl_rate_hz: float = CTL_RATE_HZ
 
 
 class LoopStats:
@@ -341,10 +356,20 @@ class NodeLoop:
             self._flight_status_type = T["omnirotor_msgs/msg/FlightStatus"]
             self._pub_status = transport.publisher(TOPICS["status"], "omnirotor_msgs/msg/FlightStatus")
         self._requests: queue.SimpleQueue = queue.SimpleQueue()
+        self._admit_lock = threading.Lock()
+        self._admit_after = -math.inf  # when the transport's thread may take in the next request
+        self._request_every_s = max(1.0 / o.ctl_rate_hz, o.period_s)
+        self._busy_replies: dict[tuple[int, int], Any] = {}
+        self.requests_served = 0
+        """Requests the loop served (answered by the director)."""
+        self.requests_unserved = 0
+        """Requests taken in that the loop did not serve within a second (no reply: the client times out)."""
+        self._ctl_counts = None
         if hasattr(director, "request") and "omnirotor_msgs/msg/FlightRequest" in T:
-            transport.serve(
-                TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request
-            )
+            self._ctl_counts = transport.serve(
+                TOPICS["ctl"], "omnirotor_msgs/msg/FlightRequest", "omnirotor_msgs/msg/FlightReply", self._on_request,
+                busy=self._busy,
+            )  # fmt: skip
         self._row_msg = T[CONTROLLER_LOG](
             session_id=self.session_id, frame_seq=np.zeros(0, np.uint64), n_columns=0, rows=np.zeros(0)
         )
@@ -394,18 +419,47 @@ class NodeLoop:
                 pass
 
     # -- requests (transport thread -> loop thread) --------------------------------------------------------
+    def _busy(self, payload: bytes) -> Any:
+        """The transport's thread, before decoding: None takes the request in, else the busy reply.
+
+        One request is taken in per ``1 / ctl_rate_hz`` (and none while one waits for the loop); the busy reply is
+        a refusal with the mode unchanged, built once per request kind and mode.
+        """
+        now = time.monotonic()
+        with self._admit_lock:
+            if now >= self._admit_after and self._requests.empty():
+                self._admit_after = now + self._request_every_s
+                return None
+        # the kind is the first field after CDR's 4-byte header (FlightRequest.msg); an unknown one is said as status
+        kind = payload[4] if len(payload) > 4 and payload[4] < len(REQUESTS) else 0
+        mode = int(getattr(self.director, "mode", 0))
+        reply = self._busy_replies.get((kind, mode))
+        if reply is None:
+            reply = self._busy_replies[(kind, mode)] = typestore().types["omnirotor_msgs/msg/FlightReply"](
+                accepted=False, kind=kind, mode_from=mode, mode=mode,
+                message=f"busy: the node serves at most {1.0 / self._request_every_s:g} requests a second (fly "
+                        "--ctl-rate); try again",
+            )  # fmt: skip
+        return reply
+
     def _on_request(self, req: Any) -> Any:
         """The transport's handler: hand ``req`` to the loop and wait (bounded) for its reply."""
         slot: queue.SimpleQueue = queue.SimpleQueue()
         self._requests.put((req, slot))
-        return slot.get(timeout=1.0)  # raises queue.Empty: no reply (the client times out)
+        try:
+            return slot.get(timeout=1.0)
+        except queue.Empty:  # no reply (the client times out)
+            self.requests_unserved += 1
+            raise
 
     def _serve_requests(self) -> None:
-        while True:
+        """Serve one request taken in, if any: the budget of a period (the rest were answered busy: ``_busy``)."""
+        for _ in range(REQUESTS_PER_PERIOD):
             try:
                 req, slot = self._requests.get_nowait()
             except queue.Empty:
                 return
+            self.requests_served += 1
             try:
                 reply = self.director.request(req)
                 T = typestore().types
@@ -699,6 +753,11 @@ class NodeLoop:
         out["mocap_carried"] = self.mocap_carried
         out["session_id"] = f"{self.session_id:016x}"
         out["plant_imu"] = self.plant_imu
+        c = self._ctl_counts
+        out["requests"] = {
+            "served": self.requests_served, "busy": c.busy if c else 0, "bad": c.bad - self.requests_unserved if c
+            else 0, "unserved": self.requests_unserved, "rate_hz": 1.0 / self._request_every_s,
+        }  # fmt: skip
         return out
 
     def _idle(self, now, last_seen, last_frame, last_mocap_t, loss_s, next_gap_call) -> bool:

@@ -22,6 +22,7 @@ never raised. Another transport (DDS, say) is one module with a :class:`Transpor
 from __future__ import annotations
 
 import abc
+import dataclasses
 import re
 import sys
 import time
@@ -33,6 +34,7 @@ from omnirotor.rosmsg import typestore
 
 __all__ = [
     "Transport",
+    "ServeCounts",
     "Publisher",
     "Subscriber",
     "register_transport",
@@ -244,6 +246,21 @@ class Subscriber:
             self._close = None
 
 
+@dataclasses.dataclass
+class ServeCounts:
+    """What a :meth:`Transport.serve` did with its requests (updated from the transport's thread).
+
+    Attributes:
+        answered: requests handled and answered.
+        busy: requests answered at once by its ``busy`` callable, never decoded nor handled.
+        bad: requests that did not decode, or whose handler raised (no reply).
+    """
+
+    answered: int = 0
+    busy: int = 0
+    bad: int = 0
+
+
 class Transport(abc.ABC):
     """A session on a message transport: publishers, subscribers, request/reply; ROS 2 names and types.
 
@@ -300,26 +317,47 @@ class Transport(abc.ABC):
         poll, close, key = self._subscriber(name, msgtype, depth)
         return Subscriber(poll, msgtype, key, check=check, close=close, decoder=decoder)
 
-    def serve(self, topic: str, reqtype: str, reptype: str, handler: Callable[[Any], Any]) -> None:
+    def serve(
+        self,
+        topic: str,
+        reqtype: str,
+        reptype: str,
+        handler: Callable[[Any], Any],
+        busy: Callable[[bytes], Any] | None = None,
+    ) -> ServeCounts:
         """Answer requests of ``reqtype`` on ``topic`` with ``handler(request) -> reply`` (a ``reptype``).
 
-        A request that does not decode, or a handler that raises, gets no reply (the client times out); the
-        handler runs on the transport's thread, so it must only hand the request over (e.g. to a queue or a
-        lock-protected director) and return quickly.
+        A request that does not decode, or a handler that raises, gets no reply (the client times out) and is
+        counted (``bad`` of the returned counts); the handler runs on the transport's thread, so it must only hand
+        the request over (e.g. to a queue or a lock-protected director) and return quickly. ``busy(payload)``, if
+        given, is asked first, before anything is decoded: a reply (a ``reptype``) it returns is the answer at
+        once, without the handler (counted in ``busy``; the same object again is not serialised again), None goes
+        on to decode and handle.
         """
         name = ros_topic(self.namespace, topic)
         _known(reqtype)
         _known(reptype)
         store = typestore()
+        counts = ServeCounts()
+        cached: list = [None, b""]  # the last busy reply and its bytes
 
         def on_request(payload: bytes) -> bytes | None:
             try:
+                if busy is not None and (rep := busy(payload)) is not None:
+                    counts.busy += 1
+                    if rep is not cached[0]:
+                        cached[:] = [rep, bytes(store.serialize_cdr(rep, reptype))]
+                    return cached[1]
                 req = store.deserialize_cdr(payload, reqtype)
-                return bytes(store.serialize_cdr(handler(req), reptype))
+                out = bytes(store.serialize_cdr(handler(req), reptype))
             except Exception:  # noqa: BLE001  (a bad request or a failing handler: no reply, never a crash)
+                counts.bad += 1
                 return None
+            counts.answered += 1
+            return out
 
         self._serve(name, reqtype, on_request)
+        return counts
 
     def request(self, topic: str, reqtype: str, req: Any, reptype: str, timeout_s: float = 1.0) -> Any | None:
         """Send ``req`` and wait up to ``timeout_s`` for the reply; None on time-out or an undecodable reply."""
