@@ -99,6 +99,100 @@ def test_a_kernel_compiled_at_one_optimisation_level_is_never_loaded_at_another(
     assert {"o3v10", "o1v10", "o1v00"} <= suffixes
 
 
+BLOCK = """
+import numba
+import numpy as np
+
+from omnirotor.blocks import register
+
+DTYPE = np.dtype([(n, np.float64, 3) for n in ("f_ext_W", "m_ext_B", "f_filt_W", "m_filt_B")] + [("n_nonfinite", "f8")])
+
+
+@numba.njit
+def probe_observe(r, A, u_hz2, a_W, R_WB, omega_B, dt):
+    r.f_ext_W[0] = {value}
+
+
+@register("observer", "probe")
+class ProbeObserver:
+    state_dtype = DTYPE
+    kernel = probe_observe
+"""
+CALLER = """
+from omnirotor._jit import jit
+from omnirotor.blocks import compiled_step
+
+_observe = compiled_step("observer")
+
+
+@jit
+def caller(rec):
+    _observe(rec[0], np.zeros((6, 8)), np.zeros(8), np.zeros(3), np.eye(3), np.zeros(3), 0.001)
+    return rec[0].f_ext_W[0]
+"""
+BLOCK_PROBE = """
+import json
+import numpy as np
+{block}
+from omnirotor._probe_caller import caller
+value = caller(np.zeros(1, DTYPE))
+print(json.dumps({{"value": value, "hits": sum(caller.stats.cache_hits.values()),
+                   "misses": sum(caller.stats.cache_misses.values())}}))
+"""
+
+
+def _run_block_probe(root: Path, block: str) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(root))
+    env.pop("NUMBA_CACHE_DIR", None)
+    code = BLOCK_PROBE.format(block=block)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_editing_a_block_registered_outside_the_package_recompiles_the_kernel_that_calls_it(tmp_path: Path) -> None:
+    """A block reached through the registry (its record's type), not an import: a user's or a test's own block.
+
+    The package's kernel that calls it through ``compiled_step`` links its machine code; its closure does not
+    name the block's file. Before the block's sources were part of the key, the edited block's old code ran.
+    """
+    pkg, _ = _probe_package(tmp_path)
+    (pkg / "_probe_caller.py").write_text("import numpy as np\n" + CALLER)
+    block = tmp_path / "my_block.py"  # beside the package, as a user's module
+    use = "from my_block import DTYPE"
+
+    block.write_text(BLOCK.format(value=1.0))
+    assert _run_block_probe(tmp_path, use) == {"value": 1.0, "hits": 0, "misses": 1}
+    assert _run_block_probe(tmp_path, use) == {"value": 1.0, "hits": 1, "misses": 0}
+    block.write_text(BLOCK.format(value=2.0))  # the same record type, another kernel body
+    assert _run_block_probe(tmp_path, use)["value"] == 2.0
+    assert _run_block_probe(tmp_path, use) == {"value": 2.0, "hits": 1, "misses": 0}
+    block.write_text(BLOCK.format(value=1.0))  # back: that version's folder is still there
+    assert _run_block_probe(tmp_path, use) == {"value": 1.0, "hits": 1, "misses": 0}
+    assert len(list((pkg / "__pycache__").glob("deps-*/ext-*"))) == 2
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="nothing is compiled or cached")
+def test_a_block_the_kernel_imports_keeps_the_kernels_own_cache_and_one_without_a_file_is_never_cached(
+    tmp_path: Path,
+) -> None:
+    """The package's own blocks are in their callers' closures: no folder of their own (the command line and the
+    tests share one cache). A block defined where no file holds it (a prompt) cannot be hashed: not cached."""
+    pkg, _ = _probe_package(tmp_path)
+    (pkg / "_probe_block.py").write_text(BLOCK.format(value=3.0))
+    (pkg / "_probe_caller.py").write_text("import numpy as np\nfrom omnirotor._probe_block import DTYPE\n" + CALLER)
+    use = "from omnirotor._probe_block import DTYPE"
+    assert _run_block_probe(tmp_path, use) == {"value": 3.0, "hits": 0, "misses": 1}
+    assert _run_block_probe(tmp_path, use) == {"value": 3.0, "hits": 1, "misses": 0}
+    assert not list((pkg / "__pycache__").glob("deps-*/ext-*"))
+
+    (pkg / "_probe_caller.py").write_text("import numpy as np\n" + CALLER)
+    at_a_prompt = BLOCK.format(value=4.0)
+    assert _run_block_probe(tmp_path, at_a_prompt) == {"value": 4.0, "hits": 0, "misses": 1}
+    assert _run_block_probe(tmp_path, at_a_prompt) == {"value": 4.0, "hits": 0, "misses": 1}
+
+
 def test_source_closure_follows_package_imports_only() -> None:
     from omnirotor._jit import source_closure
 
@@ -199,10 +293,25 @@ def test_old_cache_folders_are_pruned(tmp_path: Path) -> None:
         d = tmp_path / f"deps-{i:02d}"
         d.mkdir()
         (d / "k.nbi").write_bytes(b"x")
+        (d / "ext-a").mkdir()  # a block's folder inside (record_sources) goes with it
+        (d / "ext-a" / "k.nbi").write_bytes(b"x")
         os.utime(d, ns=(i * 10**9, i * 10**9))
     _prune_cache_folders(str(tmp_path))
     kept = sorted(f.name for f in tmp_path.glob("deps-*"))
     assert kept == [f"deps-{i:02d}" for i in range(3, _KEEP_CACHE_FOLDERS + 3)]
+
+
+def test_old_folders_of_blocks_outside_a_kernels_closure_are_pruned(tmp_path: Path) -> None:
+    from omnirotor._jit import _KEEP_EXTENSION_FOLDERS, _prune_extension_folders
+
+    for i in range(_KEEP_EXTENSION_FOLDERS + 2):
+        d = tmp_path / f"ext-{i:02d}"
+        d.mkdir()
+        (d / "k.nbi").write_bytes(b"x")
+        os.utime(d, ns=(i * 10**9, i * 10**9))
+    _prune_extension_folders(str(tmp_path))
+    kept = sorted(f.name for f in tmp_path.glob("ext-*"))
+    assert kept == [f"ext-{i:02d}" for i in range(2, _KEEP_EXTENSION_FOLDERS + 2)]
 
 
 def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ from omnirotor.messages import new_frame
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import COMMAND, CONTROLLER_LOG, FRAME, SIM_STATUS, WRENCH, WireMessages
 from omnirotor.vehicle import load_vehicle
-from sitl.procs import Pair, wait_until
+from sitl.procs import Pair
 
 
 def payloads(rng, valid: bytes, foreign: bytes) -> list[bytes]:
@@ -68,13 +68,16 @@ def test_fuzz_and_a_second_commander_are_counted_dropped_and_never_obeyed(tmp_pa
     with Pair(tmp_path, "hover", sim_args, lockstep=False) as pair, pair.transport() as t:
         status = t.subscriber("/omnirotor/sim_status", SIM_STATUS, depth=8)
         loop = t.subscriber("/omnirotor/loop_status", "omnirotor_msgs/msg/LoopStatus", depth=8)
-        assert wait_until(lambda: (m := loop.take_latest()) is not None and m.frames > 500, timeout_s=300)
+        pair.until(
+            lambda: (m := loop.take_latest()) is not None and m.frames > 500, 300, "the hover's first 500 frames"
+        )
         keys = (("frame", FRAME, FRAME), ("sim_status", SIM_STATUS, FRAME), ("rotor_cmd", COMMAND, COMMAND),
                 ("controller_log", CONTROLLER_LOG, CONTROLLER_LOG))  # fmt: skip
         pubs = {k: (t.publisher(f"/omnirotor/{k}", typ), valid[template]) for k, typ, template in keys}
         pools = {k: (pub, payloads(rng, good, foreign_wrench)) for k, (pub, good) in pubs.items()}
-        paired = wait_until(lambda: (m := status.take_latest()) is not None and m.paired_session_id != 0 and m, 30)
-        assert paired, pair.text("sim")[-2000:]
+        paired = pair.until(
+            lambda: (m := status.take_latest()) is not None and m.paired_session_id != 0 and m, 30, "the pairing"
+        )
         sent = dict.fromkeys(pools, 0)
         refused = 0
         t0 = tick = time.monotonic()

@@ -19,7 +19,12 @@ so after an edit of a helper in *another* module a cached dependent kernel would
 (whose code is compiled into it). The cache of every kernel here therefore stamps its index with a hash of
 the sources the kernel's module depends on: its file and, transitively, every module of the package it
 imports (:func:`source_closure`). An edit anywhere in that closure makes the kernel compile again on its next
-use; an edit elsewhere (the CLI, the experiments) keeps the cache. This uses numba's cache-locator interface
+use; an edit elsewhere (the CLI, the experiments) keeps the cache. Code a kernel reaches through a record's
+type instead of an import (a block's kernel, which :func:`omnirotor.blocks.compiled_step` links into its caller
+when the caller is compiled for that block's record) is declared by :func:`record_sources`
+(:func:`omnirotor.blocks.register` does it for every block): a specialisation whose arguments hold such a record
+from outside the kernel's closure (a user's or a test's block) is cached keyed on those files too, in a folder
+of its own. This uses numba's cache-locator interface
 only (:class:`DependencyLocator`: the locators numba ships, with another ``get_source_stamp``, the method a
 locator exists to provide), through a :class:`DependencyCache` that is numba's ``FunctionCache`` with that
 locator first; the one private detail is the dispatcher's ``_cache`` attribute, which numba's own
@@ -54,7 +59,7 @@ import llvmlite.binding
 import numba
 import numpy as np
 from numba import types
-from numba.core import event
+from numba.core import event, sigutils
 from numba.core.caching import (
     CompileResultCacheImpl,
     FunctionCache,
@@ -73,6 +78,7 @@ __all__ = [
     "DependencyCache",
     "DependencyLocator",
     "source_closure",
+    "record_sources",
     "codegen_settings",
     "CollectorPause",
     "mujoco_function",
@@ -144,13 +150,68 @@ def source_closure(path: str) -> tuple[Path, ...]:
     return tuple(sorted(seen))
 
 
-@functools.cache
-def _closure_hash(path: str) -> str:
+def _files_hash(files) -> str:
+    """The hash of source files' names (the package's relative to it) and contents, in the order given."""
     h = hashlib.sha256()
-    for f in source_closure(path):
+    for f in files:
         name = f.relative_to(_PACKAGE_DIR) if f.is_relative_to(_PACKAGE_DIR) else f  # e.g. a benchmark's kernel
         h.update(str(name).encode() + b"\0" + _file_bytes(f) + b"\0")
     return h.hexdigest()
+
+
+@functools.cache
+def _closure_hash(path: str) -> str:
+    return _files_hash(source_closure(path))
+
+
+_RECORD_SOURCES: dict[np.dtype, frozenset[Path | None]] = {}
+"""The source files of the code compiled code may run when given a record of each dtype (:func:`record_sources`)."""
+
+
+def record_sources(dtype: np.dtype, files) -> None:
+    """Declare that compiled code given a record of ``dtype`` may run code of ``files`` (and of their closures).
+
+    For code chosen by a record's type rather than imported: a block's kernel, which
+    :func:`omnirotor.blocks.compiled_step` links into the kernel that calls it when that kernel is compiled for a
+    record of the block's ``state_dtype`` (:func:`omnirotor.blocks.register` declares every block). A kernel's
+    specialisation whose arguments hold such a record (at any depth: a field of a field) and whose module's
+    :func:`source_closure` does not cover these files is cached in a folder of its own, keyed on them too
+    (:class:`DependencyCache`): a block written outside the package, by a user or a test, and edited later
+    makes its callers compile again instead of running its old machine code. A file given as ``None`` (a class
+    defined at a prompt, whose source cannot be hashed) makes such specialisations uncached.
+    """
+    key = np.dtype(dtype)
+    known = {Path(f).resolve() if f is not None and os.path.isfile(f) else None for f in files}
+    _RECORD_SOURCES[key] = _RECORD_SOURCES.get(key, frozenset()) | known
+    _record_type_sources.cache_clear()
+
+
+@functools.cache
+def _record_type_sources() -> dict:
+    """:data:`_RECORD_SOURCES` by numba's record type (numba's types compare and hash by layout)."""
+    return {numba.from_dtype(d): files for d, files in _RECORD_SOURCES.items()}
+
+
+def _signature_sources(arg_types) -> frozenset[Path | None]:
+    """The declared sources (:func:`record_sources`) of every record type in ``arg_types``, at any depth."""
+    by_type = _record_type_sources()
+    if not by_type:
+        return frozenset()
+    found: set[Path | None] = set()
+    todo, seen = list(arg_types), set()
+    while todo:
+        t = todo.pop()
+        if not isinstance(t, types.Type) or t in seen:
+            continue
+        seen.add(t)
+        if isinstance(t, types.Record):
+            found |= by_type.get(t, frozenset())
+            todo.extend(member for _, member in t.members)
+        elif isinstance(t, types.BaseTuple):
+            todo.extend(t.types)
+        elif isinstance(getattr(t, "dtype", None), types.Type):  # an array or a record's array field
+            todo.append(t.dtype)
+    return frozenset(found)
 
 
 _KEEP_CACHE_FOLDERS = 4
@@ -199,11 +260,38 @@ def _prune_cache_folders(base: str, source_dir: str | None = None) -> None:
         folders = sorted(Path(base).glob("deps-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
         stale = [f for f in folders if f.name[:_FOLDER_KEY] not in live]
         for old in stale[_KEEP_CACHE_FOLDERS:]:
-            for f in old.iterdir():
-                f.unlink(missing_ok=True)
-            old.rmdir()
+            _remove_folder(old)
     except OSError:
         pass  # another process pruned it first, or the folder is read-only: a cache, never an error
+
+
+_KEEP_EXTENSION_FOLDERS = 16
+"""``ext-*`` folders (:func:`record_sources`) kept in each ``deps-*`` folder; older ones are removed."""
+
+
+@functools.cache
+def _prune_extension_folders(deps_folder: str) -> None:
+    """Remove all but the :data:`_KEEP_EXTENSION_FOLDERS` most recently written ``ext-*`` folders of a ``deps-*``.
+
+    Once per folder and process. Each is the cache of the module's kernels for one set of blocks from outside
+    their closure (a user's or a test's, one version each); which are current cannot be told from here.
+    """
+    try:
+        folders = sorted(Path(deps_folder).glob("ext-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
+        for old in folders[_KEEP_EXTENSION_FOLDERS:]:
+            _remove_folder(old)
+    except OSError:
+        pass  # as in _prune_cache_folders
+
+
+def _remove_folder(folder: Path) -> None:
+    """Remove a cache folder and the folders in it (raises OSError as ``unlink`` would)."""
+    for f in folder.iterdir():
+        if f.is_dir():
+            _remove_folder(f)
+        else:
+            f.unlink(missing_ok=True)
+    folder.rmdir()
 
 
 class DependencyLocator:
@@ -219,16 +307,25 @@ class DependencyLocator:
     module imported), so it describes the sources the process compiles from even if files change while it runs.
     """
 
+    extension: tuple[Path, ...] = ()
+    """Files beyond the closure that this cache's specialisations depend on (:func:`record_sources`)."""
+
     def get_source_stamp(self):
-        return ("omnirotor-closure", _closure_hash(self._py_file))
+        stamp = ("omnirotor-closure", _closure_hash(self._py_file))
+        return stamp + (_files_hash(self.extension),) if self.extension else stamp
 
     def get_cache_path(self):
         folder = f"deps-{_closure_hash(self._py_file)[:20]}-{codegen_settings()}"
-        return os.path.join(super().get_cache_path(), folder)
+        folder = os.path.join(super().get_cache_path(), folder)
+        return os.path.join(folder, f"ext-{_files_hash(self.extension)[:20]}") if self.extension else folder
 
     def ensure_cache_path(self):
         super().ensure_cache_path()
-        _prune_cache_folders(os.path.dirname(self.get_cache_path()), os.path.dirname(os.path.abspath(self._py_file)))
+        path = self.get_cache_path()
+        if self.extension:
+            _prune_extension_folders(os.path.dirname(path))
+            path = os.path.dirname(path)
+        _prune_cache_folders(os.path.dirname(path), os.path.dirname(os.path.abspath(self._py_file)))
 
 
 class _UserDirDependencyLocator(DependencyLocator, UserProvidedCacheLocator):
@@ -242,11 +339,76 @@ class _InTreeDependencyLocator(DependencyLocator, InTreeCacheLocator):
 class _DependencyCacheImpl(CompileResultCacheImpl):
     _locator_classes = [_UserDirDependencyLocator, _InTreeDependencyLocator, *CompileResultCacheImpl._locator_classes]
 
+    def __init__(self, py_func, extension: tuple[Path, ...] = ()):
+        super().__init__(py_func)
+        if extension and isinstance(self.locator, DependencyLocator):
+            self.locator.extension = extension  # before numba's Cache asks it for its folder and stamp
+
 
 class DependencyCache(FunctionCache):
-    """numba's function cache, its index stamped with the hash of the kernel's sources (:class:`DependencyLocator`)."""
+    """numba's function cache, its index stamped with the hash of the kernel's sources (:class:`DependencyLocator`).
+
+    A specialisation whose arguments hold a record of a block from outside the kernel's closure
+    (:func:`record_sources`) goes to a cache of its own, made on first use: the same, with those files' hash in
+    its stamp and in its folder (``deps-<hash>-<settings>/ext-<hash>``). numba asks a dispatcher's cache for one
+    signature at a time (``load_overload``, ``save_overload``, the two methods of its cache interface that take
+    the signature), and each is passed on to the cache of that signature's sources.
+    """
 
     _impl_class = _DependencyCacheImpl
+
+    def __init__(self, py_func, extension: tuple[Path, ...] = ()):
+        self._extension = extension
+        self._kernel_file = getattr(getattr(py_func, "__code__", None), "co_filename", "<unknown>")
+        self._extended: dict[tuple[Path, ...], DependencyCache | None] = {}
+        if extension:
+            self._impl_class = functools.partial(_DependencyCacheImpl, extension=extension)
+        super().__init__(py_func)
+        self._py_function = py_func
+
+    def _cache_of(self, sig):
+        """The cache of a signature's sources: this one, one with an extension, or None (not cached)."""
+        if self._extension:
+            return self
+        try:
+            arg_types = sigutils.normalize_signature(sig)[0]
+        except (TypeError, ValueError):  # not a signature numba would take: its own key decides
+            return self
+        files = _signature_sources(arg_types)
+        if not files:
+            return self
+        if None in files:  # a block whose source cannot be hashed: never cached
+            return None
+        own = set(source_closure(self._kernel_file))
+        extension = tuple(sorted({f for src in files for f in source_closure(str(src))} - own))
+        if not extension:
+            return self
+        if extension not in self._extended:
+            cache = DependencyCache(self._py_function, extension)
+            # numba's fallback locators (no dependency folder: the package's folder and NUMBA_CACHE_DIR not
+            # writable) would not key on the extension: not cached then
+            keyed = os.path.basename(cache.cache_path).startswith("ext-")
+            self._extended[extension] = cache if keyed else None
+        return self._extended[extension]
+
+    def load_overload(self, sig, target_context):
+        cache = self._cache_of(sig)
+        if cache is self:
+            return super().load_overload(sig, target_context)
+        return None if cache is None else cache.load_overload(sig, target_context)
+
+    def save_overload(self, sig, data):
+        cache = self._cache_of(sig)
+        if cache is self:
+            super().save_overload(sig, data)
+        elif cache is not None:
+            cache.save_overload(sig, data)
+
+    def flush(self):
+        super().flush()
+        for cache in self._extended.values():
+            if cache is not None:
+                cache.flush()
 
 
 class CollectorPause(event.Listener):

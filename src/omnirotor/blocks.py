@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 from collections.abc import Callable
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
@@ -44,6 +45,7 @@ import numpy as np
 from numba import types
 from numba.extending import lower_builtin, overload, type_callable
 
+from omnirotor._jit import record_sources
 from omnirotor.errors import InputError
 
 __all__ = [
@@ -191,11 +193,30 @@ def register(kind: str, name: str) -> Callable[[type[T]], type[T]]:
                 if other is not cls and getattr(other, "state_dtype", None) == dtype:
                     raise InputError(f"{kind} blocks {other_name!r} and {name!r} have the same state_dtype")
         _REGISTRY[kind][name] = cls
+        if dtype is not None:  # compiled callers reach its code through its record type, not an import
+            record_sources(dtype, _source_files(cls))
         cls.kind = kind  # type: ignore[attr-defined]
         cls.name = name  # type: ignore[attr-defined]
         return cls
 
     return deco
+
+
+def _source_files(cls: type) -> set[str | None]:
+    """The files of a block class and of the compiled functions it holds (``None``: one has no file, a prompt's)."""
+
+    def file_of(obj) -> str | None:
+        try:
+            return inspect.getsourcefile(obj)
+        except (TypeError, OSError):  # a built-in, or code from a string or a prompt
+            return None
+
+    files = {file_of(cls)}
+    for attr in dir(cls):
+        py_func = getattr(inspect.getattr_static(cls, attr, None), "py_func", None)
+        if py_func is not None:
+            files.add(file_of(py_func))
+    return files
 
 
 def block_class(kind: str, name: str) -> type[Any]:

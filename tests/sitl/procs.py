@@ -106,6 +106,31 @@ class Pair:
         node_json = json.loads(node_out.strip().splitlines()[-1]) if node_ok else None
         return sim_json, node_json
 
+    def until(self, fn, timeout_s: float, what: str):
+        """``fn()``'s first truthy answer, asked while both processes run (:func:`wait_until`).
+
+        Fails at once, with both processes' last words, when one of them exits first (a node that lost its link at
+        the start and ended its mission, a simulator that refused its arguments), and at ``timeout_s`` with the
+        same: a node whose last word is its mission line was still compiling or loading its kernels (a first run
+        after a checkout compiles them here: a minute or more of CPU on each side).
+        """
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            out = fn()
+            if out:
+                return out
+            for name, proc in (("simulator", self.sim), ("node", self.node)):
+                if proc is not None and proc.poll() is not None:
+                    raise AssertionError(
+                        f"{what}: the {name} exited first (status {proc.returncode})\n{self.last_words()}"
+                    )
+            time.sleep(0.005)
+        raise AssertionError(f"{what}: not within {timeout_s:g} s\n{self.last_words()}")
+
+    def last_words(self) -> str:
+        """The end of both processes' stderr, for a failure's message."""
+        return f"sim: {self.text('sim')[-2000:]}\nnode: {self.text('node')[-2000:]}"
+
     def text(self, which: str) -> str:
         f = self.sim_err if which == "sim" else self.node_err
         if not f.closed:
