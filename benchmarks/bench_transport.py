@@ -537,7 +537,8 @@ def _tracking(tr: dict) -> list[str]:
                      f"{cells} | {verdict} |")  # fmt: skip
     g = tr["growth"]
     if all(g.get(a) is None for a in axes):
-        lines += ["", f"Gap against the held share: not established ({g['runs']} runs)."]
+        runs = f"{g['runs']} run" + ("" if g["runs"] == 1 else "s")
+        lines += ["", f"Gap against the held share: not established ({runs}; it takes three at different shares)."]
     else:
         lo, hi = g["held_share_range"]
         fits = ", ".join(f"{a.split('_')[0]} {g[a]['per_10pct_held']:+.2f} {unit[a]}" for a in axes if g.get(a))
@@ -565,7 +566,8 @@ def plot_tracking(tr: dict, path: str) -> None:
         ax.set_ylabel(f"RMS error, transport - in process [{unit}]")
         ax.legend()
     cut = len(tr["rows"]) - len(rows)
-    fig.suptitle(f"Real-time hover over the transport against the same hover in process ({len(rows)} runs"
+    fig.suptitle(f"Real-time hover over the transport against the same hover in process ({len(rows)} run"
+                 + ("" if len(rows) == 1 else "s")
                  + (f"; {cut} cut by the plant's failsafe, not shown" if cut else "") + ")")  # fmt: skip
     save_figure(fig, path)
 

@@ -17,7 +17,7 @@ import pytest
 from omnirotor.fly.requests import CTL_TOPIC, FlightReply, FlightRequest
 from omnirotor.rosmsg.convert import LOOP_STATUS
 from omnirotor.transport import open_transport
-from sitl.procs import Pair, wait_until
+from sitl.procs import Pair
 
 RATE_HZ = 5.0
 """The node's ``--ctl-rate`` in the test: few enough that the bound shows in counts whatever the machine's speed."""
@@ -48,8 +48,7 @@ def test_a_ctl_flood_is_served_within_the_nodes_rate_and_the_rest_answered_busy(
     with Pair(tmp_path, "hover", ["--seed", "3", "--duration", "8"], lockstep=False, node_args=args) as pair:
         with pair.transport() as t:
             loop = t.subscriber("/omnirotor/loop_status", LOOP_STATUS, depth=4)
-            flying = wait_until(lambda: (m := loop.take_latest()) is not None and m.frames >= 200, timeout_s=300)
-            assert flying, pair.text("node")[-2000:]
+            pair.until(lambda: (m := loop.take_latest()) is not None and m.frames >= 200, 300, "the node flying")
         counts = {"sent": 0, "served": 0, "busy": 0, "refused": 0, "unanswered": 0}
         lock = threading.Lock()
         started = time.monotonic()

@@ -122,8 +122,8 @@ REQUESTS_PER_PERIOD = 1
 """The most ``ctl`` requests the loop serves in one pass between frames."""
 CTL_RATE_HZ = 100.0
 """The most ``ctl`` requests the loop serves per second by default (a person types a few; the status is on its own
-topic at 50 Hz). A flood of 600 ``status`` requests a second, all served, held 80 % of a loaded machine's periods
-(BENCHMARKS.md)."""
+topic at 50 Hz). Before the bound, a client sending ``status`` requests back to back had about 600 a second served
+on the loop's thread: 80 % of a loaded machine's periods held, a degree of attitude RMS lost (BENCHMARKS.md)."""
 MAX_CTL_RATE_HZ = 1000.0
 """The highest ``--ctl-rate``: one request a period."""
 
