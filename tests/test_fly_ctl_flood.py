@@ -61,7 +61,9 @@ def test_a_ctl_flood_is_served_within_the_nodes_rate_and_the_rest_answered_busy(
         for c in clients:
             c.join(timeout=60)
         elapsed = time.monotonic() - started
-        sim, node = pair.wait(timeout_s=600)
+        # the simulator's verdict is not asked: a loaded runner may lose the link (a 50 ms frame gap) and the plant's
+        # failsafe then cuts the run (exit 1), a speed; the counts are the node's and the clients'
+        _, node = pair.wait(timeout_s=600, sim_ok=False)
     req = node["requests"]
     assert req["rate_hz"] == RATE_HZ
     # the bound: one request taken in per 1 / rate (a slower machine takes in fewer), the rest answered busy at once
@@ -71,5 +73,5 @@ def test_a_ctl_flood_is_served_within_the_nodes_rate_and_the_rest_answered_busy(
     # accepted one from its loop; none refused (a status request is always accepted)
     assert counts["served"] == req["served"] and counts["busy"] == req["busy"], (req, counts)
     assert counts["refused"] == 0 and req["bad"] == 0
-    # the node flew the hover through it (how well is the machine's: bench_transport's ctl modes)
-    assert sim["sitl"]["commands_obeyed"] > 0 and node["frames"] > 0
+    # the node flew through it (how well is the machine's: bench_transport's ctl modes)
+    assert node["frames"] >= 200 and node["commands"] > 0
