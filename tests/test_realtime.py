@@ -39,6 +39,51 @@ def test_nothing_asked_nothing_said(monkeypatch):
     assert said == []
 
 
+def test_transport_priority_goes_to_every_other_thread_not_the_callers(monkeypatch):
+    import threading
+
+    asked: list[tuple[int, int, int]] = []
+    monkeypatch.setattr(os, "sched_setscheduler", lambda tid, pol, p: asked.append((tid, pol, p.sched_priority)))
+    ready, done = threading.Event(), threading.Event()
+    other = threading.Thread(target=lambda: (ready.set(), done.wait(5.0)))
+    other.start()
+    ready.wait(5.0)
+    try:
+        said: list[str] = []
+        n = realtime.set_transport_priority(10, said.append)
+    finally:
+        done.set()
+        other.join()
+    tids = {tid for tid, _, _ in asked}
+    assert other.native_id in tids and threading.get_native_id() not in tids
+    assert all(pol == os.SCHED_FIFO and p == 10 for _, pol, p in asked) and n == len(asked) and said == []
+
+
+def test_transport_priority_refused_is_said_once_and_a_thread_that_ended_is_passed_over(monkeypatch):
+    calls = []
+
+    def refuse(tid, *_):
+        calls.append(tid)
+        if len(calls) == 1:
+            raise ProcessLookupError(3, "No such process")  # ended between the listing and the call
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "listdir", lambda _: ["1", "2", "3", str(threading_id())])
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    said: list[str] = []
+    assert realtime.set_transport_priority(10, said.append) == 0
+    assert calls == [1, 2]  # the refusal stops the round: said once, not per thread
+    assert said == ["SCHED_FIFO for the transport's threads not permitted (needs CAP_SYS_NICE or an rtprio limit): "
+                    "they run at normal priority"]  # fmt: skip
+    assert realtime.set_transport_priority(None, said.append) == 0 and len(calls) == 2  # not asked: nothing done
+
+
+def threading_id() -> int:
+    import threading
+
+    return threading.get_native_id()
+
+
 def test_the_collector_is_held_for_the_block_and_given_back_however_it_ends():
     assert gc.isenabled()
     frozen0 = gc.get_freeze_count()

@@ -30,7 +30,13 @@ from omnirotor.cli.connection_options import (
     session_id_arg,
     transport_args,
 )
-from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option, n_cpus
+from omnirotor.cli.realtime_options import (
+    check_realtime_options,
+    cpu_option,
+    fifo_priority_option,
+    n_cpus,
+    transport_priority_option,
+)
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file
 
@@ -42,6 +48,7 @@ _Connect = connect_option(DEFAULT_PLANT_ENDPOINT)
 _Listen = listen_option(DEFAULT_NODE_ENDPOINT)
 _Cpu = cpu_option("the last one")
 _FifoPriority = fifo_priority_option()
+_TransportPriority = transport_priority_option()
 
 
 def _director_factory(flight: str | None, overrides: list[str]):
@@ -73,6 +80,7 @@ def fly(
     set_: Annotated[list[str] | None, typer.Option("--set", help="Flight parameter override key=value.")] = None,
     cpu: _Cpu = None,
     fifo_priority: _FifoPriority = 50,
+    transport_priority: _TransportPriority = 0,
     maps: Annotated[
         Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify` (for `ctl map global|piecewise`).")
     ] = None,
@@ -94,11 +102,11 @@ def fly(
     """Run the interaction controller as the flight node (1 kHz, on the flight topics)."""
     from omnirotor.fly.node import CTL_RATE_HZ, MAX_CTL_RATE_HZ, NodeLoop, NodeOptions, fly_mission, warm_up
     from omnirotor.fly.node import mission_from_sim as ask
-    from omnirotor.realtime import set_realtime
+    from omnirotor.realtime import set_realtime, set_transport_priority
     from omnirotor.sitl.gate import new_session_id
     from omnirotor.transport import open_transport
 
-    check_realtime_options(cpu, fifo_priority)
+    check_realtime_options(cpu, fifo_priority, transport_priority)
     ctl_rate = CTL_RATE_HZ if ctl_rate is None else ctl_rate
     if not (math.isfinite(ctl_rate) and 0.0 < ctl_rate <= MAX_CTL_RATE_HZ):
         raise InputError(f"--ctl-rate must be in (0, {MAX_CTL_RATE_HZ:g}] requests a second, got {ctl_rate}")
@@ -116,7 +124,8 @@ def fly(
     def say(line: str) -> None:
         print(f"omnirotor fly: {line}", file=sys.stderr)
 
-    def realtime() -> None:
+    def realtime() -> None:  # in the loop's thread, its transport's publishers and subscribers declared
+        set_transport_priority(transport_priority or None, say)
         set_realtime(cpu if cpu is not None else n_cpus() - 1, fifo_priority or None, say)
 
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))

@@ -40,7 +40,12 @@ from omnirotor.cli.connection_options import (
     session_id_arg,
     transport_args,
 )
-from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
+from omnirotor.cli.realtime_options import (
+    check_realtime_options,
+    cpu_option,
+    fifo_priority_option,
+    transport_priority_option,
+)
 from omnirotor.errors import InputError
 
 _Connect = connect_option("tcp/127.0.0.1:7448", "the node's, and PX4's unless --px4-connect or --px4-zenoh-config")
@@ -55,6 +60,7 @@ _Px4ZenohConfig = Annotated[
 _Listen = listen_option()
 _Cpu = cpu_option()
 _FifoPriority = fifo_priority_option("the bridge's threads")
+_TransportPriority = transport_priority_option()
 
 
 @app.command("px4-bridge")
@@ -103,6 +109,7 @@ def px4_bridge(
     ] = 0.1,
     cpu: _Cpu = None,
     fifo_priority: _FifoPriority = 0,
+    transport_priority: _TransportPriority = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the exit summary as one JSON object.")] = False,
 ) -> None:
     """Bridge the flight node and PX4: commands to ActuatorMotors, PX4's sensors to the node's frames.
@@ -111,11 +118,11 @@ def px4_bridge(
     motion capture come back as the node's sensor frames (docs/fly.md, "PX4").
     """
     from omnirotor.fly.bridge import BridgeOptions, FrameOptions, Px4Bridge
-    from omnirotor.realtime import set_realtime
+    from omnirotor.realtime import set_realtime, set_transport_priority
     from omnirotor.transport import open_transport
     from omnirotor.vehicle import load_vehicle
 
-    check_realtime_options(cpu, fifo_priority)
+    check_realtime_options(cpu, fifo_priority, transport_priority)
     pinned = session_id_arg(pair_session, "--pair-session")
     own = session_id_arg(session_id, "--session-id")
 
@@ -148,6 +155,7 @@ def px4_bridge(
             px4 = stack.enter_context(open_transport(**px4_args, node="omnirotor_px4_bridge_px4"))
         bridge = Px4Bridge(node, px4, veh.n_rotors, float(veh.omega_min_hz), float(veh.omega_max_hz), options,
                            say=say, frames=frame_options)  # fmt: skip
+        set_transport_priority(transport_priority or None, say)  # its publishers and subscribers declared
         set_realtime(cpu, fifo_priority or None, say)  # after the transport's threads started: they keep theirs
         what = "no frames" if frame_options is None else f"frames from PX4, motion capture: {bridge.frames.mocap_where}"
         who = f"controller session {pinned:016x} only" if pinned is not None else "the first controller session"

@@ -27,7 +27,12 @@ from omnirotor.cli.connection_options import (
     session_id_arg,
     transport_args,
 )
-from omnirotor.cli.realtime_options import check_realtime_options, cpu_option, fifo_priority_option
+from omnirotor.cli.realtime_options import (
+    check_realtime_options,
+    cpu_option,
+    fifo_priority_option,
+    transport_priority_option,
+)
 from omnirotor.errors import InputError
 from omnirotor.safe_io import check_input_file, check_output_dir, dumps_json, note
 
@@ -37,6 +42,7 @@ _Listen = listen_option(DEFAULT_SIM_ENDPOINT)
 _Connect = connect_option()
 _Cpu = cpu_option()
 _FifoPriority = fifo_priority_option("the real-time plant loop")
+_TransportPriority = transport_priority_option()
 
 
 @app.command()
@@ -65,6 +71,7 @@ def sim(
     wait: Annotated[float, typer.Option(help="How long to wait for the controller's first command [s].")] = 60.0,
     cpu: _Cpu = None,
     fifo_priority: _FifoPriority = 0,
+    transport_priority: _TransportPriority = 0,
     map_mode: Annotated[str, typer.Option("--map", help="Wrench map: nominal, global, piecewise.")] = "nominal",
     maps: Annotated[Path | None, typer.Option(help="Wrench-map JSON of `omnirotor identify`.")] = None,
     blend: Annotated[str, typer.Option(help="Piecewise region switching: hard or smooth.")] = "hard",
@@ -97,13 +104,14 @@ def sim(
     outputs = output_options(record, foxglove, foxglove_port)
     outputs["pair_session"] = session_id_arg(pair_session, "--pair-session")  # ServeOptions' fields
     outputs["session_id"] = session_id_arg(session_id, "--session-id")
+    outputs["transport_priority"] = (transport_priority or None) if not lockstep else None
     if outputs["session_id"] is None:
         from omnirotor.sitl.gate import new_session_id
 
         outputs["session_id"] = new_session_id()
     if task is None:
         _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                    ros_views, offboard_loss, cpu, fifo_priority, outputs)  # fmt: skip
+                    ros_views, offboard_loss, cpu, fifo_priority, transport_priority, outputs)  # fmt: skip
         return
     from omnirotor.experiments.tasks import TASKS
     from omnirotor.experiments.tasks.common import ExperimentOptions
@@ -122,7 +130,7 @@ def sim(
         maps=str(maps) if maps is not None else None, blend=blend, quick=quick, zero_observer=zero,
     )  # fmt: skip
     options.controller_params()  # validate before opening anything
-    check_realtime_options(cpu, fifo_priority)
+    check_realtime_options(cpu, fifo_priority, transport_priority)
     serve_opts = ServeOptions(
         lockstep=lockstep, offboard_loss_s=offboard_loss, start_timeout_s=wait, ros_views=ros_views, **outputs
     )
@@ -135,8 +143,9 @@ def sim(
         _say_pairing(serve_opts.pair_session, serve_opts.session_id)
         from omnirotor.realtime import set_realtime
 
-        if lockstep and fifo_priority:  # paced by the commands, not the clock: no real-time class (as the node)
-            note("--fifo-priority is for real time: the lockstep plant runs at normal priority")
+        if lockstep and (fifo_priority or transport_priority):  # paced by the commands: no real-time class
+            note("--fifo-priority and --transport-priority are for real time: the lockstep plant runs at normal "
+                 "priority")  # fmt: skip
         set_realtime(cpu, None if lockstep else (fifo_priority or None), note)
         result, report = _serve(t, task, options, serve_opts)
     if result is None:  # the failsafe cut the run: what the wire counted, and why there are no metrics
@@ -196,7 +205,7 @@ def _serve(transport, task, options, serve_opts):
 
 
 def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zenoh_config, domain_id, namespace,
-                ros_views, offboard_loss, cpu, fifo_priority, outputs) -> None:  # fmt: skip
+                ros_views, offboard_loss, cpu, fifo_priority, transport_priority, outputs) -> None:  # fmt: skip
     """Interactive flight: the plant on its stand until the node takes off (omnirotor.sitl.server.serve_free)."""
     from omnirotor.experiments.loop import task_sim_params
     from omnirotor.sim import SCENES, Simulator
@@ -206,7 +215,7 @@ def _serve_free(scene, seed, truth, disturbances, vehicle, listen, connect, zeno
 
     if scene not in SCENES:
         raise InputError(f"unknown scene {scene!r}; scenes: {', '.join(SCENES)}")
-    check_realtime_options(cpu, fifo_priority)
+    check_realtime_options(cpu, fifo_priority, transport_priority)
     args = transport_args(listen=listen, connect=connect, zenoh_config=zenoh_config, domain_id=domain_id,
                           namespace=namespace, default_listen=[DEFAULT_SIM_ENDPOINT])  # fmt: skip
     sim = Simulator(load_vehicle(vehicle), scene=scene, params=task_sim_params(truth, disturbances), seed=seed)

@@ -47,7 +47,7 @@ import numpy as np
 
 from omnirotor.errors import InputError
 from omnirotor.messages import RotorCommand
-from omnirotor.realtime import freeze_gc, thaw_gc
+from omnirotor.realtime import freeze_gc, set_transport_priority, thaw_gc
 from omnirotor.recorder import Recorder
 from omnirotor.rosmsg import typestore
 from omnirotor.rosmsg.convert import (
@@ -126,6 +126,9 @@ class ServeOptions:
             pairing, :mod:`omnirotor.sitl.gate`); None: the first session that commands is paired.
         session_id: this plant's session, carried by every frame (``--session-id``; a node's ``--plant-session``
             follows this plant only: :mod:`omnirotor.sitl.gate`); None: random.
+        transport_priority: ``SCHED_FIFO`` priority of the process's other threads (the transport's), given once
+            the link's publishers and subscribers are declared (:func:`omnirotor.realtime.set_transport_priority`,
+            called from the loop's thread); None: not asked. Real time only.
     """
 
     lockstep: bool = False
@@ -139,6 +142,7 @@ class ServeOptions:
     foxglove_port: int | None = None
     pair_session: int | None = None
     session_id: int | None = None
+    transport_priority: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("offboard_loss_s", "lockstep_offboard_loss_s", "start_timeout_s", "status_hz", "row_wait_s"):
@@ -658,6 +662,8 @@ def serve_task(
 
     vehicle = load_vehicle(options.vehicle)
     link = SimLink(transport, vehicle.n_rotors, serve)
+    if not serve.lockstep:
+        set_transport_priority(serve.transport_priority, _say)  # the link's threads exist now (ServeOptions)
     T = typestore().types
     mission = mission_json(task, options, serve.lockstep, link.session_id)
     transport.serve(TOPICS["mission"], STRING, STRING, lambda req: T[STRING](data=mission))
@@ -698,6 +704,7 @@ def serve_free(
     p0, R0 = _resting_pose(sim, p0, R0, say)
     sim.reset(p_W=p0, R_WB=R0, omega_hz=np.zeros(sim.vehicle.n_rotors))
     link = SimLink(transport, sim.vehicle.n_rotors, dataclasses.replace(serve, lockstep=False))
+    set_transport_priority(serve.transport_priority, say)  # the link's threads exist now (ServeOptions)
     report = SitlReport()
     outputs = SimOutputs(sim, serve, say)
     record = sim.frame_record
