@@ -33,6 +33,12 @@
 
 ``--flood-only``: the flood cases alone (after a warm-up); ``--flood-mode MODE``: one of them.
 
+``--transport-priority P``: both processes' ``--transport-priority P`` in every real-time run (their loops at
+``--fifo-priority`` :data:`LOOP_PRIORITY`). ``--compare-transport-priority P [--rounds N] [--seconds S]``: the
+quiet real-time hover and the CPU-hog case without and with it, interleaved (each round: quiet, hog, each without
+and with, the order alternating by round), N rounds of S s each: per run the node's late periods per 10^5, its
+frame-to-command p99, the plant's share of periods held (no fresh command), link losses; then the medians.
+
 The machine's CPU count and load average before and after are part of the result: figures on a loaded machine
 are not the issue's quiet-machine figures.
 
@@ -240,19 +246,28 @@ def ctl_flood(endpoint: str, namespace: str, duration_s: float, kind: str) -> di
     return {**counts, "rate_hz": counts["sent"] / max(elapsed, 1e-9), "kind": kind, "cpu_s": cpu, "s": elapsed}
 
 
+LOOP_PRIORITY = 20
+"""Both loops' ``--fifo-priority`` in the real-time runs."""
+
+
 def run_pair(duration_s: float, lockstep: bool, ros_views: bool, fifo: bool, flood_mode: str | None = None,
-             ctl_rate: float | None = None) -> dict:  # fmt: skip
+             ctl_rate: float | None = None, transport_priority: int = 0) -> dict:  # fmt: skip
     """One SITL hover: the simulator's run JSON, its ``sitl`` report and the node's summary, under a flood in
-    ``flood_mode`` (``ctl_rate``: the node's ``--ctl-rate``, None its default)."""
+    ``flood_mode`` (``ctl_rate``: the node's ``--ctl-rate``, None its default; ``transport_priority``: both
+    processes' ``--transport-priority`` when ``fifo``, 0 not asked)."""
     port, node_port = _port(), _port()
     ns = f"/bench{port}"
     sim_cmd = [sys.executable, "-c", CLI, "sim", "--serve", "--task", "hover", "--duration", str(duration_s),
                "--listen", f"tcp/127.0.0.1:{port}", "--namespace", ns, "--json", "--wait", "900"]  # fmt: skip
-    sim_cmd += ["--lockstep"] if lockstep else (["--fifo-priority", "20"] if fifo else [])
+    loop = str(LOOP_PRIORITY) if fifo and not lockstep else "0"
+    sim_cmd += ["--lockstep"] if lockstep else ["--fifo-priority", loop]
     sim_cmd += [] if ros_views else ["--no-ros-views"]
     node_cmd = [sys.executable, "-c", CLI, "fly", "--mission-from-sim", "--connect", f"tcp/127.0.0.1:{port}",
                 "--listen", f"tcp/127.0.0.1:{node_port}", "--namespace", ns, "--json",
-                "--fifo-priority", "20" if fifo else "0"]  # fmt: skip
+                "--fifo-priority", loop]  # fmt: skip
+    if transport_priority and loop != "0":
+        sim_cmd += ["--transport-priority", str(transport_priority)]
+        node_cmd += ["--transport-priority", str(transport_priority)]
     node_cmd += [] if ctl_rate is None else ["--ctl-rate", f"{ctl_rate:g}"]
     if flood_mode == "before":  # pinned pairing both ways: the flood that comes first must take neither
         sim_cmd += ["--pair-session", BENCH_SESSION, "--session-id", BENCH_PLANT]
@@ -400,16 +415,18 @@ def gap_growth(rows: list[dict]) -> dict:
 
 def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, file=sys.stderr),
             flood_modes: tuple[str, ...] = FLOOD_MODES + CTL_MODES, repeats: int | None = None,
-            ctl_rate: float | None = None) -> dict:  # fmt: skip
+            ctl_rate: float | None = None, transport_priority: int = 0) -> dict:  # fmt: skip
     """Every figure of the module docstring (``flood_only``: the flood cases alone, in ``flood_modes``).
 
     ``repeats``: quiet real-time runs (default 1 quick, 3 full), each a row of the tracking table; ``ctl_rate``: the
-    node's ``--ctl-rate`` in every run (None: its default).
+    node's ``--ctl-rate`` in every run (None: its default); ``transport_priority``: both processes'
+    ``--transport-priority`` in every real-time run (0: not asked).
     """
     lock_s, rt_s = (2.0, 10.0) if quick else (10.0, 100.0)
     repeats = (1 if quick else 3) if repeats is None else repeats
     out: dict = {"quick": quick, "lockstep_s": lock_s, "real_time_s": rt_s, "goals": GOALS,
-                 "load_before": os.getloadavg(), "cpus": os.cpu_count(), "node_ctl_rate": ctl_rate}  # fmt: skip
+                 "load_before": os.getloadavg(), "cpus": os.cpu_count(), "node_ctl_rate": ctl_rate,
+                 "transport_priority": transport_priority}  # fmt: skip
     note("warm-up (numba cache)")
     run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
     for views in () if flood_only else (False, True):
@@ -430,7 +447,8 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
     for case, hog in cases + ([] if flood_only else [("real_time_hog", True)]):
         note(f"real-time hover {rt_s:g} s{' with a CPU hog on CPU 0' if hog else ''} ({case})")
         with cpu_hog(0) if hog and n_cpus > 1 else contextlib.nullcontext():
-            r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, ctl_rate=ctl_rate)
+            r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, ctl_rate=ctl_rate,
+                         transport_priority=transport_priority)  # fmt: skip
         out[case] = real_time_figures(r)
         rows.append(tracking_row(case, r, ref))
     for mode in flood_modes:
@@ -441,7 +459,8 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
                 "from the pairing on" if mode == "after" else "from before the node, both sides pinned"
             )
         note(f"real-time hover {rt_s:g} s under {what}")
-        r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode, ctl_rate=ctl_rate)
+        r = run_pair(rt_s, lockstep=False, ros_views=True, fifo=True, flood_mode=mode, ctl_rate=ctl_rate,
+                     transport_priority=transport_priority)  # fmt: skip
         case = f"real_time_flood_{mode.replace('-', '_')}"
         out[case] = real_time_figures(r)
         out[case]["hover_success"] = r["run"].get("success")
@@ -454,6 +473,69 @@ def collect(quick: bool, flood_only: bool = False, note=lambda msg: print(msg, f
                        "in_process_success": ref.get("success"), "rows": rows, "growth": gap_growth(rows)}  # fmt: skip
     out["load_after"] = os.getloadavg()
     return out
+
+
+def compare_transport_priority(priority: int, rounds: int, seconds: float,
+                               note=lambda msg: print(msg, file=sys.stderr)) -> dict:  # fmt: skip
+    """The quiet and CPU-hog real-time hovers without and with ``--transport-priority priority``, interleaved.
+
+    Each round flies four runs: quiet and hog, each without and with, "without" first in even rounds and "with"
+    first in odd ones. A pair that did not finish is a run that says so (its error), not an end of the benchmark.
+    """
+    out: dict = {"transport_priority": priority, "loop_priority": LOOP_PRIORITY, "rounds": rounds,
+                 "seconds": seconds, "load_before": os.getloadavg(), "cpus": os.cpu_count(), "runs": []}  # fmt: skip
+    note("warm-up (numba cache)")
+    run_pair(0.2, lockstep=True, ros_views=False, fifo=False)
+    hog_cpu = 0 if (os.cpu_count() or 1) > 1 else None
+    for k in range(rounds):
+        for hog in (False, True):
+            for prio in (0, priority) if k % 2 == 0 else (priority, 0):
+                note(f"round {k + 1}/{rounds}: real-time hover {seconds:g} s, {'CPU hog on CPU 0' if hog else 'quiet'}"
+                     f", transport priority {prio or 'not asked'}")  # fmt: skip
+                row: dict = {"round": k + 1, "hog": hog, "transport_priority": prio}
+                try:
+                    with cpu_hog(hog_cpu) if hog and hog_cpu is not None else contextlib.nullcontext():
+                        r = run_pair(seconds, lockstep=False, ros_views=True, fifo=True, transport_priority=prio)
+                except RuntimeError as exc:
+                    row["error"] = str(exc)[-300:]
+                else:
+                    sim, node = r["sim"], r["node"]
+                    row.update(late_per_1e5=node["late_per_1e5"], p99_us=node["frame_to_command_us"].get("p99"),
+                               held_share=sim["commands_held"] / max(sim["steps"], 1),
+                               link_lost=bool(node.get("link_lost")), failsafe=bool(sim["failsafe"]),
+                               worst_late_ms=node["worst_late_ms"])  # fmt: skip
+                note(f"  {row}")
+                out["runs"].append(row)
+    out["load_after"] = os.getloadavg()
+    return out
+
+
+def render_comparison(c: dict) -> str:
+    """:func:`compare_transport_priority`'s runs and medians as Markdown."""
+    import statistics
+
+    load = f"{c['cpus']} CPUs, load average {c['load_before'][0]:.1f} before, {c['load_after'][0]:.1f} after"
+    lines = [f"Transport priority: loops at SCHED_FIFO {c['loop_priority']}, the transport's threads at "
+             f"{c['transport_priority']} or not asked; {c['rounds']} interleaved rounds of {c['seconds']:g} s "
+             f"real-time hovers ({load}):", "",
+             "| case | transport priority | runs | late per 1e5 (each) | median | p99 frame to command [µs] (median) | "
+             "plant periods held (each) | median | link lost / failsafe |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for hog in (False, True):
+        for prio in (0, c["transport_priority"]):
+            rs = [r for r in c["runs"] if r["hog"] == hog and r["transport_priority"] == prio]
+            ok = [r for r in rs if "error" not in r]
+            if not ok:
+                continue
+            late = [r["late_per_1e5"] for r in ok]
+            held = [100 * r["held_share"] for r in ok]
+            p99 = statistics.median(r["p99_us"] for r in ok)
+            lost = sum(r["link_lost"] or r["failsafe"] for r in ok) + len(rs) - len(ok)
+            lines.append(f"| {'CPU hog on CPU 0' if hog else 'quiet'} | {prio or 'not asked'} | {len(rs)} | "
+                         f"{', '.join(f'{v:.0f}' for v in late)} | {statistics.median(late):.0f} | {p99:.0f} | "
+                         f"{', '.join(f'{v:.2f} %' for v in held)} | {statistics.median(held):.2f} % | "
+                         f"{lost} of {len(rs)} |")  # fmt: skip
+    return "\n".join(lines)
 
 
 def render(r: dict) -> str:
@@ -587,6 +669,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, help="quiet real-time runs (default: 1 quick, 3 full)")
     ap.add_argument("--plot", metavar="PNG", help="also draw the tracking table into this PNG file")
     ap.add_argument("--node-ctl-rate", type=float, help="the node's --ctl-rate (default: its own; 1000: one a period)")
+    ap.add_argument(
+        "--transport-priority",
+        type=int,
+        default=0,
+        help=f"both processes' --transport-priority in the real-time runs (below {LOOP_PRIORITY})",
+    )
+    ap.add_argument(
+        "--compare-transport-priority",
+        type=int,
+        metavar="P",
+        help="only the quiet and hog hovers without and with --transport-priority P, interleaved",
+    )
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of --compare-transport-priority (default 3)")
+    ap.add_argument("--seconds", type=float, default=30.0, help="each run of --compare-transport-priority [s]")
     ap.add_argument("--flood-peer", nargs=4, metavar=("ENDPOINTS", "NAMESPACE", "SECONDS", "MODE"),
                     help=argparse.SUPPRESS)  # fmt: skip
     ap.add_argument("--ctl-peer", nargs=4, metavar=("ENDPOINT", "NAMESPACE", "SECONDS", "KIND"), help=argparse.SUPPRESS)
@@ -601,8 +697,18 @@ def main(argv: list[str] | None = None) -> int:
         os._exit(0)  # Zenoh's threads may hold the interpreter's exit
     if args.repeats is not None and not 1 <= args.repeats <= 20:
         ap.error(f"--repeats must be 1 to 20, got {args.repeats}")
+    for prio in (args.transport_priority, args.compare_transport_priority):
+        if prio is not None and not 0 <= prio < LOOP_PRIORITY:
+            ap.error(f"a transport priority must be in 0..{LOOP_PRIORITY - 1} (below the loops'), got {prio}")
+    if args.compare_transport_priority is not None:
+        if not (args.compare_transport_priority > 0 and 1 <= args.rounds <= 20 and args.seconds > 0):
+            ap.error("--compare-transport-priority needs P >= 1, --rounds 1 to 20 and --seconds > 0")
+        c = compare_transport_priority(args.compare_transport_priority, args.rounds, args.seconds)
+        print(json.dumps(c, indent=1) if args.json else render_comparison(c))
+        return 0
     modes = (args.flood_mode,) if args.flood_mode else FLOOD_MODES + CTL_MODES
-    result = collect(args.quick, args.flood_only, flood_modes=modes, repeats=args.repeats, ctl_rate=args.node_ctl_rate)
+    result = collect(args.quick, args.flood_only, flood_modes=modes, repeats=args.repeats, ctl_rate=args.node_ctl_rate,
+                     transport_priority=args.transport_priority)  # fmt: skip
     if args.plot:
         plot_tracking(result["tracking"], args.plot)
     print(json.dumps(result, indent=1) if args.json else render(result))
