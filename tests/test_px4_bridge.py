@@ -32,7 +32,7 @@ from omnirotor.sitl.server import TOPICS
 from omnirotor.transport import open_transport
 from omnirotor.vehicle import load_vehicle
 from sitl import fake_px4
-from sitl.procs import CLI, env, free_port, wait_until
+from sitl.procs import CLI, ZENOH_IO_THREADS, env, fifo_permitted, free_port, threads_of, wait_until
 
 pytest.importorskip("zenoh")
 
@@ -227,6 +227,26 @@ class _Px4Rig:
                 p.wait()
         for t in (self.t, self.px4_side):
             t.close()
+
+
+@pytest.mark.skipif(not fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE or rtprio)")
+def test_the_bridges_transport_threads_run_fifo_below_its_own_with_transport_priority(tmp_path):
+    """``px4-bridge --fifo-priority 20 --transport-priority 10``, read from /proc while it bridges: its main thread
+    at 20, Zenoh's I/O threads at 10, no thread above 20 (tests/test_transport_priority.py: the node and the
+    simulator)."""
+    rig = _Px4Rig(tmp_path, ["--imu-hz", "1000"], ["--fifo-priority", "20", "--transport-priority", "10"])
+    try:
+        assert len(rig.collect(200, 120.0)) >= 200, rig.bridge_err.read_text()[-2000:]
+        threads = threads_of(rig.bridge.pid)
+        rig.stop()
+    finally:
+        rig.close()
+    assert threads[rig.bridge.pid][1:] == (os.SCHED_FIFO, 20), threads
+    io = {tid: v for tid, v in threads.items() if v[0].startswith(ZENOH_IO_THREADS)}
+    assert any(v[0].startswith("rx-") for v in io.values()) and all(
+        v[1:] == (os.SCHED_FIFO, 10) for v in io.values()
+    ), threads
+    assert all(v[2] <= 20 for v in threads.values()), threads
 
 
 @pytest.mark.slow

@@ -13,39 +13,14 @@ import time
 
 import pytest
 
-from sitl.procs import Pair
+from sitl.procs import ZENOH_IO_THREADS, Pair, fifo_permitted, threads_of
 
 LOOP, TRANSPORT = 20, 10
-ZENOH_IO = ("rx-", "tx-", "net-", "acc-")
-"""Zenoh 1.10's I/O threads, by the names its runtimes give them."""
-
-
-def _fifo_permitted() -> bool:
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    except (OSError, AttributeError):
-        return False
-    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return True
 
 
 pytestmark = pytest.mark.skipif(
-    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE or an rtprio limit)"
+    not fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE or an rtprio limit)"
 )
-
-
-def _threads(pid: int) -> dict[int, tuple[str, int, int]]:
-    """``{tid: (name, policy, priority)}`` of a running process (threads ending meanwhile left out)."""
-    out = {}
-    for t in os.listdir(f"/proc/{pid}/task"):
-        tid = int(t)
-        try:
-            with open(f"/proc/{pid}/task/{t}/comm") as f:
-                name = f.read().strip()
-            out[tid] = (name, os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
-        except (ProcessLookupError, FileNotFoundError):
-            continue
-    return out
 
 
 def _flying(transport):
@@ -63,7 +38,7 @@ def test_the_transports_threads_run_fifo_below_the_loop_only_when_asked(tmp_path
         with pair.transport() as t:
             pair.until(_flying(t), 600.0, "the node flying its mission")
             time.sleep(0.5)  # a peer's tx/rx threads come when it connects: the test's own session connected too
-            seen = {"node": (pair.node.pid, _threads(pair.node.pid)), "sim": (pair.sim.pid, _threads(pair.sim.pid))}
+            seen = {"node": (pair.node.pid, threads_of(pair.node.pid)), "sim": (pair.sim.pid, threads_of(pair.sim.pid))}
         pair.wait(600.0)
     finally:
         pair.kill()
@@ -71,7 +46,7 @@ def test_the_transports_threads_run_fifo_below_the_loop_only_when_asked(tmp_path
         assert threads[pid][1:] == (os.SCHED_FIFO, LOOP), (who, threads[pid])  # the loop: its own priority
         others = {tid: v for tid, v in threads.items() if tid != pid}
         # Zenoh's I/O threads: reception (rx, which fills the loop's frame channel), transmission, network, acceptor
-        io = {tid: v for tid, v in others.items() if v[0].startswith(ZENOH_IO)}
+        io = {tid: v for tid, v in others.items() if v[0].startswith(ZENOH_IO_THREADS)}
         assert any(v[0].startswith("rx-") for v in io.values()), (who, others)
         want = (os.SCHED_FIFO, TRANSPORT) if asked else (os.SCHED_OTHER, 0)
         assert all(v[1:] == want for v in io.values()), (who, want, io)

@@ -32,6 +32,34 @@ def env() -> dict:
     return e
 
 
+ZENOH_IO_THREADS = ("rx-", "tx-", "net-", "acc-")
+"""Zenoh 1.10's I/O threads (reception, transmission, network, acceptor), by the names its runtimes give them."""
+
+
+def fifo_permitted() -> bool:
+    """Whether this process may take ``SCHED_FIFO`` (asked for a moment, then given back)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (OSError, AttributeError):
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+def threads_of(pid: int) -> dict[int, tuple[str, int, int]]:
+    """``{tid: (name, policy, priority)}`` of a running process's threads (those ending meanwhile left out)."""
+    out = {}
+    for t in os.listdir(f"/proc/{pid}/task"):
+        tid = int(t)
+        try:
+            with open(f"/proc/{pid}/task/{t}/comm") as f:
+                name = f.read().strip()
+            out[tid] = (name, os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+        except (ProcessLookupError, FileNotFoundError):
+            continue
+    return out
+
+
 class Pair:
     """A simulator (``omnirotor sim --serve``) and a node on a fresh port and namespace."""
 
