@@ -205,7 +205,7 @@ class _WakeSlot:
 
 
 class _Waker:
-    """Ends the blocking receives of a session at their time-outs (module docstring); one thread, started on use.
+    """Ends the blocking receives of a session at their time-outs (module docstring); one thread, from the first slot.
 
     A waiting subscriber arms its slot with its deadline (:meth:`arm`: no wake-up of this thread unless the deadline
     comes more than :data:`WAKE_TICK_S` before the thread's planned round); each round puts the marked empty sample
@@ -224,19 +224,24 @@ class _Waker:
         self._closed = False
 
     def slot(self, key: str) -> _WakeSlot:
-        """A new slot for a subscriber on ``key``."""
+        """A new slot for a subscriber on ``key``; the thread starts with the first (from the declaring thread).
+
+        Started at the declaration, not at the first wait: a real-time loop's first wait would start it at the
+        loop's priority, above the transport's (:func:`omnirotor.realtime.set_transport_priority`).
+        """
         s = _WakeSlot(key)
         self._slots.append(s)
+        with self._cond:
+            if self._thread is None and not self._closed:
+                self._thread = threading.Thread(target=self._run, name="omnirotor-zenoh-waker", daemon=True)
+                self._thread.start()
         return s
 
     def arm(self, slot: _WakeSlot, deadline: float) -> None:
         """``slot`` waits until ``deadline`` at the latest (ended up to :data:`WAKE_TICK_S` after it)."""
         slot.deadline = deadline
-        if deadline + WAKE_TICK_S < self._planned or self._thread is None:  # else the planned round is soon enough
+        if deadline + WAKE_TICK_S < self._planned:  # else the planned round is soon enough
             with self._cond:
-                if self._thread is None and not self._closed:
-                    self._thread = threading.Thread(target=self._run, name="omnirotor-zenoh-waker", daemon=True)
-                    self._thread.start()
                 self._cond.notify()
 
     def _run(self) -> None:
