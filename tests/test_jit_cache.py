@@ -340,6 +340,27 @@ def test_the_current_folders_of_every_module_beside_are_never_pruned(tmp_path: P
     assert kept - set(live) == set(stale[-_KEEP_CACHE_FOLDERS:])  # of the others, the newest few
 
 
+def test_switching_back_one_checkout_finds_every_control_folder(tmp_path: Path) -> None:
+    """The previous sources of every module of ``control`` (one folder per closure, at the command's level and the
+    library's) are all kept beside the current ones and older versions' folders: a checkout back compiles nothing."""
+    import omnirotor.control
+    from omnirotor._jit import _live_folders, _prune_cache_folders
+
+    control = Path(omnirotor.control.__file__).parent
+    base = tmp_path / "__pycache__"
+    base.mkdir()
+    current = sorted(_live_folders(str(control)))
+    previous = [f"deps-prev{k:015d}-o{level}v10" for k in range(len(current)) for level in (1, 3)]
+    older = [f"deps-old{k:016d}-o1v10" for k in range(8)]
+    for i, name in enumerate(older + previous + [f"{c}-o1v10" for c in current]):  # the older the first written
+        d = base / name
+        d.mkdir()
+        os.utime(d, ns=(i * 10**9, i * 10**9))
+    _prune_cache_folders(str(base), str(control))
+    kept = {f.name for f in base.glob("deps-*")}
+    assert set(previous) <= kept and not set(older) <= kept
+
+
 PAUSE_PROBE = """
 import gc, json
 import numba

@@ -214,8 +214,10 @@ def _signature_sources(arg_types) -> frozenset[Path | None]:
     return frozenset(found)
 
 
-_KEEP_CACHE_FOLDERS = 4
-"""Cache folders of other source versions (one per hash) kept beside each module's; older ones are removed."""
+_KEEP_CACHE_FOLDERS = 16
+"""Cache folders of other source versions (one per hash and setting) kept beside each package folder's current ones;
+older ones are removed. Sixteen hold the previous checkout of ``control`` whole (its eight closures at the command's
+and the library's levels), so switching back compiles nothing there (at four, nine kernels compiled again)."""
 
 
 def codegen_settings() -> str:
