@@ -339,15 +339,16 @@ class Transport(abc.ABC):
         _known(reptype)
         store = typestore()
         counts = ServeCounts()
-        cached: list = [None, b""]  # the last busy reply and its bytes
+        cached: list = [(None, b"")]  # the last busy reply and its bytes, one tuple: threads swap it whole
 
         def on_request(payload: bytes) -> bytes | None:
             try:
                 if busy is not None and (rep := busy(payload)) is not None:
                     counts.busy += 1
-                    if rep is not cached[0]:
-                        cached[:] = [rep, bytes(store.serialize_cdr(rep, reptype))]
-                    return cached[1]
+                    last = cached[0]
+                    if last[0] is not rep:
+                        last = cached[0] = (rep, bytes(store.serialize_cdr(rep, reptype)))
+                    return last[1]
                 req = store.deserialize_cdr(payload, reqtype)
                 out = bytes(store.serialize_cdr(handler(req), reptype))
             except Exception:  # noqa: BLE001  (a bad request or a failing handler: no reply, never a crash)
