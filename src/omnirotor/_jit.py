@@ -48,6 +48,7 @@ that of MuJoCo's profiler clock ``mjcb_time`` (:func:`mujoco_timer_address`), tr
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import hashlib
@@ -278,12 +279,10 @@ def _prune_extension_folders(deps_folder: str) -> None:
     Once per folder and process. Each is the cache of the module's kernels for one set of blocks from outside
     their closure (a user's or a test's, one version each); which are current cannot be told from here.
     """
-    try:
+    with contextlib.suppress(OSError):  # as in _prune_cache_folders: a cache, never an error
         folders = sorted(Path(deps_folder).glob("ext-*"), key=lambda f: f.stat().st_mtime_ns, reverse=True)
         for old in folders[_KEEP_EXTENSION_FOLDERS:]:
             _remove_folder(old)
-    except OSError:
-        pass  # as in _prune_cache_folders
 
 
 def _remove_folder(folder: Path) -> None:
